@@ -1,0 +1,62 @@
+# fohssv: the two commands are `make demo` and `make test`; both set everything up first
+# and are quick when the set-up already exists (stamps below).
+SHELL := /bin/bash
+.SHELLFLAGS := -eo pipefail -c
+PYTHON ?= python3
+VENV := .venv
+IN_ENV := scripts/in-env
+VENV_STAMP := $(VENV)/.fohssv-requirements
+BUILD_STAMP := ros2_ws/install/.fohssv-build
+# Package metadata and shipped data: a change here needs a colcon rebuild. Python sources
+# do not (the workspace is built with --symlink-install).
+PKG_INPUTS := $(wildcard src/*/package.xml src/*/setup.py src/*/setup.cfg src/*/resource/* \
+                src/*/config/* src/*/launch/*)
+PYTEST_ARGS ?=
+TEST_PATHS := src/fohssv_sim/test src/fohssv_controller/test tests
+
+.PHONY: setup test demo bench lint lock clean help
+.DEFAULT_GOAL := help
+
+help:
+	@echo "make demo   set up, then run the main job (closed loop over ROS 2, recorded)"
+	@echo "make test   set up, then lint and run every test"
+	@echo "make bench  set up, then run the benchmarks (results in bench/results/)"
+	@echo "make setup  only create the venv and build the colcon workspace"
+
+$(VENV_STAMP): requirements.txt constraints.txt
+	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 10) else "fohssv needs Python >= 3.10, found " + sys.version.split()[0])'
+	@test -x $(VENV)/bin/python || { echo "creating $(VENV)"; $(PYTHON) -m venv $(VENV); }
+	@echo "installing pinned requirements into $(VENV)"
+	$(VENV)/bin/python -m pip install --quiet --disable-pip-version-check \
+	    -r requirements.txt -c constraints.txt
+	@touch $(VENV)/COLCON_IGNORE   # colcon would otherwise find dozens of packages in venv/share
+	@touch $@
+
+$(BUILD_STAMP): $(VENV_STAMP) $(PKG_INPUTS)
+	@echo "building ros2_ws with colcon"
+	cd ros2_ws && ../$(IN_ENV) colcon --log-base log build --event-handlers console_cohesion- summary+
+	@touch $@
+
+setup: $(BUILD_STAMP)
+
+lint: setup
+	$(IN_ENV) ruff check src tests bench scripts
+
+test: setup
+	$(IN_ENV) ruff check src tests bench scripts
+	$(IN_ENV) python -m pytest $(TEST_PATHS) $(PYTEST_ARGS)
+
+demo: setup
+	$(IN_ENV) python scripts/demo.py
+
+bench: setup
+	@mkdir -p bench/results
+	$(IN_ENV) python scripts/bench.py --out-dir bench/results
+
+# Regenerate the transitive pins from the current venv.
+lock: $(VENV_STAMP)
+	{ echo "# Full transitive pins of the venv (pip freeze). Regenerate with 'make lock'."; \
+	  $(VENV)/bin/python -m pip freeze --disable-pip-version-check | grep -ivE '^(pip|wheel|setuptools)=='; } > constraints.txt
+
+clean:
+	rm -rf ros2_ws/build ros2_ws/install ros2_ws/log

@@ -1,0 +1,94 @@
+"""The controller contract: what any fohssv controller implements.
+
+A controller maps the plant's state to the two deflections, in rad::
+
+    class MyController(Controller):
+        name = 'my_controller'
+        Parameters = MyParameters            # a frozen dataclass (see below)
+
+        def update(self, t, state):          # state = [z, w, theta, q]
+            return delta_f, delta_c
+
+Rules for implementers:
+
+* ``update(t, state)`` returns ``(delta_f, delta_c)`` in rad and does no I/O. It is called at
+  every control sample (zero-order hold, as through ROS) or, in continuous mode, at every
+  solver stage; a controller with internal memory must set ``stateless = False`` so that
+  continuous mode, which calls it at intermediate stage times, refuses it.
+* ``reset()`` clears internal memory (called when the plant resets).
+* ``Parameters`` is a frozen dataclass whose fields are built with
+  :func:`fohssv_sim.params.spec_field` and validated by
+  :func:`fohssv_sim.params.validate_fields` in ``__post_init__``: each field has a name,
+  unit, range and description, which the ROS node turns into declared parameters and the
+  README into a table. Unknown or invalid values raise
+  :class:`fohssv_sim.params.ParameterError`.
+* The outputs are clamped to the deflection limits the parameters give, if they have
+  ``max_fin_deflection`` / ``max_cavitator_deflection`` fields (done by :meth:`command`).
+
+Nothing here imports rclpy: controllers are usable in notebooks, sweeps and the batch runner.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from typing import Any, ClassVar
+
+from fohssv_sim.params import ParameterError
+
+__all__ = ['Controller', 'ParameterError', 'clamp']
+
+
+def clamp(value: float, limit: float) -> float:
+    """``value`` limited to [-limit, limit]."""
+    return max(-limit, min(limit, value))
+
+
+class Controller(ABC):
+    """Base class of every controller; see the module docstring for the rules."""
+
+    #: Registered name (the entry point name in group ``fohssv.controllers``).
+    name: ClassVar[str] = ''
+    #: The parameter dataclass of this controller.
+    Parameters: ClassVar[type]
+    #: False when ``update`` keeps memory between calls (continuous mode is then refused).
+    stateless: ClassVar[bool] = True
+
+    def __init__(self, params: Any = None, **overrides: Any) -> None:
+        if params is None:
+            valid = {f.name for f in dataclasses.fields(self.Parameters)}
+            unknown = sorted(set(overrides) - valid)
+            if unknown:
+                raise ParameterError(
+                    f"{self.name}: unknown parameter(s) {', '.join(unknown)}; valid names: "
+                    f"{', '.join(sorted(valid))}")
+            params = self.Parameters(**overrides)
+        elif overrides:
+            params = dataclasses.replace(params, **overrides)
+        self.params = params
+        self.reset()
+
+    def reset(self) -> None:
+        """Clear internal memory (none by default)."""
+
+    @abstractmethod
+    def update(self, t: float, state: Sequence[float]) -> tuple[float, float]:
+        """Return ``(delta_f, delta_c)`` in rad for time ``t`` (s) and ``state``
+        [z, w, theta, q]."""
+
+    def command(self, t: float, state: Sequence[float]) -> tuple[float, float]:
+        """:meth:`update`, clamped to the parameters' deflection limits."""
+        df, dc = self.update(t, state)
+        p = self.params
+        lf = getattr(p, 'max_fin_deflection', math.inf)
+        lc = getattr(p, 'max_cavitator_deflection', math.inf)
+        return clamp(float(df), lf), clamp(float(dc), lc)
+
+    __call__ = command
+
+    def describe(self) -> str:
+        fields = ', '.join(f'{k}={v:g}' if isinstance(v, float) else f'{k}={v}'
+                           for k, v in dataclasses.asdict(self.params).items())
+        return f'{self.name}({fields})'

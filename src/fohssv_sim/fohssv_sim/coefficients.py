@@ -1,0 +1,119 @@
+"""Coefficients of the HSSV dive-plane model (spec section 3; paper eqs. 5-21, Appendix A).
+
+    d/dt [z, w, theta, q] = A x + B u + G + D Fp,     u = [delta_f, delta_c]
+
+with the nose as reference point (hence T, the inverse determinant of the mass matrix, in
+every coefficient), and the cavity quantities of eqs. 9-14.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .params import ModelParameters
+
+__all__ = ['Coefficients', 'coefficients']
+
+
+@dataclass(frozen=True)
+class Coefficients:
+    """Numbers derived from :class:`ModelParameters`; see :func:`coefficients`.
+
+    Scalars are plain floats (the plant's step evaluates them in float arithmetic);
+    ``A``, ``B``, ``G``, ``D`` are the matrices of eq. 17 as read-only numpy arrays.
+    """
+
+    V: float
+    L: float
+    R: float
+    g: float
+    C: float
+    S: float
+    T: float
+    a22: float
+    a24: float
+    a42: float
+    a44: float
+    b21: float
+    b22: float
+    b41: float
+    b42: float
+    d2: float
+    d4: float
+    K1: float
+    K2: float
+    Rc: float
+    Rc_dot: float
+    R_prime: float
+    w0: float
+    tau: float
+    k: float
+    A: np.ndarray
+    B: np.ndarray
+    G: np.ndarray
+    D: np.ndarray
+
+    @property
+    def contact_velocity(self) -> float:
+        """|w| at which the tail first touches the cavity wall in the delay-free model:
+        R'RV/L (m/s)."""
+        return self.R_prime * self.R * self.V / self.L
+
+
+def coefficients(p: ModelParameters) -> Coefficients:
+    """Evaluate every coefficient of spec section 3 for the parameters ``p``.
+
+    Exact fractions are used where the seed prints rounded decimals (0.18 -> 11/60,
+    0.328 -> 133/405, 0.7 -> 7/9, 0.2 -> 17/36 or 11/36).
+    """
+    V, L, R, Rn = p.speed, p.length, p.body_radius, p.cavitator_radius
+    m, n, sigma = p.density_ratio, p.fin_effectiveness, p.cavitation_number
+
+    Cx = p.cavitator_drag_coefficient * (1.0 + sigma)
+    C = 0.5 * Cx * Rn**2 / R**2
+    S = (11.0 / 60.0) * R**2 + (133.0 / 405.0) * L**2
+    T = 1.0 / ((7.0 / 9.0) * S - (17.0 / 36.0) ** 2 * L**2)
+
+    a22 = (C * V * T / m) * (-(1.0 + n) * S / L + (17.0 / 36.0) * n * L)
+    a24 = V * T * S * (7.0 / 9.0 - C * n / m) - V * T * (17.0 / 36.0 - C * n / m) * (
+        17.0 / 36.0) * L**2
+    a42 = (C * V * T / m) * (17.0 / 36.0 - 11.0 * n / 36.0)
+    a44 = -11.0 * C * V * T * n * L / (36.0 * m)
+    b21 = (C * V**2 * T * n / m) * (-S / L + 17.0 * L / 36.0)
+    b22 = -C * V**2 * T * S / (m * L)
+    b41 = -11.0 * C * V**2 * T * n / (36.0 * m)
+    b42 = 17.0 * C * V**2 * T / (36.0 * m)
+    d2 = (T / m) * (S / L - 17.0 * L / 36.0)
+    d4 = 11.0 * T / (36.0 * m)
+
+    # Cavity at the transom (eqs. 12-14) and its contraction rate (spec 9.4: negative).
+    closure = 1.92 / sigma - 3.0
+    K1 = L / (Rn * closure) - 1.0
+    shape = 1.0 - 4.5 * sigma / (1.0 + sigma)
+    K2 = math.sqrt(1.0 - shape * K1 ** (40.0 / 17.0))
+    radius_scale = math.sqrt(0.82 * (1.0 + sigma) / sigma)
+    Rc = Rn * radius_scale * K2
+    Rc_dot = -(20.0 / 17.0) * radius_scale * V * shape * K1 ** (23.0 / 17.0) / (K2 * closure)
+    R_prime = (Rc - R) / R
+
+    w0 = R_prime * R * V / L if p.planing_offset == 'consistent' else float(p.planing_offset)
+
+    A = np.array([[0.0, 1.0, -V, 0.0],
+                  [0.0, a22, 0.0, a24],
+                  [0.0, 0.0, 0.0, 1.0],
+                  [0.0, a42, 0.0, a44]])
+    B = np.array([[0.0, 0.0], [b21, b22], [0.0, 0.0], [b41, b42]])
+    G = np.array([0.0, p.gravity, 0.0, 0.0])
+    D = np.array([0.0, d2, 0.0, d4])
+    for arr in (A, B, G, D):
+        arr.setflags(write=False)
+
+    return Coefficients(
+        V=V, L=L, R=R, g=p.gravity, C=C, S=S, T=T,
+        a22=a22, a24=a24, a42=a42, a44=a44, b21=b21, b22=b22, b41=b41, b42=b42, d2=d2, d4=d4,
+        K1=K1, K2=K2, Rc=Rc, Rc_dot=Rc_dot, R_prime=R_prime, w0=w0, tau=p.delay,
+        k=p.tanh_sharpness, A=A, B=B, G=G, D=D,
+    )

@@ -1,0 +1,155 @@
+"""Batch runner: one closed-loop run in-process, no ROS.
+
+``simulate(plant, controller, duration, control_period=...)`` steps a :class:`~.models.Plant`
+under a controller either continuously (the controller evaluated at every solver stage, as in
+the paper) or through a zero-order hold over a control period (as through ROS, where the
+plant holds the last command). The ROS lockstep loop with the same control period reproduces
+this runner's trajectory exactly.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .models import Plant, make_plant
+from .params import ModelParameters
+
+__all__ = ['SimulationResult', 'simulate', 'steps_per_period']
+
+
+@dataclass
+class SimulationResult:
+    """Arrays sampled every ``sample_every`` steps (row i at time ``t[i]``).
+
+    ``inputs[i]`` is the (delta_f, delta_c) applied from ``t[i]`` on (held until the next
+    control sample in zero-order-hold mode; the controller's value at the state in continuous
+    mode). ``planing_force[i]`` is Fp at ``state[i]``.
+    """
+
+    t: np.ndarray
+    state: np.ndarray
+    planing_force: np.ndarray
+    inputs: np.ndarray
+    params: ModelParameters
+    control_period: float | None
+    controller: str
+    wall_time: float
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def step(self) -> float:
+        return self.params.step
+
+
+def steps_per_period(period: float, step: float, name: str = 'control_period') -> int:
+    """The whole number of integration steps in ``period``.
+
+    Raises:
+        ValueError: ``period`` is not a positive whole multiple of ``step`` (to 1e-9).
+    """
+    if not (math.isfinite(period) and period > 0):
+        raise ValueError(f'{name}={period!r} s must be a positive number of seconds')
+    k = round(period / step)
+    if k < 1 or abs(k * step - period) > 1e-9 * period:
+        raise ValueError(f'{name}={period:g} s must be a whole multiple of the integration '
+                         f'step {step:g} s (nearest: {max(k, 1) * step:g} s)')
+    return int(k)
+
+
+ControllerLike = Callable[[float, Sequence[float]], Sequence[float]]
+
+
+def simulate(plant: Plant | ModelParameters, controller: Any, duration: float, *,
+             control_period: float | None = None, initial_state: Sequence[float] | None = None,
+             sample_every: int = 1,
+             progress: Callable[[float], None] | None = None) -> SimulationResult:
+    """Run ``plant`` (a Plant, or ModelParameters to build one) under ``controller`` for
+    ``duration`` seconds from ``initial_state`` (default: the plant's, x(0) = 0).
+
+    Args:
+        controller: an object with ``command(t, state)`` (a
+            :class:`fohssv_controller.base.Controller`), or a callable ``(t, state) ->
+            (delta_f, delta_c)``, or ``None`` for zero input.
+        control_period: ``None`` = continuous feedback (evaluated at every solver stage); a
+            whole multiple of the step = zero-order hold over that period.
+        sample_every: keep every k-th step in the result.
+        progress: called with the fraction done, about every 1 %.
+
+    Raises:
+        ValueError: a bad duration, control period or sample interval; a stateful controller
+            in continuous mode.
+        FloatingPointError: the state turned non-finite (names the time and state).
+    """
+    if isinstance(plant, ModelParameters):
+        plant = make_plant(plant, initial_state)
+    else:
+        plant.reset(initial_state)
+    h = plant.h
+    if not (math.isfinite(duration) and duration > 0):
+        raise ValueError(f'duration={duration!r} s must be a positive number of seconds')
+    n_steps = int(math.ceil(duration / h - 1e-9))
+    if int(sample_every) != sample_every or sample_every < 1:
+        raise ValueError(f'sample_every={sample_every!r} must be a whole number >= 1')
+    sample_every = int(sample_every)
+
+    law, name = _law(controller)
+    if control_period is None:
+        if controller is not None and not getattr(controller, 'stateless', True):
+            raise ValueError(f'{name} keeps memory between calls; continuous mode evaluates '
+                             'it at solver stages: give a control_period (zero-order hold)')
+        hold = 0
+    else:
+        hold = steps_per_period(control_period, h)
+
+    n_rows = n_steps // sample_every + 1
+    t_out = np.empty(n_rows)
+    x_out = np.empty((n_rows, 4))
+    fp_out = np.empty(n_rows)
+    u_out = np.empty((n_rows, 2))
+
+    def record(row: int, u: Sequence[float]) -> None:
+        t_out[row] = plant.t
+        x_out[row] = plant._x
+        fp_out[row] = plant.planing_force
+        u_out[row] = u
+
+    report_every = max(1, n_steps // 100)
+    start = time.perf_counter()
+    u: Sequence[float] = (0.0, 0.0)
+    for n in range(n_steps + 1):
+        x = plant._x
+        if hold == 0:
+            u = law(plant.t, x)
+        elif n % hold == 0:
+            u = law(plant.t, x)
+            u = (float(u[0]), float(u[1]))
+        if n % sample_every == 0:
+            record(n // sample_every, u)
+        if n == n_steps:
+            break
+        plant.step(law if hold == 0 else u)
+        if progress is not None and n % report_every == 0:
+            progress(n / n_steps)
+    wall = time.perf_counter() - start
+    return SimulationResult(t=t_out, state=x_out, planing_force=fp_out, inputs=u_out,
+                            params=plant.params, control_period=control_period,
+                            controller=name, wall_time=wall,
+                            metadata={'steps': n_steps, 'sample_every': sample_every,
+                                      'initial_state': list(plant.initial_state)})
+
+
+def _law(controller: Any) -> tuple[ControllerLike, str]:
+    if controller is None:
+        return (lambda t, x: (0.0, 0.0)), 'none'
+    if hasattr(controller, 'command'):
+        describe = getattr(controller, 'describe', None)
+        return controller.command, describe() if describe else type(controller).__name__
+    if callable(controller):
+        return controller, getattr(controller, '__name__', 'callable')
+    raise ValueError(f'controller={controller!r} is neither a Controller nor a callable')

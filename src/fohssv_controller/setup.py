@@ -23,10 +23,12 @@ setup(
         # Third-party packages register theirs in the same group.
         'fohssv.controllers': [
             'state_feedback = fohssv_controller.state_feedback:StateFeedback',
+            'lqr = fohssv_controller.lqr:LQR',
         ],
         'console_scripts': [
             'controller = fohssv_controller.ros.controller_node:main',
             'state_feedback = fohssv_controller.ros.controller_node:main_state_feedback',
+            'lqr = fohssv_controller.ros.controller_node:main_lqr',
         ],
     },
 )

@@ -22,6 +22,9 @@ setup(
     entry_points={
         'console_scripts': [
             'plant = fohssv_sim.ros.plant_node:main',
+            'recorder = fohssv_sim.ros.recorder_node:main',
+            'player = fohssv_sim.ros.player_node:main',
+            'fohssv = fohssv_sim.cli:main',
         ],
     },
 )

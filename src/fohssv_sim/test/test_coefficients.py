@@ -1,0 +1,62 @@
+"""Coefficients against the spec section 6 table (an independent derivation)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from fohssv_sim.coefficients import coefficients
+from fohssv_sim.params import ModelParameters
+
+# spec section 6, L = 1.8: quantity -> (V = 75, V = 84.5)
+SPEC_TABLE = {
+    'C': (0.0596981, 0.0596981),
+    'S': (1.064473, 1.064473),
+    'T': (9.485546, 9.485546),
+    'a22': (-9.81188, -11.05472),
+    'a24': (79.94277, 90.06885),
+    'a42': (6.78343, 7.64267),
+    'a44': (-5.83965, -6.57934),
+    'b21': (205.948, 261.426),
+    'b22': (-941.841, -1195.552),
+    'b41': (-243.319, -308.863),
+    'b42': (752.076, 954.669),
+    'd2': (-1.22660, -1.22660),
+    'd4': (1.44918, 1.44918),
+    'K1': (0.544932, 0.544932),
+    'K2': (0.889795, 0.889795),
+    'Rc': (0.0901755, 0.0901755),
+    'R_prime': (0.775108, 0.775108),
+    'Rc_dot': (-3.29655, -3.71411),
+    'w0': (1.64064, 1.84846),
+    'tau': (0.024000, 0.021302),
+}
+
+
+@pytest.mark.parametrize('column,speed', [(0, 75.0), (1, 84.5)])
+@pytest.mark.parametrize('name', sorted(SPEC_TABLE))
+def test_coefficient_matches_spec_to_five_significant_digits(name, column, speed):
+    c = coefficients(ModelParameters(speed=speed))
+    expected = SPEC_TABLE[name][column]
+    # five significant digits: within half a unit of the fifth digit
+    half_unit = 0.5 * 10.0 ** (math.floor(math.log10(abs(expected))) - 4)
+    assert abs(getattr(c, name) - expected) <= half_unit
+
+
+def test_open_loop_eigenvalues_at_75():
+    eig = np.sort_complex(np.linalg.eigvals(coefficients(ModelParameters()).A))
+    assert np.allclose(eig, np.sort_complex(np.array([-31.197, 0, 0, 15.546])), atol=1e-3)
+
+
+def test_consistent_w0_is_the_contact_velocity_and_numeric_w0_is_kept():
+    c = coefficients(ModelParameters())
+    assert c.w0 == pytest.approx(c.R_prime * c.R * c.V / c.L, rel=1e-15)
+    assert coefficients(ModelParameters(planing_offset=2.8)).w0 == 2.8
+
+
+def test_matrices_hold_the_scalars():
+    c = coefficients(ModelParameters(speed=84.5))
+    assert c.A[0, 2] == -84.5 and c.A[1, 1] == c.a22 and c.A[3, 3] == c.a44
+    assert c.B[1, 0] == c.b21 and c.B[3, 1] == c.b42 and c.D[1] == c.d2 and c.G[1] == 9.81
+    with pytest.raises(ValueError):
+        c.A[0, 0] = 1.0   # read-only

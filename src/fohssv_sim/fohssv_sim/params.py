@@ -162,8 +162,8 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
        low=0.0, high=1.0, high_open=False, reference='eq. 26'),
     # -- Table A1 ---------------------------------------------------------------------------
     _P('speed', 'V', 75.0, 'm/s', 'forward speed', low=0.0, reference='Table A1'),
-    _P('length', 'L', 1.8, 'm', 'body length (Table A1 prints 1.18; spec 9.1)', low=0.0,
-       reference='Table A1'),
+    _P('length', 'L', 1.8, 'm', 'body length (Table A1 prints 1.18)', low=0.0,
+       reference='Table A1, spec 9.1'),
     _P('body_radius', 'R', 0.0508, 'm', 'body radius', low=0.0, reference='Table A1'),
     _P('cavitator_radius', 'Rn', 0.0191, 'm', 'cavitator radius', low=0.0,
        reference='Table A1'),

@@ -1,0 +1,381 @@
+"""Load a recorded run from a rosbag2 bag (MCAP storage) into numpy arrays, without rclpy.
+
+The MCAP file is read sequentially (``mcap.stream_reader.StreamReader``, chunk and data CRCs
+checked), so a bag whose recorder was killed (no summary, no footer, no ``metadata.yaml``)
+loads too: everything up to the last complete chunk is recovered, and
+:attr:`Run.recovery` says how much. :func:`scan` gives the raw records (used by the player
+and the repair command); :func:`load_run` decodes the contract topics.
+
+Accepted paths: a bag directory (with or without ``metadata.yaml``), its ``metadata.yaml``,
+or an ``.mcap`` file.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from mcap.exceptions import McapError
+from mcap.records import Channel, DataEnd, Footer, Header, Message, Metadata, Schema
+from mcap.stream_reader import CRCValidationError, StreamReader
+from ruamel.yaml import YAML
+from ruamel.yaml.error import YAMLError
+
+from .. import contract
+from .writer import METADATA_NAME, typestore
+
+__all__ = ['BagError', 'BagFiles', 'ChannelInfo', 'Scan', 'Run', 'locate', 'scan', 'load_run',
+           'decode_metadata']
+
+MCAP_MAGIC = b'\x89MCAP0\r\n'
+
+
+class BagError(Exception):
+    """The path is not a readable bag. The message names the file and what is wrong."""
+
+
+@dataclass(frozen=True)
+class BagFiles:
+    """Where a bag's pieces are: its directory, ``metadata.yaml`` (if any) and MCAP files."""
+
+    directory: Path
+    metadata_yaml: Path | None
+    mcap_files: tuple[Path, ...]
+    info: dict[str, Any] | None     # rosbag2_bagfile_information from metadata.yaml
+
+
+@dataclass(frozen=True)
+class ChannelInfo:
+    """One MCAP channel with its schema."""
+
+    id: int
+    topic: str
+    msgtype: str
+    message_encoding: str
+    schema_encoding: str
+    schema: str
+    metadata: dict[str, str]
+
+
+@dataclass
+class Scan:
+    """Everything readable in a bag, in file order."""
+
+    files: BagFiles
+    channels: dict[int, ChannelInfo] = field(default_factory=dict)
+    #: (channel id, log time ns, serialized data) in file (= receive) order.
+    messages: list[tuple[int, int, bytes]] = field(default_factory=list)
+    #: (name, key-value map) of every MCAP metadata record.
+    metadata_records: list[tuple[str, dict[str, str]]] = field(default_factory=list)
+    header_library: str = ''
+    #: True when every MCAP file ends with its footer and magic.
+    complete: bool = True
+    #: '' when complete; otherwise what stopped the reading and where.
+    problem: str = ''
+    bytes_read: int = 0
+    bytes_total: int = 0
+
+    def counts(self) -> dict[str, int]:
+        """Messages per topic (channels with no message included, as 0)."""
+        out = {c.topic: 0 for c in self.channels.values()}
+        for cid, _, _ in self.messages:
+            out[self.channels[cid].topic] += 1
+        return out
+
+    def run_metadata(self) -> dict[str, Any]:
+        """The run's metadata: ``metadata.yaml`` custom_data overlaid by the MCAP
+        ``fohssv`` records, JSON values decoded."""
+        merged: dict[str, str] = {}
+        if self.files.info is not None:
+            merged.update(self.files.info.get('custom_data') or {})
+        for name, values in self.metadata_records:
+            if name == METADATA_NAME:
+                merged.update(values)
+        return decode_metadata(merged)
+
+
+@dataclass
+class Run:
+    """A recorded run as arrays. Times in s (``data[0]`` of each message, exact doubles);
+    ``log_time`` holds each topic's log times in ns (the simulation time the recorder
+    logged)."""
+
+    path: Path
+    t: np.ndarray                   # (N,) state times
+    state: np.ndarray               # (N, 4) z, w, theta, q
+    planing_force_t: np.ndarray
+    planing_force: np.ndarray
+    command_t: np.ndarray
+    delta_f: np.ndarray
+    delta_c: np.ndarray
+    clock_t: np.ndarray             # /clock times (s)
+    metadata: dict[str, Any]
+    topics: dict[str, int]          # recorded topic name -> messages read
+    log_time: dict[str, np.ndarray]  # contract topic name -> log times (ns)
+    rejected: dict[str, int]        # contract topic name -> messages not fitting the contract
+    truncated: bool
+    recovery: str                   # '' for a complete bag, else what was recovered
+
+    @property
+    def parameters(self) -> dict[str, Any]:
+        """The plant's parameters recorded with the run ({} if unknown)."""
+        value = self.metadata.get('fohssv.plant_parameters')
+        return value if isinstance(value, dict) else {}
+
+
+def decode_metadata(values: dict[str, str]) -> dict[str, Any]:
+    """Decode JSON-encoded values (objects and arrays); leave plain strings as they are."""
+    out: dict[str, Any] = {}
+    for key, value in values.items():
+        if isinstance(value, str) and value[:1] in '{[':
+            try:
+                out[key] = json.loads(value)
+                continue
+            except ValueError:
+                pass
+        out[key] = value
+    return out
+
+
+def _read_metadata_yaml(path: Path) -> dict[str, Any]:
+    try:
+        text = path.read_text('utf8')
+    except (OSError, UnicodeDecodeError) as exc:
+        raise BagError(f'{path}: cannot read metadata.yaml ({exc})') from None
+    try:
+        data = YAML(typ='safe', pure=True).load(text)
+    except YAMLError as exc:
+        raise BagError(f'{path}: metadata.yaml is not valid YAML ({str(exc).splitlines()[0]}); '
+                       f'rebuild it with: python -m fohssv_sim.bag repair {path.parent}'
+                       ) from None
+    info = data.get('rosbag2_bagfile_information') if isinstance(data, dict) else None
+    if not isinstance(info, dict):
+        raise BagError(f'{path}: not a rosbag2 metadata.yaml (no rosbag2_bagfile_information)')
+    return info
+
+
+def _check_mcap_file(path: Path) -> None:
+    try:
+        size = path.stat().st_size
+        with path.open('rb') as f:
+            head = f.read(len(MCAP_MAGIC))
+    except OSError as exc:
+        raise BagError(f'{path}: cannot read ({exc.strerror})') from None
+    if size == 0:
+        raise BagError(f'{path}: empty file (0 bytes), not an MCAP bag')
+    if head != MCAP_MAGIC[:len(head)] or (len(head) < len(MCAP_MAGIC)):
+        if head == MCAP_MAGIC[:len(head)]:
+            raise BagError(f'{path}: truncated MCAP file ({size} bytes, shorter than its '
+                           'header); nothing to recover')
+        raise BagError(f'{path}: not an MCAP file (it does not start with the MCAP magic)')
+
+
+def locate(path: str | Path) -> BagFiles:
+    """Find a bag's ``metadata.yaml`` and MCAP files.
+
+    Raises:
+        BagError: missing path, empty directory, not a bag, non-MCAP storage.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise BagError(f'{p}: no such file or directory')
+    if p.is_file():
+        if p.name == 'metadata.yaml':
+            return locate(p.parent)
+        _check_mcap_file(p)
+        return BagFiles(p.parent, None, (p,), None)
+    if not p.is_dir():
+        raise BagError(f'{p}: neither a file nor a directory')
+    try:
+        entries = sorted(p.iterdir())
+    except OSError as exc:
+        raise BagError(f'{p}: cannot list the directory ({exc.strerror})') from None
+    if not entries:
+        raise BagError(f'{p}: empty directory, not a bag (no metadata.yaml, no .mcap file)')
+    meta = p / 'metadata.yaml'
+    info = _read_metadata_yaml(meta) if meta.is_file() else None
+    if info is not None:
+        storage = str(info.get('storage_identifier', ''))
+        if storage != 'mcap':
+            raise BagError(f'{meta}: storage {storage!r} is not supported (only mcap)')
+        rel = info.get('relative_file_paths') or []
+        files = tuple(p / str(r) for r in rel)
+        missing = [f.name for f in files if not f.is_file()]
+        if missing or not files:
+            found = [e.name for e in entries if e.suffix == '.mcap']
+            if not found:
+                raise BagError(f'{p}: metadata.yaml lists {missing or "no files"} but the '
+                               'directory holds no .mcap file')
+            files = tuple(p / n for n in found)
+    else:
+        files = tuple(e for e in entries if e.suffix == '.mcap' and e.is_file())
+        if not files:
+            raise BagError(f'{p}: not a bag (no metadata.yaml and no .mcap file in it)')
+    for f in files:
+        _check_mcap_file(f)
+    return BagFiles(p, meta if info is not None else None, files, info)
+
+
+def scan(path: str | Path) -> Scan:
+    """Read every record of the bag that can be read.
+
+    A truncated or corrupt MCAP file does not raise: reading stops at the first incomplete or
+    corrupt record, ``complete`` is False and ``problem`` says where.
+
+    Raises:
+        BagError: see :func:`locate`; also an MCAP file with no readable record at all.
+    """
+    files = locate(path)
+    result = Scan(files=files)
+    for mcap_path in files.mcap_files:
+        schemas: dict[int, Schema] = {}
+        data = mcap_path.read_bytes()
+        result.bytes_total += len(data)
+        stream = io.BytesIO(data)
+        reader = StreamReader(stream, validate_crcs=True)
+        saw_footer = False
+        good = 0  # offset after the last complete top-level record
+        ids: dict[int, int] = {}  # channel id in this file -> id in result
+        try:
+            for record in reader.records:
+                if isinstance(record, Header):
+                    result.header_library = record.library
+                elif isinstance(record, Schema):
+                    schemas[record.id] = record
+                elif isinstance(record, Channel):
+                    schema = schemas.get(record.schema_id)
+                    msgtype = schema.name if schema else ''
+                    cid = next((c.id for c in result.channels.values()
+                                if (c.topic, c.msgtype) == (record.topic, msgtype)),
+                               len(result.channels) + 1)
+                    ids[record.id] = cid
+                    if cid not in result.channels:
+                        result.channels[cid] = ChannelInfo(
+                            cid, record.topic, msgtype,
+                            record.message_encoding, schema.encoding if schema else '',
+                            schema.data.decode('utf8', 'replace') if schema else '',
+                            dict(record.metadata))
+                elif isinstance(record, Message):
+                    if record.channel_id not in ids:
+                        raise _Corrupt(f'message on unknown channel {record.channel_id}')
+                    result.messages.append((ids[record.channel_id], record.log_time,
+                                            bytes(record.data)))
+                elif isinstance(record, Metadata):
+                    result.metadata_records.append((record.name, dict(record.metadata)))
+                elif isinstance(record, Footer):
+                    saw_footer = True
+                elif isinstance(record, DataEnd):
+                    pass
+                good = stream.tell()
+        except CRCValidationError as exc:
+            result.problem = f'{mcap_path}: corrupt data at byte {good} ({exc})'
+        except _Corrupt as exc:
+            result.problem = f'{mcap_path}: corrupt data at byte {good} ({exc})'
+        except (McapError, struct.error, EOFError, ValueError, UnicodeDecodeError) as exc:
+            kind = type(exc).__name__
+            result.problem = (f'{mcap_path}: truncated or corrupt after byte {good} of '
+                              f'{len(data)} ({kind}{": " + str(exc) if str(exc) else ""})')
+        result.bytes_read += good if not saw_footer else len(data)
+        if not saw_footer:
+            result.complete = False
+            if not result.problem:
+                result.problem = f'{mcap_path}: no footer after byte {good} of {len(data)}'
+    if not result.channels and not result.complete:
+        raise BagError(f'{result.problem}; no channel could be read, nothing to recover')
+    return result
+
+
+class _Corrupt(Exception):
+    pass
+
+
+def _basename(topic: str) -> str:
+    return topic.rstrip('/').rsplit('/', 1)[-1]
+
+
+def _pick_channels(sc: Scan, name: str, namespace: str | None) -> list[int]:
+    if name.startswith('/'):
+        return [c.id for c in sc.channels.values() if c.topic == name]
+    if namespace is not None:
+        full = namespace.rstrip('/') + '/' + name
+        return [c.id for c in sc.channels.values() if c.topic == full]
+    ids = [c.id for c in sc.channels.values() if _basename(c.topic) == name]
+    topics = sorted({sc.channels[i].topic for i in ids})
+    if len(topics) > 1:
+        raise BagError(f'{sc.files.directory}: several {name!r} topics {topics}; '
+                       'give the namespace')
+    return ids
+
+
+def load_run(path: str | Path, *, namespace: str | None = None) -> Run:
+    """Load a recorded run: the contract topics as arrays, plus the run metadata.
+
+    Args:
+        path: bag directory, its metadata.yaml, or an .mcap file.
+        namespace: the vehicle's namespace when the bag holds several (default: the only
+            ``state`` topic, wherever it is).
+
+    Raises:
+        BagError: missing, empty, not a bag, unreadable, or truncated before any channel.
+    """
+    sc = scan(path)
+    ts = typestore()
+    arrays: dict[str, list[np.ndarray]] = {}
+    logs: dict[str, list[int]] = {}
+    rejected: dict[str, int] = {}
+    for topic in (contract.STATE, contract.PLANING_FORCE, contract.COMMAND):
+        ids = set(_pick_channels(sc, topic.name, namespace))
+        rows: list[np.ndarray] = []
+        times: list[int] = []
+        bad = 0
+        for cid, log_time, raw in sc.messages:
+            if cid not in ids:
+                continue
+            chan = sc.channels[cid]
+            if chan.msgtype != topic.type:
+                raise BagError(f'{sc.files.directory}: topic {chan.topic} has type '
+                               f'{chan.msgtype}, the contract says {topic.type}')
+            try:
+                values = ts.deserialize_cdr(raw, topic.type).data
+                rows.append(np.asarray(contract.decode(topic, values)))
+                times.append(log_time)
+            except (contract.ContractError, ValueError, IndexError, struct.error):
+                bad += 1
+        arrays[topic.name] = rows
+        logs[topic.name] = times
+        rejected[topic.name] = bad
+    clock_ids = set(_pick_channels(sc, contract.CLOCK.name, None))
+    clock_t = []
+    for cid, _, raw in sc.messages:
+        if cid in clock_ids:
+            try:
+                c = ts.deserialize_cdr(raw, contract.CLOCK.type).clock
+            except (ValueError, IndexError, struct.error):
+                continue
+            clock_t.append(c.sec + c.nanosec * 1e-9)
+
+    def table(name: str, width: int) -> np.ndarray:
+        rows = arrays[name]
+        return np.vstack(rows) if rows else np.empty((0, width))
+
+    st = table(contract.STATE.name, 5)
+    fp = table(contract.PLANING_FORCE.name, 2)
+    cmd = table(contract.COMMAND.name, 3)
+    recovery = ''
+    if not sc.complete:
+        n = len(sc.messages)
+        recovery = (f'recovered {n} messages ({st.shape[0]} states, last t = '
+                    f'{st[-1, 0] if st.shape[0] else float("nan"):.9g} s) from the first '
+                    f'{sc.bytes_read} of {sc.bytes_total} bytes; {sc.problem}')
+    return Run(path=Path(path), t=st[:, 0].copy(), state=st[:, 1:].copy(),
+               planing_force_t=fp[:, 0].copy(), planing_force=fp[:, 1].copy(),
+               command_t=cmd[:, 0].copy(), delta_f=cmd[:, 1].copy(), delta_c=cmd[:, 2].copy(),
+               clock_t=np.asarray(clock_t, dtype=float), metadata=sc.run_metadata(),
+               topics=sc.counts(),
+               log_time={k: np.asarray(v, dtype=np.int64) for k, v in logs.items()},
+               rejected=rejected, truncated=not sc.complete, recovery=recovery)

@@ -1,0 +1,220 @@
+"""Write a run to a rosbag2 bag (metadata version 9, MCAP storage) that survives a SIGKILL.
+
+:class:`RunWriter` is the rosbags :class:`~rosbags.rosbag2.Writer` (which owns the connections
+and writes ``metadata.yaml`` in the version 9 layout that ``ros2 bag info`` reads) with its
+MCAP storage replaced by one built on the ``mcap`` library, because rosbags' own MCAP storage
+fixes the chunk size at 1 MiB, has no flush, writes no chunk CRCs and cannot add a metadata
+record. The replacement writes what rosbag2's MCAP storage writes (profile ``ros2``, schemas in
+``ros2msg``, channels with ``offered_qos_profiles`` and ``topic_type_hash`` metadata, the
+``rosbag2`` metadata record with the serialized bag information at close) plus:
+
+* chunk CRCs and a data section CRC, so :mod:`.check` can verify every byte;
+* :meth:`RunWriter.flush`: ends the chunk in progress and hands it to the OS. A process
+  killed with SIGKILL loses only what it received after its last flush (see
+  ``docs/recording.md`` for the bound the recorder guarantees);
+* :meth:`RunWriter.add_metadata`: an MCAP metadata record written at once (outside any chunk),
+  so the run's metadata survives a SIGKILL. The same keys go into ``metadata.yaml``
+  ``custom_data`` at close.
+
+Pure module: no rclpy.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any
+
+from mcap.writer import CompressionType
+from mcap.writer import Writer as McapFileWriter
+from rosbags.interfaces import Connection, MessageDefinitionFormat, Qos
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+
+__all__ = ['RunWriter', 'METADATA_NAME', 'DEFAULT_CHUNK_SIZE', 'typestore', 'encode_metadata',
+           'library_versions']
+
+#: Name of the MCAP metadata records that carry the run's metadata.
+METADATA_NAME = 'fohssv'
+#: Upper bound of one chunk's uncompressed size (bytes); a chunk also ends at every flush.
+DEFAULT_CHUNK_SIZE = 64 * 1024
+
+_TYPESTORE = None
+
+
+def typestore():
+    """The rosbags typestore used to describe and decode messages (ROS 2 Kilted)."""
+    global _TYPESTORE
+    if _TYPESTORE is None:
+        _TYPESTORE = get_typestore(Stores.ROS2_KILTED)
+    return _TYPESTORE
+
+
+def _version(dist: str) -> str:
+    try:
+        return version(dist)
+    except PackageNotFoundError:
+        return 'unknown'
+
+
+def library_versions() -> str:
+    """The MCAP header's library string: who wrote the file."""
+    return (f"fohssv_sim {_version('fohssv_sim')}; rosbags {_version('rosbags')}; "
+            f"mcap {_version('mcap')}")
+
+
+def encode_metadata(values: Mapping[str, Any]) -> dict[str, str]:
+    """Metadata values as the strings MCAP and ``custom_data`` require: strings as they are,
+    everything else as JSON (decoded again by the loader)."""
+    return {str(k): v if isinstance(v, str) else json.dumps(v, sort_keys=True)
+            for k, v in values.items()}
+
+
+class _McapStorage:
+    """rosbags storage plugin writing MCAP with the ``mcap`` library (see module docstring)."""
+
+    chunk_size = DEFAULT_CHUNK_SIZE
+
+    def __init__(self, path: Path, compression: Any) -> None:
+        _ = compression  # the bag is written uncompressed (small messages, flushed often)
+        self.path = path / f'{path.name}.mcap'
+        self._file = self.path.open('xb')
+        self._mcap = McapFileWriter(self._file, chunk_size=self.chunk_size,
+                                    compression=CompressionType.NONE, enable_crcs=True,
+                                    enable_data_crcs=True)
+        self._mcap.start(profile='ros2', library=library_versions())
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[int, int] = {}
+        self._sequence: dict[int, int] = {}
+
+    def add_msgtype(self, connection: Connection) -> None:
+        fmt = 'ros2idl' if connection.msgdef.format == MessageDefinitionFormat.IDL else 'ros2msg'
+        self._schemas[connection.msgtype] = self._mcap.register_schema(
+            connection.msgtype, fmt, connection.msgdef.data.encode())
+
+    def add_connection(self, connection: Connection, offered_qos_profiles: str) -> None:
+        ext = connection.ext
+        self._channels[connection.id] = self._mcap.register_channel(
+            connection.topic, getattr(ext, 'serialization_format', 'cdr'),
+            self._schemas[connection.msgtype],
+            {'offered_qos_profiles': offered_qos_profiles, 'topic_type_hash': connection.digest})
+        self._sequence[connection.id] = 0
+
+    def write(self, connection: Connection, timestamp: int, data: bytes | memoryview) -> None:
+        self._sequence[connection.id] += 1
+        self._mcap.add_message(self._channels[connection.id], log_time=timestamp,
+                               data=bytes(data), publish_time=timestamp,
+                               sequence=self._sequence[connection.id] & 0xFFFFFFFF)
+
+    def add_metadata(self, name: str, values: Mapping[str, str]) -> None:
+        self._mcap.add_metadata(name, dict(values))
+        self._file.flush()
+
+    def flush(self) -> None:
+        self._mcap.flush()
+
+    def close(self, version: int, metadata: str) -> None:
+        _ = version
+        self._mcap.add_metadata('rosbag2', {'serialized_metadata': metadata})
+        self._mcap.finish()
+        self._file.close()
+
+    def abort(self) -> None:
+        self._mcap.flush()
+        self._file.close()
+
+
+def _rosbag2_writer(path: Path, chunk_size: int) -> Writer:
+    """A rosbags Writer whose MCAP storage is :class:`_McapStorage` with ``chunk_size``."""
+    storage = type('_McapStorageSized', (_McapStorage,), {'chunk_size': chunk_size})
+    writer_cls = type('_Rosbag2Writer', (Writer,),
+                      {'STORAGE_PLUGINS': {**Writer.STORAGE_PLUGINS, StoragePlugin.MCAP: storage}})
+    return writer_cls(path, version=9, storage_plugin=StoragePlugin.MCAP)
+
+
+class RunWriter:
+    """A rosbag2 bag (version 9, MCAP) being written. Use as a context manager or call
+    :meth:`open` / :meth:`close`.
+
+    Args:
+        path: the bag directory to create (must not exist); the MCAP file is
+            ``<path>/<path name>.mcap``.
+        chunk_size: a chunk ends when its uncompressed size exceeds this (bytes).
+
+    Raises:
+        rosbags.rosbag2.WriterError: ``path`` exists already.
+    """
+
+    def __init__(self, path: str | Path, *, chunk_size: int = DEFAULT_CHUNK_SIZE) -> None:
+        self.path = Path(path)
+        self.chunk_size = int(chunk_size)
+        if self.chunk_size < 1:
+            raise ValueError(f'chunk_size={chunk_size!r} must be a positive number of bytes')
+        self._bag = _rosbag2_writer(self.path, self.chunk_size)
+        self._connections: dict[str, Connection] = {}
+        self.counts: dict[str, int] = {}
+        self._metadata: dict[str, str] = {}
+
+    @property
+    def mcap_path(self) -> Path:
+        return self.path / f'{self.path.name}.mcap'
+
+    def open(self) -> RunWriter:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._bag.open()
+        return self
+
+    def __enter__(self) -> RunWriter:
+        return self.open()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def add_topic(self, topic: str, msgtype: str, *, qos: Sequence[Qos] = (),
+                  msgdef: str | None = None, rihs01: str | None = None) -> None:
+        """Declare ``topic`` of type ``msgtype`` (description from the Kilted typestore unless
+        ``msgdef`` and ``rihs01`` are given)."""
+        if msgdef is None or rihs01 is None:
+            conn = self._bag.add_connection(topic, msgtype, typestore=typestore(),
+                                            offered_qos_profiles=qos)
+        else:
+            conn = self._bag.add_connection(topic, msgtype, msgdef=msgdef, rihs01=rihs01,
+                                            offered_qos_profiles=qos)
+        self._connections[topic] = conn
+        self.counts[topic] = 0
+
+    @property
+    def topics(self) -> tuple[str, ...]:
+        return tuple(self._connections)
+
+    def write(self, topic: str, log_time: int, data: bytes | memoryview) -> None:
+        """Write one serialized (CDR) message of ``topic`` at ``log_time`` (ns)."""
+        self._bag.write(self._connections[topic], int(log_time), data)
+        self.counts[topic] += 1
+
+    def add_metadata(self, values: Mapping[str, Any]) -> None:
+        """Write ``values`` now as an MCAP metadata record named :data:`METADATA_NAME` and keep
+        them for ``metadata.yaml`` ``custom_data`` (non-string values are stored as JSON)."""
+        encoded = encode_metadata(values)
+        self._metadata.update(encoded)
+        self._storage().add_metadata(METADATA_NAME, encoded)
+
+    def flush(self) -> None:
+        """End the chunk in progress (if any) and hand everything written to the OS."""
+        self._storage().flush()
+
+    def close(self) -> None:
+        """Write the summary, the index and ``metadata.yaml``. Idempotent."""
+        if self._bag.storage is None:
+            return
+        for key, value in self._metadata.items():
+            self._bag.set_custom_data(key, value)
+        self._bag.close()
+
+    def _storage(self) -> _McapStorage:
+        storage = self._bag.storage
+        if storage is None:
+            raise RuntimeError(f'{self.path}: the bag is not open')
+        return storage  # type: ignore[return-value]

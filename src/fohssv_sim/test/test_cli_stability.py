@@ -1,0 +1,49 @@
+"""`fohssv stability` as a user runs it: the installed console script, real files."""
+
+import json
+import math
+import subprocess
+from pathlib import Path
+
+import numpy as np
+from ament_index_python.packages import get_package_prefix
+from test_equilibria import analytic_jacobian, reduced_equilibrium
+
+FOHSSV = Path(get_package_prefix('fohssv_sim')) / 'lib' / 'fohssv_sim' / 'fohssv'
+
+
+def run(*args):
+    return subprocess.run([str(FOHSSV), *args], capture_output=True, text=True, timeout=120)
+
+
+def test_stability_reports_alpha_c_of_the_eigenvalue_formula_and_draws_the_wedge(tmp_path):
+    out = run('stability', '--set', 'speed=84.5', '--set', 'planing_form=exact',
+              '--alpha', '0.7', '--speeds', '75,84.5', '--out', str(tmp_path))
+    assert out.returncode == 0, out.stderr
+    c, x = reduced_equilibrium(84.5)
+    lam = np.linalg.eigvals(analytic_jacobian(c, x))
+    alpha_c = min(abs(math.atan2(v.imag, v.real)) for v in lam) / (math.pi / 2)
+    data = json.loads((tmp_path / 'stability.json').read_text())
+    (eq,) = data['equilibria']
+    assert np.allclose(eq['state'], x, rtol=1e-8, atol=1e-12)
+    assert abs(eq['critical_order'] - alpha_c) < 1e-6
+    assert eq['stable'] == (0.7 < alpha_c)
+    assert abs(data['critical_order_curve'][1][1] - alpha_c) < 1e-6
+    for name in ('wedge_V84.5_alpha0.7_eq0.png', 'wedge_V84.5_alpha0.7_eq0.svg',
+                 'critical_order.png'):
+        f = tmp_path / name
+        assert f.stat().st_size > 5000
+    assert (tmp_path / 'wedge_V84.5_alpha0.7_eq0.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    assert f'alpha_c = {alpha_c:.5f}' in out.stdout
+
+
+def test_bad_input_is_one_line_and_exit_2(tmp_path):
+    for args, text in [(('--set', 'speed=-1'), 'speed=-1.0 is outside'),
+                       (('--controller', 'pid'), 'valid: '),
+                       (('--gain', 'depth_gain'), 'name=value'),
+                       (('--alpha', '1.5'), '(0, 1]'),
+                       (('--speeds', '90:75:1'), 'start:stop:step')]:
+        out = run('stability', *args, '--out', str(tmp_path))
+        assert out.returncode == 2, args
+        assert text in out.stderr and 'Traceback' not in out.stderr
+        assert len(out.stderr.strip().splitlines()) == 1

@@ -50,7 +50,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args or args[0] not in commands:
         print(USAGE, file=sys.stderr)
         return 2
-    return commands[args[0]](args[1:])
+    try:
+        return commands[args[0]](args[1:])
+    except BagError as exc:
+        print(f'error: {exc}', file=sys.stderr)
+    except OSError as exc:
+        print(f'error: {exc}', file=sys.stderr)
+    except Exception as exc:  # noqa: BLE001 - a bad bag must never end in a traceback
+        print(f'error: {" ".join(args[1:])}: unexpected {type(exc).__name__}: {exc}',
+              file=sys.stderr)
+    return 1
 
 
 if __name__ == '__main__':

@@ -61,7 +61,8 @@ def _record_at(data: bytes, offset: int, opcode: int):
     body = data[offset + 9:offset + 9 + length]
     if len(body) != length:
         raise ValueError(f'{Opcode(opcode).name} record at byte {offset} runs past the end')
-    reader = StreamReader(io.BytesIO(data[offset:offset + 9 + length]), skip_magic=True)
+    reader = StreamReader(io.BytesIO(data[offset:offset + 9 + length]), skip_magic=True,
+                          emit_chunks=True)
     return next(iter(reader.records)), 9 + length
 
 

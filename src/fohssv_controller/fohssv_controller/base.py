@@ -78,6 +78,11 @@ class Controller(ABC):
         """Return ``(delta_f, delta_c)`` in rad for time ``t`` (s) and ``state``
         [z, w, theta, q]."""
 
+    def affine(self) -> tuple[Any, Any] | None:
+        """``(K, u0)`` with K of shape (2, 4) and u0 of shape (2,) when the law is
+        ``u = K x + u0`` (before clamping), else None. Batched sweeps need it."""
+        return None
+
     def command(self, t: float, state: Sequence[float]) -> tuple[float, float]:
         """:meth:`update`, clamped to the parameters' deflection limits."""
         df, dc = self.update(t, state)

@@ -60,3 +60,8 @@ class StateFeedback(Controller):
         dc = (p.depth_gain * z + p.vertical_velocity_gain * w + p.pitch_gain * theta
               + p.pitch_rate_gain * q)
         return 0.0, dc
+
+    def affine(self) -> tuple[list[list[float]], list[float]]:
+        p = self.params
+        gains = [p.depth_gain, p.vertical_velocity_gain, p.pitch_gain, p.pitch_rate_gain]
+        return [[0.0, 0.0, 0.0, 0.0], gains], [0.0, 0.0]

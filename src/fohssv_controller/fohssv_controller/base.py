@@ -70,7 +70,7 @@ class Controller(ABC):
         self.params = params
         self.reset()
 
-    def reset(self) -> None:
+    def reset(self) -> None:  # noqa: B027 - optional hook, empty by design
         """Clear internal memory (none by default)."""
 
     @abstractmethod

@@ -24,8 +24,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import Union
-
 import numpy as np
 
 from .coefficients import Coefficients, coefficients
@@ -39,7 +37,7 @@ __all__ = ['Plant', 'DelayFreeModel', 'DelayedModel', 'FractionalModel', 'make_p
 STATE_NAMES = ('z', 'w', 'theta', 'q')
 
 Input = tuple[float, float]
-InputLike = Union[Sequence[float], Callable[[float, Sequence[float]], Sequence[float]]]
+InputLike = Sequence[float] | Callable[[float, Sequence[float]], Sequence[float]]
 
 
 def _as_state(x: Sequence[float] | None, name: str = 'initial_state') -> tuple:

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 from ament_index_python.packages import get_package_prefix
+
 from test_equilibria import analytic_jacobian, reduced_equilibrium
 
 FOHSSV = Path(get_package_prefix('fohssv_sim')) / 'lib' / 'fohssv_sim' / 'fohssv'

@@ -1,0 +1,129 @@
+"""``fohssv sweep alpha|V|alpha-V``: orbit diagrams on Dask (see :mod:`.sweep`)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ..cli import CliError, _assignments, _common, _figure_paths, model_params, parse_range
+from ..params import ParameterError
+
+DEFAULT_ALPHAS = '0.6:1.0:0.02'
+DEFAULT_SPEEDS = '75:90:1'
+
+
+def register(sub) -> None:
+    p = sub.add_parser('sweep', help='orbit diagrams over alpha, V or the alpha-V grid',
+                       description='Local maxima of a state after a transient, per parameter '
+                       'value, each orbit classified (equilibrium / converging / periodic-p / '
+                       'aperiodic with the 0-1 test K). Runs on Dask: a local cluster by '
+                       'default, or --scheduler ADDRESS. Results stream to OUT/chunks/*.csv '
+                       'with OUT/sweep.json; rerunning the same command resumes.')
+    p.add_argument('kind', choices=('alpha', 'V', 'alpha-V'))
+    _common(p)
+    p.add_argument('--alpha', help=f'alpha values, start:stop:step or a,b,c (default '
+                   f'{DEFAULT_ALPHAS} for alpha sweeps, else the fractional_order parameter)')
+    p.add_argument('--speed', help=f'V values in m/s (default {DEFAULT_SPEEDS} for V sweeps, '
+                   'else the speed parameter)')
+    p.add_argument('--transient', type=float, default=1.5, help='s discarded (default 1.5)')
+    p.add_argument('--window', type=float, default=0.5, help='s sampled (default 0.5)')
+    p.add_argument('--sample-every', type=int, default=1, help='keep every k-th step')
+    p.add_argument('--state', default='w', choices=('z', 'w', 'theta', 'q'))
+    p.add_argument('--control-period', type=float, default=None,
+                   help='zero-order hold period in s (default: continuous feedback)')
+    p.add_argument('--chunk-size', type=int, default=16, help='points per Dask task')
+    p.add_argument('--scheduler', help='address of an existing Dask scheduler '
+                   '(default: a local cluster)')
+    p.add_argument('--workers', type=int, default=0, help='local workers (default: cores)')
+    p.add_argument('--check-step', type=int, default=0, metavar='K',
+                   help='re-run every K-th point at half the step; flag changed classes')
+    p.set_defaults(func=cmd_sweep)
+
+
+def build_spec(args: argparse.Namespace):
+    from .sweep import SweepSpec
+
+    base = model_params(args)   # validates --set / --preset
+    if args.kind == 'alpha':
+        alphas = parse_range(args.alpha or DEFAULT_ALPHAS, '--alpha')
+        speeds = parse_range(args.speed, '--speed') if args.speed else [base.speed]
+    elif args.kind == 'V':
+        speeds = parse_range(args.speed or DEFAULT_SPEEDS, '--speed')
+        alphas = parse_range(args.alpha, '--alpha') if args.alpha else [base.fractional_order]
+    else:
+        alphas = parse_range(args.alpha or DEFAULT_ALPHAS, '--alpha')
+        speeds = parse_range(args.speed or DEFAULT_SPEEDS, '--speed')
+    for a in alphas:
+        if not 0 < a <= 1:
+            raise CliError(f'--alpha value {a:g} is outside (0, 1]')
+    for v in speeds:
+        if v <= 0:
+            raise CliError(f'--speed value {v:g} m/s must be > 0')
+    for name in ('transient', 'window'):
+        if getattr(args, name) < 0 or (name == 'window' and args.window <= 0):
+            raise CliError(f'--{name}={getattr(args, name)} s must be positive')
+    values = base.to_dict()
+    values.pop('fractional_order')
+    values.pop('speed')
+    gains = _assignments(args.gain or [], '--gain')
+    from ..cli import load_controller
+
+    load_controller(args.controller, gains)   # fail early on a bad name or gain
+    try:
+        return SweepSpec(base=values, alphas=tuple(float(a) for a in alphas),
+                         speeds=tuple(float(v) for v in speeds), controller=args.controller,
+                         gains=gains, transient=args.transient, window=args.window,
+                         sample_every=args.sample_every, state=args.state,
+                         control_period=args.control_period, chunk_size=args.chunk_size,
+                         check_step=args.check_step)
+    except ParameterError as e:
+        raise CliError(str(e)) from None
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from .diagrams import plot_alpha_v, plot_orbit_diagram
+    from .sweep import run_sweep
+
+    spec = build_spec(args)
+    out: Path = args.out
+    n = len(spec.points())
+    print(f'sweep {args.kind}: {n} points, {len(spec.alphas)} alpha x {len(spec.speeds)} V, '
+          f'transient {spec.transient:g} s, window {spec.window:g} s -> {out}', flush=True)
+
+    def progress(done: int, total: int, elapsed: float) -> None:
+        eta = elapsed / max(done, 1) * (total - done)
+        print(f'\r  chunks {done}/{total}  {elapsed:6.1f} s elapsed  ~{eta:6.1f} s left',
+              end='', file=sys.stderr, flush=True)
+
+    try:
+        result = run_sweep(spec, out, scheduler=args.scheduler, workers=args.workers,
+                           progress=progress)
+    except ValueError as e:
+        raise CliError(str(e)) from None
+    print(file=sys.stderr)
+    side = result.sidecar
+    print(f"step {side['step']:g} s, solver {side['solver']}, model {side['model']}; "
+          f'{result.computed_chunks} chunks computed, {result.reused_chunks} reused')
+    counts: dict[str, int] = {}
+    for r in result.rows:
+        counts[r['label']] = counts.get(r['label'], 0) + 1
+    print('classes: ' + ', '.join(f'{k} {v}' for k, v in sorted(counts.items())))
+    changed = [r for r in result.rows if r['step_check'].startswith('changed')]
+    if spec.check_step:
+        checked = sum(1 for r in result.rows if r['step_check'])
+        print(f'step check: {checked} points re-run at half step, {len(changed)} changed class')
+    if args.kind == 'alpha-V':
+        from ..analysis.stability import critical_order_curve
+        from ..cli import load_controller
+
+        crit = critical_order_curve(model_params(args), load_controller(args.controller,
+                                    spec.gains), spec.speeds)
+        plot_alpha_v(result, _figure_paths(out / 'alpha_v'),
+                     [(p.speed, p.critical_order) for p in crit])
+        print(f"alpha-V map: {out / 'alpha_v'}.png/.svg")
+    else:
+        axis = 'alpha' if args.kind == 'alpha' else 'speed'
+        plot_orbit_diagram(result, axis, _figure_paths(out / f'orbit_{args.kind}'))
+        print(f'orbit diagram: {out}/orbit_{args.kind}.png/.svg')
+    return 0

@@ -1,0 +1,281 @@
+"""Orbit-diagram sweeps over alpha, V or the alpha-V grid, on Dask.
+
+A sweep is a list of points (alpha, V) sharing every other setting (:class:`SweepSpec`).
+Points are split into chunks of batchable points (same alpha and step: see
+:func:`fohssv_sim.batch.group_points`); each chunk is one Dask task that runs the batched
+solver, takes the local maxima of the chosen state after the transient and classifies each
+orbit (:mod:`.orbits`). The client writes each chunk's rows to ``<out>/chunks/`` as soon as the
+chunk finishes (CSV, written atomically), so a sweep that is interrupted resumes where it
+stopped: finished chunks are read back, not recomputed. ``<out>/sweep.json`` is the sidecar:
+the full spec (step, solver, transient, window, method), versions, and the chunk list.
+
+Scheduler: a local ``dask.distributed.LocalCluster`` (one single-threaded worker process per
+core) unless ``scheduler`` names an existing cluster's address. Results do not depend on the
+scheduler: each chunk's computation is deterministic.
+
+``check_step``: re-runs every k-th point at half the step and flags the points whose
+classification changes (column ``step_check``).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import os
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..params import ModelParameters
+from .orbits import METHOD, classify
+
+__all__ = ['SweepSpec', 'SweepResult', 'run_sweep', 'run_chunk', 'load_sweep', 'STATE_INDEX']
+
+STATE_INDEX = {'z': 0, 'w': 1, 'theta': 2, 'q': 3}
+ROW_FIELDS = ('point', 'alpha', 'speed', 'label', 'kind', 'period', 'k01', 'amplitude',
+              'n_maxima', 'failed', 'step_check', 'maxima')
+
+
+@dataclass(frozen=True)
+class SweepSpec:
+    """Everything that defines a sweep's numbers (recorded in the sidecar).
+
+    ``base`` holds the model parameters shared by every point (as a dict of the parameter
+    table's names); ``alphas`` x ``speeds`` is the grid (a 1-D sweep has one value in the
+    other). ``transient`` and ``window`` are in seconds; the orbit is sampled every
+    ``sample_every`` steps in the window.
+    """
+
+    base: dict[str, Any]
+    alphas: tuple[float, ...]
+    speeds: tuple[float, ...]
+    controller: str = 'state_feedback'
+    gains: dict[str, Any] = field(default_factory=dict)
+    transient: float = 1.5
+    window: float = 0.5
+    sample_every: int = 1
+    state: str = 'w'
+    control_period: float | None = None
+    chunk_size: int = 16
+    check_step: int = 0           # re-run every k-th point at half step (0 = off)
+    eq_tol: float = 1e-6
+    rel_tol: float = 1e-3
+
+    def points(self) -> list[tuple[float, float]]:
+        return [(a, v) for v in self.speeds for a in self.alphas]
+
+    def params_for(self, alpha: float, speed: float, step_factor: float = 1.0
+                   ) -> ModelParameters:
+        p = ModelParameters.from_dict({**self.base, 'fractional_order': alpha, 'speed': speed})
+        if step_factor != 1.0:
+            p = p.replace(step=p.step * step_factor)
+        return p
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d['alphas'] = list(self.alphas)
+        d['speeds'] = list(self.speeds)
+        return d
+
+
+def _make_controller(name: str, gains: dict[str, Any]) -> Any:
+    from importlib.metadata import entry_points
+
+    eps = {ep.name: ep for ep in entry_points(group='fohssv.controllers')}
+    if name not in eps:
+        raise ValueError(f"unknown controller {name!r}; valid: {', '.join(sorted(eps))}")
+    return eps[name].load()(**gains)
+
+
+def run_chunk(spec_dict: dict[str, Any], indices: Sequence[int], step_factor: float = 1.0
+              ) -> list[dict[str, Any]]:
+    """Compute the rows of the points ``indices`` of the sweep ``spec_dict`` (one Dask task).
+
+    Pure function of its arguments (deterministic), so any scheduler gives the same rows.
+    """
+    from ..batch import simulate_batch
+
+    spec = SweepSpec(**{**spec_dict, 'alphas': tuple(spec_dict['alphas']),
+                        'speeds': tuple(spec_dict['speeds'])})
+    pts = spec.points()
+    params = [spec.params_for(*pts[i], step_factor=step_factor) for i in indices]
+    ctl = _make_controller(spec.controller, spec.gains)
+    h = params[0].step
+    every = max(1, round(spec.sample_every / step_factor))
+    res = simulate_batch(params, [ctl], spec.transient + spec.window,
+                         control_period=spec.control_period, sample_every=every,
+                         record_from=spec.transient)
+    k = STATE_INDEX[spec.state]
+    rows = []
+    for j, i in enumerate(indices):
+        alpha, speed = pts[i]
+        if res.failed[j]:
+            rows.append({'point': i, 'alpha': alpha, 'speed': speed, 'label': 'diverged',
+                         'kind': 'diverged', 'period': 0, 'k01': math.nan,
+                         'amplitude': math.nan, 'n_maxima': 0, 'failed': True,
+                         'step_check': '', 'maxima': []})
+            continue
+        cls, peaks = classify(res.t, res.states[j, :, k], eq_tol=spec.eq_tol,
+                              rel_tol=spec.rel_tol)
+        rows.append({'point': i, 'alpha': alpha, 'speed': speed, 'label': cls.label,
+                     'kind': cls.kind, 'period': cls.period, 'k01': cls.k01,
+                     'amplitude': cls.amplitude, 'n_maxima': cls.n_maxima, 'failed': False,
+                     'step_check': '', 'maxima': [float(v) for v in peaks[-64:]],
+                     'step': h})
+    return rows
+
+
+def _chunks(spec: SweepSpec) -> list[list[int]]:
+    """Points split into batchable chunks (same alpha: the batched steppers share it)."""
+    from ..batch import group_points
+
+    pts = spec.points()
+    params = [spec.params_for(a, v) for a, v in pts]
+    chunks = []
+    for idx in group_points(params).values():
+        for s in range(0, len(idx), spec.chunk_size):
+            chunks.append(idx[s:s + spec.chunk_size])
+    return sorted(chunks, key=lambda c: c[0])
+
+
+def _write_rows(path: Path, rows: list[dict[str, Any]]) -> None:
+    tmp = path.with_suffix('.tmp')
+    with open(tmp, 'w', newline='') as f:
+        w = csv.DictWriter(f, fieldnames=ROW_FIELDS, extrasaction='ignore')
+        w.writeheader()
+        for r in rows:
+            w.writerow({**r, 'maxima': ';'.join(repr(v) for v in r['maxima'])})
+    os.replace(tmp, path)
+
+
+def _read_rows(path: Path) -> list[dict[str, Any]]:
+    with open(path, newline='') as f:
+        rows = []
+        for r in csv.DictReader(f):
+            rows.append({'point': int(r['point']), 'alpha': float(r['alpha']),
+                         'speed': float(r['speed']), 'label': r['label'], 'kind': r['kind'],
+                         'period': int(r['period']), 'k01': float(r['k01']),
+                         'amplitude': float(r['amplitude']), 'n_maxima': int(r['n_maxima']),
+                         'failed': r['failed'] == 'True', 'step_check': r['step_check'],
+                         'maxima': [float(v) for v in r['maxima'].split(';') if v]})
+        return rows
+
+
+@dataclass
+class SweepResult:
+    """All rows of a sweep (sorted by point index) and its sidecar."""
+
+    rows: list[dict[str, Any]]
+    sidecar: dict[str, Any]
+    computed_chunks: int = 0
+    reused_chunks: int = 0
+
+    def column(self, name: str) -> np.ndarray:
+        return np.array([r[name] for r in self.rows])
+
+
+def _sidecar(spec: SweepSpec, chunks: list[list[int]]) -> dict[str, Any]:
+    from .. import __version__
+
+    p0 = spec.params_for(spec.alphas[0], spec.speeds[0])
+    return {'spec': spec.to_dict(), 'step': p0.step, 'solver': p0.solver, 'model': p0.model,
+            'classification': METHOD, 'n_points': len(spec.points()),
+            'chunks': chunks, 'fohssv_version': __version__,
+            'python': sys.version.split()[0], 'numpy': np.__version__}
+
+
+def load_sweep(out: Path) -> SweepResult:
+    """Read a (finished or partial) sweep folder."""
+    side = json.loads((out / 'sweep.json').read_text())
+    rows = []
+    for k in range(len(side['chunks'])):
+        f = out / 'chunks' / f'chunk_{k:05d}.csv'
+        if f.exists():
+            rows.extend(_read_rows(f))
+    rows.sort(key=lambda r: r['point'])
+    return SweepResult(rows, side)
+
+
+def run_sweep(spec: SweepSpec, out: Path, *, scheduler: str | None = None, workers: int = 0,
+              progress: Callable[[int, int, float], None] | None = None) -> SweepResult:
+    """Run (or resume) the sweep ``spec`` into folder ``out``; see the module docstring.
+
+    Raises:
+        ValueError: ``out`` holds a different sweep (the message says how to proceed).
+    """
+    out.mkdir(parents=True, exist_ok=True)
+    (out / 'chunks').mkdir(exist_ok=True)
+    chunks = _chunks(spec)
+    side = _sidecar(spec, chunks)
+    side_path = out / 'sweep.json'
+    if side_path.exists():
+        old = json.loads(side_path.read_text())
+        if old.get('spec') != side['spec'] or old.get('chunks') != chunks:
+            raise ValueError(f'{out} holds a different sweep (see {side_path}); choose another '
+                             '--out or delete that folder')
+    else:
+        side_path.write_text(json.dumps(side, indent=2) + '\n')
+
+    todo = [k for k in range(len(chunks))
+            if not (out / 'chunks' / f'chunk_{k:05d}.csv').exists()]
+    reused = len(chunks) - len(todo)
+    spec_dict = spec.to_dict()
+    start = time.monotonic()
+    done = reused
+    if todo:
+        from dask.distributed import Client, LocalCluster, as_completed
+
+        cluster = None
+        if scheduler:
+            client = Client(scheduler, timeout='20s')
+        else:
+            n = workers or os.cpu_count() or 1
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                   dashboard_address=None)
+            client = Client(cluster)
+        try:
+            futures = {client.submit(run_chunk, spec_dict, chunks[k], pure=False): k
+                       for k in todo}
+            for fut in as_completed(futures):
+                k = futures[fut]
+                _write_rows(out / 'chunks' / f'chunk_{k:05d}.csv', fut.result())
+                done += 1
+                if progress is not None:
+                    progress(done, len(chunks), time.monotonic() - start)
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    result = load_sweep(out)
+    result.computed_chunks, result.reused_chunks = len(todo), reused
+    if spec.check_step:
+        _check_step(spec, out, result)
+    return result
+
+
+def _check_step(spec: SweepSpec, out: Path, result: SweepResult) -> None:
+    """Re-run every ``check_step``-th point at half the step; mark changed classifications."""
+    path = out / 'step_check.json'
+    if path.exists():
+        checks = {int(k): v for k, v in json.loads(path.read_text()).items()}
+    else:
+        sample = list(range(0, len(result.rows), spec.check_step))
+        groups: dict[float, list[int]] = {}
+        for i in sample:
+            groups.setdefault(result.rows[i]['alpha'], []).append(i)
+        checks = {}
+        for idx in groups.values():
+            for r in run_chunk(spec.to_dict(), idx, step_factor=0.5):
+                checks[r['point']] = r['label']
+        path.write_text(json.dumps({str(k): v for k, v in checks.items()}, indent=2) + '\n')
+    for r in result.rows:
+        if r['point'] in checks:
+            r['step_check'] = 'same' if checks[r['point']] == r['label'] else (
+                f"changed to {checks[r['point']]} at half step")

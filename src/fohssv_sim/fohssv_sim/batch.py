@@ -1,0 +1,254 @@
+"""Batched simulation: many parameter points advanced together in one vectorised array.
+
+Points may differ in anything that only changes coefficients (speed, geometry, gains,
+initial state); they must share the model, the step, the solver, the planing form and, for the
+FOM, the fractional order (use :func:`group_points` to split a sweep into such groups). The
+FOM uses the batched steppers of :mod:`fohssv_sim.fractional` (one BLAS product for all
+points' history sums); the delay-free model a vectorised RK4. The delayed model is not batched
+(its history ring buffer is per point): :func:`simulate_batch` runs it point by point.
+
+Controllers must be affine state feedback, ``u = K x + u0`` clamped to deflection limits
+(:meth:`fohssv_controller.base.Controller.affine`); the eq. 31 law and the LQR are.
+Every point's trajectory equals the per-point :func:`fohssv_sim.simulate.simulate` run to
+rounding (tested).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+
+from .coefficients import coefficients
+from .params import ModelParameters
+from .planing import planing_exact_array, planing_smooth_array
+from .simulate import simulate, steps_per_period
+
+__all__ = ['BatchResult', 'BatchRHS', 'simulate_batch', 'group_points', 'SHARED_FIELDS']
+
+#: Parameters every point of one batch must share.
+SHARED_FIELDS = ('model', 'step', 'solver', 'planing_form', 'fractional_order',
+                 'soe_tolerance', 'soe_horizon_steps')
+
+_COEFFS = ('V', 'L', 'R', 'g', 'a22', 'a24', 'a42', 'a44', 'b21', 'b22', 'b41', 'b42', 'd2',
+           'd4', 'R_prime', 'Rc_dot', 'k', 'w0')
+
+
+@dataclass
+class BatchResult:
+    """Samples of every point: ``states[p, i]`` at ``t[i]``; ``failed[p]`` marks points whose
+    state turned non-finite (their remaining samples are NaN)."""
+
+    t: np.ndarray
+    states: np.ndarray
+    failed: np.ndarray
+    params: list[ModelParameters]
+
+
+class BatchRHS:
+    """Vectorised right-hand side of eq. 17 / eq. 26 with per-point coefficients:
+    ``rhs(t, X (P, 4), U (P, 2)) -> (P, 4)``."""
+
+    def __init__(self, params: Sequence[ModelParameters]) -> None:
+        cs = [coefficients(p) for p in params]
+        self.c = SimpleNamespace(**{n: np.array([getattr(c, n) for c in cs]) for n in _COEFFS})
+        smooth = params[0].planing_form == 'smooth'
+        self._fp = planing_smooth_array if smooth else planing_exact_array
+
+    def planing_force(self, w: np.ndarray) -> np.ndarray:
+        return self._fp(w, self.c)
+
+    def __call__(self, t: float, X: np.ndarray, U: np.ndarray) -> np.ndarray:
+        c = self.c
+        w, th, q = X[:, 1], X[:, 2], X[:, 3]
+        uf, uc = U[:, 0], U[:, 1]
+        fp = self._fp(w, c)
+        out = np.empty_like(X)
+        out[:, 0] = w - c.V * th
+        out[:, 1] = c.a22 * w + c.a24 * q + c.b21 * uf + c.b22 * uc + c.g + c.d2 * fp
+        out[:, 2] = q
+        out[:, 3] = c.a42 * w + c.a44 * q + c.b41 * uf + c.b42 * uc + c.d4 * fp
+        return out
+
+
+class _AffineLaw:
+    """U = clip(K X + u0) for all points at once, from each controller's ``affine()``."""
+
+    def __init__(self, controllers: Sequence[Any]) -> None:
+        ks, u0s, lims = [], [], []
+        for ctl in controllers:
+            aff = getattr(ctl, 'affine', None)
+            law = aff() if aff is not None else None
+            if law is None:
+                raise ValueError(f'{type(ctl).__name__} is not affine state feedback; '
+                                 'batched runs need Controller.affine() (use simulate())')
+            K, u0 = law
+            ks.append(np.asarray(K, dtype=float))
+            u0s.append(np.asarray(u0, dtype=float))
+            p = ctl.params
+            lims.append((getattr(p, 'max_fin_deflection', math.inf),
+                         getattr(p, 'max_cavitator_deflection', math.inf)))
+        self.K = np.stack(ks)            # (P, 2, 4)
+        self.u0 = np.stack(u0s)          # (P, 2)
+        self.lim = np.array(lims)        # (P, 2)
+
+    def __call__(self, t: float, X: np.ndarray) -> np.ndarray:
+        U = np.einsum('pij,pj->pi', self.K, X) + self.u0
+        return np.clip(U, -self.lim, self.lim)
+
+
+def group_points(params: Sequence[ModelParameters]) -> dict[tuple, list[int]]:
+    """Indices of ``params`` grouped by the fields a batch must share (:data:`SHARED_FIELDS`)."""
+    groups: dict[tuple, list[int]] = {}
+    for i, p in enumerate(params):
+        groups.setdefault(tuple(getattr(p, f) for f in SHARED_FIELDS), []).append(i)
+    return groups
+
+
+def _check_shared(params: Sequence[ModelParameters]) -> None:
+    for f in SHARED_FIELDS:
+        values = {getattr(p, f) for p in params}
+        if len(values) > 1:
+            raise ValueError(f'all points of a batch must share {f}; got {sorted(map(str, values))}'
+                             ' (split them with group_points)')
+
+
+def _stepper(params: Sequence[ModelParameters], rhs: BatchRHS, X0: np.ndarray):
+    p = params[0]
+    if p.model == 'fractional':
+        from .fractional import BatchABM, BatchSOE
+
+        if p.solver == 'soe':
+            return BatchSOE(rhs, p.fractional_order, p.step, X0, tolerance=p.soe_tolerance,
+                            horizon_steps=int(p.soe_horizon_steps), on_nonfinite='mask')
+        return BatchABM(rhs, p.fractional_order, p.step, X0, on_nonfinite='mask')
+    return _BatchRK4(rhs, p.step, X0)
+
+
+class _BatchRK4:
+    """Classical RK4 over (P, 4) states; a non-finite point is set to NaN and frozen."""
+
+    def __init__(self, rhs: BatchRHS, step: float, X0: np.ndarray) -> None:
+        self.rhs, self.h, self.n = rhs, step, 0
+        self.x = X0.copy()
+        self.failed_points = np.zeros(X0.shape[0], dtype=bool)
+
+    def step(self, u: Any) -> np.ndarray:
+        h, t, x, f = self.h, self.n * self.h, self.x, self.rhs
+
+        def U(tt: float, xx: np.ndarray) -> np.ndarray:
+            return u(tt, xx) if callable(u) else u
+
+        k1 = f(t, x, U(t, x))
+        x2 = x + 0.5 * h * k1
+        k2 = f(t + 0.5 * h, x2, U(t + 0.5 * h, x2))
+        x3 = x + 0.5 * h * k2
+        k3 = f(t + 0.5 * h, x3, U(t + 0.5 * h, x3))
+        x4 = x + h * k3
+        k4 = f(t + h, x4, U(t + h, x4))
+        new = x + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        bad = ~np.isfinite(new).all(axis=1)
+        if bad.any():
+            new[bad] = np.nan
+            self.failed_points |= bad
+        self.x = new
+        self.n += 1
+        return new
+
+
+def simulate_batch(params: Sequence[ModelParameters], controllers: Sequence[Any],
+                   duration: float, *, control_period: float | None = None,
+                   initial_states: np.ndarray | None = None, sample_every: int = 1,
+                   record_from: float = 0.0,
+                   progress: Callable[[float], None] | None = None) -> BatchResult:
+    """Advance every point of ``params`` under its controller for ``duration`` seconds.
+
+    Args:
+        controllers: one affine controller per point (or one shared by all).
+        control_period: None = continuous feedback; else zero-order hold (a whole multiple of
+            the step), as in :func:`fohssv_sim.simulate.simulate`.
+        initial_states: (P, 4), default zeros.
+        sample_every: keep every k-th step; record_from: keep only samples with t >= this.
+
+    Raises:
+        ValueError: points that do not share :data:`SHARED_FIELDS`, a non-affine controller,
+            a bad duration, control period or sample interval.
+    """
+    params = list(params)
+    if not params:
+        raise ValueError('simulate_batch needs at least one point')
+    _check_shared(params)
+    P = len(params)
+    if len(controllers) == 1 and P > 1:
+        controllers = list(controllers) * P
+    if len(controllers) != P:
+        raise ValueError(f'{len(controllers)} controllers for {P} points')
+    X0 = np.zeros((P, 4)) if initial_states is None else np.array(initial_states, dtype=float)
+    if X0.shape != (P, 4) or not np.isfinite(X0).all():
+        raise ValueError(f'initial_states must be a finite ({P}, 4) array, got {X0.shape}')
+    h = params[0].step
+    if not (math.isfinite(duration) and duration > 0):
+        raise ValueError(f'duration={duration!r} s must be a positive number of seconds')
+    if int(sample_every) != sample_every or sample_every < 1:
+        raise ValueError(f'sample_every={sample_every!r} must be a whole number >= 1')
+    n_steps = int(math.ceil(duration / h - 1e-9))
+
+    if params[0].model == 'delayed':
+        return _serial(params, controllers, duration, control_period, X0, sample_every,
+                       record_from)
+
+    law = _AffineLaw(controllers)
+    rhs = BatchRHS(params)
+    stepper = _stepper(params, rhs, X0)
+    hold = 0 if control_period is None else steps_per_period(control_period, h)
+    first = int(math.ceil(record_from / h - 1e-9))
+    rows = [n for n in range(first, n_steps + 1) if n % sample_every == 0]
+    t_out = np.array(rows, dtype=float) * h
+    out = np.empty((P, len(rows), 4))
+    row = 0
+    X = X0
+    U = law(0.0, X)
+    report = max(1, n_steps // 100)
+    for n in range(n_steps + 1):
+        if n >= first and n % sample_every == 0:
+            out[:, row] = X
+            row += 1
+        if n == n_steps:
+            break
+        if hold:
+            if n % hold == 0:
+                U = law(n * h, X)
+            X = stepper.step(U)
+        else:
+            X = stepper.step(law)
+        if progress is not None and n % report == 0:
+            progress(n / n_steps)
+    failed = np.asarray(stepper.failed_points, dtype=bool)
+    return BatchResult(t=t_out, states=out, failed=failed, params=params)
+
+
+def _serial(params, controllers, duration, control_period, X0, sample_every, record_from):
+    results = []
+    failed = np.zeros(len(params), dtype=bool)
+    for i, (p, ctl) in enumerate(zip(params, controllers)):
+        try:
+            r = simulate(p, ctl, duration, control_period=control_period,
+                         initial_state=X0[i], sample_every=sample_every)
+            results.append(r)
+        except FloatingPointError:
+            failed[i] = True
+            results.append(None)
+    ref = next((r for r in results if r is not None), None)
+    if ref is None:
+        return BatchResult(np.empty(0), np.empty((len(params), 0, 4)), failed, list(params))
+    keep = ref.t >= record_from - 1e-12
+    t = ref.t[keep]
+    states = np.full((len(params), t.size, 4), np.nan)
+    for i, r in enumerate(results):
+        if r is not None:
+            states[i] = r.state[keep]
+    return BatchResult(t, states, failed, list(params))

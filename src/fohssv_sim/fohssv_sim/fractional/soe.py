@@ -208,7 +208,7 @@ class SOEErrorReport(NamedTuple):
 
 
 def soe_kernel_error(alpha: float, tolerance: float = 1e-10, horizon_steps: int = 10**8,
-                     n_exact: int = 16, samples_per_decade: int = 400) -> SOEErrorReport:
+                     n_exact: int = 16, samples_per_decade: int = 1000) -> SOEErrorReport:
     """Report the SOE approximation's max relative error over the whole horizon.
 
     Checks every lag in [n_exact, n_exact + 2000] and ``samples_per_decade`` log-spaced lags

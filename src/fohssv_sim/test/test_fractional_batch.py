@@ -1,0 +1,149 @@
+"""Batched steppers equal per-point runs; grouping by alpha; the solver registry."""
+
+import numpy as np
+import pytest
+
+from fohssv_sim.fractional import (
+    SOLVERS,
+    ABMStepper,
+    BatchABM,
+    BatchSOE,
+    SOEStepper,
+    get_solver,
+    group_by_alpha,
+    solve_abm_fft,
+)
+from fohssv_sim.fractional.batch import make_batches
+
+A4 = np.array([[-1.0, 2.0, 0.0, 0.0],
+               [-2.0, -1.0, 0.0, 0.5],
+               [0.0, 0.0, -3.0, 1.0],
+               [0.1, 0.0, -1.0, -0.5]])
+B4 = np.array([0.0, 1.0, 0.0, 1.0])
+P = 6
+GAIN = np.linspace(0.5, 1.5, P)                        # a per-point parameter
+X0 = np.random.default_rng(1).normal(size=(P, 4))
+
+
+def point_rhs(i):
+    def rhs(t, x, u):
+        return GAIN[i] * (A4 @ x) + B4 * u[0] - 0.1 * x ** 3
+    return rhs
+
+
+def batch_rhs(idx):
+    g = GAIN[idx][:, None]
+
+    def rhs(t, X, U):
+        return g * (X @ A4.T) + U[:, :1] * B4 - 0.1 * X ** 3
+    return rhs
+
+
+def inputs(n, h):
+    return np.sin(50.0 * n * h + np.arange(P))[:, None]       # (P, 1), changes every step
+
+
+@pytest.mark.parametrize('batch_cls,point_cls,kw', [
+    (BatchABM, ABMStepper, {}),
+    (BatchSOE, SOEStepper, {}),
+    (BatchSOE, SOEStepper, {'n_exact': 4, 'tolerance': 1e-8}),
+])
+def test_batch_equals_per_point(batch_cls, point_cls, kw):
+    alpha, h, N = 0.8, 2e-3, 700
+    B = batch_cls(batch_rhs(np.arange(P)), alpha, h, X0, **kw)
+    singles = [point_cls(point_rhs(i), alpha, h, X0[i], **kw) for i in range(P)]
+    for n in range(N):
+        U = inputs(n, h)
+        X = B.step(U)
+        for i, s in enumerate(singles):
+            x = s.step(U[i])
+            assert np.max(np.abs(X[i] - x)) <= 1e-12 * max(1.0, np.max(np.abs(x)))
+    assert B.n == N and B.x.shape == (P, 4)
+
+
+def test_batch_callable_input_equals_per_point():
+    alpha, h, N = 0.9, 5e-3, 300
+
+    def U_fb(t, X):
+        return np.sin(3 * t) - 0.5 * X[:, :1]
+
+    B = BatchSOE(batch_rhs(np.arange(P)), alpha, h, X0)
+    Xs = [B.step(U_fb) for _ in range(N)][-1]
+    for i in range(P):
+        s = SOEStepper(point_rhs(i), alpha, h, X0[i])
+        x = [s.step(lambda t, x: np.sin(3 * t) - 0.5 * x[:1]) for _ in range(N)][-1]
+        assert np.max(np.abs(Xs[i] - x)) <= 1e-12 * max(1.0, np.max(np.abs(x)))
+
+
+def test_batch_soe_close_to_exact():
+    alpha, h, N = 0.7, 1e-3, 3000
+    B = BatchSOE(batch_rhs(np.arange(P)), alpha, h, X0)
+    U = np.array([inputs(n, h) for n in range(N)])             # (N, P, 1)
+    X = np.array([X0] + [B.step(U[n]) for n in range(N)])
+    for i in (0, P - 1):
+        ref = solve_abm_fft(point_rhs(i), alpha, h, X0[i], N, u=U[:, i]).x
+        assert np.max(np.abs(X[:, i] - ref)) <= 1e-8 * np.max(np.abs(ref))
+
+
+def test_mask_mode_freezes_only_diverging_points():
+    def rhs(t, X, U):
+        out = -X.copy()
+        out[1] = 1e200 * X[1] ** 2                         # point 1 blows up
+        return out
+
+    X0b = np.ones((3, 2))
+    B = BatchABM(rhs, 0.8, 0.1, X0b, on_nonfinite='mask')
+    with np.errstate(all='ignore'):
+        for _ in range(20):
+            X = B.step()
+    assert B.failed_points.tolist() == [False, True, False]
+    assert np.all(np.isnan(X[1])) and np.all(np.isfinite(X[[0, 2]]))
+    ref = ABMStepper(lambda t, x, u: -x, 0.8, 0.1, [1.0, 1.0])
+    for _ in range(20):
+        r = ref.step()
+    np.testing.assert_allclose(X[0], r, rtol=1e-12)
+    B2 = BatchABM(rhs, 0.8, 0.1, X0b)
+    with np.errstate(all='ignore'), pytest.raises(FloatingPointError, match=r'points \[1\]'):
+        for _ in range(20):
+            B2.step()
+    assert B2.status == 'failed'
+
+
+def test_batch_bad_arguments():
+    with pytest.raises(ValueError, match='X0|x0'):
+        BatchABM(batch_rhs(np.arange(P)), 0.8, 0.1, X0[0])          # 1-D
+    with pytest.raises(ValueError, match='on_nonfinite'):
+        BatchSOE(batch_rhs(np.arange(P)), 0.8, 0.1, X0, on_nonfinite='ignore')
+    with pytest.raises(ValueError, match=r'alpha=1\.5 is outside \(0, 1\]'):
+        BatchSOE(batch_rhs(np.arange(P)), 1.5, 0.1, X0)
+
+
+def test_group_by_alpha_and_make_batches():
+    alphas = np.array([0.9, 0.7, 0.9, 0.8, 0.7, 0.9])
+    groups = group_by_alpha(alphas)
+    assert [a for a, _ in groups] == [0.7, 0.8, 0.9]
+    assert [idx.tolist() for _, idx in groups] == [[1, 4], [3], [0, 2, 5]]
+    with pytest.raises(ValueError, match=r'alpha=1\.2'):
+        group_by_alpha([0.5, 1.2])
+    batches = make_batches('soe', batch_rhs, alphas, 1e-2, X0)
+    for a, idx, stepper in batches:
+        for _ in range(50):
+            X = stepper.step(np.zeros((idx.size, 1)))
+        for k, i in enumerate(idx):
+            s = SOEStepper(point_rhs(i), a, 1e-2, X0[i])
+            x = [s.step(np.zeros(1)) for _ in range(50)][-1]
+            np.testing.assert_allclose(X[k], x, rtol=1e-12, atol=1e-14)
+
+
+def test_registry():
+    assert list(SOLVERS) == ['abm', 'abm-fft', 'soe']
+    assert SOLVERS['abm'].stepper is ABMStepper
+    assert SOLVERS['abm-fft'].offline is solve_abm_fft
+    assert SOLVERS['soe'].stepper is SOEStepper and SOLVERS['soe'].batch is BatchSOE
+    for info in SOLVERS.values():
+        assert info.accuracy and info.cost and info.name in info.doc
+    with pytest.raises(ValueError, match="solver='rk4' is not one of 'abm', 'abm-fft', 'soe'"):
+        SOLVERS['rk4']
+    with pytest.raises(ValueError, match="'abm', 'abm-fft', 'soe'"):
+        get_solver('fft')
+    assert SOLVERS.get('nope') is None

@@ -80,11 +80,11 @@ def check_positive_int(value: object, name: str, low: int = 1, unit: str = 'step
 
 
 def check_tolerance(tol: object) -> float:
-    """Return ``tol`` as a float in [1e-15, 1e-2]; raise ValueError otherwise."""
+    """Return ``tol`` as a float in [1e-13, 1e-2]; raise ValueError otherwise."""
     try:
         t = float(tol)  # type: ignore[arg-type]
     except (TypeError, ValueError):
-        raise ValueError(f"tolerance={tol!r} is outside [1e-15, 1e-2] (relative)") from None
-    if not (1e-15 <= t <= 1e-2):
-        raise ValueError(f"tolerance={t!r} is outside [1e-15, 1e-2] (relative)")
+        raise ValueError(f"tolerance={tol!r} is outside [1e-13, 1e-2] (relative)") from None
+    if not (1e-13 <= t <= 1e-2):
+        raise ValueError(f"tolerance={t!r} is outside [1e-13, 1e-2] (relative)")
     return t

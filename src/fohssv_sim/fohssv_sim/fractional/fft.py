@@ -72,7 +72,7 @@ class _Kernels:
         T = self._toep.get(key)
         if T is None:
             idx = l1 + np.arange(l2)[:, None] - np.arange(l1)[None, :]   # lag n - j
-            T = np.stack([self.b[idx], self.c[idx]])                      # (2, l2, l1)
+            T = np.stack([self.b[idx], self.c[idx]], axis=1).reshape(2 * l2, l1)
             self._toep[key] = T
         return T
 
@@ -146,25 +146,31 @@ def solve_abm_fft(rhs, alpha: float, step: float, x0, n_steps: int, u=None,
     G = np.zeros((N + 1, d))          # G[j] = f_j for j >= 1; G[0] = 0 (f_0 handled apart)
     X[0] = x0
 
+    is_call = kind == 'call'
+    is_seq = kind == 'seq'
+    dshape = (d,)
+    ndarray = np.ndarray
+
     def u_at(n: int, x: np.ndarray):
-        if kind == 'call':
+        if is_call:
             return np.asarray(uval(t0 + n * h, x), dtype=float)
-        if kind == 'seq':
+        if is_seq:
             return uval[min(n, uval.shape[0] - 1)]
         return uval
 
-    def ev(tt: float, x: np.ndarray, uu) -> np.ndarray:
-        f = rhs(tt, x, uu)
-        if not (isinstance(f, np.ndarray) and f.shape == (d,)):
-            f = np.asarray(f, dtype=float)
-            if f.shape != (d,):
-                raise ValueError(f"rhs returned shape {f.shape}, expected {(d,)} (state shape)")
+    def coerce(f) -> np.ndarray:
+        f = np.asarray(f, dtype=float)
+        if f.shape != dshape:
+            raise ValueError(f"rhs returned shape {f.shape}, expected {dshape} (state shape)")
         return f
 
-    f0 = ev(t0, x0, u_at(0, x0))
-    # unscaled history sums per step n (0..N-1): start with the j = 0 terms
-    acc_p = np.outer(b[:N], f0)
-    acc_c = np.outer(a0[:N], f0)
+    f0 = coerce(rhs(t0, x0, u_at(0, x0)))
+    # unscaled history sums per step n (0..N-1), [predictor, corrector]: the j = 0 terms first
+    acc = np.empty((N, 2, d))
+    acc[:, 0] = np.outer(b[:N], f0)
+    acc[:, 1] = np.outer(a0[:N], f0)
+    scale = np.array([[cp], [cc]])
+    wrt = [WR[_BASE - 1 - i:].T for i in range(_BASE)]      # (2, i+1) views, lags i..0
 
     def check_block(lo: int, hi: int) -> None:
         seg = X[lo + 1:hi + 1]
@@ -175,35 +181,40 @@ def solve_abm_fft(rhs, alpha: float, step: float, x0, n_steps: int, u=None,
                 f"x={X[k]}; last finite state x={X[k - 1]}")
 
     def base(lo: int, hi: int) -> None:
-        L = hi - lo
-        pb = x0 + cp * acc_p[lo:hi]
-        pc = x0 + cc * acc_c[lo:hi]
-        for i in range(L):
+        pbc = x0 + scale * acc[lo:hi]            # (L, 2, d): x0 + cp S^P, x0 + cc S^C
+        un = uval
+        for i in range(hi - lo):
             n = lo + i
             xn = X[n]
-            un = u_at(n, xn)
-            if n > 0:
-                G[n] = ev(t[n], xn, un)
-            s = WR[_BASE - 1 - i:].T @ G[lo:n + 1]
-            xp = pb[i] + s[0]
+            if is_call:
+                un = np.asarray(uval(t[n], xn), dtype=float)
+            elif is_seq:
+                un = uval[n]
+            if n:
+                f = rhs(t[n], xn, un)
+                if f.__class__ is not ndarray or f.shape != dshape:
+                    f = coerce(f)
+                G[n] = f
+            s = wrt[i] @ G[lo:n + 1]
+            s += pbc[i]
+            xp = s[0]
             tn1 = t0 + (n + 1) * h
-            up = np.asarray(uval(tn1, xp), dtype=float) if kind == 'call' else un
-            X[n + 1] = pc[i] + s[1] + cc * ev(tn1, xp, up)
+            fp = rhs(tn1, xp, np.asarray(uval(tn1, xp), dtype=float) if is_call else un)
+            if fp.__class__ is not ndarray or fp.shape != dshape:
+                fp = coerce(fp)
+            X[n + 1] = s[1] + cc * fp
         check_block(lo, hi)
 
     def merge(lo: int, mid: int, hi: int) -> None:
         l1, l2 = mid - lo, hi - mid
         g = G[lo:mid]
         if l1 <= _DIRECT_MAX:
-            T = kern.toeplitz(l1, l2)
-            acc_p[mid:hi] += T[0] @ g
-            acc_c[mid:hi] += T[1] @ g
+            acc[mid:hi] += (kern.toeplitz(l1, l2) @ g).reshape(l2, 2, d)
         else:
             khat, size = kern.spectrum(l1, l2)
             ghat = sfft.rfft(g, n=size, axis=0)
             conv = sfft.irfft(khat * ghat[None], n=size, axis=1)
-            acc_p[mid:hi] += conv[0, l1 - 1:l1 - 1 + l2]
-            acc_c[mid:hi] += conv[1, l1 - 1:l1 - 1 + l2]
+            acc[mid:hi] += conv[:, l1 - 1:l1 - 1 + l2].transpose(1, 0, 2)
 
     def solve(lo: int, hi: int) -> None:
         if hi > N:
@@ -230,5 +241,5 @@ def solve_abm_fft(rhs, alpha: float, step: float, x0, n_steps: int, u=None,
     F = G
     F[0] = f0
     if N > 0:
-        F[N] = ev(t[N], X[N], u_at(N, X[N]))
+        F[N] = coerce(rhs(t[N], X[N], u_at(N, X[N])))
     return ABMSolution(t, X, F)

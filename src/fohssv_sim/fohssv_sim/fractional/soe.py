@@ -184,7 +184,7 @@ def soe_modes(alpha: float, tolerance: float = 1e-10, horizon_steps: int = 10**8
     key; about 60-90 modes for tolerance 1e-10 and horizon 1e8.
 
     Raises:
-        ValueError: alpha outside (0, 1], tolerance outside [1e-15, 1e-2], horizon_steps or
+        ValueError: alpha outside (0, 1], tolerance outside [1e-13, 1e-2], horizon_steps or
             n_exact not integers >= 1 (n_exact >= 2).
     """
     a = check_alpha(alpha)
@@ -226,6 +226,8 @@ def soe_kernel_error(alpha: float, tolerance: float = 1e-10, horizon_steps: int 
     logk = np.geomspace(n0, hor, max(int(samples_per_decade * decades), 2))
     k = np.unique(np.concatenate([dense, np.floor(logk), [float(hor)]]))
     k = k[(k >= n0) & (k <= hor)]
+    if k.size == 0:                     # horizon shorter than the exact window: no tail used
+        return SOEErrorReport(0.0, 0.0, 0.0, 0.0, modes.n_modes, 0)
     b_soe, c_soe = modes.tail_weights(k)
     b_ex = predictor_weights(modes.alpha, k.astype(np.int64))
     c_ex = corrector_weights(modes.alpha, k.astype(np.int64))

@@ -283,9 +283,10 @@ class WeightTable:
         return self._a0
 
 
-@lru_cache(maxsize=32)
+@lru_cache(maxsize=8)
 def weight_table(alpha: float) -> WeightTable:
-    """Shared :class:`WeightTable` for ``alpha`` (one per order, grown on demand).
+    """Shared :class:`WeightTable` for ``alpha`` (one per order, grown on demand; the 8 most
+    recently used orders are kept).
 
     Raises:
         ValueError: alpha outside (0, 1].

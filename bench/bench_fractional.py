@@ -1,0 +1,245 @@
+#!/usr/bin/env python3
+"""Benchmark of the fractional solvers (fohssv_sim.fractional), side by side in one run.
+
+    python bench/bench_fractional.py --out bench/results/fractional.json [--quick]
+
+Measures
+  1. per-step cost of ABMStepper and SOEStepper at step n = 1e3, 1e4, 1e5, 1e6 (ABM: history
+     prefilled with arbitrary values, then a few steps timed; SOE: actually run to n);
+  2. wall time and max error against the exact Mittag-Leffler solution E_a(A t^a) x0 for
+     N = 1e4 and 1e5 steps of a 4-state linear problem: ABMStepper, solve_abm_fft,
+     SOEStepper and pycaputo's PECE (skipped at N = 1e5 if its estimated time is too long);
+  3. batched throughput (point-steps/s) of BatchSOE (and BatchABM) for P = 1, 64, 512.
+
+BLAS is limited to one thread (per-core figures) unless the caller set the thread variables.
+The machine may be shared: the load average is printed and stored with the results.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
+    os.environ.setdefault(_var, '1')
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import platform  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+try:
+    import fohssv_sim.fractional  # noqa: F401
+except ImportError:
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'src' / 'fohssv_sim'))
+
+from fohssv_sim.fractional import (  # noqa: E402
+    ABMStepper,
+    BatchABM,
+    BatchSOE,
+    SOEStepper,
+    soe_kernel_error,
+    solve_abm_fft,
+)
+
+ALPHA = 0.85
+A4 = np.array([[-1.0, 2.0, 0.0, 0.0],
+               [-2.0, -1.0, 0.0, 0.5],
+               [0.0, 0.0, -3.0, 1.0],
+               [0.1, 0.0, -1.0, -0.5]])
+X4 = np.array([1.0, 0.5, -0.3, 0.2])
+T_END = 10.0
+
+
+def rhs(t, x, u):
+    return A4 @ x
+
+
+def exact_solution(t: np.ndarray, alpha: float) -> np.ndarray:
+    import pymittagleffler
+
+    lam, V = np.linalg.eig(A4)
+    c = np.linalg.solve(V, X4.astype(complex))
+    E = np.asarray(pymittagleffler.mittag_leffler(np.multiply.outer(t ** alpha, lam), alpha, 1.0))
+    return ((E * c) @ V.T).real
+
+
+# -- 1. per-step cost ------------------------------------------------------------------------
+def per_step_abm(n: int, reps: int) -> float:
+    st = ABMStepper(rhs, ALPHA, 1e-4, X4, capacity=n + reps + 16)
+    rng = np.random.default_rng(0)
+    st._hist.fill(rng.normal(size=(n, 4)) * 1e-3)     # arbitrary history f_0..f_{n-1}
+    st._n = n
+    st.step()                                          # warm-up (not timed)
+    t0 = time.perf_counter()
+    for _ in range(reps):
+        st.step()
+    return (time.perf_counter() - t0) / reps
+
+
+def per_step_soe(levels: list[int], reps: int) -> dict[int, float]:
+    st = SOEStepper(rhs, ALPHA, 1e-4, X4)
+    out = {}
+    for n in levels:
+        while st.n < n:
+            st.step()
+        t0 = time.perf_counter()
+        for _ in range(reps):
+            st.step()
+        out[n] = (time.perf_counter() - t0) / reps
+    return out
+
+
+# -- 2. accuracy and wall time ---------------------------------------------------------------
+def run_stepper(cls, N: int, h: float) -> np.ndarray:
+    st = cls(rhs, ALPHA, h, X4)
+    xs = np.empty((N + 1, 4))
+    xs[0] = X4
+    for n in range(N):
+        xs[n + 1] = st.step()
+    return xs
+
+
+def run_pycaputo(N: int, h: float) -> np.ndarray:
+    from pycaputo.controller import make_fixed_controller
+    from pycaputo.derivatives import CaputoDerivative
+    from pycaputo.events import StepCompleted
+    from pycaputo.fode import caputo
+    from pycaputo.stepping import evolve
+
+    m = caputo.PECE(ds=tuple(CaputoDerivative(ALPHA) for _ in range(4)),
+                    control=make_fixed_controller(h, tstart=0.0, nsteps=N),
+                    source=lambda t, y: A4 @ y, y0=(X4.copy(),), corrector_iterations=1)
+    return np.array([ev.y for ev in evolve(m, dtinit=h) if isinstance(ev, StepCompleted)])
+
+
+def timed(fn, *args):
+    t0 = time.perf_counter()
+    out = fn(*args)
+    return out, time.perf_counter() - t0
+
+
+# -- 3. batched throughput -------------------------------------------------------------------
+def batch_throughput(cls, P: int, steps: int, warm: int) -> float:
+    AT = A4.T.copy()
+    X0 = np.random.default_rng(0).normal(size=(P, 4))
+    B = cls(lambda t, X, U: X @ AT, ALPHA, 1e-4, X0)
+    for _ in range(warm):
+        B.step()
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        B.step()
+    return P * steps / (time.perf_counter() - t0)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[1])
+    ap.add_argument('--out', type=Path, default=None, help='write the results as JSON here')
+    ap.add_argument('--quick', action='store_true', help='reduced run (~1 min)')
+    ap.add_argument('--pycaputo-max-seconds', type=float, default=240.0,
+                    help='skip pycaputo at a size whose estimated time exceeds this')
+    args = ap.parse_args(argv)
+    quick = args.quick
+    res: dict = {
+        'alpha': ALPHA, 'problem': '4-state linear D^a x = A x, t in [0, 10] s',
+        'quick': quick, 'python': sys.version.split()[0], 'numpy': np.__version__,
+        'machine': platform.machine(), 'load_avg_start': os.getloadavg(),
+        'blas_threads': os.environ.get('OPENBLAS_NUM_THREADS'),
+    }
+    print(f"fohssv fractional benchmark  alpha={ALPHA}  quick={quick}  "
+          f"load avg {os.getloadavg()[0]:.2f}  BLAS threads {res['blas_threads']}")
+
+    # 1 ------------------------------------------------------------------------------------
+    levels = [10**3, 10**4, 10**5] + ([] if quick else [10**6])
+    abm_reps = {10**3: 2000, 10**4: 500, 10**5: 100, 10**6: 20}
+    cost = {'n': levels, 'abm_us': [], 'soe_us': []}
+    for n in levels:
+        cost['abm_us'].append(per_step_abm(n, abm_reps[n]) * 1e6)
+    soe = per_step_soe(levels, 3000)
+    cost['soe_us'] = [soe[n] * 1e6 for n in levels]
+    cost['soe_ratio_last_over_1e3'] = cost['soe_us'][-1] / cost['soe_us'][0]
+    cost['abm_note'] = 'ABM: history prefilled with arbitrary values, then steps timed'
+    cost['soe_note'] = 'SOE: stepped for real up to each n, then 3000 steps timed'
+    res['per_step_cost'] = cost
+    print('\n1. cost per step (microseconds)')
+    print(f"{'n':>10} {'ABMStepper':>12} {'SOEStepper':>12} {'ABM/SOE':>9}")
+    for n, a, s in zip(levels, cost['abm_us'], cost['soe_us']):
+        print(f"{n:>10.0e} {a:>12.1f} {s:>12.1f} {a / s:>9.1f}")
+    print(f"   SOE cost at n={levels[-1]:.0e} / at n=1e3: {cost['soe_ratio_last_over_1e3']:.2f} "
+          f"(target <= 1.5)")
+
+    # 2 ------------------------------------------------------------------------------------
+    sizes = [10**4] + ([] if quick else [10**5])
+    acc: dict = {}
+    print('\n2. wall time (s) and max error vs exact Mittag-Leffler, T = 10 s')
+    print(f"{'N':>8} {'solver':>14} {'wall s':>9} {'max abs err':>12} {'max dev from abm':>17}")
+    pyc_rate = None
+    for N in sizes:
+        h = T_END / N
+        t = h * np.arange(N + 1)
+        ex = exact_solution(t, ALPHA)
+        rows = {}
+        x_abm, w = timed(run_stepper, ABMStepper, N, h)
+        rows['ABMStepper'] = (w, x_abm)
+        sol, w = timed(solve_abm_fft, rhs, ALPHA, h, X4, N)
+        rows['solve_abm_fft'] = (w, sol.x)
+        x, w = timed(run_stepper, SOEStepper, N, h)
+        rows['SOEStepper'] = (w, x)
+        est = None if pyc_rate is None else pyc_rate * N ** 2
+        if est is not None and est > args.pycaputo_max_seconds:
+            rows['pycaputo PECE'] = None
+            print(f"{N:>8} {'pycaputo PECE':>14}   skipped: estimated {est:.0f} s "
+                  f"(> {args.pycaputo_max_seconds:.0f} s, O(N^2) from the smaller run)")
+        else:
+            x, w = timed(run_pycaputo, N, h)
+            rows['pycaputo PECE'] = (w, x)
+            pyc_rate = w / N ** 2
+        entry = {}
+        for name, val in rows.items():
+            if val is None:
+                entry[name] = {'skipped': True, 'estimated_s': est}
+                continue
+            w, x = val
+            err = float(np.max(np.abs(x - ex)))
+            dev = float(np.max(np.abs(x - x_abm)) / np.max(np.abs(x_abm)))
+            entry[name] = {'wall_s': w, 'max_abs_err': err, 'rel_dev_from_abm': dev}
+            print(f"{N:>8} {name:>14} {w:>9.3f} {err:>12.3e} {dev:>17.2e}")
+        entry['fft_speedup_vs_abm'] = rows['ABMStepper'][0] / rows['solve_abm_fft'][0]
+        entry['soe_speedup_vs_abm'] = rows['ABMStepper'][0] / rows['SOEStepper'][0]
+        print(f"   N={N:.0e}: solve_abm_fft {entry['fft_speedup_vs_abm']:.1f}x faster than "
+              f"ABMStepper (target >= 10 at 1e5), SOEStepper {entry['soe_speedup_vs_abm']:.1f}x")
+        acc[str(N)] = entry
+    res['accuracy_and_wall'] = acc
+
+    # 3 ------------------------------------------------------------------------------------
+    steps = 500 if quick else 2000
+    thr: dict = {}
+    print(f"\n3. batched throughput (point-steps/s, linear rhs, {steps} steps after 100)")
+    print(f"{'P':>6} {'BatchSOE':>12} {'BatchABM@n<=2100':>18}")
+    for P in (1, 64, 512):
+        s = batch_throughput(BatchSOE, P, steps, 100)
+        a = batch_throughput(BatchABM, P, steps, 100)
+        thr[str(P)] = {'BatchSOE': s, 'BatchABM': a}
+        print(f"{P:>6} {s:>12.3g} {a:>18.3g}")
+    thr['soe_P512_over_target_1e6'] = thr['512']['BatchSOE'] / 1e6
+    print(f"   BatchSOE at P=512: {thr['soe_P512_over_target_1e6']:.2f} x the 1e6 target")
+    res['batch_throughput'] = thr
+
+    rep = soe_kernel_error(ALPHA)
+    res['soe_kernel'] = rep._asdict()
+    print(f"\nSOE kernel (alpha={ALPHA}, tol 1e-10, horizon 1e8): {rep.n_modes} modes, max rel "
+          f"weight error {rep.max:.2e} over {rep.n_lags_checked} lags")
+    res['load_avg_end'] = os.getloadavg()
+    print(f"load avg at end {os.getloadavg()[0]:.2f}")
+    if args.out is not None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(res, indent=2))
+        print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

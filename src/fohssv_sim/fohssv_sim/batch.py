@@ -163,7 +163,7 @@ class _BatchRK4:
 def simulate_batch(params: Sequence[ModelParameters], controllers: Sequence[Any],
                    duration: float, *, control_period: float | None = None,
                    initial_states: np.ndarray | None = None, sample_every: int = 1,
-                   record_from: float = 0.0,
+                   record_from: float = 0.0, serial_below: int = 8,
                    progress: Callable[[float], None] | None = None) -> BatchResult:
     """Advance every point of ``params`` under its controller for ``duration`` seconds.
 
@@ -173,6 +173,8 @@ def simulate_batch(params: Sequence[ModelParameters], controllers: Sequence[Any]
             the step), as in :func:`fohssv_sim.simulate.simulate`.
         initial_states: (P, 4), default zeros.
         sample_every: keep every k-th step; record_from: keep only samples with t >= this.
+        serial_below: integer-model batches smaller than this run point by point (the scalar
+            RK4 is about 10x faster per step than numpy on a handful of points).
 
     Raises:
         ValueError: points that do not share :data:`SHARED_FIELDS`, a non-affine controller,
@@ -197,7 +199,7 @@ def simulate_batch(params: Sequence[ModelParameters], controllers: Sequence[Any]
         raise ValueError(f'sample_every={sample_every!r} must be a whole number >= 1')
     n_steps = int(math.ceil(duration / h - 1e-9))
 
-    if params[0].model == 'delayed':
+    if params[0].model == 'delayed' or (params[0].model == 'delay-free' and P < serial_below):
         return _serial(params, controllers, duration, control_period, X0, sample_every,
                        record_from)
 

@@ -1,0 +1,144 @@
+"""Batched runs and orbit-diagram sweeps: against per-point runs, Matignon, and each other."""
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from ament_index_python.packages import get_package_prefix
+
+from fohssv_controller.state_feedback import StateFeedback
+from fohssv_sim.analysis.orbits import classify, local_maxima
+from fohssv_sim.analysis.sweep import SweepSpec, run_chunk
+from fohssv_sim.batch import simulate_batch
+from fohssv_sim.equilibria import find_equilibria
+from fohssv_sim.params import ModelParameters
+from fohssv_sim.simulate import simulate
+
+FOHSSV = Path(get_package_prefix('fohssv_sim')) / 'lib' / 'fohssv_sim' / 'fohssv'
+
+
+@pytest.mark.parametrize('model,extra', [('delay-free', {}), ('fractional', {'solver': 'soe'}),
+                                         ('fractional', {'solver': 'abm'})])
+def test_batched_points_equal_per_point_runs(model, extra):
+    ps = [ModelParameters(model=model, speed=v, **extra) for v in (75.0, 81.0, 88.0)]
+    b = simulate_batch(ps, [StateFeedback()], 0.05, sample_every=5, serial_below=1)
+    for i, p in enumerate(ps):
+        r = simulate(p, StateFeedback(), 0.05, sample_every=5)
+        assert np.allclose(b.states[i], r.state, rtol=1e-12, atol=1e-14)
+
+
+def test_batched_zero_order_hold_equals_per_point_runs():
+    ps = [ModelParameters(model='delay-free', speed=v) for v in (75.0, 84.5)]
+    b = simulate_batch(ps, [StateFeedback()], 0.05, control_period=1e-4, serial_below=1)
+    for i, p in enumerate(ps):
+        r = simulate(p, StateFeedback(), 0.05, control_period=1e-4)
+        assert np.allclose(b.states[i], r.state, rtol=1e-12, atol=1e-14)
+
+
+def spec(**kw):
+    base = ModelParameters(model=kw.pop('model', 'delay-free')).to_dict()
+    base.pop('fractional_order')
+    base.pop('speed')
+    return SweepSpec(base=base, **kw)
+
+
+def test_sweep_maxima_are_those_of_a_direct_simulation():
+    s = spec(alphas=(0.85,), speeds=(75.0,), transient=1.2, window=0.3)
+    (row,) = run_chunk(s.to_dict(), [0])
+    r = simulate(ModelParameters(model='delay-free'), StateFeedback(), 1.5)
+    keep = r.t >= 1.2 - 1e-12
+    _, peaks = local_maxima(r.t[keep], r.state[keep, 1])
+    assert row['n_maxima'] == peaks.size > 10
+    assert np.allclose(row['maxima'], peaks[-64:], rtol=1e-12)
+    assert row['label'] == 'periodic-1'   # the delay-free tail slap at 75 m/s (spec 8, Fig. 3)
+
+
+def test_classification_agrees_with_matignon_and_the_root_finder():
+    # V = 84.5: alpha_c = 0.757 (eigenvalues of the Jacobian). Below it the FOM must settle on
+    # the equilibrium found by root finding; above it, it must not.
+    p = ModelParameters(speed=84.5)
+    (eq,) = find_equilibria(p, StateFeedback())
+    assert eq.stable(0.7) and not eq.stable(0.85)
+    base = p.replace(solver='soe').to_dict()
+    base.pop('fractional_order')
+    base.pop('speed')
+    s = SweepSpec(base=base, alphas=(0.7, 0.85), speeds=(84.5,), transient=0.5, window=0.3,
+                  sample_every=2, eq_tol=1e-3)
+    unstable = run_chunk(s.to_dict(), [1])[0]
+    assert unstable['label'].startswith('periodic') and unstable['amplitude'] > 0.05
+    r = simulate_batch([p.replace(solver='soe', fractional_order=0.7)], [StateFeedback()], 0.8,
+                       sample_every=2, record_from=0.5)
+    cls, _ = classify(r.t, r.states[0, :, 1], eq_tol=1e-3)
+    assert cls.kind in ('equilibrium', 'converging')
+    # algebraic convergence: w is within 1e-4 after 0.8 s, the slow modes within a few 1e-3
+    assert abs(r.states[0, -1, 1] - eq.state[1]) < 1e-4
+    assert np.allclose(r.states[0, -1], eq.state, atol=[1e-3, 1e-4, 1e-3, 2e-2])
+
+
+def read_chunks(out):
+    rows = []
+    for f in sorted((out / 'chunks').glob('chunk_*.csv')):
+        with open(f) as fh:
+            rows.extend(csv.DictReader(fh))
+    return rows
+
+
+SWEEP = ['sweep', 'V', '--set', 'model=delay-free', '--speed', '75:90:5', '--transient',
+         '0.05', '--window', '0.05', '--chunk-size', '1', '--workers', '2']
+
+
+def test_interrupted_sweep_resumes_without_recomputing_finished_chunks(tmp_path):
+    out = tmp_path / 'sweep'
+    proc = subprocess.Popen([str(FOHSSV), *SWEEP, '--out', str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        done = list((out / 'chunks').glob('chunk_*.csv')) if out.exists() else []
+        if done or proc.poll() is not None:
+            break
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGKILL)   # the client and its local cluster
+    proc.wait()
+    finished = {f.name: f.stat().st_mtime_ns for f in (out / 'chunks').glob('chunk_*.csv')}
+    assert finished, 'no chunk finished before the kill'
+    side = json.loads((out / 'sweep.json').read_text())
+    assert side['step'] == 1e-5 and side['solver'] == 'rk4' and len(side['chunks']) == 4
+    res = subprocess.run([str(FOHSSV), *SWEEP, '--out', str(out)], capture_output=True,
+                         text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert f'{len(finished)} reused' in res.stdout or f'{4 - len(finished)} chunks computed' \
+        in res.stdout
+    for name, mtime in finished.items():
+        assert (out / 'chunks' / name).stat().st_mtime_ns == mtime   # not recomputed
+    assert len(read_chunks(out)) == 4
+    assert (out / 'orbit_V.png').stat().st_size > 5000
+
+
+def test_same_results_with_the_local_default_and_an_explicit_cluster(tmp_path):
+    from dask.distributed import LocalCluster
+
+    a, b = tmp_path / 'local', tmp_path / 'cluster'
+    r = subprocess.run([str(FOHSSV), *SWEEP, '--out', str(a)], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr
+    with LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None) as cluster:
+        r = subprocess.run([str(FOHSSV), *SWEEP, '--out', str(b), '--scheduler',
+                            cluster.scheduler_address], capture_output=True, text=True,
+                           timeout=300)
+        assert r.returncode == 0, r.stderr
+    assert read_chunks(a) == read_chunks(b)
+
+
+def test_sweep_rejects_bad_input_in_one_line(tmp_path):
+    for args, text in [(['--alpha', '0.5:1.2:0.1'], 'outside (0, 1]'),
+                       (['--set', 'length=-1'], 'length=-1.0'),
+                       (['--window', '0'], '--window')]:
+        r = subprocess.run([str(FOHSSV), 'sweep', 'alpha', *args, '--out', str(tmp_path)],
+                           capture_output=True, text=True, timeout=60)
+        assert r.returncode == 2 and text in r.stderr and 'Traceback' not in r.stderr

@@ -197,7 +197,7 @@ def _load_extra_commands() -> None:
     import importlib
 
     for mod in ('fohssv_sim.analysis.cli_plot', 'fohssv_sim.analysis.cli_sweep',
-                'fohssv_sim.analysis.cli_report', 'fohssv_sim.bag.cli'):
+                'fohssv_sim.analysis.cli_report'):
         try:
             m = importlib.import_module(mod)
         except ModuleNotFoundError as e:

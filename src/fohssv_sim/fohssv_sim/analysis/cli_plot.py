@@ -1,0 +1,63 @@
+"""``fohssv plot BAG...`` and ``fohssv repair|check BAG``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from ..cli import CliError, _figure_paths
+
+
+def register(sub) -> None:
+    p = sub.add_parser('plot', help='time responses and w-q phase portrait of recorded bags',
+                       description='Time responses of z, w, theta, q, delta_c and Fp (Figs. '
+                       '3-4) and the w-q phase portrait (Fig. 7); several bags overlay. '
+                       'Writes PNG and SVG and a summary JSON per bag.')
+    p.add_argument('bags', nargs='+', type=Path, help='rosbag2 folders (or .mcap files)')
+    p.add_argument('--out', type=Path, default=Path('reports'), help='output folder')
+    p.add_argument('--skip', type=float, default=0.0, help='phase portrait from t >= SKIP s')
+    p.add_argument('--name', default='run', help='figure file stem')
+    p.set_defaults(func=cmd_plot)
+
+    r = sub.add_parser('repair', help='rebuild the index, summary and metadata.yaml of a bag '
+                       'cut short (e.g. by SIGKILL)')
+    r.add_argument('args', nargs=argparse.REMAINDER)
+    r.set_defaults(func=lambda a: _delegate('repair', a.args))
+    c = sub.add_parser('check', help='structural check of a bag (CRCs, indexes, metadata)')
+    c.add_argument('args', nargs=argparse.REMAINDER)
+    c.set_defaults(func=lambda a: _delegate('check', a.args))
+
+
+def _delegate(what: str, argv: list[str]) -> int:
+    from ..bag.__main__ import main
+
+    return main([what, *argv])
+
+
+def cmd_plot(args: argparse.Namespace) -> int:
+    from ..bag import BagError, load_run
+    from .plots import plot_phase_portrait, plot_time_responses, summary
+
+    runs = []
+    for bag in args.bags:
+        try:
+            runs.append(load_run(bag))
+        except BagError as e:
+            raise CliError(str(e)) from None
+    for run in runs:
+        if run.t.size == 0:
+            raise CliError(f'{run.path}: no state messages to plot')
+        if run.recovery:
+            print(f'{run.path}: {run.recovery}')
+    args.out.mkdir(parents=True, exist_ok=True)
+    stem = args.out / args.name
+    plot_time_responses(runs, _figure_paths(stem.parent / f'{stem.name}_time'))
+    plot_phase_portrait(runs, _figure_paths(stem.parent / f'{stem.name}_phase'), args.skip)
+    summaries = {str(r.path): summary(r) for r in runs}
+    (args.out / f'{args.name}_summary.json').write_text(json.dumps(summaries, indent=2) + '\n')
+    for path, s in summaries.items():
+        print(f'{path}: ' + ', '.join(f'{k}={v:.6g}' if isinstance(v, float) else f'{k}={v}'
+                                      for k, v in s.items()))
+    print(f'figures: {stem}_time.png/.svg, {stem}_phase.png/.svg')
+    return 0

@@ -1,0 +1,287 @@
+"""Recorder: write the run's topics to a rosbag2 bag (version 9, MCAP) as they arrive.
+
+``ros2 run fohssv_sim recorder --ros-args -p bag_path:=runs/x``
+
+* Messages are subscribed with ``raw=True`` and written as received (CDR bytes untouched).
+* Log time = simulation time in ns: ``round(data[0] * 1e9)`` for the contract's
+  Float64MultiArray topics (``data[0]`` is the exact t the plant computed), the stamp itself
+  for ``/clock``. The exact doubles stay in the messages; the log time is for ordering and for
+  tools (``ros2 bag info``, Foxglove).
+* Run metadata, written at once as an MCAP metadata record ``fohssv`` and at close into
+  ``metadata.yaml`` custom_data: package version, ``git describe`` and revision of
+  ``$FOHSSV_ROOT``, recorder settings, and (when the plant answers its parameter services)
+  every parameter of the node named by ``plant_node``: the model parameters, model options,
+  solver, mode.
+* Durability: the chunk in progress is flushed to the OS every ``flush_period`` seconds of
+  wall time (and whenever it exceeds ``chunk_size`` bytes). SIGKILL loses at most the
+  messages received in the last ``flush_period`` (plus one callback); SIGINT/SIGTERM close the
+  bag completely (summary, index, metadata.yaml). ``python -m fohssv_sim.bag repair`` rebuilds
+  a killed recorder's bag.
+
+Exit codes: 0 after SIGINT/SIGTERM with the bag closed, 1 bad parameters or the bag cannot be
+created.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+import time
+from datetime import datetime, timezone
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any
+
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor, ParameterType
+from rcl_interfaces.srv import GetParameters, ListParameters
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import parameter_value_to_python
+from rclpy.qos import QoSProfile
+from rclpy.signals import SignalHandlerOptions
+from rosgraph_msgs.msg import Clock as ClockMsg
+from std_msgs.msg import Float64MultiArray
+
+from .. import contract
+from ..bag.writer import DEFAULT_CHUNK_SIZE, RunWriter, typestore
+from .qos import SAMPLE_DEPTH, profile
+
+__all__ = ['Recorder', 'main', 'default_bag_path', 'source_info']
+
+_MSG_CLASSES = {contract.FLOAT64_ARRAY: Float64MultiArray, contract.CLOCK.type: ClockMsg}
+
+
+def default_bag_path(now: datetime | None = None) -> Path:
+    """``runs/<UTC timestamp>`` under ``$FOHSSV_ROOT`` (or the current directory)."""
+    now = now or datetime.now(timezone.utc)
+    root = Path(os.environ.get('FOHSSV_ROOT', '.'))
+    return root / 'runs' / now.strftime('%Y%m%dT%H%M%S_%fZ')
+
+
+def source_info() -> dict[str, str]:
+    """Package version and the source tree's git revision (when it is a git checkout)."""
+    try:
+        pkg = version('fohssv_sim')
+    except PackageNotFoundError:
+        pkg = 'unknown'
+    info = {'fohssv.version': pkg}
+    root = os.environ.get('FOHSSV_ROOT') or str(Path(__file__).resolve().parents[2])
+    for key, cmd in (('fohssv.git_describe', ['describe', '--always', '--dirty', '--tags']),
+                     ('fohssv.git_revision', ['rev-parse', 'HEAD'])):
+        try:
+            out = subprocess.run(['git', '-C', root, *cmd], capture_output=True, text=True,
+                                 timeout=5)
+            if out.returncode == 0:
+                info[key] = out.stdout.strip()
+        except (OSError, subprocess.SubprocessError):
+            pass
+    return info
+
+
+def _contract_topic(name: str) -> contract.Topic:
+    base = name.rstrip('/').rsplit('/', 1)[-1]
+    for topic in contract.TOPICS:
+        if topic.name.lstrip('/') == base:
+            return topic
+    valid = ', '.join(t.name for t in contract.TOPICS)
+    raise ValueError(f'topics: {name!r} is not a contract topic; the recorder records: {valid} '
+                     '(in any namespace)')
+
+
+class Recorder(Node):
+    """Subscribes to the run's topics and writes them to a bag; see the module docstring."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('recorder', **kwargs)
+        d = self.declare_parameter
+        d('bag_path', '', ParameterDescriptor(
+            description='bag directory to create; empty = runs/<UTC timestamp>', read_only=True))
+        d('topics', [t.name for t in contract.TOPICS], ParameterDescriptor(
+            type=ParameterType.PARAMETER_STRING_ARRAY, read_only=True,
+            description='topics to record (contract topics, relative names resolved in the '
+                        "recorder's namespace)"))
+        d('plant_node', 'plant', ParameterDescriptor(
+            description="node whose parameters are stored with the run; '' or 'none' = no node",
+            read_only=True))
+        d('plant_timeout', 10.0, ParameterDescriptor(
+            description='s to wait for the plant parameter services', read_only=True))
+        d('flush_period', 0.1, ParameterDescriptor(
+            description='s of wall time between flushes: the most a SIGKILL can lose',
+            read_only=True))
+        d('chunk_size', DEFAULT_CHUNK_SIZE, ParameterDescriptor(
+            description='bytes after which a chunk is written even between flushes',
+            read_only=True))
+        gp = self.get_parameter
+        flush_period = float(gp('flush_period').value)
+        if not (math.isfinite(flush_period) and 0 < flush_period <= 60):
+            raise ValueError(f'flush_period={flush_period!r} s must be in (0, 60] s')
+        chunk_size = int(gp('chunk_size').value)
+        if chunk_size < 1024:
+            raise ValueError(f'chunk_size={chunk_size!r} bytes must be >= 1024 bytes')
+        names = list(gp('topics').value)
+        if not names:
+            raise ValueError('topics: empty list; give at least one contract topic')
+        topics = [(name, _contract_topic(name)) for name in names]
+        path = str(gp('bag_path').value)
+        self.bag_path = Path(path) if path else default_bag_path()
+        if self.bag_path.exists():
+            raise ValueError(f'bag_path={str(self.bag_path)!r} exists already; the recorder '
+                             'never overwrites a bag')
+
+        self._ts = typestore()
+        self.closed = False
+        self.writer = RunWriter(self.bag_path, chunk_size=chunk_size).open()
+        print(f'recording to {self.bag_path}', flush=True)
+        try:
+            self._start(topics, flush_period, chunk_size)
+        except BaseException:
+            self.close()     # interrupted while starting: still a complete (empty) bag
+            raise
+
+    def _start(self, topics: list[tuple[str, contract.Topic]], flush_period: float,
+               chunk_size: int) -> None:
+        gp = self.get_parameter
+        self._last_log = 0
+        self.subscriptions_ = []
+        for name, topic in topics:
+            base = profile(topic)
+            # same reliability/durability as the plant's; the recorder's own queue is deep
+            qos = QoSProfile(history=base.history, depth=max(base.depth, SAMPLE_DEPTH),
+                             reliability=base.reliability, durability=base.durability)
+            sub = self.create_subscription(_MSG_CLASSES[topic.type], name,
+                                           self._callback(topic), qos, raw=True)
+            self.writer.add_topic(sub.topic_name, topic.type)
+            self.subscriptions_.append(sub)
+        self.topic_names = [s.topic_name for s in self.subscriptions_]
+        self.writer.add_metadata({
+            **source_info(),
+            'fohssv.recorder_started_utc': datetime.now(timezone.utc).isoformat(),
+            'fohssv.topics': self.topic_names,
+            'fohssv.log_time': 'simulation time in ns: round(data[0] * 1e9) for '
+                               'Float64MultiArray topics, the stamp for /clock',
+            'fohssv.flush_period_s': repr(flush_period),
+            'fohssv.chunk_size_bytes': str(chunk_size),
+            'fohssv.plant_node': str(gp('plant_node').value),
+        })
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._flush_timer = self.create_timer(flush_period, self.writer.flush, clock=steady)
+        self._plant = str(gp('plant_node').value)
+        self._plant = '' if self._plant.lower() == 'none' else self._plant
+        self._plant_deadline = time.monotonic() + float(gp('plant_timeout').value)
+        self._plant_timer = None
+        if self._plant:
+            self._list = self.create_client(ListParameters, f'/{self._plant}/list_parameters')
+            self._get = self.create_client(GetParameters, f'/{self._plant}/get_parameters')
+            self._plant_timer = self.create_timer(0.05, self._poll_plant, clock=steady)
+
+    # -- messages ---------------------------------------------------------------------------
+    def _callback(self, topic: contract.Topic):
+        name = self.resolve_topic_name(topic.name)
+        write = self.writer.write
+        if topic.type == contract.CLOCK.type:
+            def on_clock(raw: bytes) -> None:
+                c = self._ts.deserialize_cdr(raw, topic.type).clock
+                write(name, c.sec * 1_000_000_000 + c.nanosec, raw)
+            return on_clock
+
+        def on_array(raw: bytes) -> None:
+            data = self._ts.deserialize_cdr(raw, topic.type).data
+            t = float(data[0]) if len(data) else math.nan
+            log = round(t * 1e9) if math.isfinite(t) and 0 <= t < 9e9 else self._last_log
+            self._last_log = log
+            write(name, log, raw)
+        return on_array
+
+    # -- plant parameters -------------------------------------------------------------------
+    def _poll_plant(self) -> None:
+        if self._list.service_is_ready() and self._get.service_is_ready():
+            self._plant_timer.cancel()
+            req = ListParameters.Request()
+            self._list.call_async(req).add_done_callback(self._on_list)
+        elif time.monotonic() > self._plant_deadline:
+            self._plant_timer.cancel()
+            self._record_plant_error(f'no parameter services of node /{self._plant} within '
+                                     'plant_timeout')
+
+    def _on_list(self, future) -> None:
+        result = future.result()
+        if result is None:
+            self._record_plant_error('list_parameters failed')
+            return
+        names = sorted(result.result.names)
+        req = GetParameters.Request(names=names)
+        self._get.call_async(req).add_done_callback(
+            lambda f: self._on_get(names, f))
+
+    def _on_get(self, names: list[str], future) -> None:
+        result = future.result()
+        if result is None or len(result.values) != len(names):
+            self._record_plant_error('get_parameters failed')
+            return
+        params = {}
+        for n, v in zip(names, result.values, strict=True):
+            value = parameter_value_to_python(v)
+            params[n] = list(value) if isinstance(value, (tuple, list)) or hasattr(
+                value, 'tolist') else value
+        if self.closed:
+            return
+        self.writer.add_metadata({'fohssv.plant_parameters': params})
+        self.get_logger().info(f'stored {len(params)} parameters of /{self._plant}')
+
+    def _record_plant_error(self, text: str) -> None:
+        if not self.closed:
+            self.writer.add_metadata({'fohssv.plant_parameters_error': text})
+        self.get_logger().warning(f'run metadata without plant parameters: {text}')
+
+    # -- end --------------------------------------------------------------------------------
+    def close(self) -> None:
+        """Close the bag (summary, index, metadata.yaml) and print the counts."""
+        if self.closed:
+            return
+        self.closed = True
+        self.writer.close()
+        counts = ', '.join(f'{k}: {v}' for k, v in self.writer.counts.items())
+        print(f'closed {self.bag_path}: {sum(self.writer.counts.values())} messages ({counts})',
+              flush=True)
+
+
+def main(args: list[str] | None = None) -> int:
+    # SIGINT and SIGTERM both shut the context down; spin then raises
+    # ExternalShutdownException and the bag is closed below.
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.ALL)
+    except Exception as exc:  # noqa: BLE001 - rcl's argument errors: one line, no traceback
+        print(f'recorder: error: {exc}', file=sys.stderr, flush=True)
+        return 2
+    node = None
+    code = 0
+    try:
+        node = Recorder()
+        # SingleThreadedExecutor: rclpy's EventsExecutor (faster) did not run this node's
+        # steady-clock timers and service clients in a first try; see docs/recording.md
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (ValueError, OSError) as exc:
+        print(f'recorder: error: {exc}', file=sys.stderr, flush=True)
+        code = 1
+    except Exception as exc:  # noqa: BLE001
+        if rclpy.ok():        # not a signal arriving during start-up
+            print(f'recorder: error: {type(exc).__name__}: {exc}', file=sys.stderr, flush=True)
+            code = 1
+    finally:
+        if node is not None:
+            node.close()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,205 @@
+"""The recorder as a real process over DDS, fed by a real rclpy node in the test that plays
+the plant: it steps the real delay-free model and publishes the contract messages.
+
+Asserts: the recorded state series equals the model's trajectory sample for sample with
+exact times and log times round(t * 1e9); the bag carries the plant's parameters and the
+source revision; SIGINT and SIGTERM give complete bags that pass the structural check and
+open with rosbags and mcap_ros2; SIGKILL leaves a bag that loads with every flushed message
+and that repair makes complete.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rosbags.rosbag2 import Reader
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+from fohssv_sim import contract
+from fohssv_sim.bag import BagError, load_run
+from fohssv_sim.bag.check import check
+from fohssv_sim.bag.repair import repair
+from fohssv_sim.models import make_plant
+from fohssv_sim.params import ModelParameters
+from fohssv_sim.ros.qos import profile
+
+from rosproc import ros_env, start, stop, unique_domain_id, wait_exit, wait_for
+
+pytestmark = pytest.mark.graph
+
+
+class FakePlant:
+    """A node named 'plant' with parameters, publishing a real model's steps."""
+
+    def __init__(self, domain: int) -> None:
+        self.ctx = Context()
+        rclpy.init(context=self.ctx, domain_id=domain)
+        self.node = Node('plant', context=self.ctx)
+        self.node.declare_parameter('model', 'delay-free')
+        self.node.declare_parameter('V', 75.0)
+        self.node.declare_parameter('control_period', 1e-4)
+        self.pubs = {t.name: self.node.create_publisher(
+            Clock if t is contract.CLOCK else Float64MultiArray, t.name, profile(t))
+            for t in contract.TOPICS}
+        self.executor = SingleThreadedExecutor(context=self.ctx)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+        self.model = make_plant(ModelParameters(model='delay-free'))
+        self.t: list[float] = []
+        self.x: list[tuple] = []
+
+    def wait_matched(self) -> None:
+        wait_for(lambda: all(p.get_subscription_count() > 0 for p in self.pubs.values()), 20,
+                 what='the recorder subscribing to every topic')
+
+    def publish(self, steps: int, period: float = 1e-3) -> None:
+        """``steps`` steps, one every ``period`` s of wall time (as a real-time plant paces
+        them: command's keep-last queue is only COMMAND_DEPTH deep)."""
+        start = time.perf_counter()
+        for k in range(steps):
+            while time.perf_counter() < start + k * period:
+                pass
+            t, x = self.model.t, self.model.state
+            u = (0.01 * np.sin(50 * t), -0.005)
+            self.t.append(t)
+            self.x.append(tuple(x))
+            for topic, data in ((contract.STATE, [t, *x]),
+                                (contract.PLANING_FORCE, [t, self.model.planing_force]),
+                                (contract.COMMAND, [t, *u])):
+                msg = Float64MultiArray(data=[float(v) for v in data])
+                msg.layout.dim = [MultiArrayDimension(label=topic.label, size=len(data),
+                                                      stride=len(data))]
+                self.pubs[topic.name].publish(msg)
+            clock = Clock()
+            ns = round(t * 1e9)
+            clock.clock.sec, clock.clock.nanosec = ns // 10**9, ns % 10**9
+            self.pubs['/clock'].publish(clock)
+            self.model.step(u)
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.ctx)
+        self.thread.join(timeout=5)
+
+
+@pytest.fixture
+def domain():
+    return unique_domain_id()
+
+
+@pytest.fixture
+def plant(domain):
+    p = FakePlant(domain)
+    yield p
+    p.close()
+
+
+def _recorder(tmp_path, domain, *params: str):
+    log = tmp_path / 'recorder.log'
+    args = ['--ros-args', '-p', 'plant_timeout:=20.0']
+    for p in params:
+        args += ['-p', p]
+    proc = start('fohssv_sim', 'recorder', args, env=ros_env(domain), log=log)
+    return proc, log
+
+
+def _assert_matches(run, plant, n=None):
+    n = len(plant.t) if n is None else n
+    t = np.array(plant.t[:n])
+    assert np.array_equal(run.t, t)                       # exact doubles
+    assert np.array_equal(run.state, np.array(plant.x[:n]))
+    assert np.array_equal(run.log_time['state'], np.array([round(v * 1e9) for v in t]))
+    assert np.array_equal(run.command_t, t) and np.array_equal(run.planing_force_t, t)
+
+
+def _recorded(bag) -> int:
+    try:
+        run = load_run(bag)
+    except BagError:          # nothing flushed yet
+        return 0
+    return min(len(run.t), len(run.command_t), len(run.planing_force_t))
+
+
+def _wait_recorded(bag, n: int) -> None:
+    """Poll the bag while the recorder writes it (the loader reads unfinished bags)."""
+    wait_for(lambda: _recorded(bag) >= n, 30, interval=0.1, what=f'{n} steps in {bag}')
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
+def test_signal_closes_a_complete_bag_equal_to_the_trajectory(tmp_path, domain, plant, sig):
+    bag = tmp_path / 'run'
+    proc, log = _recorder(tmp_path, domain, f'bag_path:={bag}')
+    plant.wait_matched()
+    wait_for(lambda: 'parameters of /plant' in log.read_text(), 30,
+             what='the recorder reading the plant parameters')
+    plant.publish(1500)
+    _wait_recorded(bag, 1500)
+    assert stop(proc, sig) == 0, log.read_text()
+    out = log.read_text()
+    assert f'recording to {bag}' in out and 'closed' in out and '/state: 1500' in out
+    run = load_run(bag)
+    assert not run.truncated
+    _assert_matches(run, plant)
+    clock = run.topics.pop('/clock')
+    assert run.topics == {'/state': 1500, '/planing_force': 1500, '/command': 1500}
+    # /clock is keep-last 1 at the publisher (qos.py): the newest may replace an unsent one
+    assert 0 < clock <= 1500 and set(run.clock_t) <= {round(t * 1e9) * 1e-9 for t in plant.t}
+    assert run.parameters['model'] == 'delay-free' and run.parameters['V'] == 75.0
+    assert run.metadata['fohssv.git_revision']
+    assert run.metadata['fohssv.version'] == '0.1.0'
+    report = check(bag)
+    assert report.ok, report.problems
+    with Reader(bag) as reader:
+        assert reader.message_count == 3 * 1500 + clock
+
+
+def test_sigkill_keeps_every_flushed_message_and_repair_completes_it(tmp_path, domain, plant):
+    bag = tmp_path / 'killed'
+    proc, log = _recorder(tmp_path, domain, f'bag_path:={bag}', 'flush_period:=0.05',
+                          'plant_node:=none')
+    plant.wait_matched()
+    plant.publish(1000)
+    # they reach the file within a flush period, readable while the recorder runs
+    _wait_recorded(bag, 1000)
+    plant.publish(300)    # and 300 more, killed straight after: some may be lost
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=10)
+    assert not (bag / 'metadata.yaml').exists()
+    run = load_run(bag)
+    assert run.truncated and 'recovered' in run.recovery
+    assert 1000 <= len(run.t) <= 1300
+    _assert_matches(run, plant, len(run.t))
+    assert run.metadata['fohssv.plant_node'] == 'none'
+    assert repair(bag).repaired
+    assert check(bag).ok
+    again = load_run(bag)
+    assert not again.truncated and np.array_equal(again.state, run.state)
+
+
+def test_default_path_and_bad_parameters(tmp_path, domain):
+    env = ros_env(domain, FOHSSV_ROOT=str(tmp_path))
+    proc = start('fohssv_sim', 'recorder', ['--ros-args', '-p', 'plant_node:=none'], env=env)
+    wait_for(lambda: any((tmp_path / 'runs').glob('*/*.mcap')), 20, what='a bag under runs/')
+    assert stop(proc, signal.SIGINT) == 0
+    out = proc.stdout.read()
+    bags = list((tmp_path / 'runs').iterdir())
+    assert len(bags) == 1 and f'recording to {bags[0]}' in out
+    assert check(bags[0]).ok     # an empty run is still a sound bag
+    for bad, words in ((['topics:=[speed]'], "'speed' is not a contract topic"),
+                       ([f'bag_path:={bags[0]}'], 'exists already'),
+                       (['flush_period:=0.0'], 'flush_period')):
+        proc = start('fohssv_sim', 'recorder', ['--ros-args', '-p', *bad], env=env)
+        assert wait_exit(proc, 30) == 1
+        out = proc.stdout.read()
+        assert words in out and 'Traceback' not in out, out

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
+
 from fohssv_sim.bag import BagError, load_run
 from fohssv_sim.bag.synthetic import write_bag
 

@@ -5,14 +5,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from fohssv_sim.bag import load_run
-from fohssv_sim.bag.check import REQUIRED_METADATA_FIELDS, check
-from fohssv_sim.bag.synthetic import METADATA, write_bag
-from fohssv_sim.bag.writer import typestore
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.rosbag2 import Reader
 from ruamel.yaml import YAML
+
+from fohssv_sim.bag import load_run
+from fohssv_sim.bag.check import REQUIRED_METADATA_FIELDS, check
+from fohssv_sim.bag.synthetic import METADATA, write_bag
+from fohssv_sim.bag.writer import typestore
 
 N = 400
 

@@ -7,11 +7,12 @@ import shutil
 
 import numpy as np
 import pytest
+from rosbags.rosbag2 import Reader
+
 from fohssv_sim.bag import BagError, load_run
 from fohssv_sim.bag.check import check
 from fohssv_sim.bag.repair import main_repair, repair
 from fohssv_sim.bag.synthetic import METADATA, write_bag
-from rosbags.rosbag2 import Reader
 
 N, FLUSH = 300, 20
 

@@ -204,8 +204,12 @@ def load_sweep(out: Path) -> SweepResult:
 
 
 def run_sweep(spec: SweepSpec, out: Path, *, scheduler: str | None = None, workers: int = 0,
-              progress: Callable[[int, int, float], None] | None = None) -> SweepResult:
+              progress: Callable[[int, int, float], None] | None = None,
+              client: Any = None) -> SweepResult:
     """Run (or resume) the sweep ``spec`` into folder ``out``; see the module docstring.
+
+    ``client``: an existing ``dask.distributed.Client`` to use (then ``scheduler`` and
+    ``workers`` are ignored and the client is left open).
 
     Raises:
         ValueError: ``out`` holds a different sweep (the message says how to proceed).
@@ -233,7 +237,10 @@ def run_sweep(spec: SweepSpec, out: Path, *, scheduler: str | None = None, worke
         from dask.distributed import Client, LocalCluster, as_completed
 
         cluster = None
-        if scheduler:
+        own = client is None
+        if not own:
+            pass
+        elif scheduler:
             client = Client(scheduler, timeout='20s')
         else:
             n = workers or os.cpu_count() or 1
@@ -250,7 +257,8 @@ def run_sweep(spec: SweepSpec, out: Path, *, scheduler: str | None = None, worke
                 if progress is not None:
                     progress(done, len(chunks), time.monotonic() - start)
         finally:
-            client.close()
+            if own:
+                client.close()
             if cluster is not None:
                 cluster.close()
     result = load_sweep(out)

@@ -43,6 +43,10 @@ class ExactHistory:
     of spec section 5, with ``scale = (cp, cc) = (h^a/G(a+1), h^a/G(a+2))``. Accuracy: exact up
     to rounding (one BLAS product over the history). Cost: O(n m) per call to ``sums``; memory
     (capacity) x m doubles, doubled when full.
+
+    Raises:
+        MemoryError: the doubled buffer cannot be allocated (no other errors; no checks on
+            the call order, which the steppers guarantee).
     """
 
     def __init__(self, table: WeightTable, m: int, capacity: int = 1024,
@@ -294,7 +298,13 @@ class ABMStepper(PECEStepperBase):
 
 class BatchMixin:
     """Batch behaviour shared by :class:`BatchABM` and :class:`~.soe.BatchSOE`: state (P, d),
-    per-point failure handling (``on_nonfinite`` = 'raise' or 'mask')."""
+    per-point failure handling (``on_nonfinite`` = 'raise' or 'mask'). Cost: O(P d) per step
+    on top of the stepper.
+
+    Raises:
+        ValueError: on_nonfinite not 'raise' or 'mask'.
+        FloatingPointError: a point became non-finite in mode 'raise' (names t and the points).
+    """
 
     _state_ndim = 2
 

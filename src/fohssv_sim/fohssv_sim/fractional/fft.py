@@ -34,7 +34,11 @@ _DIRECT_MAX = 64    # halves up to this length use a direct Toeplitz product ins
 
 class ABMSolution(NamedTuple):
     """Result of :func:`solve_abm_fft`: ``t`` (N+1,), ``x`` (N+1, d), ``f`` (N+1, d) with
-    f[n] = rhs(t_n, x_n, u_n) (the ABM history terms; f[N] uses the last input)."""
+    f[n] = rhs(t_n, x_n, u_n) (the ABM history terms; f[N] uses the last input).
+
+    Raises:
+        nothing (plain data; unpacks as ``t, x, f = solve_abm_fft(...)``).
+    """
 
     t: np.ndarray
     x: np.ndarray
@@ -183,26 +187,28 @@ def solve_abm_fft(rhs, alpha: float, step: float, x0, n_steps: int, u=None,
     def base(lo: int, hi: int) -> None:
         pbc = x0 + scale * acc[lo:hi]            # (L, 2, d): x0 + cp S^P, x0 + cc S^C
         un = uval
+        xn = X[lo]
+        tn = t0 + lo * h
         for i in range(hi - lo):
             n = lo + i
-            xn = X[n]
             if is_call:
-                un = np.asarray(uval(t[n], xn), dtype=float)
+                un = np.asarray(uval(tn, xn), dtype=float)
             elif is_seq:
                 un = uval[n]
             if n:
-                f = rhs(t[n], xn, un)
+                f = rhs(tn, xn, un)
                 if f.__class__ is not ndarray or f.shape != dshape:
                     f = coerce(f)
                 G[n] = f
             s = wrt[i] @ G[lo:n + 1]
             s += pbc[i]
             xp = s[0]
-            tn1 = t0 + (n + 1) * h
-            fp = rhs(tn1, xp, np.asarray(uval(tn1, xp), dtype=float) if is_call else un)
+            tn = t0 + (n + 1) * h
+            fp = rhs(tn, xp, np.asarray(uval(tn, xp), dtype=float) if is_call else un)
             if fp.__class__ is not ndarray or fp.shape != dshape:
                 fp = coerce(fp)
-            X[n + 1] = s[1] + cc * fp
+            xn = s[1] + cc * fp
+            X[n + 1] = xn
         check_block(lo, hi)
 
     def merge(lo: int, mid: int, hi: int) -> None:

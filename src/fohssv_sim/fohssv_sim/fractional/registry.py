@@ -13,7 +13,11 @@ __all__ = ['SolverInfo', 'SOLVERS', 'UnknownSolverError', 'get_solver']
 
 
 class UnknownSolverError(KeyError, ValueError):
-    """An unknown solver name (a ValueError, and a KeyError so Mapping.get works)."""
+    """An unknown solver name (a ValueError, and a KeyError so Mapping.get works).
+
+    Raises:
+        nothing itself; raised by ``SOLVERS[name]`` and :func:`get_solver`.
+    """
 
     def __str__(self) -> str:  # KeyError would quote the whole message
         return str(self.args[0]) if self.args else ''
@@ -23,7 +27,11 @@ class UnknownSolverError(KeyError, ValueError):
 class SolverInfo:
     """One solver: ``stepper`` (online class with step(u), or None), ``offline`` (function
     solving a whole horizon, or None), ``batch`` (batched class), one-line ``accuracy`` and
-    ``cost`` statements."""
+    ``cost`` statements; ``doc`` joins them in one line.
+
+    Raises:
+        nothing (plain data).
+    """
 
     name: str
     stepper: type | None

@@ -65,6 +65,10 @@ class SOEModes:
     For lags k >= n_exact:  b(k) ~= sum_l pred[l] z_l^(k - n_exact),
     c(k) ~= sum_l corr[l] z_l^(k - n_exact), with z_l = 1 - decay[l] = exp(-s[l]), and the
     kernel tau^(a-1) ~= sum_l weight[l] exp(-s[l] tau). Arrays are read-only, sorted by s.
+    Built by :func:`soe_modes`; accuracy: see :func:`soe_kernel_error`.
+
+    Raises:
+        nothing (plain data); :meth:`tail_weights` raises ValueError for non-numeric lags.
     """
 
     alpha: float
@@ -197,7 +201,11 @@ def soe_modes(alpha: float, tolerance: float = 1e-10, horizon_steps: int = 10**8
 class SOEErrorReport(NamedTuple):
     """Max relative errors of the SOE over lags [n_exact, horizon_steps]: of the kernel
     tau^(a-1) itself, of the predictor weights b(k) and of the corrector weights c(k);
-    ``max`` is the largest of the latter two (the numbers the stepper uses)."""
+    ``max`` is the largest of the latter two (the numbers the stepper uses).
+
+    Raises:
+        nothing (plain data).
+    """
 
     kernel: float
     predictor: float
@@ -255,6 +263,9 @@ class SOEHistory:
     Accuracy: tail weights to the SOE tolerance (relative). Cost per step:
     O((L + n_exact + K) m), independent of n (the fold costs O(L K m) every K steps); memory
     O((L + n_exact + K) m).
+
+    Raises:
+        RuntimeWarning (a warning, once): the step count passed horizon_steps.
     """
 
     _FOLD = 32   # K: values folded into the modes at once

@@ -35,6 +35,9 @@ $(VENV_STAMP): requirements.txt constraints.txt
 $(BUILD_STAMP): $(VENV_STAMP) $(PKG_INPUTS)
 	@echo "building ros2_ws with colcon"
 	cd ros2_ws && ../$(IN_ENV) colcon --log-base log build --event-handlers console_cohesion- summary+
+	@# the analysis CLI on the venv's PATH: `.venv/bin/fohssv` (or `fohssv` after `source env.sh`)
+	@printf '#!/usr/bin/env bash\n# fohssv analysis CLI (written by make setup)\nsource "%s/env.sh" >/dev/null\nexec "%s/ros2_ws/install/fohssv_sim/lib/fohssv_sim/fohssv" "$$@"\n' \
+	    "$(CURDIR)" "$(CURDIR)" > $(VENV)/bin/fohssv && chmod +x $(VENV)/bin/fohssv
 	@touch $@
 
 setup: $(BUILD_STAMP)

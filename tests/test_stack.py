@@ -84,3 +84,12 @@ def test_dockerfile_names_only_files_that_exist_and_pins_like_requirements():
 def test_colcon_defaults_point_at_the_sources():
     text = (ROOT / 'ros2_ws' / 'colcon_defaults.yaml').read_text()
     assert 'base-paths: ["../src"]' in text
+
+
+def test_fohssv_console_script_is_on_the_venv_path_and_works_in_a_clean_shell():
+    clean = {'PATH': '/usr/bin:/bin', 'HOME': os.environ.get('HOME', '/root')}
+    out = subprocess.run([str(ROOT / '.venv' / 'bin' / 'fohssv'), '--help'], env=clean,
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    for sub in ('stability', 'plot', 'sweep', 'report', 'repair'):
+        assert sub in out.stdout

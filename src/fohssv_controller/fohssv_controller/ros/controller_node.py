@@ -1,0 +1,162 @@
+"""The generic controller node: hosts the controller plugin its ``controller`` parameter names.
+
+``ros2 run fohssv_controller controller --ros-args -p controller:=lqr`` (or the per-law
+executables ``state_feedback`` and ``lqr``). Subscribes ``state`` and answers every sample with
+one ``command`` [t, delta_f, delta_c] whose t echoes the state's time, so the node works in
+lockstep and real time alike. The controller's parameters are declared from its
+``Parameters`` table (descriptions, ranges); a change is validated by rebuilding the
+controller and applied only when that succeeds. A state message that does not fit the
+contract is dropped and logged; a state whose time goes backwards (the plant was reset) resets
+the controller.
+
+Exit codes: 0 on a clean stop, 2 for an unknown controller or invalid parameters.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Mapping
+from typing import Any
+
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from std_msgs.msg import Float64MultiArray
+
+from fohssv_sim.contract import COMMAND, STATE, ContractError, decode
+from fohssv_sim.params import ParameterError, field_specs
+from fohssv_sim.ros.plant_node import array_message
+from fohssv_sim.ros.qos import profile
+from fohssv_sim.ros.ros_params import declare, install_validation
+from fohssv_sim.ros.spin import final_log, make_executor, spin_until
+
+from .. import registry
+from ..base import Controller
+
+__all__ = ['ControllerNode', 'main', 'main_state_feedback', 'main_lqr']
+
+EXIT_OK, EXIT_BAD_CONFIG = 0, 2
+_LOG_EACH = 20
+
+
+class ControllerNode(Node):
+    """See the module docstring.
+
+    Raises:
+        registry.UnknownController: the ``controller`` parameter names no plugin.
+        ParameterError: invalid controller parameters.
+    """
+
+    def __init__(self, default_controller: str = 'state_feedback', **kwargs: Any) -> None:
+        super().__init__('controller', **kwargs)
+        name = self.declare_parameter(
+            'controller', default_controller,
+            ParameterDescriptor(description='name of the controller plugin (entry point in '
+                                f'group {registry.GROUP})', read_only=True,
+                                additional_constraints='one of: '
+                                + ', '.join(registry.available()))).value
+        self.cls: type[Controller] = registry.load(name)
+        specs = field_specs(self.cls.Parameters)
+        names = tuple(s.name for s in specs)
+        values = declare(self, specs)
+        self.controller = self._build(values)
+        install_validation(self, names, self._build, self._apply)
+
+        self._msg = array_message(COMMAND)
+        self.command_pub = self.create_publisher(Float64MultiArray, COMMAND.name,
+                                                 profile(COMMAND))
+        self.state_sub = self.create_subscription(Float64MultiArray, STATE.name,
+                                                  self._on_state, profile(STATE))
+        self._pending: list[tuple[float, ...]] = []
+        self._retry = None
+        self._last_t: float | None = None
+        self.answered = 0
+        self.dropped = 0
+        self.get_logger().info(f'controller {self.controller.describe()}')
+
+    def _build(self, values: Mapping[str, Any]) -> Controller:
+        return self.cls(self.cls.Parameters(**values))
+
+    def _apply(self, controller: Controller) -> None:
+        self.controller = controller
+        self.get_logger().info(f'parameters changed: {controller.describe()}')
+
+    def _on_state(self, msg: Float64MultiArray) -> None:
+        try:
+            t, *x = decode(STATE, msg.data)
+        except ContractError as exc:
+            self.dropped += 1
+            text = f'dropped a state message: {exc} ({self.dropped} dropped)'
+            self.get_logger().error(text, throttle_duration_sec=(
+                0.0 if self.dropped <= _LOG_EACH else 1.0))
+            return
+        if self._last_t is not None and t < self._last_t:
+            self.controller.reset()
+            self.get_logger().info(f'state time went back to t={t!r} s: controller reset')
+        self._last_t = t
+        try:
+            df, dc = self.controller.command(t, x)
+        except Exception as exc:  # a plugin's bug must not kill the node silently
+            self.get_logger().error(f'{self.controller.name}.command(t={t!r}) raised '
+                                    f'{type(exc).__name__}: {exc}; no command sent')
+            return
+        self._send((t, df, dc))
+
+    def _send(self, data: tuple[float, ...]) -> None:
+        # Until the plant's subscription is matched a publish would be lost: hold the answer.
+        if self._pending or self.command_pub.get_subscription_count() == 0:
+            self._pending.append(data)
+            if self._retry is None:
+                self._retry = self.create_timer(0.005, self._flush)
+            return
+        self._msg.data = data
+        self.command_pub.publish(self._msg)
+        self.answered += 1
+
+    def _flush(self) -> None:
+        if self.command_pub.get_subscription_count() == 0:
+            return
+        pending, self._pending = self._pending, []
+        for data in pending:
+            self._send(data)
+        if self._retry is not None:
+            self.destroy_timer(self._retry)
+            self._retry = None
+
+
+def main(args: list[str] | None = None, default_controller: str = 'state_feedback') -> None:
+    """Entry point of ``ros2 run fohssv_controller controller``."""
+    rclpy.init(args=args)
+    code = EXIT_OK
+    node = None
+    try:
+        try:
+            node = ControllerNode(default_controller)
+        except (registry.UnknownController, ParameterError, ValueError) as exc:
+            rclpy.logging.get_logger('controller').error(str(exc))
+            code = EXIT_BAD_CONFIG
+        else:
+            executor = make_executor()
+            executor.add_node(node)
+            spin_until(executor)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            final_log(node.get_name(), f'answered {node.answered} state(s), dropped '
+                      f'{node.dropped}')
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    sys.exit(code)
+
+
+def main_state_feedback(args: list[str] | None = None) -> None:
+    """``ros2 run fohssv_controller state_feedback``: the node with eq. 31."""
+    main(args, 'state_feedback')
+
+
+def main_lqr(args: list[str] | None = None) -> None:
+    """``ros2 run fohssv_controller lqr``: the node with the LQR."""
+    main(args, 'lqr')

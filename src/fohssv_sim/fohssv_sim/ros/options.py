@@ -1,0 +1,147 @@
+"""Options of the plant node that are not model parameters: one table, one dataclass.
+
+Pure (no rclpy): the table :data:`NODE_PARAMETERS` is declared as ROS parameters next to
+:data:`fohssv_sim.params.PARAMETERS` by :mod:`fohssv_sim.ros.ros_params`, and documented in
+``docs/ros.md`` from the same rows. ``needs_reset=True`` rows are read-only on a running node.
+
+Control period versus spec section 7: the plant holds each command for ``control_period``
+(zero-order hold). The default 1e-4 s (5 FOM steps of 2e-5 s, 10 RK4 steps of 1e-5 s) shifts
+the FOM limit cycle at V = 75 by about 1-2 % against continuous feedback; 1e-3 s would shift it
+by more than 10 %. Every result must state the control period it ran with.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from ..params import ModelParameters, ParameterError, ParameterSpec, spec_field, validate_fields
+from ..simulate import steps_per_period
+
+__all__ = ['MODES', 'NODE_PARAMETERS', 'NODE_PARAMETER_BY_NAME', 'StateSpec', 'PlantOptions',
+           'check_options']
+
+#: The plant node's two modes.
+MODES = ('lockstep', 'realtime')
+
+
+@dataclass(frozen=True)
+class StateSpec(ParameterSpec):
+    """A parameter holding a state [z, w, theta, q] (a double array in ROS)."""
+
+    def range_text(self) -> str:
+        return '4 finite numbers [z m, w m/s, theta rad, q rad/s]'
+
+    def validate(self, value: Any) -> Any:
+        """Return the state as a tuple of 4 floats.
+
+        Raises:
+            ParameterError: not 4 finite numbers.
+        """
+        try:
+            vals = tuple(float(v) for v in value)
+        except (TypeError, ValueError):
+            vals = ()
+        if len(vals) != 4 or not all(math.isfinite(v) for v in vals):
+            raise ParameterError(f'{self.name}={value!r} is not valid; allowed: '
+                                 f'{self.range_text()} ({self.description})')
+        return vals
+
+
+_P = ParameterSpec
+
+#: Plant-node options (units in the table; ranges checked by :class:`PlantOptions`).
+NODE_PARAMETERS: tuple[ParameterSpec, ...] = (
+    _P('mode', '-', 'lockstep', '-', "'lockstep': publish the state, wait for the command that "
+       "answers it, then advance (deterministic); 'realtime': advance paced by the wall clock, "
+       'holding the latest command', choices=MODES, numeric=False),
+    _P('control_period', 'T', 1e-4, 's', 'simulated time between published samples; the '
+       'command is held over it (zero-order hold); a whole multiple of step', low=0.0,
+       high=1.0, high_open=False),
+    _P('duration', '-', 0.0, 's', 'simulated time after which the plant stops and exits 0; '
+       '0 = run until stopped', low=0.0, low_open=False, high=1e6, high_open=False,
+       needs_reset=False),
+    StateSpec('initial_state', 'x(0)', (0.0, 0.0, 0.0, 0.0), 'm, m/s, rad, rad/s',
+              'state at t = 0 [z, w, theta, q]; a change applies at the next reset',
+              numeric=False, needs_reset=False),
+    _P('real_time_factor', '-', 1.0, '-', 'realtime mode: simulated seconds per wall second',
+       low=0.0, high=1000.0, high_open=False, needs_reset=False),
+    _P('pacing_period', '-', 1e-3, 's', 'realtime mode: wall-clock period of the pacing timer; '
+       'each tick publishes every sample due by then (ticks are max(this, control_period / '
+       'real_time_factor))', low=1e-5, low_open=False, high=1.0, high_open=False),
+    _P('command_timeout', '-', 5.0, 's', 'lockstep mode: wall time to wait for the command '
+       'answering a state before the plant fails (exit code 3)', low=0.0, high=3600.0,
+       high_open=False, needs_reset=False),
+    _P('watchdog_timeout', '-', 0.1, 's', 'realtime mode: wall time without a command after '
+       'which the plant warns (once per outage) and keeps holding the last good command; '
+       '0 = off', low=0.0, low_open=False, high=3600.0, high_open=False, needs_reset=False),
+    _P('max_fin_deflection', '-', 0.5, 'rad', 'a command with |delta_f| above this is '
+       'rejected (the last good command is kept)', low=0.0, high=math.pi / 2, high_open=False,
+       needs_reset=False),
+    _P('max_cavitator_deflection', '-', 0.5, 'rad', 'a command with |delta_c| above this is '
+       'rejected (the last good command is kept)', low=0.0, high=math.pi / 2, high_open=False,
+       needs_reset=False),
+    _P('min_state_subscribers', '-', 1, '-', 'matched subscribers of state (controllers, '
+       'recorders) to wait for before the first sample', low=0.0, low_open=False, high=1000.0,
+       high_open=False),
+    _P('min_command_publishers', '-', 1, '-', 'matched publishers of command to wait for '
+       'before the first sample', low=0.0, low_open=False, high=1000.0, high_open=False),
+    _P('start_timeout', '-', 30.0, 's', 'wall time to wait for those matches; lockstep fails '
+       '(exit code 4) when they are missing, realtime starts anyway with a warning',
+       low=0.0, low_open=False, high=3600.0, high_open=False),
+)
+
+NODE_PARAMETER_BY_NAME: dict[str, ParameterSpec] = {p.name: p for p in NODE_PARAMETERS}
+
+
+def _f(name: str) -> Any:
+    return spec_field(NODE_PARAMETER_BY_NAME[name])
+
+
+@dataclass(frozen=True)
+class PlantOptions:
+    """Validated plant-node options (see :data:`NODE_PARAMETERS`).
+
+    Raises:
+        ParameterError: an invalid value, naming it, the allowed range and unit.
+    """
+
+    mode: str = _f('mode')
+    control_period: float = _f('control_period')
+    duration: float = _f('duration')
+    initial_state: tuple = _f('initial_state')
+    real_time_factor: float = _f('real_time_factor')
+    pacing_period: float = _f('pacing_period')
+    command_timeout: float = _f('command_timeout')
+    watchdog_timeout: float = _f('watchdog_timeout')
+    max_fin_deflection: float = _f('max_fin_deflection')
+    max_cavitator_deflection: float = _f('max_cavitator_deflection')
+    min_state_subscribers: int = _f('min_state_subscribers')
+    min_command_publishers: int = _f('min_command_publishers')
+    start_timeout: float = _f('start_timeout')
+
+    def __post_init__(self) -> None:
+        validate_fields(self)
+        for name in ('min_state_subscribers', 'min_command_publishers'):
+            v = getattr(self, name)
+            if v != int(v):
+                raise ParameterError(f'{name}={v!r} must be a whole number')
+            object.__setattr__(self, name, int(v))
+
+    def replace(self, **changes: Any) -> PlantOptions:
+        """A validated copy with ``changes``."""
+        return dataclasses.replace(self, **changes)
+
+
+def check_options(model: ModelParameters, options: PlantOptions) -> int:
+    """Check the options against the model; return the integration steps per sample.
+
+    Raises:
+        ParameterError: ``control_period`` is not a whole multiple of the model's step.
+    """
+    try:
+        return steps_per_period(options.control_period, model.step)
+    except ValueError as exc:
+        raise ParameterError(str(exc)) from None

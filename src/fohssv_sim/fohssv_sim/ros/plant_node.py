@@ -1,0 +1,394 @@
+"""The plant node: ``ros2 run fohssv_sim plant [--ros-args --params-file config/plant.yaml]``.
+
+A thin wrapper around :class:`fohssv_sim.ros.loop.SampledPlant` (the model the parameters name,
+sampled every ``control_period`` with the command held). Topics (relative names, see
+:mod:`fohssv_sim.contract` and ``docs/ros.md``): publishes ``state``, ``planing_force`` and
+``/clock`` at every sample, subscribes ``command``; service ``reset`` (std_srvs/Trigger).
+
+Modes:
+
+* ``lockstep``: publish the sample at t_n, wait for the ``command`` whose t is exactly t_n,
+  advance one control period with it, publish the next. Deterministic whatever the load;
+  ``command_timeout`` ends the run (exit 3) naming the side that stalled.
+* ``realtime``: a wall-clock pacer publishes every sample when due (``real_time_factor``),
+  holding the newest good command; deadline misses are counted and reported; the watchdog
+  warns once per outage when no command came for ``watchdog_timeout``.
+
+Exit codes: 0 clean stop (signal or ``duration`` reached), 1 state turned non-finite,
+2 invalid parameters at start, 3 lockstep timeout or plant overrun, 4 peers missing at start.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from collections.abc import Mapping
+from typing import Any
+
+import rclpy
+from rclpy.duration import Duration
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.task import Future
+from rclpy.time import Time
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from std_srvs.srv import Trigger
+
+from ..contract import CLOCK, COMMAND, PLANING_FORCE, STATE, Topic
+from ..params import PARAMETERS, ModelParameters, ParameterError
+from .loop import CommandRejected, Pacer, SampledPlant, answered_time, check_command
+from .options import NODE_PARAMETERS, PlantOptions, check_options
+from .qos import profile
+from .ros_params import declare, install_validation
+from .spin import final_log, make_executor, spin_until
+
+__all__ = ['PlantNode', 'main', 'EXIT_OK', 'EXIT_DIVERGED', 'EXIT_BAD_PARAMETERS',
+           'EXIT_TIMEOUT', 'EXIT_NO_PEERS']
+
+EXIT_OK, EXIT_DIVERGED, EXIT_BAD_PARAMETERS, EXIT_TIMEOUT, EXIT_NO_PEERS = 0, 1, 2, 3, 4
+
+_MODEL_NAMES = tuple(p.name for p in PARAMETERS)
+_NODE_NAMES = tuple(p.name for p in NODE_PARAMETERS)
+#: Rejected commands logged one by one; later ones are throttled to one line per second.
+_LOG_EACH = 20
+
+
+def array_message(topic: Topic) -> Float64MultiArray:
+    """An empty message of ``topic`` with its self-describing layout."""
+    msg = Float64MultiArray()
+    n = len(topic.fields)
+    msg.layout.dim = [MultiArrayDimension(label=topic.label, size=n, stride=n)]
+    return msg
+
+
+def build_config(values: Mapping[str, Any]) -> tuple[ModelParameters, PlantOptions, int]:
+    """The pure configuration from parameter values: model, options, steps per sample.
+
+    Raises:
+        ParameterError: an invalid value or combination.
+    """
+    model = ModelParameters.from_dict({n: values[n] for n in _MODEL_NAMES})
+    options = PlantOptions(**{n: values[n] for n in _NODE_NAMES})
+    hold = check_options(model, options)
+    return model, options, hold
+
+
+class PlantNode(Node):
+    """See the module docstring. Raises ParameterError from the constructor on bad values."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('plant', **kwargs)
+        values = declare(self, PARAMETERS + NODE_PARAMETERS)
+        self.model, self.options, hold = build_config(values)
+        self.sim = SampledPlant(self.model, self.options.control_period,
+                                self.options.initial_state)
+        install_validation(self, _MODEL_NAMES + _NODE_NAMES, build_config, self._apply)
+
+        self.finished = Future()
+        self.exit_code = EXIT_OK
+        self._state_msg = array_message(STATE)
+        self._force_msg = array_message(PLANING_FORCE)
+        self._clock_msg = Clock()
+        self.state_pub = self.create_publisher(Float64MultiArray, STATE.name, profile(STATE))
+        self.force_pub = self.create_publisher(Float64MultiArray, PLANING_FORCE.name,
+                                               profile(PLANING_FORCE))
+        self.clock_pub = self.create_publisher(Clock, CLOCK.name, profile(CLOCK))
+        self.command_sub = self.create_subscription(Float64MultiArray, COMMAND.name,
+                                                    self._on_command, profile(COMMAND))
+        self.reset_srv = self.create_service(Trigger, 'reset', self._on_reset)
+
+        self.running = False
+        self.rejected = 0
+        self.ignored = 0
+        self._awaiting: float | None = None       # lockstep: t of the state awaiting a command
+        self._published_wall = 0.0                # lockstep: when that state went out
+        self._last_command_t: float | None = None  # t of the last command received
+        self._last_command_wall: float | None = None
+        self._watchdog_warned = False
+        self._max_lag = 0.0                       # realtime: sim time between state and command
+        self._wall_start = time.monotonic()
+        self._run_wall_start = 0.0
+        self._timer = None
+        self.pacer: Pacer | None = None
+        self._peer_timer = self.create_timer(0.01, self._wait_for_peers)
+        self.get_logger().info(
+            f'{self.sim.plant.describe()}; mode {self.options.mode}, control period '
+            f'{self.options.control_period:g} s = {hold} steps (zero-order hold), duration '
+            f'{self.options.duration:g} s; waiting for {self.options.min_state_subscribers} '
+            f'state subscriber(s) and {self.options.min_command_publishers} command '
+            'publisher(s)')
+
+    # -- parameters ------------------------------------------------------------------------
+    def _apply(self, config: tuple[ModelParameters, PlantOptions, int]) -> None:
+        _, options, _ = config
+        self.options = options
+
+    # -- start -------------------------------------------------------------------------------
+    def _peers(self) -> tuple[int, int]:
+        return self.state_pub.get_subscription_count(), self.command_sub.get_publisher_count()
+
+    def _wait_for_peers(self) -> None:
+        subs, pubs = self._peers()
+        o = self.options
+        if subs >= o.min_state_subscribers and pubs >= o.min_command_publishers:
+            self._start()
+            return
+        waited = time.monotonic() - self._wall_start
+        if waited < o.start_timeout:
+            return
+        what = (f'state has {subs}/{o.min_state_subscribers} subscriber(s), command has '
+                f'{pubs}/{o.min_command_publishers} publisher(s) after {waited:.1f} s')
+        if o.mode == 'lockstep':
+            self._fail(EXIT_NO_PEERS, f'start timeout: {what}; is the controller running '
+                       'in the same ROS_DOMAIN_ID and namespace?')
+        else:
+            self.get_logger().warning(f'starting without all peers: {what}')
+            self._start()
+
+    def _start(self) -> None:
+        self.destroy_timer(self._peer_timer)
+        self.running = True
+        self._run_wall_start = time.monotonic()
+        self._last_command_wall = self._run_wall_start
+        self.get_logger().info('peers matched; starting at t = 0')
+        if self.options.mode == 'lockstep':
+            self._publish()
+            self._await_command()
+            period = min(0.05, max(self.options.command_timeout / 4.0, 0.001))
+            self._timer = self.create_timer(period, self._check_lockstep_timeout)
+        else:
+            o = self.options
+            wall_period = o.control_period / o.real_time_factor
+            tick = max(o.pacing_period, wall_period)
+            batch = max(1, round(tick / wall_period))
+            self.pacer = Pacer(period=wall_period, tolerance=tick, max_batch=2 * batch,
+                               max_backlog=10 * batch)
+            self.pacer.begin(time.monotonic())
+            self._publish()
+            self.pacer.published(time.monotonic())
+            self._timer = self.create_timer(tick, self._tick)
+
+    # -- publishing --------------------------------------------------------------------------
+    def _publish(self) -> None:
+        state, force = self.sim.sample()
+        self._state_msg.data = state
+        self._force_msg.data = force
+        self._clock_msg.clock = Time(nanoseconds=round(state[0] * 1e9)).to_msg()
+        self.state_pub.publish(self._state_msg)
+        self.force_pub.publish(self._force_msg)
+        self.clock_pub.publish(self._clock_msg)
+
+    def _advance(self) -> bool:
+        """One control period and its sample; False when the run ended."""
+        try:
+            self.sim.advance()
+        except FloatingPointError as exc:
+            self._fail(EXIT_DIVERGED, f'simulation failed: {exc}')
+            return False
+        self._publish()
+        if self.sim.reached(self.options.duration):
+            self._finish(f'duration {self.options.duration:g} s reached')
+            return False
+        return True
+
+    # -- lockstep ----------------------------------------------------------------------------
+    def _await_command(self) -> None:
+        self._awaiting = self.sim.t
+        self._published_wall = time.monotonic()
+
+    def _check_lockstep_timeout(self) -> None:
+        if self._awaiting is None or not self.running:
+            return
+        waited = time.monotonic() - self._published_wall
+        if waited <= self.options.command_timeout:
+            return
+        last = ('no command received at all' if self._last_command_t is None else
+                f'the last command answered t={self._last_command_t!r} s')
+        self._fail(EXIT_TIMEOUT,
+                   f'lockstep timeout: the controller stalled: no command answering '
+                   f't={self._awaiting!r} s within command_timeout='
+                   f'{self.options.command_timeout:g} s ({last}; command has '
+                   f'{self.command_sub.get_publisher_count()} publisher(s))')
+
+    def _lockstep_command(self, data: Any) -> None:
+        t = answered_time(data)
+        if self._awaiting is None or t != self._awaiting:
+            self.ignored += 1
+            self.get_logger().warning(
+                f'ignored a command for t={t!r} s while waiting for t={self._awaiting!r} s '
+                f'({self.ignored} ignored so far)', throttle_duration_sec=1.0)
+            return
+        self._take(data)
+        self._awaiting = None
+        begin = time.monotonic()
+        if not self._advance():
+            return
+        took = time.monotonic() - begin
+        if took > self.options.command_timeout:
+            self._fail(EXIT_TIMEOUT,
+                       f'lockstep timeout: the plant is overrunning: one control period '
+                       f'({self.sim.hold} steps) took {took:.3f} s > command_timeout='
+                       f'{self.options.command_timeout:g} s at t={self.sim.t!r} s')
+            return
+        self._await_command()
+
+    # -- real time ---------------------------------------------------------------------------
+    def _tick(self) -> None:
+        if not self.running or self.pacer is None:
+            return
+        pacer = self.pacer
+        for _ in range(pacer.due(time.monotonic())):
+            if not self._advance():
+                return
+            pacer.published(time.monotonic())
+        wd = self.options.watchdog_timeout
+        if wd > 0.0 and not self._watchdog_warned and self._last_command_wall is not None:
+            silent = time.monotonic() - self._last_command_wall
+            if silent > wd:
+                self._watchdog_warned = True
+                df, dc = self.sim.command
+                self.get_logger().warning(
+                    f'watchdog: no command for {silent:.3f} s (watchdog_timeout={wd:g} s) at '
+                    f't={self.sim.t:.6f} s; holding delta_f={df!r} rad, delta_c={dc!r} rad')
+
+    # -- commands ----------------------------------------------------------------------------
+    def _on_command(self, msg: Float64MultiArray) -> None:
+        if not self.running:
+            return
+        data = msg.data
+        self._last_command_t = answered_time(data)
+        self._last_command_wall = time.monotonic()
+        if self._watchdog_warned:
+            self._watchdog_warned = False
+            self.get_logger().info('watchdog: commands are arriving again')
+        if self.options.mode == 'lockstep':
+            self._lockstep_command(data)
+        else:
+            if self._take(data) and self._last_command_t is not None:
+                self._max_lag = max(self._max_lag, self.sim.t - self._last_command_t)
+
+    def _take(self, data: Any) -> bool:
+        """Hold the command in ``data`` if it is valid; else log and keep the last good one."""
+        o = self.options
+        try:
+            _, df, dc = check_command(data, o.max_fin_deflection, o.max_cavitator_deflection)
+        except CommandRejected as exc:
+            self.rejected += 1
+            df, dc = self.sim.command
+            text = (f'rejected command at t={self.sim.t!r} s: {exc}; keeping the last good '
+                    f'command delta_f={df!r}, delta_c={dc!r} rad ({self.rejected} rejected)')
+            if self.rejected <= _LOG_EACH:
+                self.get_logger().error(text)
+            else:
+                self.get_logger().error(text, throttle_duration_sec=1.0)
+            return False
+        self.sim.command = (df, dc)
+        return True
+
+    # -- reset -------------------------------------------------------------------------------
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response
+                  ) -> Trigger.Response:
+        if self.finished.done():
+            response.success = False
+            response.message = 'the run has ended'
+            return response
+        self.sim.reset(self.options.initial_state)
+        self._watchdog_warned = False
+        self.get_logger().info(f'reset to t = 0 at {list(self.options.initial_state)}')
+        if self.running:
+            if self.pacer is not None:
+                self.pacer.begin(time.monotonic())
+            self._publish()
+            if self.pacer is not None:
+                self.pacer.published(time.monotonic())
+            if self.options.mode == 'lockstep':
+                self._await_command()
+        response.success = True
+        response.message = f't = {self.sim.t!r} s, state = {list(self.options.initial_state)}'
+        return response
+
+    # -- end ---------------------------------------------------------------------------------
+    def summary(self) -> dict[str, Any]:
+        """Figures of the run so far (also logged as one JSON line at the end)."""
+        wall = time.monotonic() - self._run_wall_start if self.running else 0.0
+        s: dict[str, Any] = {
+            'mode': self.options.mode, 'model': self.model.model, 'solver': self.model.solver,
+            'step': self.model.step, 'control_period': self.options.control_period,
+            't': self.sim.t, 'samples': self.sim.samples,
+            'steps': self.sim.plant.n, 'wall_time': wall,
+            'rejected_commands': self.rejected, 'ignored_commands': self.ignored,
+        }
+        if self.pacer is not None:
+            p = self.pacer
+            s.update(real_time_factor=self.options.real_time_factor,
+                     achieved_real_time_factor=self.sim.t / wall if wall > 0 else 0.0,
+                     deadline_misses=p.misses, samples_paced=p.produced,
+                     deadline_miss_rate=p.misses / p.produced if p.produced else 0.0,
+                     slips=p.slips, worst_lateness=p.worst_lateness,
+                     max_command_lag=self._max_lag)
+        elif wall > 0:
+            s.update(samples_per_second=self.sim.samples / wall,
+                     steps_per_second=self.sim.plant.n / wall)
+        return s
+
+    def _end(self, code: int) -> None:
+        if self.finished.done():
+            return
+        self.exit_code = code
+        self.get_logger().info('summary: ' + json.dumps(self.summary()))
+        self.running = False
+        if self._timer is not None:
+            self.destroy_timer(self._timer)
+            self._timer = None
+        self.finished.set_result(code)
+
+    def _finish(self, why: str) -> None:
+        self.get_logger().info(f'stopping cleanly at t={self.sim.t!r} s: {why}')
+        self._end(EXIT_OK)
+
+    def _fail(self, code: int, message: str) -> None:
+        self.get_logger().error(message)
+        self._end(code)
+
+    def flush(self, timeout: float = 2.0) -> None:
+        """Wait until subscribers acknowledged what was published (reliable topics)."""
+        for pub in (self.state_pub, self.force_pub):
+            if pub.get_subscription_count() > 0:
+                pub.wait_for_all_acked(Duration(seconds=timeout))
+
+
+def main(args: list[str] | None = None) -> None:
+    """Entry point of ``ros2 run fohssv_sim plant``; exits with the node's exit code."""
+    rclpy.init(args=args)
+    code = EXIT_OK
+    node = None
+    try:
+        try:
+            node = PlantNode()
+        except (ParameterError, ValueError) as exc:
+            rclpy.logging.get_logger('plant').error(f'invalid parameters: {exc}')
+            code = EXIT_BAD_PARAMETERS
+        else:
+            executor = make_executor()
+            executor.add_node(node)
+            spin_until(executor, node.finished)
+            code = node.exit_code
+            node.flush()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        if node is not None:
+            code = node.exit_code
+            if not node.finished.done():
+                final_log(node.get_name(), 'interrupted; stopping cleanly. summary: '
+                          + json.dumps(node.summary()))
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    sys.exit(code)
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,181 @@
+"""ROS parameters generated from parameter tables (:class:`fohssv_sim.params.ParameterSpec`).
+
+Used by the plant node (model table + node options) and by the controller node (a
+controller's ``field_specs(Parameters)``). Each row becomes a declared parameter whose
+descriptor carries the description with unit and reference, the allowed values as
+``additional_constraints``, a ``FloatingPointRange``/``IntegerRange`` when both bounds are
+finite, and ``read_only`` when the row ``needs_reset``.
+
+ROS typing of the rows:
+
+* a number (default float) -> ``double``; an integer default -> ``integer``;
+* a name only (``choices``, not numeric) -> ``string``;
+* a name *or* a number (``step``, ``planing_offset``, ``advection_delay``) -> dynamically typed:
+  ``step:=auto`` and ``step:=2.0e-5`` are both accepted, and the table's validation decides;
+* a state (:class:`fohssv_sim.ros.options.StateSpec`) -> ``double_array``.
+
+An integer given for a ``double`` row (``-p speed:=80``, or ``speed: 80`` in YAML) is
+converted to a double instead of failing with rclpy's type error, at start and on set.
+
+Validation (``on_set``) only validates: it rebuilds the pure dataclasses from the current
+values plus the change, and refuses with the :class:`~fohssv_sim.params.ParameterError` text.
+The node applies an accepted change afterwards (``post_set``).
+"""
+
+from __future__ import annotations
+
+import array
+import math
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from typing import Any
+
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    ParameterType,
+    SetParametersResult,
+)
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from ..params import ParameterSpec
+from .options import StateSpec
+
+__all__ = ['ros_type', 'descriptor', 'declare', 'values_of', 'install_validation',
+           'python_value']
+
+
+def ros_type(spec: ParameterSpec) -> int:
+    """The ``ParameterType`` of a row (``PARAMETER_NOT_SET`` = dynamically typed)."""
+    if isinstance(spec, StateSpec):
+        return ParameterType.PARAMETER_DOUBLE_ARRAY
+    if spec.choices and spec.numeric:
+        return ParameterType.PARAMETER_NOT_SET
+    if not spec.numeric:
+        return ParameterType.PARAMETER_STRING
+    if isinstance(spec.default, int) and not isinstance(spec.default, bool):
+        return ParameterType.PARAMETER_INTEGER
+    return ParameterType.PARAMETER_DOUBLE
+
+
+def descriptor(spec: ParameterSpec) -> ParameterDescriptor:
+    """The descriptor of one row."""
+    unit = f' [{spec.unit}]' if spec.unit and spec.unit != '-' else ''
+    ref = f' ({spec.reference})' if spec.reference else ''
+    d = ParameterDescriptor(
+        name=spec.name,
+        description=f'{spec.description}{unit}{ref}',
+        additional_constraints=f'allowed: {spec.range_text()}{unit}',
+        read_only=spec.needs_reset,
+    )
+    kind = ros_type(spec)
+    if kind == ParameterType.PARAMETER_NOT_SET:
+        d.dynamic_typing = True
+    else:
+        d.type = kind
+    bounded = (spec.numeric and spec.low is not None and spec.high is not None
+               and math.isfinite(spec.low) and math.isfinite(spec.high))
+    if bounded and kind == ParameterType.PARAMETER_DOUBLE:
+        d.floating_point_range = [FloatingPointRange(from_value=float(spec.low),
+                                                     to_value=float(spec.high), step=0.0)]
+    elif bounded and kind == ParameterType.PARAMETER_INTEGER:
+        d.integer_range = [IntegerRange(from_value=int(math.ceil(spec.low)),
+                                        to_value=int(math.floor(spec.high)), step=1)]
+    return d
+
+
+def _ros_default(spec: ParameterSpec) -> Any:
+    if isinstance(spec, StateSpec):
+        return [float(v) for v in spec.default]
+    return spec.default
+
+
+def _coerce(kind: int, value: Any) -> Any:
+    """An integer (array) for a double (array) row, as a double (array); else unchanged."""
+    if kind == ParameterType.PARAMETER_DOUBLE and isinstance(value, int) \
+            and not isinstance(value, bool):
+        return float(value)
+    if kind == ParameterType.PARAMETER_DOUBLE_ARRAY and isinstance(value, (list, tuple,
+                                                                           array.array)):
+        if all(isinstance(v, int) and not isinstance(v, bool) for v in value):
+            return [float(v) for v in value]
+    return value
+
+
+def declare(node: Node, specs: Iterable[ParameterSpec]) -> dict[str, Any]:
+    """Declare every row on ``node`` (overrides from ``--ros-args``/YAML apply) and return the
+    values as plain Python (tuples for arrays).
+
+    Raises:
+        rclpy.exceptions.InvalidParameterTypeException: an override of the wrong type.
+    """
+    specs = tuple(specs)
+    kinds = {s.name: ros_type(s) for s in specs}
+    # Integers given where doubles are declared: convert them before rclpy's type check.
+    overrides = getattr(node, '_parameter_overrides', None)
+    if isinstance(overrides, dict):
+        for name, kind in kinds.items():
+            p = overrides.get(name)
+            if p is not None:
+                v = _coerce(kind, p.value)
+                if v is not p.value:
+                    overrides[name] = Parameter(name, value=v)
+    node.declare_parameters('', [(s.name, _ros_default(s), descriptor(s)) for s in specs])
+
+    def pre_set(params: list[Parameter]) -> list[Parameter]:
+        out = []
+        for p in params:
+            kind = kinds.get(p.name)
+            v = _coerce(kind, p.value) if kind is not None else p.value
+            out.append(p if v is p.value else Parameter(p.name, value=v))
+        return out
+
+    node.add_pre_set_parameters_callback(pre_set)
+    return values_of(node, specs)
+
+
+def python_value(value: Any) -> Any:
+    """A parameter value as plain Python (arrays as tuples)."""
+    if isinstance(value, (array.array, list)):
+        return tuple(value)
+    return value
+
+
+def values_of(node: Node, specs: Iterable[ParameterSpec]) -> dict[str, Any]:
+    """The current values of the rows, as plain Python."""
+    return {s.name: python_value(node.get_parameter(s.name).value) for s in specs}
+
+
+def install_validation(node: Node, names: Sequence[str],
+                       check: Callable[[Mapping[str, Any]], Any],
+                       apply: Callable[[Any], None]) -> None:
+    """Validate parameter changes with ``check`` and apply them with ``apply``.
+
+    ``check(values)`` gets every value of ``names`` with the requested changes merged in and
+    builds the node's pure configuration, raising ``ValueError`` (e.g. ParameterError) to refuse
+    with its text; nothing is applied then. After a successful set, ``apply`` receives what
+    ``check`` returned.
+    """
+    names = tuple(names)
+    pending: list[Any] = []
+
+    def on_set(params: list[Parameter]) -> SetParametersResult:
+        values = {n: python_value(node.get_parameter(n).value) for n in names}
+        for p in params:
+            if p.name in values:
+                values[p.name] = python_value(p.value)
+        try:
+            config = check(values)
+        except ValueError as exc:
+            pending.clear()
+            return SetParametersResult(successful=False, reason=str(exc))
+        pending[:] = [config]
+        return SetParametersResult(successful=True)
+
+    def post_set(params: list[Parameter]) -> None:
+        if pending:
+            apply(pending.pop())
+
+    node.add_on_set_parameters_callback(on_set)
+    node.add_post_set_parameters_callback(post_set)

@@ -48,15 +48,13 @@ class ControllerNode(Node):
         ParameterError: invalid controller parameters.
     """
 
-    def __init__(self, default_controller: str = 'state_feedback', **kwargs: Any) -> None:
+    def __init__(self, default_controller: str | type[Controller] = 'state_feedback',
+                 **kwargs: Any) -> None:
         super().__init__('controller', **kwargs)
-        name = self.declare_parameter(
-            'controller', default_controller,
-            ParameterDescriptor(description='name of the controller plugin (entry point in '
-                                f'group {registry.GROUP})', read_only=True,
-                                additional_constraints='one of: '
-                                + ', '.join(registry.available()))).value
-        self.cls: type[Controller] = registry.load(name)
+        if isinstance(default_controller, type):
+            self.cls = default_controller
+        else:
+            self.cls = self._plugin(default_controller)
         specs = field_specs(self.cls.Parameters)
         names = tuple(s.name for s in specs)
         values = declare(self, specs)
@@ -74,6 +72,15 @@ class ControllerNode(Node):
         self.answered = 0
         self.dropped = 0
         self.get_logger().info(f'controller {self.controller.describe()}')
+
+    def _plugin(self, default_controller: str) -> type[Controller]:
+        name = self.declare_parameter(
+            'controller', default_controller,
+            ParameterDescriptor(description='name of the controller plugin (entry point in '
+                                f'group {registry.GROUP})', read_only=True,
+                                additional_constraints='one of: '
+                                + ', '.join(registry.available()))).value
+        return registry.load(name)
 
     def _build(self, values: Mapping[str, Any]) -> Controller:
         return self.cls(self.cls.Parameters(**values))
@@ -125,8 +132,11 @@ class ControllerNode(Node):
             self._retry = None
 
 
-def main(args: list[str] | None = None, default_controller: str = 'state_feedback') -> None:
-    """Entry point of ``ros2 run fohssv_controller controller``."""
+def main(args: list[str] | None = None,
+         default_controller: str | type[Controller] = 'state_feedback') -> None:
+    """Entry point of ``ros2 run fohssv_controller controller``; also hosts a controller class
+    given directly (``main(default_controller=MyController)``, no plugin registration needed).
+    """
     rclpy.init(args=args)
     code = EXIT_OK
     node = None

@@ -1,0 +1,102 @@
+"""The closed loop through ROS (real processes over DDS) reproduces the in-process batch runner.
+
+Plant and controller are the installed executables, each a process, on a domain of their own;
+the test process records ``state`` and ``planing_force`` with a probe node. Lockstep with the
+same zero-order-hold control period as ``simulate(..., control_period=...)`` must give the same
+trajectory to 1e-12 (it is in fact bit-identical: the same doubles go through the same
+operations in the same order).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from ament_index_python.packages import get_package_share_directory
+from test_graph_support import Probe, batch_samples, finish, plant_args, stop_all
+
+from fohssv_controller.lqr import LQR
+from fohssv_controller.state_feedback import StateFeedback
+
+import rosproc
+
+TOL = 1e-12
+#: Simulated time per run: short, so the file stays well under a minute.
+DURATION = {'delay-free': 0.1, 'delayed': 0.1, 'fractional': 0.1}
+
+
+def _run(model: str, controller_exe: str, duration: float, controller_args=(),
+         **plant_params) -> tuple[np.ndarray, np.ndarray, str]:
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    probe = Probe(domain)
+    yaml_file = f"{get_package_share_directory('fohssv_sim')}/config/plant.yaml"
+    ctl = rosproc.start('fohssv_controller', controller_exe, list(controller_args), env=env)
+    plant = rosproc.start('fohssv_sim', 'plant',
+                          ['--ros-args', '--params-file', yaml_file] + plant_args(
+                              model=model, duration=duration, min_state_subscribers=2,
+                              **plant_params)[1:], env=env)
+    try:
+        code, out = finish(plant, 90)
+        assert code == 0, out
+        n = round(duration / 1e-4) + 1
+        probe.wait(lambda: len(probe.states) >= n and len(probe.forces) >= n, 10,
+                   f'{n} samples at the probe')
+        return probe.state_array(), np.array(probe.forces), out
+    finally:
+        stop_all(plant, ctl)
+        probe.close()
+
+
+@pytest.mark.parametrize('model', ['delay-free', 'delayed', 'fractional'])
+def test_lockstep_reproduces_batch_runner(model):
+    duration = DURATION[model]
+    states, forces, out = _run(model, 'state_feedback', duration)
+    ref, fref = batch_samples(model, StateFeedback(), duration)
+    assert states.shape == ref.shape, out
+    # every sample, in order, at exactly the batch runner's times
+    assert np.array_equal(states[:, 0], ref[:, 0])
+    assert np.max(np.abs(states - ref)) <= TOL
+    assert np.array_equal(forces[:, 0], fref[:, 0])
+    assert np.max(np.abs(forces - fref)) <= TOL
+    assert f'"samples": {len(ref) - 1}' in out
+
+
+def test_swapping_the_controller_changes_only_the_response():
+    """The second built-in (LQR) through the generic node, same plant arguments: the response
+    differs from eq. 31 and equals the batch run under the LQR."""
+    duration = 0.1
+    states, _, _ = _run('delay-free', 'controller', duration,
+                        ['--ros-args', '-p', 'controller:=lqr'])
+    ref_lqr, _ = batch_samples('delay-free', LQR(), duration)
+    ref_sf, _ = batch_samples('delay-free', StateFeedback(), duration)
+    assert states.shape == ref_lqr.shape
+    assert np.max(np.abs(states - ref_lqr)) <= TOL
+    assert np.max(np.abs(states[:, 1:] - ref_sf[:, 1:])) > 1e-3
+
+
+def test_reset_service_returns_to_t0_and_replays_the_run():
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    probe = Probe(domain)
+    ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
+    plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+        model='delay-free', duration=0.1, min_state_subscribers=2), env=env)
+    try:
+        probe.wait(lambda: len(probe.states) > 100, 30, 'the run to pass t = 0.01 s')
+        response = probe.reset_plant()
+        assert response.success, response.message
+        assert response.message.startswith('t = 0.0 s')
+        code, out = finish(plant, 60)
+        assert code == 0, out
+        probe.wait(lambda: probe.states[-1][0] >= 0.1 - 1e-12, 10, 'the last sample')
+    finally:
+        stop_all(plant, ctl)
+        probe.close()
+    t = probe.state_array()[:, 0]
+    back = np.flatnonzero(np.diff(t) < 0)
+    assert len(back) == 1 and t[back[0] + 1] == 0.0
+    # after the reset the run starts over and is again the batch run
+    after = probe.state_array()[back[0] + 1:]
+    ref, _ = batch_samples('delay-free', StateFeedback(), 0.1)
+    assert after.shape == ref.shape
+    assert np.max(np.abs(after - ref)) <= TOL

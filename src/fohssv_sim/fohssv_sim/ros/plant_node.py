@@ -188,6 +188,8 @@ class PlantNode(Node):
             self._fail(EXIT_DIVERGED, f'simulation failed: {exc}')
             return False
         self._publish()
+        if self.pacer is not None:
+            self.pacer.published(time.monotonic())
         if self.sim.reached(self.options.duration):
             self._finish(f'duration {self.options.duration:g} s reached')
             return False
@@ -242,7 +244,6 @@ class PlantNode(Node):
         for _ in range(pacer.due(time.monotonic())):
             if not self._advance():
                 return
-            pacer.published(time.monotonic())
         wd = self.options.watchdog_timeout
         if wd > 0.0 and not self._watchdog_warned and self._last_command_wall is not None:
             silent = time.monotonic() - self._last_command_wall

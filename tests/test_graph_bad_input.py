@@ -1,0 +1,189 @@
+"""Bad input to the plant node, with real processes over DDS.
+
+Each case of the issue: non-finite, out-of-range and wrong-length commands (rejected, logged,
+the plant keeps stepping with the last good command); invalid parameters at start and at run
+time (refused with a reason, the running simulation untouched); a state that turns
+non-finite (exit 1 naming time and state); lockstep timeouts naming the side that stalled;
+peers missing at start; the real-time watchdog warning once.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+
+import numpy as np
+import pytest
+from test_graph_support import Probe, batch_samples, finish, plant_args, stop_all
+
+from fohssv_controller.state_feedback import StateFeedback
+
+import rosproc
+
+TOL = 1e-12
+T = 1e-4  # default control period
+ALONE = {'min_state_subscribers': 0, 'min_command_publishers': 0}
+
+
+def _summary(out: str) -> dict:
+    line = [ln for ln in out.splitlines() if 'summary: {' in ln][-1]
+    return json.loads(line.split('summary: ', 1)[1])
+
+
+def _plant(params: dict, env: dict):
+    return rosproc.start('fohssv_sim', 'plant', plant_args(**params), env=env)
+
+
+def test_bad_commands_are_rejected_and_the_last_good_one_is_held():
+    """The probe is the controller: good commands delta_c = 0.001 k at sample k, except a NaN,
+    an out-of-range and a wrong-length answer at samples 3, 4, 5. The plant must hold the
+    command of sample 2 over those periods: the trajectory is the batch run of that law."""
+    bad = {3: lambda t: [t, math.nan, 0.0], 4: lambda t: [t, 0.0, 0.9],
+           5: lambda t: [t, 0.0]}
+
+    def answer(t, x):
+        k = round(t / T)
+        return bad[k](t) if k in bad else [t, 0.0, 0.001 * k]
+
+    def applied(t, x):
+        k = round(t / T)
+        return (0.0, 0.001 * (2 if k in bad else k))
+
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    probe = Probe(domain, answer=answer)
+    plant = _plant({'model': 'delay-free', 'duration': 0.02}, env)
+    try:
+        code, out = finish(plant, 60)
+        assert code == 0, out
+        probe.wait(lambda: len(probe.states) >= 201, 10, 'all samples')
+    finally:
+        stop_all(plant)
+        probe.close()
+    rejected = [ln for ln in out.splitlines() if 'rejected command' in ln]
+    assert len(rejected) == 3, out
+    assert 'non-finite delta_f=nan' in rejected[0]
+    assert 'delta_c=0.9 rad exceeds max_cavitator_deflection=0.5 rad' in rejected[1]
+    assert 'expected 3 values' in rejected[2]
+    assert all('keeping the last good command delta_f=0.0, delta_c=0.002 rad' in ln
+               for ln in rejected)
+    assert _summary(out)['rejected_commands'] == 3
+    ref, _ = batch_samples('delay-free', applied, 0.02)
+    got = probe.state_array()
+    assert got.shape == ref.shape
+    assert np.max(np.abs(got - ref)) <= TOL
+
+
+def test_invalid_parameter_change_is_refused_and_the_run_is_untouched():
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    probe = Probe(domain)
+    ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
+    plant = _plant({'model': 'delay-free', 'duration': 0.2, 'min_state_subscribers': 2}, env)
+    try:
+        probe.wait(lambda: len(probe.states) > 50, 30, 'the run to start')
+        out_of_range, read_only, wrong_type = probe.set_plant_parameters(
+            real_time_factor=-1.0, speed=80.0, command_timeout='long')
+        # inside the descriptor's closed range but not the table's open one: our validation
+        open_bound, = probe.set_plant_parameters(real_time_factor=0.0)
+        accepted, = probe.set_plant_parameters(watchdog_timeout=0.5)
+        current = probe.result(probe.params.get_parameters(
+            ['real_time_factor', 'speed', 'watchdog_timeout'])).values
+        code, out = finish(plant, 60)
+        assert code == 0, out
+        probe.wait(lambda: len(probe.states) >= 2001, 10, 'all samples')
+    finally:
+        stop_all(plant, ctl)
+        probe.close()
+    assert not out_of_range.successful
+    # rclpy checks the descriptor's FloatingPointRange first
+    assert 'real_time_factor out of range Min: 0.0, Max: 1000.0' in out_of_range.reason
+    assert not open_bound.successful
+    assert ('real_time_factor=0.0 is outside the allowed range (0, 1000] (realtime mode: '
+            'simulated seconds per wall second)') in open_bound.reason
+    assert not read_only.successful and 'read-only' in read_only.reason
+    assert not wrong_type.successful
+    assert accepted.successful
+    assert [p.double_value for p in current] == [1.0, 75.0, 0.5]
+    ref, _ = batch_samples('delay-free', StateFeedback(), 0.2)
+    got = probe.state_array()
+    assert got.shape == ref.shape
+    assert np.max(np.abs(got - ref)) <= TOL
+
+
+@pytest.mark.parametrize('params, message', [
+    ({'speed': -1.0}, 'speed=-1.0 is outside the allowed range (0, inf) m/s'),
+    ({'control_period': 1.05e-4, 'model': 'delay-free'},
+     'control_period=0.000105 s must be a whole multiple of the integration step 1e-05 s'),
+    ({'model': 'quantum'}, "model='quantum' is not valid; choose one of 'fractional'"),
+])
+def test_invalid_parameters_at_start_exit_2(params, message):
+    env = rosproc.ros_env()
+    code, out = finish(_plant(params, env), 30)
+    assert code == 2, out
+    assert message in out
+
+
+def test_integer_for_a_double_parameter_is_accepted():
+    env = rosproc.ros_env()
+    plant = _plant({'model': 'delay-free', 'speed': 80, 'mode': 'realtime',
+                    'control_period': 1e-3, 'duration': 0.05, **ALONE}, env)
+    code, out = finish(plant, 30)
+    assert code == 0, out
+    assert 'V=80 m/s' in out
+
+
+def test_non_finite_state_stops_the_run_with_exit_1_naming_time_and_state():
+    env = rosproc.ros_env()
+    plant = _plant({'model': 'delay-free', 'mode': 'realtime', 'duration': 1.0,
+                    'initial_state': [0.0, 1e307, 0.0, 0.0], **ALONE}, env)
+    code, out = finish(plant, 30)
+    assert code == 1, out
+    assert re.search(r'simulation failed: state became non-finite at t=1e-05 s: '
+                     r'\[z, w, theta, q\] = \[nan, nan, nan, nan\] \(from \[0\.0, 1e\+307',
+                     out), out
+
+
+def test_lockstep_timeout_names_the_stalled_controller():
+    env = rosproc.ros_env()
+    plant = _plant({'model': 'delay-free', 'command_timeout': 0.5, **ALONE}, env)
+    code, out = finish(plant, 30)
+    assert code == 3, out
+    assert ('lockstep timeout: the controller stalled: no command answering t=0.0 s within '
+            'command_timeout=0.5 s (no command received at all') in out
+
+
+def test_lockstep_timeout_names_an_overrunning_plant():
+    """A control period of 1e5 RK4 steps takes far longer than command_timeout."""
+    env = rosproc.ros_env()
+    ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
+    plant = _plant({'model': 'delay-free', 'step': 1e-6, 'control_period': 0.1,
+                    'command_timeout': 0.3}, env)
+    try:
+        code, out = finish(plant, 60)
+    finally:
+        stop_all(ctl)
+    assert code == 3, out
+    assert 'lockstep timeout: the plant is overrunning: one control period (100000 steps)' in out
+
+
+def test_missing_peers_at_start_exit_4():
+    env = rosproc.ros_env()
+    code, out = finish(_plant({'model': 'delay-free', 'start_timeout': 1.0}, env), 30)
+    assert code == 4, out
+    assert 'start timeout: state has 0/1 subscriber(s), command has 0/1 publisher(s)' in out
+
+
+def test_realtime_watchdog_warns_once_and_holds_the_command():
+    env = rosproc.ros_env()
+    plant = _plant({'model': 'delay-free', 'mode': 'realtime', 'control_period': 1e-3,
+                    'watchdog_timeout': 0.2, 'duration': 1.0, **ALONE}, env)
+    code, out = finish(plant, 30)
+    assert code == 0, out
+    warnings = [ln for ln in out.splitlines() if 'watchdog: no command for' in ln]
+    assert len(warnings) == 1, out
+    assert 'holding delta_f=0.0 rad, delta_c=0.0 rad' in warnings[0]
+    s = _summary(out)
+    assert s['samples_paced'] == 1001 and s['t'] == pytest.approx(1.0)
+    assert 0.0 <= s['deadline_miss_rate'] <= 1.0

@@ -67,10 +67,14 @@ class Probe:
     def _spin(self) -> None:
         while not self._stop and self.context.ok():
             self.executor.spin_once(timeout_sec=0.02)
-            if self._pending and self.command_pub.get_subscription_count() > 0:
+            if self._pending and self._plant_matched():
                 pending, self._pending = self._pending, []
                 for data in pending:
                     self.publish(data)
+
+    def _plant_matched(self) -> bool:
+        # the probe's own command subscription counts as one match
+        return self.command_pub.get_subscription_count() >= 2
 
     def _on_state(self, msg: Float64MultiArray) -> None:
         data = tuple(msg.data)
@@ -79,7 +83,7 @@ class Probe:
         if self.answer is not None:
             out = self.answer(data[0], data[1:])
             if out is not None:
-                if self._pending or self.command_pub.get_subscription_count() == 0:
+                if self._pending or not self._plant_matched():
                     self._pending.append(out)
                 else:
                     self.publish(out)

@@ -147,3 +147,84 @@ def test_registry():
     with pytest.raises(ValueError, match="'abm', 'abm-fft', 'soe'"):
         get_solver('fft')
     assert SOLVERS.get('nope') is None
+
+
+# -- per-point orders in BatchSOE ------------------------------------------------------------
+ALPHAS = np.array([0.6, 0.75, 0.8, 0.9, 0.99, 1.0])      # includes alpha = 1 (a single mode)
+
+
+@pytest.mark.parametrize('kw', [{}, {'n_exact': 4, 'tolerance': 1e-8}])
+def test_batch_soe_per_point_alpha_equals_per_point_runs(kw):
+    # 1100 steps: many folds of the mode sums and past the first block of f_0 weights (1024)
+    h, N = 2e-3, 1100
+    B = BatchSOE(batch_rhs(np.arange(P)), ALPHAS, h, X0, **kw)
+    singles = [SOEStepper(point_rhs(i), ALPHAS[i], h, X0[i], **kw) for i in range(P)]
+    assert isinstance(B.modes, tuple) and B.modes[-1].n_modes == 1
+    assert B.alpha.tolist() == ALPHAS.tolist()
+    for n in range(N):
+        U = inputs(n, h)
+        X = B.step(U)
+        for i, s in enumerate(singles):
+            x = s.step(U[i])
+            assert np.max(np.abs(X[i] - x)) <= 1e-12 * max(1.0, np.max(np.abs(x)))
+    assert B.n == N and B.x.shape == (P, 4)
+    B.reset(X0)                       # a reset run repeats the first steps exactly
+    singles[0].reset(X0[0])
+    for n in range(40):
+        X = B.step(inputs(n, h))
+        x = singles[0].step(inputs(n, h)[0])
+    assert np.max(np.abs(X[0] - x)) <= 1e-12 * max(1.0, np.max(np.abs(x)))
+
+
+def test_batch_soe_per_point_alpha_callable_input():
+    h, N = 5e-3, 300
+
+    def U_fb(t, X):
+        return np.sin(3 * t) - 0.5 * X[:, :1]
+
+    B = BatchSOE(batch_rhs(np.arange(P)), ALPHAS, h, X0)
+    Xs = [B.step(U_fb) for _ in range(N)][-1]
+    for i in range(P):
+        s = SOEStepper(point_rhs(i), ALPHAS[i], h, X0[i])
+        x = [s.step(lambda t, x: np.sin(3 * t) - 0.5 * x[:1]) for _ in range(N)][-1]
+        assert np.max(np.abs(Xs[i] - x)) <= 1e-12 * max(1.0, np.max(np.abs(x)))
+
+
+def test_batch_soe_equal_alphas_take_the_scalar_path():
+    h = 2e-3
+    B = BatchSOE(batch_rhs(np.arange(P)), np.full(P, 0.8), h, X0)
+    S = BatchSOE(batch_rhs(np.arange(P)), 0.8, h, X0)
+    assert B.alpha == 0.8 and B.modes is S.modes and B.alphas.tolist() == [0.8] * P
+    for n in range(100):
+        X, Y = B.step(inputs(n, h)), S.step(inputs(n, h))
+    assert np.array_equal(X, Y)
+
+
+def test_batch_soe_per_point_alpha_mask_and_errors():
+    def rhs(t, X, U):
+        out = -X.copy()
+        out[1] = 1e200 * X[1] ** 2                         # point 1 blows up
+        return out
+
+    X0b = np.ones((3, 2))
+    B = BatchSOE(rhs, [0.7, 0.8, 0.9], 0.1, X0b, on_nonfinite='mask')
+    with np.errstate(all='ignore'):
+        for _ in range(60):
+            X = B.step()
+    assert B.failed_points.tolist() == [False, True, False]
+    for i, a in ((0, 0.7), (2, 0.9)):
+        ref = SOEStepper(lambda t, x, u: -x, a, 0.1, [1.0, 1.0])
+        for _ in range(60):
+            r = ref.step()
+        np.testing.assert_allclose(X[i], r, rtol=1e-12)
+    B2 = BatchSOE(rhs, [0.7, 0.8, 0.9], 0.1, X0b)
+    with np.errstate(all='ignore'), pytest.raises(FloatingPointError,
+                                                  match=r'alpha=\[0\.8\]\) for points \[1\]'):
+        for _ in range(20):
+            B2.step()
+    with pytest.raises(ValueError, match='alpha has 2 entries but X0 has 6 rows'):
+        BatchSOE(batch_rhs(np.arange(P)), [0.7, 0.8], 0.1, X0)
+    with pytest.raises(ValueError, match=r'alpha=1\.5 is outside \(0, 1\]'):
+        BatchSOE(batch_rhs(np.arange(P)), [0.7, 1.5, 0.8, 0.8, 0.8, 0.8], 0.1, X0)
+    with pytest.raises(ValueError, match='1-D array of per-point orders'):
+        BatchSOE(batch_rhs(np.arange(P)), np.full((P, 1), 0.8), 0.1, X0)

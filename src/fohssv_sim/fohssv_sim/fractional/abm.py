@@ -124,7 +124,7 @@ class PECEStepperBase:
         if not callable(rhs):
             raise ValueError(f"rhs={rhs!r} must be callable as rhs(t, x, u) -> dx")
         self._rhs = rhs
-        self._alpha = check_alpha(alpha)
+        self._alpha = self._check_order(alpha)
         self._h = check_step(step)
         self._t0 = check_t0(t0)
         x0 = check_state(x0, 'x0', ndim=self._state_ndim)
@@ -139,9 +139,14 @@ class PECEStepperBase:
         self._empty_u = np.zeros(0)
         self.reset(x0)
 
-    # -- subclass hook ----------------------------------------------------------------------
+    # -- subclass hooks ---------------------------------------------------------------------
     def _make_history(self, m: int):  # pragma: no cover - abstract
         raise NotImplementedError
+
+    def _check_order(self, alpha):
+        """The validated order: a float (the batched SOE stepper may return a (P, 1) array of
+        per-point orders, which the factors h^a/G(a+1), h^a/G(a+2) broadcast over)."""
+        return check_alpha(alpha)
 
     # -- public API ---------------------------------------------------------------------------
     def reset(self, x0) -> None:
@@ -328,6 +333,12 @@ class BatchMixin:
         """Boolean (P,) mask of the points that became non-finite (mode 'mask')."""
         return self._failed.copy()
 
+    def _alpha_text(self, rows: np.ndarray) -> str:
+        a = self._alpha  # type: ignore[attr-defined]
+        if np.ndim(a) == 0:
+            return repr(a)
+        return repr(np.asarray(a).reshape(-1)[rows[:10]].tolist())   # per-point orders
+
     def _nonfinite(self, n: int, tn1: float, xn1: np.ndarray) -> np.ndarray:
         bad = ~np.isfinite(xn1).all(axis=1)
         if self._on_nonfinite == 'raise':
@@ -335,7 +346,7 @@ class BatchMixin:
             self._status = 'failed'
             raise FloatingPointError(
                 f"non-finite state at t={tn1!r} s (step {n + 1}, h={self._h!r} s, "  # type: ignore
-                f"alpha={self._alpha!r}) for points {rows[:10].tolist()}"  # type: ignore
+                f"alpha={self._alpha_text(rows)}) for points {rows[:10].tolist()}"
                 f"{' ...' if rows.size > 10 else ''}: "
                 f"x={np.array2string(xn1[rows[:3]], threshold=20)}")
         self._failed |= bad

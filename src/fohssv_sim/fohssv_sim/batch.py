@@ -2,10 +2,12 @@
 
 Points may differ in anything that only changes coefficients (speed, geometry, gains,
 initial state); they must share the model, the step, the solver, the planing form and, for the
-FOM, the fractional order (use :func:`group_points` to split a sweep into such groups). The
-FOM uses the batched steppers of :mod:`fohssv_sim.fractional` (one BLAS product for all
-points' history sums); the delay-free model a vectorised RK4. The delayed model is not batched
-(its history ring buffer is per point): :func:`simulate_batch` runs it point by point.
+FOM with the 'abm' / 'abm-fft' solvers, the fractional order; with 'soe' the order may differ
+per point (use :func:`group_points` to split a sweep into such groups). The FOM uses the
+batched steppers of :mod:`fohssv_sim.fractional` (one BLAS product for all points' history
+sums, a stacked product with per-point orders); the delay-free model a vectorised RK4. The
+delayed model is not batched (its history ring buffer is per point): :func:`simulate_batch`
+runs it point by point.
 
 Controllers must be affine state feedback, ``u = K x + u0`` clamped to deflection limits
 (:meth:`fohssv_controller.base.Controller.affine`); the eq. 31 law and the LQR are.
@@ -28,11 +30,15 @@ from .params import ModelParameters
 from .planing import planing_exact_array, planing_smooth_array
 from .simulate import simulate, steps_per_period
 
-__all__ = ['BatchResult', 'BatchRHS', 'simulate_batch', 'group_points', 'SHARED_FIELDS']
+__all__ = ['BatchResult', 'BatchRHS', 'simulate_batch', 'group_points', 'shared_fields',
+           'SHARED_FIELDS', 'PER_POINT_FIELDS']
 
-#: Parameters every point of one batch must share.
+#: Parameters every point of one batch must share (but see :func:`shared_fields`).
 SHARED_FIELDS = ('model', 'step', 'solver', 'planing_form', 'fractional_order',
                  'soe_tolerance', 'soe_horizon_steps')
+
+#: Fields that may differ between the points of one batch for the given solver.
+PER_POINT_FIELDS = {'soe': ('fractional_order',)}
 
 _COEFFS = ('V', 'L', 'R', 'g', 'a22', 'a24', 'a42', 'a44', 'b21', 'b22', 'b41', 'b42', 'd2',
            'd4', 'R_prime', 'Rc_dot', 'k', 'w0')
@@ -101,16 +107,29 @@ class _AffineLaw:
         return np.clip(U, -self.lim, self.lim)
 
 
+def shared_fields(solver: str) -> tuple[str, ...]:
+    """The fields the points of one batch with ``solver`` must share: :data:`SHARED_FIELDS`
+    minus :data:`PER_POINT_FIELDS` (the 'soe' batch takes a per-point fractional order)."""
+    own = PER_POINT_FIELDS.get(solver, ())
+    return tuple(f for f in SHARED_FIELDS if f not in own)
+
+
 def group_points(params: Sequence[ModelParameters]) -> dict[tuple, list[int]]:
-    """Indices of ``params`` grouped by the fields a batch must share (:data:`SHARED_FIELDS`)."""
+    """Indices of ``params`` grouped by the fields a batch must share (:func:`shared_fields`
+    of each point's solver). Keys have one entry per :data:`SHARED_FIELDS` field, None for a
+    field the solver takes per point (so an alpha sweep with 'soe' is one group)."""
     groups: dict[tuple, list[int]] = {}
     for i, p in enumerate(params):
-        groups.setdefault(tuple(getattr(p, f) for f in SHARED_FIELDS), []).append(i)
+        fields = shared_fields(p.solver)
+        key = tuple(getattr(p, f) if f in fields else None for f in SHARED_FIELDS)
+        groups.setdefault(key, []).append(i)
     return groups
 
 
 def _check_shared(params: Sequence[ModelParameters]) -> None:
-    for f in SHARED_FIELDS:
+    solvers = {p.solver for p in params}
+    fields = shared_fields(params[0].solver) if len(solvers) == 1 else SHARED_FIELDS
+    for f in fields:
         values = {getattr(p, f) for p in params}
         if len(values) > 1:
             raise ValueError(f'all points of a batch must share {f}; got {sorted(map(str, values))}'
@@ -123,7 +142,8 @@ def _stepper(params: Sequence[ModelParameters], rhs: BatchRHS, X0: np.ndarray):
         from .fractional import BatchABM, BatchSOE
 
         if p.solver == 'soe':
-            return BatchSOE(rhs, p.fractional_order, p.step, X0, tolerance=p.soe_tolerance,
+            alphas = np.array([q.fractional_order for q in params])   # equal: scalar path
+            return BatchSOE(rhs, alphas, p.step, X0, tolerance=p.soe_tolerance,
                             horizon_steps=int(p.soe_horizon_steps), on_nonfinite='mask')
         return BatchABM(rhs, p.fractional_order, p.step, X0, on_nonfinite='mask')
     return _BatchRK4(rhs, p.step, X0)
@@ -177,7 +197,7 @@ def simulate_batch(params: Sequence[ModelParameters], controllers: Sequence[Any]
             RK4 is about 10x faster per step than numpy on a handful of points).
 
     Raises:
-        ValueError: points that do not share :data:`SHARED_FIELDS`, a non-affine controller,
+        ValueError: points that do not share :func:`shared_fields`, a non-affine controller,
             a bad duration, control period or sample interval.
     """
     params = list(params)

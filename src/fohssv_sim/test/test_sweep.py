@@ -14,8 +14,8 @@ from ament_index_python.packages import get_package_prefix
 
 from fohssv_controller.state_feedback import StateFeedback
 from fohssv_sim.analysis.orbits import classify, local_maxima
-from fohssv_sim.analysis.sweep import SweepSpec, run_chunk
-from fohssv_sim.batch import simulate_batch
+from fohssv_sim.analysis.sweep import SweepSpec, _chunks, run_chunk
+from fohssv_sim.batch import group_points, simulate_batch
 from fohssv_sim.equilibria import find_equilibria
 from fohssv_sim.params import ModelParameters
 from fohssv_sim.simulate import simulate
@@ -31,6 +31,26 @@ def test_batched_points_equal_per_point_runs(model, extra):
     for i, p in enumerate(ps):
         r = simulate(p, StateFeedback(), 0.05, sample_every=5)
         assert np.allclose(b.states[i], r.state, rtol=1e-12, atol=1e-14)
+
+
+def test_soe_batches_points_of_different_order_and_equals_per_point_runs():
+    ps = [ModelParameters(solver='soe', speed=84.5, fractional_order=a) for a in (0.7, 0.85, 0.97)]
+    assert list(group_points(ps).values()) == [[0, 1, 2]]
+    abm = [p.replace(solver='abm') for p in ps]
+    assert list(group_points(abm).values()) == [[0], [1], [2]]
+    with pytest.raises(ValueError, match='must share fractional_order'):
+        simulate_batch(abm, [StateFeedback()], 0.01)
+    b = simulate_batch(ps, [StateFeedback()], 0.05, sample_every=5, control_period=1e-4)
+    for i, p in enumerate(ps):
+        r = simulate(p, StateFeedback(), 0.05, sample_every=5, control_period=1e-4)
+        assert np.allclose(b.states[i], r.state, rtol=1e-12, atol=1e-14)
+    # an alpha sweep with 'soe' is chunked by size only, not by alpha
+    base = ModelParameters(solver='soe').to_dict()
+    base.pop('fractional_order')
+    base.pop('speed')
+    s = SweepSpec(base=base, alphas=tuple(np.linspace(0.6, 0.99, 10)), speeds=(84.5,),
+                  chunk_size=4)
+    assert _chunks(s) == [[0, 1, 2, 3], [4, 5, 6, 7], [8, 9]]
 
 
 def test_batched_zero_order_hold_equals_per_point_runs():

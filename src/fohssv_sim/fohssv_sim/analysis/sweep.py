@@ -122,8 +122,10 @@ def run_chunk(spec_dict: dict[str, Any], indices: Sequence[int], step_factor: fl
                          'amplitude': math.nan, 'n_maxima': 0, 'failed': True,
                          'step_check': '', 'maxima': []})
             continue
-        cls, peaks = classify(res.t, res.states[j, :, k], eq_tol=spec.eq_tol,
-                              rel_tol=spec.rel_tol)
+        y = res.states[j, :, k]
+        cls, peaks = classify(res.t, y, eq_tol=spec.eq_tol, rel_tol=spec.rel_tol)
+        if peaks.size == 0:
+            peaks = y[-1:]   # a steady orbit is drawn at its last value
         rows.append({'point': i, 'alpha': alpha, 'speed': speed, 'label': cls.label,
                      'kind': cls.kind, 'period': cls.period, 'k01': cls.k01,
                      'amplitude': cls.amplitude, 'n_maxima': cls.n_maxima, 'failed': False,

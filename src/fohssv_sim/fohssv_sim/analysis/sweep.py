@@ -1,8 +1,9 @@
 """Orbit-diagram sweeps over alpha, V or the alpha-V grid, on Dask.
 
 A sweep is a list of points (alpha, V) sharing every other setting (:class:`SweepSpec`).
-Points are split into chunks of batchable points (same alpha and step: see
-:func:`fohssv_sim.batch.group_points`); each chunk is one Dask task that runs the batched
+Points are split into chunks of batchable points (same step and solver; with the 'soe'
+solver points of different alpha share a batch, see :func:`fohssv_sim.batch.group_points`);
+each chunk is one Dask task that runs the batched
 solver, takes the local maxima of the chosen state after the transient and classifies each
 orbit (:mod:`.orbits`). The client writes each chunk's rows to ``<out>/chunks/`` as soon as the
 chunk finishes (CSV, written atomically), so a sweep that is interrupted resumes where it
@@ -63,7 +64,7 @@ class SweepSpec:
     sample_every: int = 1
     state: str = 'w'
     control_period: float | None = None
-    chunk_size: int = 16
+    chunk_size: int = 64
     check_step: int = 0           # re-run every k-th point at half step (0 = off)
     eq_tol: float = 1e-6
     rel_tol: float = 1e-3
@@ -135,7 +136,7 @@ def run_chunk(spec_dict: dict[str, Any], indices: Sequence[int], step_factor: fl
 
 
 def _chunks(spec: SweepSpec) -> list[list[int]]:
-    """Points split into batchable chunks (same alpha: the batched steppers share it)."""
+    """Points split into batchable chunks (:func:`fohssv_sim.batch.group_points`)."""
     from ..batch import group_points
 
     pts = spec.points()
@@ -276,13 +277,14 @@ def _check_step(spec: SweepSpec, out: Path, result: SweepResult) -> None:
     if path.exists():
         checks = {int(k): v for k, v in json.loads(path.read_text()).items()}
     else:
-        sample = list(range(0, len(result.rows), spec.check_step))
-        groups: dict[float, list[int]] = {}
-        for i in sample:
-            groups.setdefault(result.rows[i]['alpha'], []).append(i)
+        from ..batch import group_points
+
+        pts = spec.points()
+        sample = [result.rows[i]['point'] for i in range(0, len(result.rows), spec.check_step)]
+        params = [spec.params_for(*pts[i]) for i in sample]
         checks = {}
-        for idx in groups.values():
-            for r in run_chunk(spec.to_dict(), idx, step_factor=0.5):
+        for idx in group_points(params).values():
+            for r in run_chunk(spec.to_dict(), [sample[i] for i in idx], step_factor=0.5):
                 checks[r['point']] = r['label']
         path.write_text(json.dumps({str(k): v for k, v in checks.items()}, indent=2) + '\n')
     for r in result.rows:

@@ -1,0 +1,42 @@
+"""`fohssv report --quick`: the whole pipeline on a tiny grid (not converged results)."""
+
+import json
+import math
+import subprocess
+from pathlib import Path
+
+import numpy as np
+from ament_index_python.packages import get_package_prefix
+
+from test_equilibria import analytic_jacobian, reduced_equilibrium
+
+FOHSSV = Path(get_package_prefix('fohssv_sim')) / 'lib' / 'fohssv_sim' / 'fohssv'
+
+
+def test_quick_report_has_every_claim_with_independent_numbers(tmp_path):
+    out = subprocess.run([str(FOHSSV), 'report', '--quick', '--out', str(tmp_path),
+                          '--workers', '2'], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    rows = json.loads((tmp_path / 'claims.json').read_text())
+    claims = [r['claim'] for r in rows]
+    for fig in ('Fig. 3/4', 'Fig. 5', 'Fig. 6', 'Fig. 7', 'Fig. 8', 'Fig. 9', 'Fig. 10'):
+        assert any(c.startswith(fig) for c in claims), fig
+    assert all(r['verdict'] and r['evidence'] for r in rows)
+    # Fig. 5 row: alpha_c at V = 75 from the eigenvalue formula (smooth vs exact planing
+    # agree to 1e-4 at the equilibrium, which sits past the contact point)
+    c, x = reduced_equilibrium(75.0)
+    lam = np.linalg.eigvals(analytic_jacobian(c, x))
+    alpha_c = min(abs(math.atan2(v.imag, v.real)) for v in lam) / (math.pi / 2)
+    fig5 = next(r for r in rows if r['claim'].startswith('Fig. 5'))
+    assert f'alpha_c = {alpha_c:.4f}' in fig5['model']
+    assert fig5['verdict'] == ('holds' if alpha_c > 0.85 else 'does not hold')
+    c, x = reduced_equilibrium(84.5)
+    fig7 = next(r for r in rows if r['claim'].startswith('Fig. 7: equilibrium'))
+    assert f'({x[0]:.4f}, {x[1]:.4f}, {x[2]:.4f}' in fig7['model']
+    report = (tmp_path / 'report.md').read_text()
+    assert '| claim | model | evidence | verdict |' in report
+    for fig in ('fig3_time_responses', 'fig6_orbit_alpha', 'fig8_orbit_V', 'fig10_alpha_V'):
+        assert (tmp_path / f'{fig}.png').stat().st_size > 10_000
+        assert f'({fig}.png)' in report
+    side = json.loads((tmp_path / 'fig6_alpha_V84.5' / 'sweep.json').read_text())
+    assert side['step'] == 2e-5 and side['solver'] == 'soe'

@@ -2,11 +2,12 @@
 
 Starts the plant (FOM, alpha = 0.85, V = 75 m/s, x(0) = 0, lockstep, 2 s of simulated time)
 and the eq. 31 state-feedback controller as two separate processes on a ROS domain of their
-own, records every ``state`` and ``planing_force`` sample with a subscriber in this process,
-and prints a summary computed from the samples it received: dominant frequency and amplitude
-of w, peak |Fp|, samples and integration steps, wall time, with the control period and step.
+own, records the run to a rosbag2/MCAP bag with the recorder node (a third process), and
+prints a summary computed from the bag: dominant frequency and amplitude of w, peak |Fp|,
+samples and integration steps, wall time, with the control period and step.
 
     python scripts/demo.py [--model fractional] [--duration 2.0] [--controller state_feedback]
+                           [--bag runs/demo-...]
 """
 
 from __future__ import annotations
@@ -19,15 +20,13 @@ import subprocess
 import sys
 import threading
 import time
+from datetime import datetime, timezone
+from pathlib import Path
 
 import numpy as np
-import rclpy
 from ament_index_python.packages import get_package_prefix
-from rclpy.executors import SingleThreadedExecutor
-from std_msgs.msg import Float64MultiArray
 
-from fohssv_sim.contract import PLANING_FORCE, STATE
-from fohssv_sim.ros.qos import profile
+from fohssv_sim.bag import BagError, load_run
 
 
 def _exe(package: str, name: str) -> str:
@@ -44,39 +43,6 @@ def dominant_frequency(t: np.ndarray, x: np.ndarray, pad: int = 16) -> float:
     return float(freqs[int(np.argmax(spec))])
 
 
-class Recorder:
-    """Records state and planing_force in a background thread."""
-
-    def __init__(self, domain: int) -> None:
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=domain)
-        self.node = rclpy.create_node('demo_recorder', context=self.context)
-        self.states: list[tuple] = []
-        self.forces: list[tuple] = []
-        self.node.create_subscription(Float64MultiArray, STATE.name,
-                                      lambda m: self.states.append(tuple(m.data)),
-                                      profile(STATE))
-        self.node.create_subscription(Float64MultiArray, PLANING_FORCE.name,
-                                      lambda m: self.forces.append(tuple(m.data)),
-                                      profile(PLANING_FORCE))
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self._stop = False
-        self._thread = threading.Thread(target=self._spin, daemon=True)
-        self._thread.start()
-
-    def _spin(self) -> None:
-        while not self._stop and self.context.ok():
-            self.executor.spin_once(timeout_sec=0.05)
-
-    def close(self) -> None:
-        self._stop = True
-        self._thread.join(timeout=5)
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.shutdown(context=self.context)
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--model', default='fractional')
@@ -85,7 +51,14 @@ def main() -> int:
     ap.add_argument('--duration', type=float, default=2.0)
     ap.add_argument('--controller', default='state_feedback')
     ap.add_argument('--timeout', type=float, default=600.0, help='wall-clock limit (s)')
+    ap.add_argument('--bag', type=Path, default=None,
+                    help='bag folder to record (default runs/demo-<UTC time>)')
     args = ap.parse_args()
+    stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%SZ')
+    bag = args.bag or Path('runs') / f'demo-{stamp}'
+    if bag.exists():
+        print(f'demo: {bag} exists already; choose another --bag', file=sys.stderr)
+        return 2
 
     domain = int(os.environ.get('FOHSSV_DEMO_DOMAIN', 1 + os.getpid() % 200))
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
@@ -98,9 +71,21 @@ def main() -> int:
     ctl_cmd = [_exe('fohssv_controller', 'controller'), '--ros-args',
                '-p', f'controller:={args.controller}']
     print(f'demo: plant ({args.model}, alpha={args.alpha:g}, V={args.speed:g} m/s, x(0)=0, '
-          f'lockstep, {args.duration:g} s) and controller {args.controller!r} as two '
-          f'processes, ROS_DOMAIN_ID={domain}', flush=True)
-    recorder = Recorder(domain)
+          f'lockstep, {args.duration:g} s), controller {args.controller!r} and recorder as '
+          f'three processes, ROS_DOMAIN_ID={domain}', flush=True)
+    print(f'demo: recording to {bag}', flush=True)
+    bag.parent.mkdir(parents=True, exist_ok=True)
+    rec_log = bag.parent / f'{bag.name}.recorder.log'
+    with open(rec_log, 'w') as log:
+        recorder = subprocess.Popen([_exe('fohssv_sim', 'recorder'), '--ros-args', '-p',
+                                     f'bag_path:={bag}'], env=env, stdout=log,
+                                    stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    deadline = time.monotonic() + 60
+    while 'recording to' not in rec_log.read_text() and time.monotonic() < deadline:
+        if recorder.poll() is not None:
+            print(f'demo: the recorder exited: {rec_log.read_text()}', file=sys.stderr)
+            return 1
+        time.sleep(0.05)
     wall0 = time.monotonic()
     ctl = subprocess.Popen(ctl_cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                            text=True, start_new_session=True)
@@ -129,23 +114,31 @@ def main() -> int:
             ctl.wait(timeout=10)
         except subprocess.TimeoutExpired:
             ctl.kill()
-        expected = round(args.duration / 1e-4) + 1
-        deadline = time.monotonic() + 5
-        while len(recorder.states) < expected and time.monotonic() < deadline:
-            time.sleep(0.05)
-        recorder.close()
+        recorder.send_signal(signal.SIGINT)   # closes the bag properly
+        try:
+            rec_code = recorder.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            recorder.kill()
+            rec_code = -9
     if code != 0:
         print(f'demo: plant exited with code {code}', file=sys.stderr)
         print(ctl.stdout.read(), file=sys.stderr)
+        return 1
+    if rec_code != 0:
+        print(f'demo: recorder exited with code {rec_code}: {rec_log.read_text()}',
+              file=sys.stderr)
+        return 1
+    try:
+        run = load_run(bag)   # the summary comes from the bag, not from memory
+    except BagError as e:
+        print(f'demo: {e}', file=sys.stderr)
         return 1
 
     summary = {}
     for line in plant_out:
         if 'summary: {' in line:
             summary = json.loads(line.split('summary: ', 1)[1])
-    states = np.array(recorder.states)
-    forces = np.array(recorder.forces)
-    t, w = states[:, 0], states[:, 2]
+    t, w = run.t, run.state[:, 1]
     half = t >= t[-1] / 2
     freq = dominant_frequency(t[half], w[half])
     amp = 0.5 * (w[half].max() - w[half].min())
@@ -155,14 +148,16 @@ def main() -> int:
     print(f'  integration step        {summary.get("step", float("nan")):g} s '
           f'({summary.get("solver", "?")})')
     print(f'  control period (ZOH)    {summary.get("control_period", float("nan")):g} s')
-    print(f'  samples received        {len(states)} states, {len(forces)} forces '
-          f'(t = {t[0]:g} .. {t[-1]:g} s)')
+    print(f'  bag                     {bag} ({run.topics.get("/state", 0)} states, '
+          f'{run.topics.get("/planing_force", 0)} forces, {run.topics.get("/command", 0)} '
+          f'commands; t = {t[0]:g} .. {t[-1]:g} s)')
     print(f'  integration steps       {summary.get("steps", "?")}')
     print(f'  w, last half [{t[half][0]:g}, {t[-1]:g}] s: dominant frequency {freq:.1f} Hz, '
           f'amplitude {amp:.4g} m/s (half peak-to-peak), mean {w[half].mean():.4g} m/s')
-    print(f'  peak |Fp|               {np.abs(forces[:, 1]).max():.4g} m^2/s^2')
+    print(f'  peak |Fp|               {np.abs(run.planing_force).max():.4g} m^2/s^2')
     print(f'  wall time               {wall:.1f} s (plant loop {summary.get("wall_time", 0):.1f}'
           f' s, {summary.get("samples_per_second", 0):.0f} samples/s)')
+    print(f'  plots:                  fohssv plot {bag}')
     return 0
 
 

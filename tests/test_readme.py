@@ -16,3 +16,11 @@ def test_readme_shows_the_two_commands_and_ci_runs_the_test_one():
 
 def test_readme_parameter_table_is_generated_from_the_parameter_table():
     assert parameter_table() in README, 'regenerate with: python -m fohssv_sim.docs'
+
+
+def test_readme_topic_table_and_controller_example_are_the_real_ones():
+    from fohssv_sim.docs import topic_table
+
+    assert topic_table() in README
+    example = (ROOT / 'tests' / 'examples' / 'pitch_damper.py').read_text().rstrip()
+    assert f'```python\n{example}\n```' in README

@@ -21,6 +21,7 @@ import numpy as np
 from scipy.optimize import root
 
 from .coefficients import coefficients
+from .models import eq17
 from .params import ModelParameters
 from .planing import planing_exact, planing_smooth
 
@@ -59,11 +60,7 @@ def closed_loop_rhs(params: ModelParameters, controller: Any = None
     def f(x: np.ndarray) -> np.ndarray:
         z, w, th, q = (float(v) for v in x)
         uf, uc = law(0.0, (z, w, th, q))
-        force = fp(w, c)
-        return np.array((w - c.V * th,
-                         c.a22 * w + c.a24 * q + c.b21 * uf + c.b22 * uc + c.g + c.d2 * force,
-                         q,
-                         c.a42 * w + c.a44 * q + c.b41 * uf + c.b42 * uc + c.d4 * force))
+        return np.array(eq17(c, w, th, q, uf, uc, fp(w, c)))
 
     return f
 

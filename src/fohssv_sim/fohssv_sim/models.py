@@ -32,7 +32,7 @@ from .params import ModelParameters
 from .planing import planing_delayed, planing_exact, planing_smooth
 
 __all__ = ['Plant', 'DelayFreeModel', 'DelayedModel', 'FractionalModel', 'make_plant',
-           'InputLike', 'STATE_NAMES']
+           'InputLike', 'STATE_NAMES', 'eq17']
 
 #: Names of the state components, in order (spec section 1).
 STATE_NAMES = ('z', 'w', 'theta', 'q')
@@ -141,6 +141,29 @@ def _input(u: InputLike, t: float, x: tuple) -> Input:
     return u  # already normalised by the caller
 
 
+def eq17(c: Coefficients, w: float, th: float, q: float, uf: float, uc: float,
+         fp: float) -> tuple:
+    """dx/dt = A x + B u + G + D Fp of eq. 17 in float arithmetic (z does not enter)."""
+    return (w - c.V * th,
+            c.a22 * w + c.a24 * q + c.b21 * uf + c.b22 * uc + c.g + c.d2 * fp,
+            q,
+            c.a42 * w + c.a44 * q + c.b41 * uf + c.b42 * uc + c.d4 * fp)
+
+
+def _rk4(x: tuple, t: float, h: float, u: InputLike,
+         deriv: Callable[[float, tuple, float, float], tuple]) -> tuple:
+    """One classical RK4 step; ``deriv(c, x, uf, uc)`` at stage fraction c of the step."""
+    k1 = deriv(0.0, x, *_input(u, t, x))
+    x2 = tuple(a + 0.5 * h * b for a, b in zip(x, k1))
+    k2 = deriv(0.5, x2, *_input(u, t + 0.5 * h, x2))
+    x3 = tuple(a + 0.5 * h * b for a, b in zip(x, k2))
+    k3 = deriv(0.5, x3, *_input(u, t + 0.5 * h, x3))
+    x4 = tuple(a + h * b for a, b in zip(x, k3))
+    k4 = deriv(1.0, x4, *_input(u, t + h, x4))
+    return tuple(a + h / 6.0 * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
+                 for a, b1, b2, b3, b4 in zip(x, k1, k2, k3, k4))
+
+
 def _held(u: InputLike) -> InputLike:
     if callable(u):
         return u
@@ -167,25 +190,11 @@ class DelayFreeModel(Plant):
     def rhs(self, x: Sequence[float], uf: float, uc: float) -> tuple:
         """dx/dt of eq. 17 for state ``x`` and input (``uf``, ``uc``)."""
         c = self.coefficients
-        _, w, th, q = x
-        fp = self._fp(w, c)
-        return (w - c.V * th,
-                c.a22 * w + c.a24 * q + c.b21 * uf + c.b22 * uc + c.g + c.d2 * fp,
-                q,
-                c.a42 * w + c.a44 * q + c.b41 * uf + c.b42 * uc + c.d4 * fp)
+        return eq17(c, x[1], x[2], x[3], uf, uc, self._fp(x[1], c))
 
     def _advance(self, u: InputLike) -> tuple:
-        h, t, x, f = self.h, self.t, self._x, self.rhs
-        u = _held(u)
-        k1 = f(x, *_input(u, t, x))
-        x2 = tuple(a + 0.5 * h * b for a, b in zip(x, k1))
-        k2 = f(x2, *_input(u, t + 0.5 * h, x2))
-        x3 = tuple(a + 0.5 * h * b for a, b in zip(x, k2))
-        k3 = f(x3, *_input(u, t + 0.5 * h, x3))
-        x4 = tuple(a + h * b for a, b in zip(x, k3))
-        k4 = f(x4, *_input(u, t + h, x4))
-        return tuple(a + h / 6.0 * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
-                     for a, b1, b2, b3, b4 in zip(x, k1, k2, k3, k4))
+        rhs = self.rhs
+        return _rk4(self._x, self.t, self.h, _held(u), lambda _c, x, uf, uc: rhs(x, uf, uc))
 
     @property
     def planing_force(self) -> float:
@@ -245,29 +254,19 @@ class DelayedModel(Plant):
 
     def rhs(self, x: Sequence[float], x_delayed: Sequence[float], uf: float, uc: float) -> tuple:
         """dx/dt of eqs. 22-25 for state ``x``, delayed state and input."""
-        c = self.coefficients
-        _, w, th, q = x
-        fp = self._force(x, x_delayed)
-        return (w - c.V * th,
-                c.a22 * w + c.a24 * q + c.b21 * uf + c.b22 * uc + c.g + c.d2 * fp,
-                q,
-                c.a42 * w + c.a44 * q + c.b41 * uf + c.b42 * uc + c.d4 * fp)
+        return eq17(self.coefficients, x[1], x[2], x[3], uf, uc, self._force(x, x_delayed))
 
     def _advance(self, u: InputLike) -> tuple:
-        h, t, x, f, d = self.h, self.t, self._x, self.rhs, self._delayed
-        u = _held(u)
-        n = self.n
-        self._hx[n % self._size] = x
-        k1 = f(x, d(0.0, x), *_input(u, t, x))
-        self._hf[n % self._size] = k1
-        x2 = tuple(a + 0.5 * h * b for a, b in zip(x, k1))
-        k2 = f(x2, d(0.5, x2), *_input(u, t + 0.5 * h, x2))
-        x3 = tuple(a + 0.5 * h * b for a, b in zip(x, k2))
-        k3 = f(x3, d(0.5, x3), *_input(u, t + 0.5 * h, x3))
-        x4 = tuple(a + h * b for a, b in zip(x, k3))
-        k4 = f(x4, d(1.0, x4), *_input(u, t + h, x4))
-        return tuple(a + h / 6.0 * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
-                     for a, b1, b2, b3, b4 in zip(x, k1, k2, k3, k4))
+        n, size, rhs, delayed = self.n, self._size, self.rhs, self._delayed
+        self._hx[n % size] = self._x
+
+        def deriv(c: float, x: tuple, uf: float, uc: float) -> tuple:
+            f = rhs(x, delayed(c, x), uf, uc)
+            if c == 0.0:
+                self._hf[n % size] = f   # f_n: the Hermite slope at t_n (stages need it)
+            return f
+
+        return _rk4(self._x, self.t, self.h, _held(u), deriv)
 
     @property
     def planing_force(self) -> float:
@@ -309,13 +308,9 @@ class FractionalModel(Plant):
     def rhs(self, t: float, x: np.ndarray, u: Sequence[float]) -> np.ndarray:
         """Right-hand side f(t, x, u) of D^alpha x = f (eq. 26)."""
         c = self.coefficients
-        w, th, q = float(x[1]), float(x[2]), float(x[3])
-        uf, uc = float(u[0]), float(u[1])
-        fp = self._fp(w, c)
-        return np.array((w - c.V * th,
-                         c.a22 * w + c.a24 * q + c.b21 * uf + c.b22 * uc + c.g + c.d2 * fp,
-                         q,
-                         c.a42 * w + c.a44 * q + c.b41 * uf + c.b42 * uc + c.d4 * fp))
+        w = float(x[1])
+        return np.array(eq17(c, w, float(x[2]), float(x[3]), float(u[0]), float(u[1]),
+                             self._fp(w, c)))
 
     def _advance(self, u: InputLike) -> tuple:
         u = _held(u)

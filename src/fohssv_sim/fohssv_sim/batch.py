@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from .coefficients import coefficients
+from .models import eq17
 from .params import ModelParameters
 from .planing import planing_exact_array, planing_smooth_array
 from .simulate import simulate, steps_per_period
@@ -72,12 +73,9 @@ class BatchRHS:
         c = self.c
         w, th, q = X[:, 1], X[:, 2], X[:, 3]
         uf, uc = U[:, 0], U[:, 1]
-        fp = self._fp(w, c)
         out = np.empty_like(X)
-        out[:, 0] = w - c.V * th
-        out[:, 1] = c.a22 * w + c.a24 * q + c.b21 * uf + c.b22 * uc + c.g + c.d2 * fp
-        out[:, 2] = q
-        out[:, 3] = c.a42 * w + c.a44 * q + c.b41 * uf + c.b42 * uc + c.d4 * fp
+        for i, col in enumerate(eq17(c, w, th, q, uf, uc, self._fp(w, c))):
+            out[:, i] = col
         return out
 
 

@@ -1,0 +1,483 @@
+"""Player: replay a recorded run. ``ros2 run fohssv_sim player --ros-args -p bag_path:=runs/x``
+
+Two modes (parameter ``mode``):
+
+* ``republish`` (default): publish the bag's contract topics on their recorded names, the
+  serialized CDR bytes exactly as recorded, in recorded order, paced by the log time (the
+  simulation time) at ``rate`` x real time, with ``/clock`` at every new log time.
+  ``rate = 0`` plays as fast as the subscribers allow: it waits for them, publishes with
+  reliable keep-all history (a publish blocks while a keep-all subscriber's queue is full and
+  is retried, never dropped) and waits for the last messages to be acknowledged.
+* ``commands`` (open loop): act as the controller of a fresh plant. For each ``state`` at time
+  t it publishes the recorded ``command`` whose ``data[0]`` is exactly t (the same double, as
+  recorded bytes). A lockstep plant with the recorded parameters then reproduces the recorded
+  trajectory bit for bit. A state with no recorded command is an error naming t.
+
+Bags are read with the pure loader (:func:`fohssv_sim.bag.scan`): a cut bag (killed recorder)
+plays everything recoverable, with a warning.
+
+Exit codes: 0 played to the end (republish), or the plant's run ended / the bag's commands
+were used up (commands); 1 bad bag (missing, empty, truncated before any message, not a bag:
+one ``player: error: ...`` line, no traceback) or a state without a recorded command;
+2 invalid parameters; 4 no subscriber (rate 0) or no plant (commands) within
+``start_timeout``. SIGINT/SIGTERM stop cleanly with the code so far (0).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor, ParameterType
+from rclpy.duration import Duration
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from rclpy.task import Future
+from rclpy.time import Time
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Float64MultiArray
+
+from .. import contract
+from ..bag import BagError, scan
+from ..bag.writer import typestore
+from .qos import profile
+from .spin import final_log, make_executor, spin_until
+
+__all__ = ['Player', 'PlayerError', 'Track', 'select_tracks', 'command_table', 'main',
+           'EXIT_OK', 'EXIT_ERROR', 'EXIT_BAD_PARAMETERS', 'EXIT_NO_PEERS']
+
+EXIT_OK, EXIT_ERROR, EXIT_BAD_PARAMETERS, EXIT_NO_PEERS = 0, 1, 2, 4
+MODES = ('republish', 'commands')
+_MSG_CLASSES = {contract.FLOAT64_ARRAY: Float64MultiArray, contract.CLOCK.type: Clock}
+#: Longest sleep between checks for a signal while pacing (s).
+_SLICE = 0.05
+
+
+class PlayerError(Exception):
+    """A bag that cannot be played as asked (the message says why); exit code 1."""
+
+
+@dataclass
+class Track:
+    """One recorded topic to play: its name, contract topic and (log ns, CDR) messages."""
+
+    name: str
+    topic: contract.Topic
+    messages: list[tuple[int, bytes]] = field(default_factory=list)
+
+
+def _basename(name: str) -> str:
+    return name.rstrip('/').rsplit('/', 1)[-1]
+
+
+def _contract(name: str) -> contract.Topic | None:
+    base = _basename(name)
+    return next((t for t in contract.TOPICS if t.name.lstrip('/') == base), None)
+
+
+def select_tracks(sc: Any, wanted: list[str]) -> tuple[list[Track], list[tuple[str, int, bytes]]]:
+    """The bag's channels to play and its messages in recorded order.
+
+    ``wanted``: recorded names (``/state``) or contract names (``state``, matching the topic
+    in any namespace); empty = every contract topic in the bag.
+
+    Returns:
+        (tracks, [(track name, log ns, cdr)] in file order).
+
+    Raises:
+        PlayerError: a wanted topic is not in the bag or not a contract topic.
+    """
+    by_name: dict[str, Track] = {}
+    for chan in sc.channels.values():
+        topic = _contract(chan.topic)
+        if topic is None or chan.msgtype != topic.type:
+            continue
+        by_name.setdefault(chan.topic, Track(chan.topic, topic))
+    if wanted:
+        chosen: dict[str, Track] = {}
+        for w in wanted:
+            hits = [n for n in by_name if n == w or (not w.startswith('/')
+                                                     and _basename(n) == w)]
+            if not hits:
+                have = ', '.join(sorted(by_name)) or 'none'
+                raise PlayerError(f'{sc.files.directory}: topic {w!r} is not in the bag '
+                                  f'(contract topics recorded: {have})')
+            for n in hits:
+                chosen[n] = by_name[n]
+        by_name = chosen
+    names = {c.id: c.topic for c in sc.channels.values() if c.topic in by_name}
+    order: list[tuple[str, int, bytes]] = []
+    for cid, log, raw in sc.messages:
+        name = names.get(cid)
+        if name is not None:
+            by_name[name].messages.append((log, raw))
+            order.append((name, log, raw))
+    return list(by_name.values()), order
+
+
+def command_table(sc: Any, wanted: list[str]) -> tuple[str, dict[float, list[bytes]], int]:
+    """The recorded commands by their ``data[0]`` (the exact double of the state they answer).
+
+    Returns:
+        (recorded topic name, {t: CDR bytes in recorded order}, messages rejected).
+
+    Raises:
+        PlayerError: no command topic, several, or no valid command in it.
+    """
+    tracks, _ = select_tracks(sc, wanted or [contract.COMMAND.name])
+    tracks = [tr for tr in tracks if tr.topic is contract.COMMAND]
+    where = sc.files.directory
+    if not tracks:
+        raise PlayerError(f'{where}: no command topic in the bag; nothing to replay')
+    if len(tracks) > 1:
+        raise PlayerError(f'{where}: several command topics {[t.name for t in tracks]}; '
+                          'name one in the topics parameter')
+    ts = typestore()
+    table: dict[float, list[bytes]] = {}
+    bad = 0
+    for _, raw in tracks[0].messages:
+        try:
+            t = contract.decode(contract.COMMAND, ts.deserialize_cdr(raw, contract.FLOAT64_ARRAY)
+                                .data)[0]
+        except (contract.ContractError, ValueError, IndexError, TypeError):
+            bad += 1
+            continue
+        table.setdefault(t, []).append(raw)
+    if not table:
+        raise PlayerError(f'{where}: {tracks[0].name} holds no valid command '
+                          f'({len(tracks[0].messages)} messages, {bad} rejected)')
+    return tracks[0].name, table, bad
+
+
+def _deep_qos() -> QoSProfile:
+    return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+
+
+class Player(Node):
+    """See the module docstring. Raises ValueError (bad parameters) or PlayerError/BagError
+    (bad bag) from the constructor."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('player', **kwargs)
+        d = self.declare_parameter
+        d('bag_path', '', ParameterDescriptor(
+            description='bag to play: directory, its metadata.yaml or the .mcap file '
+                        '(required)', read_only=True))
+        d('mode', 'republish', ParameterDescriptor(
+            description="'republish': the bag's topics with /clock at rate; 'commands': answer "
+                        "a fresh plant's states with the recorded commands (open loop)",
+            read_only=True, additional_constraints='one of: ' + ', '.join(MODES)))
+        d('rate', 1.0, ParameterDescriptor(
+            description='republish: simulated seconds per wall second (1 = real time); '
+                        '0 = as fast as the subscribers allow', read_only=True,
+            additional_constraints='>= 0'))
+        d('topics', [''], ParameterDescriptor(
+            type=ParameterType.PARAMETER_STRING_ARRAY, read_only=True,
+            description="topics to play: recorded names ('/state') or contract names "
+                        "('state', any namespace); [''] = every contract topic in the bag "
+                        '(commands mode: the command topic)'))
+        d('clock', True, ParameterDescriptor(
+            description='republish: publish /clock at every new log time (the recorded '
+                        '/clock is then not replayed)', read_only=True))
+        d('min_subscribers', 1, ParameterDescriptor(
+            description='republish: matched subscribers per topic to wait for before playing',
+            read_only=True, additional_constraints='>= 0'))
+        d('start_timeout', 30.0, ParameterDescriptor(
+            description='s to wait for subscribers (republish; rate 0 fails without them, '
+                        'rate > 0 starts anyway) or for the plant (commands)', read_only=True,
+            additional_constraints='>= 0'))
+        d('end_timeout', 5.0, ParameterDescriptor(
+            description='s to wait for subscribers to acknowledge the last messages',
+            read_only=True, additional_constraints='>= 0'))
+        gp = self.get_parameter
+        self.bag_path = str(gp('bag_path').value)
+        self.mode = str(gp('mode').value)
+        self.rate = float(gp('rate').value)
+        self.topics = [str(t) for t in gp('topics').value if str(t)]
+        self.clock = bool(gp('clock').value)
+        self.min_subscribers = int(gp('min_subscribers').value)
+        self.start_timeout = float(gp('start_timeout').value)
+        self.end_timeout = float(gp('end_timeout').value)
+        if not self.bag_path:
+            raise ValueError('bag_path is required: -p bag_path:=runs/<run>')
+        if self.mode not in MODES:
+            raise ValueError(f'mode={self.mode!r}; valid: {", ".join(MODES)}')
+        for name, v in (('rate', self.rate), ('start_timeout', self.start_timeout),
+                        ('end_timeout', self.end_timeout)):
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f'{name}={v!r} must be a finite number >= 0')
+        if self.min_subscribers < 0:
+            raise ValueError(f'min_subscribers={self.min_subscribers} must be >= 0')
+
+        self.scan = scan(self.bag_path)          # BagError: one line from main
+        if not self.scan.complete:
+            self.get_logger().warning(
+                f'bag is truncated; playing the {len(self.scan.messages)} messages that could '
+                f'be recovered ({self.scan.problem}); python -m fohssv_sim.bag repair '
+                f'{self.bag_path} rebuilds it')
+        self.finished = Future()
+        self.exit_code = EXIT_OK
+        self.published = 0
+        if self.mode == 'republish':
+            self._setup_republish()
+        else:
+            self._setup_commands()
+
+    # -- republish -------------------------------------------------------------------------
+    def _setup_republish(self) -> None:
+        wanted = self.topics
+        tracks, order = select_tracks(self.scan, wanted)
+        if self.clock and not any(w.lstrip('/') == 'clock' for w in wanted):
+            # /clock is generated from the log times (every step, never keep-last-dropped)
+            order = [m for m in order if m[0] != contract.CLOCK.name]
+            tracks = [t for t in tracks if t.name != contract.CLOCK.name]
+        if not order:
+            raise PlayerError(f'{self.scan.files.directory}: no message to play on '
+                              f'{[t.name for t in tracks] or "any contract topic"}')
+        self.order = order
+        self.pubs = {}
+        for tr in tracks:
+            qos = _deep_qos() if self.rate == 0 else profile(tr.topic)
+            self.pubs[tr.name] = self.create_publisher(_MSG_CLASSES[tr.topic.type], tr.name,
+                                                       qos)
+        self.clock_pub = None
+        if self.clock and contract.CLOCK.name not in self.pubs:
+            self.clock_pub = self.create_publisher(
+                Clock, contract.CLOCK.name, _deep_qos() if self.rate == 0 else
+                profile(contract.CLOCK))
+        counts = {tr.name: len(tr.messages) for tr in tracks}
+        span = (order[-1][1] - order[0][1]) * 1e-9
+        self.get_logger().info(
+            f'republishing {self.bag_path}: {counts}, {span:.6g} s simulated, rate '
+            f'{self.rate:g}' + (' (as fast as the subscribers allow)' if self.rate == 0
+                                else '') + ('; /clock at every log time' if self.clock_pub
+                                            else ''))
+
+    def _wait_subscribers(self) -> bool:
+        """Wait for ``min_subscribers`` on every topic. False when the start failed."""
+        pubs = list(self.pubs.items())
+        start = time.monotonic()
+        while rclpy.ok():
+            missing = [n for n, p in pubs if p.get_subscription_count() < self.min_subscribers]
+            if not missing:
+                return True
+            waited = time.monotonic() - start
+            if waited >= self.start_timeout:
+                what = (f'{", ".join(missing)} without {self.min_subscribers} subscriber(s) '
+                        f'after {waited:.1f} s')
+                if self.rate == 0:
+                    self._fail(EXIT_NO_PEERS, f'start timeout: {what}; nothing would receive '
+                               'the messages (same ROS_DOMAIN_ID and namespace?)')
+                    return False
+                self.get_logger().warning(f'starting without all subscribers: {what}')
+                return True
+            time.sleep(0.01)
+        return False
+
+    def _publish_blocking(self, pub: Any, data: Any) -> None:
+        """Publish; at rate 0 a keep-all subscriber's full queue makes DDS time out: retry
+        until it is accepted (or a signal stops the player)."""
+        while True:
+            try:
+                pub.publish(data)
+                return
+            except Exception:  # noqa: BLE001 - rclpy raises RCLError on a publish timeout
+                if self.rate != 0 or not rclpy.ok():
+                    raise
+                time.sleep(0.001)
+
+    def play(self) -> int:
+        """Republish every message (blocking; returns the exit code)."""
+        if not self._wait_subscribers():
+            return self.exit_code
+        wall0 = time.monotonic()
+        due = wall0
+        last_log: int | None = None    # log time of the previous message
+        for name, log, raw in self.order:
+            # pace by the log time's forward steps (a reset in the run jumps back at once)
+            if last_log is not None and log > last_log and self.rate > 0:
+                due += (log - last_log) * 1e-9 / self.rate
+                while (now := time.monotonic()) < due:
+                    if not rclpy.ok():
+                        break
+                    time.sleep(min(_SLICE, due - now))
+            if not rclpy.ok():
+                break
+            if self.clock_pub is not None and (last_log is None or log != last_log):
+                self._publish_blocking(self.clock_pub, Clock(clock=Time(nanoseconds=log)
+                                                             .to_msg()))
+            last_log = log
+            self._publish_blocking(self.pubs[name], raw)
+            self.published += 1
+        wall = time.monotonic() - wall0
+        if not rclpy.ok():
+            final_log('player', f'interrupted after {self.published} of {len(self.order)} '
+                      'messages')
+            return self.exit_code
+        self._flush_all(list(self.pubs.values()) + [p for p in (self.clock_pub,) if p])
+        span = (self.order[-1][1] - self.order[0][1]) * 1e-9
+        self.get_logger().info(
+            f'played {self.published} messages, {span:.6g} s simulated in {wall:.3f} s wall '
+            f'(x{span / wall if wall > 0 else math.inf:.3g})')
+        return self.exit_code
+
+    def _flush_all(self, pubs: list) -> None:
+        for pub in pubs:
+            if pub.get_subscription_count() > 0 and rclpy.ok():
+                pub.wait_for_all_acked(Duration(seconds=self.end_timeout))
+
+    # -- commands --------------------------------------------------------------------------
+    def _setup_commands(self) -> None:
+        name, self.table, bad = command_table(self.scan, self.topics)
+        self.remaining = sum(len(q) for q in self.table.values())
+        self.t_first, self.t_last = min(self.table), max(self.table)
+        if bad:
+            self.get_logger().warning(f'{bad} recorded command(s) do not fit the contract and '
+                                      'are skipped')
+        self._pending: list[bytes] = []
+        self.states = 0
+        self._last_t: float | None = None
+        self._used: dict[float, int] = {}
+        self._plant_seen = False
+        self._wall0 = time.monotonic()
+        self.command_pub = self.create_publisher(Float64MultiArray, contract.COMMAND.name,
+                                                 profile(contract.COMMAND))
+        self.state_sub = self.create_subscription(Float64MultiArray, contract.STATE.name,
+                                                  self._on_state, profile(contract.STATE))
+        self._timer = self.create_timer(0.005, self._tick)
+        self.get_logger().info(
+            f'replaying {self.remaining} commands of {self.bag_path} ({name}, t in '
+            f'[{self.t_first!r}, {self.t_last!r}] s) in answer to {self.state_sub.topic_name}')
+
+    def _matched(self) -> bool:
+        """Every command subscriber the graph knows of (the plant, a recorder) is matched."""
+        n = self.command_pub.get_subscription_count()
+        return n >= max(1, self.count_subscribers(self.command_pub.topic_name))
+
+    def _send(self, raw: bytes) -> None:
+        if self._pending or not self._matched():
+            self._pending.append(raw)      # published by _tick once matched
+            return
+        self.command_pub.publish(raw)
+        self.published += 1
+
+    def _on_state(self, msg: Float64MultiArray) -> None:
+        if self.finished.done():
+            return
+        try:
+            t = contract.decode(contract.STATE, msg.data)[0]
+        except contract.ContractError as exc:
+            self.get_logger().error(f'ignored a state message: {exc}')
+            return
+        self.states += 1
+        self._last_t = t
+        queue = self.table.get(t)
+        if not queue:
+            if t > self.t_last:
+                self._finish(f"the bag's commands end at t={self.t_last!r} s; the plant is at "
+                             f't={t!r} s ({self.remaining} recorded command(s) unused)')
+                return
+            self._fail(EXIT_ERROR,
+                       f'no recorded command for the state at t={t!r} s (the bag answers '
+                       f'{len(self.table)} distinct times in [{self.t_first!r}, '
+                       f'{self.t_last!r}] s); is the plant running with the recorded '
+                       'control_period and parameters?')
+            return
+        # the k-th state at t gets the k-th command recorded for t (a run with a reset has
+        # several); a state repeated more often than recorded gets the last one again
+        k = self._used.get(t, 0)
+        self._used[t] = k + 1
+        if k < len(queue):
+            self.remaining -= 1
+        self._send(queue[min(k, len(queue) - 1)])
+        if self.remaining == 0:
+            self._finish('every recorded command was replayed')
+
+    def _tick(self) -> None:
+        if self.finished.done():
+            return
+        if self._pending and self._matched():
+            pending, self._pending = self._pending, []
+            for raw in pending:
+                self.command_pub.publish(raw)
+                self.published += 1
+        plants = self.state_sub.get_publisher_count()
+        if plants > 0:
+            self._plant_seen = True
+        elif self._plant_seen:
+            last = 'no state' if self._last_t is None else f'the last state at t={self._last_t!r} s'
+            self._finish(f'the plant left ({last})')
+        elif time.monotonic() - self._wall0 > self.start_timeout:
+            self._fail(EXIT_NO_PEERS, f'start timeout: no publisher of '
+                       f'{self.state_sub.topic_name} after {self.start_timeout:g} s; is the '
+                       'plant running in the same ROS_DOMAIN_ID and namespace?')
+
+    # -- end -------------------------------------------------------------------------------
+    def _end(self, code: int) -> None:
+        if self.finished.done():
+            return
+        self.exit_code = code
+        if self.mode == 'commands':
+            self.destroy_timer(self._timer)
+        self.finished.set_result(code)
+
+    def _finish(self, why: str) -> None:
+        self.get_logger().info(f'done: {why}; {self.published} command(s) published for '
+                               f'{self.states} state(s)')
+        self._end(EXIT_OK)
+
+    def _fail(self, code: int, message: str) -> None:
+        self.get_logger().error(message)
+        self._end(code)
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``ros2 run fohssv_sim player``; returns the exit code."""
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.ALL)
+    except Exception as exc:  # noqa: BLE001 - rcl's argument errors: one line, no traceback
+        print(f'player: error: {exc}', file=sys.stderr, flush=True)
+        return EXIT_BAD_PARAMETERS
+    node = None
+    code = EXIT_OK
+    try:
+        node = Player()
+        if node.mode == 'republish':
+            code = node.play()
+        else:
+            executor = make_executor()
+            executor.add_node(node)
+            spin_until(executor, node.finished)
+            code = node.exit_code
+            if rclpy.ok():
+                node._flush_all([node.command_pub])
+    except (KeyboardInterrupt, ExternalShutdownException):
+        if node is not None:
+            code = node.exit_code
+            final_log('player', f'interrupted after {node.published} message(s)')
+    except ValueError as exc:
+        print(f'player: error: invalid parameters: {exc}', file=sys.stderr, flush=True)
+        code = EXIT_BAD_PARAMETERS
+    except (BagError, PlayerError, OSError) as exc:
+        print(f'player: error: {exc}', file=sys.stderr, flush=True)
+        code = EXIT_ERROR
+    except Exception as exc:  # noqa: BLE001 - a signal during start-up, or a bug: one line
+        if rclpy.ok():
+            print(f'player: error: {type(exc).__name__}: {exc}', file=sys.stderr, flush=True)
+            code = EXIT_ERROR
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -34,6 +34,7 @@ from typing import Any
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 from rclpy.duration import Duration
+from rclpy.exceptions import InvalidParameterTypeException, ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -462,7 +463,7 @@ def main(args: list[str] | None = None) -> int:
         if node is not None:
             code = node.exit_code
             final_log('player', f'interrupted after {node.published} message(s)')
-    except ValueError as exc:
+    except (ValueError, InvalidParameterTypeException, ParameterException) as exc:
         print(f'player: error: invalid parameters: {exc}', file=sys.stderr, flush=True)
         code = EXIT_BAD_PARAMETERS
     except (BagError, PlayerError, OSError) as exc:

@@ -161,14 +161,15 @@ def test_commands_mode_names_a_state_the_bag_does_not_answer(tmp_path):
 
 
 class Listener:
-    """A keep-all subscriber of /state (raw bytes, arrival times) and /clock in the test."""
+    """A keep-all, transient-local subscriber (a late match loses nothing) in the test:
+    /state (raw bytes, arrival times) and /clock."""
 
     def __init__(self, domain: int) -> None:
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx, domain_id=domain)
         self.node = rclpy.create_node('listener', context=self.ctx)
         qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.VOLATILE)
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.states: list[tuple[float, bytes]] = []
         self.clock: list[int] = []
         self.node.create_subscription(Float64MultiArray, '/state',

@@ -6,8 +6,10 @@ Two modes (parameter ``mode``):
   serialized CDR bytes exactly as recorded, in recorded order, paced by the log time (the
   simulation time) at ``rate`` x real time, with ``/clock`` at every new log time.
   ``rate = 0`` plays as fast as the subscribers allow: it waits for them, publishes with
-  reliable keep-all history (a publish blocks while a keep-all subscriber's queue is full and
-  is retried, never dropped) and waits for the last messages to be acknowledged.
+  reliable keep-all, transient-local history (a publish blocks while a keep-all subscriber's
+  queue is full and is retried, never dropped; a transient-local subscriber gets every
+  message even when its side of the match completes late) and waits for the last messages
+  to be acknowledged.
 * ``commands`` (open loop): act as the controller of a fresh plant. For each ``state`` at time
   t it publishes the recorded ``command`` whose ``data[0]`` is exactly t (the same double, as
   recorded bytes). A lockstep plant with the recorded parameters then reproduces the recorded
@@ -156,9 +158,19 @@ def command_table(sc: Any, wanted: list[str]) -> tuple[str, dict[float, list[byt
     return tracks[0].name, table, bad
 
 
+def _paced_qos(topic: contract.Topic) -> QoSProfile:
+    # the contract's profile, offered transient-local so that transient-local subscribers
+    # match too (volatile ones ignore the history)
+    base = profile(topic)
+    return QoSProfile(history=base.history, depth=base.depth, reliability=base.reliability,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
 def _deep_qos() -> QoSProfile:
+    # transient-local: a subscriber asking for it gets everything even if its side of the
+    # match completes after the first publish; volatile subscribers stay compatible
     return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.VOLATILE)
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 class Player(Node):
@@ -245,14 +257,14 @@ class Player(Node):
         self.order = order
         self.pubs = {}
         for tr in tracks:
-            qos = _deep_qos() if self.rate == 0 else profile(tr.topic)
+            qos = _deep_qos() if self.rate == 0 else _paced_qos(tr.topic)
             self.pubs[tr.name] = self.create_publisher(_MSG_CLASSES[tr.topic.type], tr.name,
                                                        qos)
         self.clock_pub = None
         if self.clock and contract.CLOCK.name not in self.pubs:
             self.clock_pub = self.create_publisher(
                 Clock, contract.CLOCK.name, _deep_qos() if self.rate == 0 else
-                profile(contract.CLOCK))
+                _paced_qos(contract.CLOCK))
         counts = {tr.name: len(tr.messages) for tr in tracks}
         span = (order[-1][1] - order[0][1]) * 1e-9
         self.get_logger().info(

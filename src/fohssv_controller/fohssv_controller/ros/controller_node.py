@@ -15,6 +15,7 @@ Exit codes: 0 on a clean stop, 2 for an unknown controller or invalid parameters
 from __future__ import annotations
 
 import sys
+import time
 from collections.abc import Mapping
 from typing import Any
 
@@ -38,6 +39,8 @@ __all__ = ['ControllerNode', 'main', 'main_state_feedback', 'main_lqr']
 
 EXIT_OK, EXIT_BAD_CONFIG = 0, 2
 _LOG_EACH = 20
+#: s to wait for every known command subscription to match before the first command.
+_MATCH_GRACE = 2.0
 
 
 class ControllerNode(Node):
@@ -68,6 +71,8 @@ class ControllerNode(Node):
                                                   self._on_state, profile(STATE))
         self._pending: list[tuple[float, ...]] = []
         self._retry = None
+        self._ready = False
+        self._hold_deadline: float | None = None
         self._last_t: float | None = None
         self.answered = 0
         self.dropped = 0
@@ -110,9 +115,26 @@ class ControllerNode(Node):
             return
         self._send((t, df, dc))
 
+    def _subscribers_matched(self) -> bool:
+        """True once every ``command`` subscription the graph knows of (the plant, and a
+        recorder that must not miss the first commands) is matched, or at least one is and
+        ``_MATCH_GRACE`` s have passed (a listed subscription may never match, e.g. with
+        incompatible QoS). Checked only until it first holds."""
+        if self._ready:
+            return True
+        matched = self.command_pub.get_subscription_count()
+        if matched == 0:
+            return False
+        now = time.monotonic()
+        if self._hold_deadline is None:
+            self._hold_deadline = now + _MATCH_GRACE
+        known = self.count_subscribers(self.command_pub.topic_name)
+        self._ready = matched >= known or now >= self._hold_deadline
+        return self._ready
+
     def _send(self, data: tuple[float, ...]) -> None:
-        # Until the plant's subscription is matched a publish would be lost: hold the answer.
-        if self._pending or self.command_pub.get_subscription_count() == 0:
+        # Until the subscriptions are matched a publish would be lost to them: hold the answer.
+        if self._pending or not self._subscribers_matched():
             self._pending.append(data)
             if self._retry is None:
                 self._retry = self.create_timer(0.005, self._flush)
@@ -122,7 +144,7 @@ class ControllerNode(Node):
         self.answered += 1
 
     def _flush(self) -> None:
-        if self.command_pub.get_subscription_count() == 0:
+        if not self._subscribers_matched():
             return
         pending, self._pending = self._pending, []
         for data in pending:

@@ -18,6 +18,8 @@ from pathlib import Path
 from ament_index_python.packages import get_package_prefix
 
 _counter = itertools.count()
+#: Every process started by :func:`start`; conftest kills those still running after each test.
+STARTED: list[subprocess.Popen] = []
 
 
 def unique_domain_id() -> int:
@@ -51,8 +53,20 @@ def start(package: str, name: str, args: Sequence[str] = (), *, env: dict[str, s
     """
     cmd = [str(executable(package, name)), *args]
     out = open(log, 'w') if log is not None else subprocess.PIPE  # noqa: SIM115
-    return subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT, text=True,
+    proc = subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT, text=True,
                             start_new_session=True)
+    STARTED.append(proc)
+    return proc
+
+
+def kill_leftovers() -> None:
+    """Kill every process :func:`start` started that still runs (a failed assertion must not
+    leave a plant, controller, recorder or player spinning on the machine)."""
+    while STARTED:
+        proc = STARTED.pop()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=10)
 
 
 def stop(proc: subprocess.Popen, sig: int = signal.SIGINT, timeout: float = 10.0) -> int:

@@ -40,23 +40,8 @@ TOL = 1e-12
 DURATION = 0.05            # simulated s per lockstep run (501 samples at 1e-4 s)
 N = round(DURATION / 1e-4) + 1
 
-_STARTED: list = []
-
-
-@pytest.fixture(autouse=True)
-def _kill_leftovers():
-    """A failed assertion must not leave a plant, controller, recorder or player running."""
-    yield
-    while _STARTED:
-        proc = _STARTED.pop()
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(timeout=10)
-
-
 def _start(package: str, exe: str, args, env, log=None):
     proc = rosproc.start(package, exe, list(args), env=env, log=log)
-    _STARTED.append(proc)
     return proc
 
 

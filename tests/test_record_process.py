@@ -105,27 +105,12 @@ def plant(domain):
     p.close()
 
 
-_STARTED: list = []
-
-
-@pytest.fixture(autouse=True)
-def _kill_leftovers():
-    """A failed assertion must not leave a recorder spinning on the machine."""
-    yield
-    while _STARTED:
-        proc = _STARTED.pop()
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(timeout=10)
-
-
 def _recorder(tmp_path, domain, *params: str):
     log = tmp_path / 'recorder.log'
     args = ['--ros-args', '-p', 'plant_timeout:=20.0']
     for p in params:
         args += ['-p', p]
     proc = start('fohssv_sim', 'recorder', args, env=ros_env(domain), log=log)
-    _STARTED.append(proc)
     return proc, log
 
 

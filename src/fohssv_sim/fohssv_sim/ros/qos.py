@@ -1,11 +1,14 @@
 """QoS profiles of the topic contract (:mod:`fohssv_sim.contract`), by the names its topics give.
 
 * ``reliable_samples`` (``state``, ``planing_force``): reliable, keep-last with a deep queue
-  (:data:`SAMPLE_DEPTH`), volatile. A recorder must keep every sample: at the default 10 kHz
-  sample rate the queue covers 0.2 s of backlog before a slow reader loses anything.
+  (:data:`SAMPLE_DEPTH`), transient-local: the lockstep loop stalled when the controller's
+  reader matched the plant only after the sample t = 0 was written. A recorder must keep
+  every sample: at the default 10 kHz sample rate the queue covers 0.2 s of backlog before a
+  slow reader loses anything.
 * ``reliable_commands`` (``command``): reliable, keep-last :data:`COMMAND_DEPTH`, volatile.
-  Lockstep depends on every command arriving; in real time only the newest one matters, but a
-  reliable queue costs nothing at these rates and keeps the two modes on one profile.
+  Lockstep depends on every command arriving, and a recorder must keep them all: a reliable
+  keep-last writer drops what a slow reader has not acknowledged once its queue is full, so
+  commands get the samples' depth (with 100, a recorder lagging 70 ms lost commands).
 * ``clock`` (``/clock``): reliable, keep-last 1, volatile. A reliable writer also serves the
   best-effort reader that rclpy's time source creates for ``use_sim_time``.
 
@@ -23,18 +26,21 @@ __all__ = ['SAMPLE_DEPTH', 'COMMAND_DEPTH', 'PROFILES', 'profile']
 
 #: Queue depth of state and force samples (0.2 s at the default 1e-4 s control period).
 SAMPLE_DEPTH = 2000
-#: Queue depth of commands.
-COMMAND_DEPTH = 100
+#: Queue depth of commands: as deep as the samples (a recorder lags the same on both).
+COMMAND_DEPTH = SAMPLE_DEPTH
 
 
-def _reliable(depth: int) -> QoSProfile:
+def _reliable(depth: int, durability: DurabilityPolicy = DurabilityPolicy.VOLATILE
+              ) -> QoSProfile:
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
-                      reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.VOLATILE)
+                      reliability=ReliabilityPolicy.RELIABLE, durability=durability)
 
 
 PROFILES: dict[str, QoSProfile] = {
-    'reliable_samples': _reliable(SAMPLE_DEPTH),
+    # transient-local: a reader whose side of the match completes after the plant published
+    # its first sample (DDS discovery is not symmetric in time) still gets it; volatile readers
+    # (third-party tools) stay compatible.
+    'reliable_samples': _reliable(SAMPLE_DEPTH, DurabilityPolicy.TRANSIENT_LOCAL),
     'reliable_commands': _reliable(COMMAND_DEPTH),
     'clock': _reliable(1),
 }

@@ -77,8 +77,11 @@ def main() -> int:
     bag.parent.mkdir(parents=True, exist_ok=True)
     rec_log = bag.parent / f'{bag.name}.recorder.log'
     with open(rec_log, 'w') as log:
+        # command_publishers:=1: the recorder subscribes to state, which the plant waits for,
+        # only once it hears the controller, so the bag holds every command
         recorder = subprocess.Popen([_exe('fohssv_sim', 'recorder'), '--ros-args', '-p',
-                                     f'bag_path:={bag}'], env=env, stdout=log,
+                                     f'bag_path:={bag}', '-p', 'command_publishers:=1'],
+                                    env=env, stdout=log,
                                     stderr=subprocess.STDOUT, text=True, start_new_session=True)
     deadline = time.monotonic() + 60
     while 'recording to' not in rec_log.read_text() and time.monotonic() < deadline:

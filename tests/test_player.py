@@ -59,8 +59,11 @@ def _plant(env, log, **params):
 
 
 def _recorder(env, bag, log):
+    # command_publishers:=1: the recorder subscribes to state (which the plant waits for) only
+    # once it hears the command publisher, so it cannot miss the first commands
     return _start('fohssv_sim', 'recorder', ['--ros-args', '-p', f'bag_path:={bag}',
-                                             '-p', 'plant_timeout:=20.0'], env, log)
+                                             '-p', 'plant_timeout:=20.0',
+                                             '-p', 'command_publishers:=1'], env, log)
 
 
 def _states_recorded(bag) -> int:
@@ -99,17 +102,10 @@ def test_commands_replay_reproduces_the_lockstep_run(tmp_path):
     def controller(env, log):
         return _start('fohssv_controller', 'state_feedback', [], env, log)
 
-    # Bag A must hold every answer. The recorder's command subscription can match the
-    # controller only after the plant started (DDS discovery between those two takes 0.1 s
-    # or about 2 s, and nothing waits for it): then bag A lacks the first commands. That is
-    # the recording's start race, not the player's: record A again (at most 3 tries).
-    for attempt in range(3):
-        a, text_a = _lockstep_run(tmp_path, f'A{attempt}', controller)
-        assert len(a.t) == N and not a.truncated, text_a
-        if np.array_equal(a.command_t[:N - 1], a.t[:N - 1]):
-            break
-    else:
-        raise AssertionError(f'the recorder missed commands in 3 runs:\n{text_a}')
+    # Bag A holds every answer: the recorder heard the controller before the plant started.
+    a, text_a = _lockstep_run(tmp_path, 'A', controller)
+    assert len(a.t) == N and not a.truncated, text_a
+    assert np.array_equal(a.command_t[:N - 1], a.t[:N - 1]), text_a
     bag_a = a.path
 
     def player(env, log):
@@ -122,11 +118,9 @@ def test_commands_replay_reproduces_the_lockstep_run(tmp_path):
     assert np.max(np.abs(b.state - a.state)) <= TOL
     assert np.array_equal(b.state, a.state)           # in fact bit for bit
     assert np.array_equal(b.planing_force, a.planing_force)
-    # the commands B's recorder caught (it may miss the first ones: the same start race as
-    # above) are A's, at the same times
-    recorded = {t: (f, c) for t, f, c in zip(a.command_t, a.delta_f, a.delta_c)}
-    assert len(b.command_t) > N // 2
-    assert all(recorded[t] == (f, c) for t, f, c in zip(b.command_t, b.delta_f, b.delta_c))
+    # B's recorder heard the player before the plant started: every command, equal to A's
+    assert np.array_equal(b.command_t, a.command_t)
+    assert np.array_equal(b.delta_f, a.delta_f) and np.array_equal(b.delta_c, a.delta_c)
     # not a trivial run: eq. 31 moves the cavitator (its fins stay at 0) and the state moves
     assert np.ptp(a.delta_c) > 1e-3 and np.all(np.ptp(a.state, axis=0) > 0)
 

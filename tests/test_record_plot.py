@@ -28,7 +28,8 @@ def test_recorded_closed_loop_equals_batch_run_and_plots(tmp_path):
     env = rosproc.ros_env()
     bag = tmp_path / 'run'
     log = tmp_path / 'recorder.log'
-    rec = rosproc.start('fohssv_sim', 'recorder', ['--ros-args', '-p', f'bag_path:={bag}'],
+    rec = rosproc.start('fohssv_sim', 'recorder', ['--ros-args', '-p', f'bag_path:={bag}',
+                                                   '-p', 'command_publishers:=1'],
                         env=env, log=log)
     ctl = plant = None
     try:
@@ -51,6 +52,7 @@ def test_recorded_closed_loop_equals_batch_run_and_plots(tmp_path):
     assert np.array_equal(run.t, ref[:, 0])                    # exact simulation times
     assert np.max(np.abs(run.state - ref[:, 1:])) <= 1e-12      # sample for sample
     assert np.array_equal(run.planing_force_t, fref[:, 0])
+    assert np.array_equal(run.command_t[:len(ref) - 1], ref[:-1, 0])   # every command
     assert np.array_equal(run.log_time['state'], np.round(ref[:, 0] * 1e9).astype(np.int64))
     assert run.parameters['model'] == 'delay-free' and run.parameters['control_period'] == 1e-4
     assert check(bag).ok

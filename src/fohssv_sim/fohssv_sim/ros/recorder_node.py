@@ -112,6 +112,11 @@ class Recorder(Node):
         d('flush_period', 0.1, ParameterDescriptor(
             description='s of wall time between flushes: the most a SIGKILL can lose',
             read_only=True))
+        d('command_publishers', 0, ParameterDescriptor(
+            description='subscribe to state only once the command subscription has matched '
+                        'this many publishers (a plant waiting for its state subscribers then '
+                        'cannot start before the recorder hears the controller); 0 = at once',
+            read_only=True))
         d('chunk_size', DEFAULT_CHUNK_SIZE, ParameterDescriptor(
             description='bytes after which a chunk is written even between flushes',
             read_only=True))
@@ -147,16 +152,33 @@ class Recorder(Node):
         gp = self.get_parameter
         self._last_log = 0
         self.subscriptions_ = []
+        self._deferred = None
+        wait_commands = int(gp('command_publishers').value)
+        if wait_commands < 0:
+            raise ValueError(f'command_publishers={wait_commands!r} must be >= 0')
         for name, topic in topics:
             base = profile(topic)
             # same reliability/durability as the plant's; the recorder's own queue is deep
             qos = QoSProfile(history=base.history, depth=max(base.depth, SAMPLE_DEPTH),
                              reliability=base.reliability, durability=base.durability)
+            if topic is contract.STATE and wait_commands > 0:
+                # deferred until the command subscription hears enough publishers
+                self._deferred = (name, topic, qos)
+                self.writer.add_topic(self.resolve_topic_name(name), topic.type)
+                continue
             sub = self.create_subscription(_MSG_CLASSES[topic.type], name,
                                            self._callback(topic), qos, raw=True)
             self.writer.add_topic(sub.topic_name, topic.type)
             self.subscriptions_.append(sub)
-        self.topic_names = [s.topic_name for s in self.subscriptions_]
+        self.topic_names = [self.resolve_topic_name(n) for n, _ in topics]
+        if self._deferred is not None:
+            command = next((s for s in self.subscriptions_
+                            if s.topic_name == self.resolve_topic_name(contract.COMMAND.name)),
+                           None)
+            if command is None:
+                raise ValueError('command_publishers > 0 needs the command topic recorded')
+            self._wait_commands = (command, wait_commands)
+            self._defer_timer = self.create_timer(0.005, self._maybe_subscribe_state)
         self.writer.add_metadata({
             **source_info(),
             'fohssv.recorder_started_utc': datetime.now(timezone.utc).isoformat(),
@@ -177,6 +199,18 @@ class Recorder(Node):
             self._list = self.create_client(ListParameters, f'/{self._plant}/list_parameters')
             self._get = self.create_client(GetParameters, f'/{self._plant}/get_parameters')
             self._plant_timer = self.create_timer(0.05, self._poll_plant, clock=steady)
+
+    def _maybe_subscribe_state(self) -> None:
+        command, wanted = self._wait_commands
+        if self._deferred is None or command.get_publisher_count() < wanted:
+            return
+        name, topic, qos = self._deferred
+        self._deferred = None
+        self.destroy_timer(self._defer_timer)
+        self.subscriptions_.append(self.create_subscription(
+            _MSG_CLASSES[topic.type], name, self._callback(topic), qos, raw=True))
+        print(f'command matched {command.get_publisher_count()} publisher(s); subscribed to '
+              f'{self.resolve_topic_name(name)}', flush=True)
 
     # -- messages ---------------------------------------------------------------------------
     def _callback(self, topic: contract.Topic):

@@ -19,7 +19,6 @@ import json
 import math
 import sys
 from collections.abc import Sequence
-from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any
 
@@ -30,23 +29,26 @@ from .params import ModelParameters, ParameterError
 __all__ = ['main', 'load_controller', 'parse_range']
 
 
-class CliError(Exception):
+class CliError(ValueError):
     """A user error: printed as one line, exit status 2."""
 
 
 def load_controller(name: str, gains: dict[str, Any] | None = None) -> Any:
-    """Instantiate the controller plugin ``name`` (entry point group ``fohssv.controllers``).
+    """Instantiate the controller plugin ``name`` through
+    :func:`fohssv_controller.registry.load` (entry point group ``fohssv.controllers``).
 
     Raises:
-        CliError: unknown name (the message lists the valid ones) or bad gains.
+        CliError: unknown or broken plugin (the message lists the valid names), bad gains,
+            or fohssv_controller not installed.
     """
-    eps = {ep.name: ep for ep in entry_points(group='fohssv.controllers')}
-    if name not in eps:
-        raise CliError(f"unknown controller {name!r}; valid: {', '.join(sorted(eps)) or 'none'}")
-    cls = eps[name].load()
     try:
-        return cls(**(gains or {}))
-    except (ParameterError, TypeError, ValueError) as e:
+        from fohssv_controller.registry import UnknownController, load
+    except ModuleNotFoundError:
+        raise CliError('controllers need the fohssv_controller package; build the workspace '
+                       '(make setup) or install it') from None
+    try:
+        return load(name)(**(gains or {}))
+    except (UnknownController, ParameterError, TypeError, ValueError) as e:
         raise CliError(str(e)) from None
 
 

@@ -86,15 +86,6 @@ class SweepSpec:
         return d
 
 
-def _make_controller(name: str, gains: dict[str, Any]) -> Any:
-    from importlib.metadata import entry_points
-
-    eps = {ep.name: ep for ep in entry_points(group='fohssv.controllers')}
-    if name not in eps:
-        raise ValueError(f"unknown controller {name!r}; valid: {', '.join(sorted(eps))}")
-    return eps[name].load()(**gains)
-
-
 def run_chunk(spec_dict: dict[str, Any], indices: Sequence[int], step_factor: float = 1.0
               ) -> list[dict[str, Any]]:
     """Compute the rows of the points ``indices`` of the sweep ``spec_dict`` (one Dask task).
@@ -107,7 +98,9 @@ def run_chunk(spec_dict: dict[str, Any], indices: Sequence[int], step_factor: fl
                         'speeds': tuple(spec_dict['speeds'])})
     pts = spec.points()
     params = [spec.params_for(*pts[i], step_factor=step_factor) for i in indices]
-    ctl = _make_controller(spec.controller, spec.gains)
+    from ..cli import load_controller
+
+    ctl = load_controller(spec.controller, spec.gains)
     h = params[0].step
     every = max(1, round(spec.sample_every / step_factor))
     res = simulate_batch(params, [ctl], spec.transient + spec.window,

@@ -36,9 +36,20 @@ from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from typing import Any, ClassVar
 
-from fohssv_sim.params import ParameterError
+from fohssv_sim.params import ParameterError, ParameterSpec
 
-__all__ = ['Controller', 'ParameterError', 'clamp']
+__all__ = ['Controller', 'ParameterError', 'clamp', 'DEFLECTION_LIMIT', 'deflection_limit']
+
+#: Default deflection limit (rad): generous, so clamping does not bind in the reference loops
+#: (test_models.test_deflection_limit_default_does_not_bind_in_the_reference_loops).
+DEFLECTION_LIMIT = 0.5
+
+
+def deflection_limit(name: str, text: str) -> ParameterSpec:
+    """The spec of a ``max_fin_deflection`` / ``max_cavitator_deflection`` parameter, which
+    :meth:`Controller.command` clamps to."""
+    return ParameterSpec(name, '-', DEFLECTION_LIMIT, 'rad', text, low=0.0, high=1.5708,
+                         high_open=False, needs_reset=False)
 
 
 def clamp(value: float, limit: float) -> float:

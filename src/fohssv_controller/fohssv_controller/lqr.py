@@ -29,19 +29,14 @@ import numpy as np
 
 from fohssv_sim.params import ParameterSpec, spec_field, validate_fields
 
-from .base import Controller
-from .state_feedback import DEFLECTION_LIMIT, StateFeedback
+from .base import Controller, deflection_limit
+from .state_feedback import StateFeedback
 
 __all__ = ['LQR', 'LQRParameters', 'LQRDesign', 'design']
 
 
 def _weight(name: str, default: float, unit: str, text: str) -> ParameterSpec:
     return ParameterSpec(name, '-', default, unit, text, low=0.0, low_open=False, high=1e12,
-                         high_open=False, needs_reset=False)
-
-
-def _limit(name: str, text: str) -> ParameterSpec:
-    return ParameterSpec(name, '-', DEFLECTION_LIMIT, 'rad', text, low=0.0, high=1.5708,
                          high_open=False, needs_reset=False)
 
 
@@ -69,9 +64,9 @@ class LQRParameters:
     cavitator_weight: float = spec_field(ParameterSpec(
         'cavitator_weight', '-', 400.0, '1/rad^2', 'R weight on delta_c', low=0.0, high=1e12,
         high_open=False, needs_reset=False))
-    max_cavitator_deflection: float = spec_field(_limit('max_cavitator_deflection',
+    max_cavitator_deflection: float = spec_field(deflection_limit('max_cavitator_deflection',
                                                         '|delta_c| is clamped to this'))
-    max_fin_deflection: float = spec_field(_limit('max_fin_deflection',
+    max_fin_deflection: float = spec_field(deflection_limit('max_fin_deflection',
                                                   '|delta_f| is clamped to this'))
 
     def __post_init__(self) -> None:

@@ -10,22 +10,13 @@ from dataclasses import dataclass
 
 from fohssv_sim.params import ParameterSpec, spec_field, validate_fields
 
-from .base import Controller
+from .base import Controller, deflection_limit
 
-__all__ = ['StateFeedback', 'StateFeedbackParameters', 'DEFLECTION_LIMIT']
-
-#: Default deflection limit (rad): generous, far above what the eq. 31 loop commands
-#: (|delta_c| stays below 0.2 rad in the V = 75 to 90 m/s runs of the test suite).
-DEFLECTION_LIMIT = 0.5
+__all__ = ['StateFeedback', 'StateFeedbackParameters']
 
 
 def _gain(name: str, default: float, unit: str, text: str) -> ParameterSpec:
     return ParameterSpec(name, '-', default, unit, text, reference='eq. 31', needs_reset=False)
-
-
-def _limit(name: str, text: str) -> ParameterSpec:
-    return ParameterSpec(name, '-', DEFLECTION_LIMIT, 'rad', text, low=0.0, high=1.5708,
-                         high_open=False, needs_reset=False)
 
 
 @dataclass(frozen=True)
@@ -39,9 +30,9 @@ class StateFeedbackParameters:
                                               'delta_c per rad/s of q'))
     vertical_velocity_gain: float = spec_field(_gain('vertical_velocity_gain', 0.0, 'rad s/m',
                                                      'delta_c per m/s of w (0 in eq. 31)'))
-    max_cavitator_deflection: float = spec_field(_limit('max_cavitator_deflection',
+    max_cavitator_deflection: float = spec_field(deflection_limit('max_cavitator_deflection',
                                                         '|delta_c| is clamped to this'))
-    max_fin_deflection: float = spec_field(_limit('max_fin_deflection',
+    max_fin_deflection: float = spec_field(deflection_limit('max_fin_deflection',
                                                   '|delta_f| is clamped to this'))
 
     def __post_init__(self) -> None:

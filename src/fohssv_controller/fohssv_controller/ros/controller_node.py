@@ -15,7 +15,6 @@ Exit codes: 0 on a clean stop, 2 for an unknown controller or invalid parameters
 from __future__ import annotations
 
 import sys
-import time
 from collections.abc import Mapping
 from typing import Any
 
@@ -27,6 +26,7 @@ from std_msgs.msg import Float64MultiArray
 
 from fohssv_sim.contract import COMMAND, STATE, ContractError, decode
 from fohssv_sim.params import ParameterError, field_specs
+from fohssv_sim.ros.matching import SubscriptionGate
 from fohssv_sim.ros.plant_node import array_message
 from fohssv_sim.ros.qos import profile
 from fohssv_sim.ros.ros_params import declare, install_validation
@@ -39,8 +39,6 @@ __all__ = ['ControllerNode', 'main', 'main_state_feedback', 'main_lqr']
 
 EXIT_OK, EXIT_BAD_CONFIG = 0, 2
 _LOG_EACH = 20
-#: s to wait for every known command subscription to match before the first command.
-_MATCH_GRACE = 2.0
 
 
 class ControllerNode(Node):
@@ -71,8 +69,8 @@ class ControllerNode(Node):
                                                   self._on_state, profile(STATE))
         self._pending: list[tuple[float, ...]] = []
         self._retry = None
-        self._ready = False
-        self._hold_deadline: float | None = None
+        # until the plant's (and a recorder's) subscription is matched a publish is lost
+        self._matched = SubscriptionGate(self, self.command_pub)
         self._last_t: float | None = None
         self.answered = 0
         self.dropped = 0
@@ -115,26 +113,9 @@ class ControllerNode(Node):
             return
         self._send((t, df, dc))
 
-    def _subscribers_matched(self) -> bool:
-        """True once every ``command`` subscription the graph knows of (the plant, and a
-        recorder that must not miss the first commands) is matched, or at least one is and
-        ``_MATCH_GRACE`` s have passed (a listed subscription may never match, e.g. with
-        incompatible QoS). Checked only until it first holds."""
-        if self._ready:
-            return True
-        matched = self.command_pub.get_subscription_count()
-        if matched == 0:
-            return False
-        now = time.monotonic()
-        if self._hold_deadline is None:
-            self._hold_deadline = now + _MATCH_GRACE
-        known = self.count_subscribers(self.command_pub.topic_name)
-        self._ready = matched >= known or now >= self._hold_deadline
-        return self._ready
-
     def _send(self, data: tuple[float, ...]) -> None:
         # Until the subscriptions are matched a publish would be lost to them: hold the answer.
-        if self._pending or not self._subscribers_matched():
+        if self._pending or not self._matched():
             self._pending.append(data)
             if self._retry is None:
                 self._retry = self.create_timer(0.005, self._flush)
@@ -144,7 +125,7 @@ class ControllerNode(Node):
         self.answered += 1
 
     def _flush(self) -> None:
-        if not self._subscribers_matched():
+        if not self._matched():
             return
         pending, self._pending = self._pending, []
         for data in pending:

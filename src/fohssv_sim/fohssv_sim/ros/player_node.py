@@ -49,6 +49,7 @@ from std_msgs.msg import Float64MultiArray
 from .. import contract
 from ..bag import BagError, scan
 from ..bag.writer import typestore
+from .matching import SubscriptionGate
 from .qos import profile
 from .spin import final_log, make_executor, spin_until
 
@@ -364,15 +365,11 @@ class Player(Node):
                                                  profile(contract.COMMAND))
         self.state_sub = self.create_subscription(Float64MultiArray, contract.STATE.name,
                                                   self._on_state, profile(contract.STATE))
+        self._matched = SubscriptionGate(self, self.command_pub)
         self._timer = self.create_timer(0.005, self._tick)
         self.get_logger().info(
             f'replaying {self.remaining} commands of {self.bag_path} ({name}, t in '
             f'[{self.t_first!r}, {self.t_last!r}] s) in answer to {self.state_sub.topic_name}')
-
-    def _matched(self) -> bool:
-        """Every command subscriber the graph knows of (the plant, a recorder) is matched."""
-        n = self.command_pub.get_subscription_count()
-        return n >= max(1, self.count_subscribers(self.command_pub.topic_name))
 
     def _send(self, raw: bytes) -> None:
         if self._pending or not self._matched():

@@ -28,7 +28,7 @@ def test_halving_the_default_step_changes_the_last_half_second_by_less_than_tole
 
 #: The FOM's limit cycle at V = 75 runs at about 130 Hz, so over 2 s a small frequency error
 #: becomes a phase error: halving 2e-5 s changed the last 0.5 s by 1.3 % of the peak-to-peak
-#: range (and 4e-5 -> 2e-5 by 6.9 %: order about 2.5). The stated tolerance is 2 %.
+#: range (bench/bench_convergence.py). The stated tolerance is 2 %.
 FOM_TOLERANCE = 0.02
 
 

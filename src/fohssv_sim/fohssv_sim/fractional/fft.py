@@ -10,7 +10,7 @@ and Garrappa's FDE12 (Garrappa 2010, Int. J. Comput. Math. 87:2281-2290; 2018, M
 6:16): the index range is split recursively in halves; once the f_j of the left half are known,
 their contribution to every step of the right half is added by one FFT convolution (direct
 Toeplitz product for short halves), then the right half is solved the same way. The f_0 terms
-b(n) f_0 and a_{0,n+1} f_0 are added for all n at the start. Inside blocks of ``_BASE`` steps
+b(n) f_0 and a_{0,n+1} f_0 are added for all n at the start. Inside base blocks (32 steps; 128 with a compiled rhs)
 the sums are direct.
 """
 
@@ -23,12 +23,15 @@ import numpy as np
 import scipy.fft as sfft
 from scipy.special import gamma
 
+from . import _jit
 from ._validate import check_alpha, check_positive_int, check_state, check_step, check_t0
 from .weights import weight_table
 
 __all__ = ['solve_abm_fft', 'ABMSolution']
 
-_BASE = 32          # steps per directly-summed base block
+_BASE = 32          # steps per directly-summed base block (interpreted rhs)
+_BASE_JIT = 128     # the same with a compiled rhs: the direct sums are cheap when compiled
+ENGINES = ('auto', 'python', 'numba')
 _DIRECT_MAX = 64    # halves up to this length use a direct Toeplitz product instead of FFT
 
 
@@ -92,17 +95,38 @@ class _Kernels:
 
 
 @lru_cache(maxsize=8)
-def _base_weights(alpha: float, cp: float, cc: float) -> np.ndarray:
+def _base_weights(alpha: float, cp: float, cc: float, B: int) -> np.ndarray:
     """(B, 2) scaled weights in reversed lag order: row B-1-k = (cp b(k), cc c(k))."""
-    tab = weight_table(alpha).ensure(_BASE)
-    bc = tab.bc_rev[tab.capacity - _BASE:]
+    tab = weight_table(alpha).ensure(B)
+    bc = tab.bc_rev[tab.capacity - B:]
     out = np.array(bc * np.array([cp, cc]))
     out.flags.writeable = False
     return out
 
 
+def _choose_engine(engine: str, rhs, kind: str) -> bool:
+    """True for the compiled base blocks. Raises ValueError for an impossible choice."""
+    if engine not in ENGINES:
+        raise ValueError(f"engine={engine!r} is not one of {', '.join(map(repr, ENGINES))}")
+    if engine == 'python':
+        return False
+    compiled = _jit.is_compiled(rhs)
+    if engine == 'auto':
+        return compiled and kind != 'call'
+    if not _jit.available():
+        raise ValueError("engine='numba' needs numba installed (pip install numba; pinned in "
+                         "requirements.txt)")
+    if not compiled:
+        raise ValueError(f"engine='numba' needs rhs compiled with numba.njit; got "
+                         f"{type(rhs).__name__} (use engine='auto' or 'python' for a Python rhs)")
+    if kind == 'call':
+        raise ValueError("engine='numba' takes u as None, (du,) or (n_steps, du) arrays, not a "
+                         "callable (use engine='python')")
+    return True
+
+
 def solve_abm_fft(rhs, alpha: float, step: float, x0, n_steps: int, u=None,
-                  t0: float = 0.0) -> ABMSolution:
+                  t0: float = 0.0, engine: str = 'auto') -> ABMSolution:
     """Solve D^a x = rhs(t, x, u), x(t0) = x0 for n_steps ABM steps, offline, via FFT.
 
     Scheme (spec section 5; Diethelm-Ford-Freed 2002, eqs. 1.4-1.9):
@@ -118,14 +142,21 @@ def solve_abm_fft(rhs, alpha: float, step: float, x0, n_steps: int, u=None,
     per-step zero-order-hold inputs (u[n] over [t_n, t_{n+1}]), or a callable u(t, x) evaluated
     at (t_n, x_n) for f_n and at (t_{n+1}, x^P_{n+1}) for the corrector.
 
+    ``engine``: 'python' runs the base blocks interpreted; 'numba' runs them compiled and needs
+    ``rhs`` to be a ``numba.njit`` function (signature rhs(t: float, x: (d,), u: (du,)) ->
+    (d,) array) and ``u`` an array or None; 'auto' (default) picks 'numba' exactly then. The
+    two engines agree to rounding (<= 1e-12 relative, tested). The compiled base block is
+    compiled once per process for each rhs (about a second); time the second call.
+
     Accuracy: that of the ABM scheme, O(h^(1+a)). Cost: O(N log^2 N d) arithmetic in all plus
-    2 rhs calls per step; memory O(N d).
+    2 rhs calls per step; memory O(N d). With a Python rhs the interpreted per-step loop
+    dominates (about 10 us per step); with a compiled rhs the FFT merges do (about 2 us).
 
     Returns:
         :class:`ABMSolution` (t, x, f) with shapes (N+1,), (N+1, d), (N+1, d).
 
     Raises:
-        ValueError: invalid alpha, step, x0, n_steps, t0 or u; rhs of the wrong shape.
+        ValueError: invalid alpha, step, x0, n_steps, t0, u or engine; rhs of the wrong shape.
         FloatingPointError: the solution became non-finite (names t and the state).
     """
     a = check_alpha(alpha)
@@ -135,6 +166,8 @@ def solve_abm_fft(rhs, alpha: float, step: float, x0, n_steps: int, u=None,
     N = check_positive_int(n_steps, 'n_steps', low=0)
     d = x0.size
     kind, uval = _input_getter(u, N)
+    use_jit = _choose_engine(engine, rhs, kind)
+    B = _BASE_JIT if use_jit else _BASE
     cp = h ** a / gamma(a + 1.0)
     cc = h ** a / gamma(a + 2.0)
 
@@ -143,7 +176,7 @@ def solve_abm_fft(rhs, alpha: float, step: float, x0, n_steps: int, u=None,
     c = np.ascontiguousarray(tab.c[:N + 2])
     a0 = tab.a0[:N + 1]
     kern = _Kernels(b, c)
-    WR = _base_weights(a, cp, cc)
+    WR = _base_weights(a, cp, cc, B)
 
     t = t0 + h * np.arange(N + 1, dtype=float)
     X = np.empty((N + 1, d))
@@ -174,7 +207,7 @@ def solve_abm_fft(rhs, alpha: float, step: float, x0, n_steps: int, u=None,
     acc[:, 0] = np.outer(b[:N], f0)
     acc[:, 1] = np.outer(a0[:N], f0)
     scale = np.array([[cp], [cc]])
-    wrt = [WR[_BASE - 1 - i:].T for i in range(_BASE)]      # (2, i+1) views, lags i..0
+    wrt = [WR[B - 1 - i:].T for i in range(B)]      # (2, i+1) views, lags i..0
 
     def check_block(lo: int, hi: int) -> None:
         seg = X[lo + 1:hi + 1]
@@ -183,6 +216,19 @@ def solve_abm_fft(rhs, alpha: float, step: float, x0, n_steps: int, u=None,
             raise FloatingPointError(
                 f"non-finite state at t={t[k]!r} s (step {k}, h={h!r} s, alpha={a!r}): "
                 f"x={X[k]}; last finite state x={X[k - 1]}")
+
+    if use_jit:
+        U = np.ascontiguousarray(np.atleast_2d(uval), dtype=float)
+        if U.shape[1] == 0:
+            U = np.zeros((1, 0))
+        useq = kind == 'seq'
+        base_jit = _jit.base_block
+
+    def base_compiled(lo: int, hi: int) -> None:
+        bad = base_jit(rhs, lo, hi, float(t0), h, x0, acc, cp, cc, WR, G, X, U, useq)
+        if bad >= 0:
+            check_block(lo, hi)
+            raise AssertionError('unreachable: the compiled block reported a non-finite state')
 
     def base(lo: int, hi: int) -> None:
         pbc = x0 + scale * acc[lo:hi]            # (L, 2, d): x0 + cp S^P, x0 + cc S^C
@@ -227,10 +273,10 @@ def solve_abm_fft(rhs, alpha: float, step: float, x0, n_steps: int, u=None,
             hi = N
         if lo >= hi:
             return
-        if hi - lo <= _BASE:
-            base(lo, hi)
+        if hi - lo <= B:
+            run_base(lo, hi)
             return
-        size = _BASE
+        size = B
         while size < hi - lo:
             size *= 2
         mid = lo + size // 2
@@ -238,7 +284,8 @@ def solve_abm_fft(rhs, alpha: float, step: float, x0, n_steps: int, u=None,
         merge(lo, mid, hi)
         solve(mid, hi)
 
-    total = _BASE
+    run_base = base_compiled if use_jit else base
+    total = B
     while total < N:
         total *= 2
     if N > 0:

@@ -10,8 +10,8 @@ and Garrappa's FDE12 (Garrappa 2010, Int. J. Comput. Math. 87:2281-2290; 2018, M
 6:16): the index range is split recursively in halves; once the f_j of the left half are known,
 their contribution to every step of the right half is added by one FFT convolution (direct
 Toeplitz product for short halves), then the right half is solved the same way. The f_0 terms
-b(n) f_0 and a_{0,n+1} f_0 are added for all n at the start. Inside base blocks (32 steps; 128 with a compiled rhs)
-the sums are direct.
+b(n) f_0 and a_{0,n+1} f_0 are added for all n at the start. Inside base blocks (64 steps; 128
+with a compiled rhs, see :mod:`._jit`) the sums are direct.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from .weights import weight_table
 
 __all__ = ['solve_abm_fft', 'ABMSolution']
 
-_BASE = 32          # steps per directly-summed base block (interpreted rhs)
+_BASE = 64          # steps per directly-summed base block (interpreted rhs)
 _BASE_JIT = 128     # the same with a compiled rhs: the direct sums are cheap when compiled
 ENGINES = ('auto', 'python', 'numba')
 _DIRECT_MAX = 64    # halves up to this length use a direct Toeplitz product instead of FFT
@@ -246,7 +246,7 @@ def solve_abm_fft(rhs, alpha: float, step: float, x0, n_steps: int, u=None,
                 if f.__class__ is not ndarray or f.shape != dshape:
                     f = coerce(f)
                 G[n] = f
-            s = wrt[i] @ G[lo:n + 1]
+            s = wrt[i].dot(G[lo:n + 1])     # .dot: less call overhead than @ here
             s += pbc[i]
             xp = s[0]
             tn = t0 + (n + 1) * h

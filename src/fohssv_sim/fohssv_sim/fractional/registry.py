@@ -77,8 +77,8 @@ SOLVERS: Mapping[str, SolverInfo] = _Registry({
     'abm-fft': SolverInfo(
         'abm-fft', ABMStepper, solve_abm_fft, BatchABM,
         accuracy='same numbers as abm (to rounding, <= 1e-12 relative)',
-        cost='offline: O(N log^2 N) in all via FFT-blocked history sums; online stepping '
-             'falls back to abm'),
+        cost='offline: O(N log^2 N) in all via FFT-blocked history sums (inner loop compiled '
+             'when rhs is a numba.njit function); online stepping falls back to abm'),
     'soe': SolverInfo(
         'soe', SOEStepper, None, BatchSOE,
         accuracy='abm with the history tail weights to a relative tolerance (default 1e-10) '

@@ -16,7 +16,8 @@ from functools import lru_cache
 
 import numpy as np
 
-__all__ = ['available', 'is_compiled', 'base_block']
+__all__ = ['available', 'is_compiled', 'base_block', 'OK', 'NONFINITE',
+           'SHAPE']
 
 
 @lru_cache(maxsize=1)
@@ -34,12 +35,17 @@ def available() -> bool:
 
 
 def is_compiled(fn) -> bool:
-    """True when ``fn`` is a numba CPU dispatcher (an ``@njit``/``@jit`` function)."""
+    """True when ``fn`` is a numba CPU dispatcher compiled in nopython mode (``@njit``, or
+    ``@jit`` without ``forceobj``)."""
     nb = _numba()
     if nb is None:
         return False
     from numba.core.registry import CPUDispatcher
-    return isinstance(fn, CPUDispatcher)
+    return isinstance(fn, CPUDispatcher) and not fn.targetoptions.get('forceobj', False)
+
+
+# status codes returned by the base block (with the step index and, for SHAPE, the length)
+OK, NONFINITE, SHAPE = 0, 1, 2
 
 
 def _base_block_py(rhs, lo, hi, t0, h, x0, acc, cp, cc, WR, G, X, U, seq):
@@ -47,7 +53,9 @@ def _base_block_py(rhs, lo, hi, t0, h, x0, acc, cp, cc, WR, G, X, U, seq):
 
     acc[n] holds the unscaled history sums of step n over j < lo (and the j = 0 terms);
     WR[B-1-k] = (cp b(k), cc c(k)); G[j] = f_j (G[0] = 0); U is (1, du) (constant input) or
-    (N, du) with ``seq`` true. Returns -1, or the first step index whose state is not finite.
+    (N, du) with ``seq`` true. Returns (status, step, length): (OK, -1, 0); (NONFINITE, n, 0)
+    with n the first step whose state is not finite; (SHAPE, n, L) when rhs returned L values
+    instead of d while computing step n (nothing of that evaluation is used).
     """
     B = WR.shape[0]
     d = x0.shape[0]
@@ -59,6 +67,8 @@ def _base_block_py(rhs, lo, hi, t0, h, x0, acc, cp, cc, WR, G, X, U, seq):
         un = U[n] if seq else U[0]
         if n > 0:
             f = rhs(t0 + n * h, xn, un)
+            if f.shape[0] != d:
+                return SHAPE, n, f.shape[0]
             for k in range(d):
                 G[n, k] = f[k]
         off = B - 1 - i
@@ -72,6 +82,8 @@ def _base_block_py(rhs, lo, hi, t0, h, x0, acc, cp, cc, WR, G, X, U, seq):
             xp[k] = sp + (x0[k] + cp * acc[n, 0, k])
             xc[k] = sc + (x0[k] + cc * acc[n, 1, k])
         fp = rhs(t0 + (n + 1) * h, xp, un)
+        if fp.shape[0] != d:
+            return SHAPE, n + 1, fp.shape[0]
         bad = False
         for k in range(d):
             v = xc[k] + cc * fp[k]
@@ -80,8 +92,8 @@ def _base_block_py(rhs, lo, hi, t0, h, x0, acc, cp, cc, WR, G, X, U, seq):
             if not np.isfinite(v):
                 bad = True
         if bad:
-            return n + 1
-    return -1
+            return NONFINITE, n + 1, 0
+    return OK, -1, 0
 
 
 @lru_cache(maxsize=1)
@@ -90,6 +102,6 @@ def _compiled_base_block():
     return nb.njit(cache=False, nogil=True)(_base_block_py)
 
 
-def base_block(rhs, lo, hi, t0, h, x0, acc, cp, cc, WR, G, X, U, seq) -> int:
+def base_block(rhs, lo, hi, t0, h, x0, acc, cp, cc, WR, G, X, U, seq) -> tuple:
     """Compiled base block (numba); ``rhs`` must be a numba dispatcher. See _base_block_py."""
     return _compiled_base_block()(rhs, lo, hi, t0, h, x0, acc, cp, cc, WR, G, X, U, seq)

@@ -16,13 +16,10 @@ from scipy.special import gamma
 
 from fohssv_sim.fractional import ABMStepper, abm_weights
 
+from linear4 import A4, X4
+
 A2 = np.array([[-1.0, 2.0], [-2.0, -1.0]])          # eigenvalues -1 +- 2i
 X2 = np.array([1.0, 0.5])
-A4 = np.array([[-1.0, 2.0, 0.0, 0.0],
-               [-2.0, -1.0, 0.0, 0.5],
-               [0.0, 0.0, -3.0, 1.0],
-               [0.1, 0.0, -1.0, -0.5]])
-X4 = np.array([1.0, 0.5, -0.3, 0.2])
 
 
 def linear(A):

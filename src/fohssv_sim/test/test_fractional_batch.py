@@ -15,11 +15,10 @@ from fohssv_sim.fractional import (
 )
 from fohssv_sim.fractional.batch import make_batches
 
-A4 = np.array([[-1.0, 2.0, 0.0, 0.0],
-               [-2.0, -1.0, 0.0, 0.5],
-               [0.0, 0.0, -3.0, 1.0],
-               [0.1, 0.0, -1.0, -0.5]])
-B4 = np.array([0.0, 1.0, 0.0, 1.0])
+from linear4 import A4
+from linear4 import B4 as B4_COL
+
+B4 = B4_COL[:, 0]
 P = 6
 GAIN = np.linspace(0.5, 1.5, P)                        # a per-point parameter
 X0 = np.random.default_rng(1).normal(size=(P, 4))

@@ -7,12 +7,7 @@ import pytest
 
 from fohssv_sim.fractional import ABMStepper, solve_abm_fft
 
-A4 = np.array([[-1.0, 2.0, 0.0, 0.0],
-               [-2.0, -1.0, 0.0, 0.5],
-               [0.0, 0.0, -3.0, 1.0],
-               [0.1, 0.0, -1.0, -0.5]])
-B4 = np.array([[0.0], [1.0], [0.0], [1.0]])
-X4 = np.array([1.0, 0.5, -0.3, 0.2])
+from linear4 import A4, B4, X4
 
 
 def rhs(t, x, u):
@@ -91,4 +86,3 @@ def test_fft_bad_arguments():
         solve_abm_fft(rhs, 0.5, 0.1, X4, -3)
     with pytest.raises(ValueError, match='rows'):
         solve_abm_fft(rhs, 0.5, 0.1, X4, 10, u=np.zeros((5, 1)))
-

@@ -13,7 +13,8 @@ import pytest
 
 from fohssv_sim.fractional import solve_abm_fft
 
-from test_fractional_fft import A4, B4, X4, direct, rel_err, rhs
+from linear4 import A4, B4, X4
+from test_fractional_fft import direct, rel_err, rhs
 
 numba = pytest.importorskip('numba')
 B4_COL = B4[:, 0].copy()

@@ -12,12 +12,7 @@ from fohssv_sim.fractional import (
     solve_abm_fft,
 )
 
-A4 = np.array([[-1.0, 2.0, 0.0, 0.0],
-               [-2.0, -1.0, 0.0, 0.5],
-               [0.0, 0.0, -3.0, 1.0],
-               [0.1, 0.0, -1.0, -0.5]])
-B4 = np.array([[0.0], [1.0], [0.0], [1.0]])
-X4 = np.array([1.0, 0.5, -0.3, 0.2])
+from linear4 import A4, B4, X4
 
 
 def rhs(t, x, u):

@@ -69,7 +69,9 @@ def main() -> int:
                  '-p', f'duration:={args.duration}', '-p', 'initial_state:=[0.0,0.0,0.0,0.0]',
                  '-p', 'min_state_subscribers:=2']
     ctl_cmd = [_exe('fohssv_controller', 'controller'), '--ros-args',
-               '-p', f'controller:={args.controller}']
+               '-p', f'controller:={args.controller}',
+               # the plant and the recorder: no command goes out before both match it
+               '-p', 'min_command_subscribers:=2']
     print(f'demo: plant ({args.model}, alpha={args.alpha:g}, V={args.speed:g} m/s, x(0)=0, '
           f'lockstep, {args.duration:g} s), controller {args.controller!r} and recorder as '
           f'three processes, ROS_DOMAIN_ID={domain}', flush=True)

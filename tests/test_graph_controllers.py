@@ -110,3 +110,45 @@ def test_controller_drops_bad_state_messages():
     assert {0.1, 0.4} <= answered and not answered & {0.2, 0.3}
     assert 'dropped a state message: state: expected 5 values [t,z,w,theta,q], got 3' in out
     assert 'dropped a state message: state: non-finite z=nan' in out
+
+
+def test_controller_holds_commands_until_min_command_subscribers_match(tmp_path):
+    """``min_command_subscribers:=2`` (a plant and a recorder): with one command subscription
+    matched the answers are held, and a log line says why; when a second subscription
+    appears every held answer goes out, in order."""
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    probe = Probe(domain)                # one command subscription
+    second = None
+    log = tmp_path / 'controller.log'
+    ctl = rosproc.start('fohssv_controller', 'state_feedback',
+                        ['--ros-args', '-p', 'min_command_subscribers:=2'], env=env, log=log)
+    try:
+        probe.wait(lambda: probe.node.count_subscribers('state') > 0
+                   and probe.node.count_publishers('command') > 0, 20, 'the controller')
+        probe.publish_state([0.0, 0.0, 0.0, 0.0, 0.0])
+        probe.wait(lambda: probe._state_pub.get_subscription_count() >= 2, 20, 'matching')
+        probe.publish_state([0.1, 0.01, 0.0, 0.0, 0.0])
+        # the hold is reported after 2 s; nothing may have been sent by then
+        rosproc.wait_for(lambda: 'holding 2 message(s)' in log.read_text(), 20,
+                         what='the hold report')
+        assert probe.commands == []
+        second = Probe(domain)           # the second subscription opens the gate
+        probe.wait(lambda: len(probe.commands) >= 2, 20, 'the held answers')
+    finally:
+        stop_all(ctl)
+        probe.close()
+        if second is not None:
+            second.close()
+    assert [c[0] for c in probe.commands] == [0.0, 0.1]
+    assert 'command has matched 1 of 2 required subscription(s)' in log.read_text()
+
+
+def test_controller_rejects_min_command_subscribers_below_one():
+    proc = rosproc.start('fohssv_controller', 'state_feedback',
+                         ['--ros-args', '-p', 'min_command_subscribers:=0'],
+                         env=rosproc.ros_env())
+    code, out = finish(proc, 30)
+    assert code == 2, out
+    assert 'min_command_subscribers=0 must be an integer >= 1 (subscriptions)' in out
+    assert 'Traceback' not in out

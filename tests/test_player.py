@@ -60,7 +60,8 @@ def _plant(env, log, **params):
 
 def _recorder(env, bag, log):
     # command_publishers:=1: the recorder subscribes to state (which the plant waits for) only
-    # once it hears the command publisher, so it cannot miss the first commands
+    # once its command subscription matched the command publisher; the feeder's
+    # min_command_subscribers:=2 holds commands until its side of that match exists too
     return _start('fohssv_sim', 'recorder', ['--ros-args', '-p', f'bag_path:={bag}',
                                              '-p', 'plant_timeout:=20.0',
                                              '-p', 'command_publishers:=1'], env, log)
@@ -100,16 +101,18 @@ def _lockstep_run(tmp_path, name: str, feeder) -> tuple[object, str]:
 
 def test_commands_replay_reproduces_the_lockstep_run(tmp_path):
     def controller(env, log):
-        return _start('fohssv_controller', 'state_feedback', [], env, log)
+        return _start('fohssv_controller', 'state_feedback',
+                      ['--ros-args', '-p', 'min_command_subscribers:=2'], env, log)
 
-    # Bag A holds every answer: the recorder heard the controller before the plant started.
+    # Bag A holds every answer: the controller sent none before the recorder matched it.
     a, text_a = _lockstep_run(tmp_path, 'A', controller)
     assert len(a.t) == N and not a.truncated, text_a
     assert np.array_equal(a.command_t[:N - 1], a.t[:N - 1]), text_a
     bag_a = a.path
 
     def player(env, log):
-        return _player(env, f'bag_path:={bag_a}', 'mode:=commands', log=log)
+        return _player(env, f'bag_path:={bag_a}', 'mode:=commands',
+                       'min_command_subscribers:=2', log=log)
 
     b, text_b = _lockstep_run(tmp_path, 'B', player)
     assert 'every recorded command was replayed' in text_b or 'commands end' in text_b, text_b
@@ -118,7 +121,7 @@ def test_commands_replay_reproduces_the_lockstep_run(tmp_path):
     assert np.max(np.abs(b.state - a.state)) <= TOL
     assert np.array_equal(b.state, a.state)           # in fact bit for bit
     assert np.array_equal(b.planing_force, a.planing_force)
-    # B's recorder heard the player before the plant started: every command, equal to A's
+    # B's recorder matched the player before its first command: every command, equal to A's
     assert np.array_equal(b.command_t, a.command_t)
     assert np.array_equal(b.delta_f, a.delta_f) and np.array_equal(b.delta_c, a.delta_c)
     # not a trivial run: eq. 31 moves the cavitator (its fins stay at 0) and the state moves

@@ -34,7 +34,8 @@ def test_recorded_closed_loop_equals_batch_run_and_plots(tmp_path):
     ctl = plant = None
     try:
         rosproc.wait_for(lambda: 'recording to' in log.read_text(), 60, what='the recorder')
-        ctl = rosproc.start('fohssv_controller', 'state_feedback', [], env=env)
+        ctl = rosproc.start('fohssv_controller', 'state_feedback',
+                            ['--ros-args', '-p', 'min_command_subscribers:=2'], env=env)
         plant = rosproc.start('fohssv_sim', 'plant', plant_args(
             model='delay-free', mode='lockstep', duration=DURATION,
             min_state_subscribers=2), env=env)

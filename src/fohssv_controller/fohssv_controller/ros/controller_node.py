@@ -26,7 +26,7 @@ from std_msgs.msg import Float64MultiArray
 
 from fohssv_sim.contract import COMMAND, STATE, ContractError, decode
 from fohssv_sim.params import ParameterError, field_specs
-from fohssv_sim.ros.matching import SubscriptionGate
+from fohssv_sim.ros.matching import HoldReporter, SubscriptionGate
 from fohssv_sim.ros.plant_node import array_message
 from fohssv_sim.ros.qos import profile
 from fohssv_sim.ros.ros_params import declare, install_validation
@@ -70,7 +70,17 @@ class ControllerNode(Node):
         self._pending: list[tuple[float, ...]] = []
         self._retry = None
         # until the plant's (and a recorder's) subscription is matched a publish is lost
-        self._matched = SubscriptionGate(self, self.command_pub)
+        minimum = self.declare_parameter(
+            'min_command_subscribers', 1, ParameterDescriptor(
+                description='matched subscriptions of command (the plant, recorders) to wait '
+                            'for before the first command; 2 with a recorder, so it hears '
+                            'every command', read_only=True,
+                additional_constraints='>= 1')).value
+        if not (isinstance(minimum, int) and minimum >= 1):
+            raise ValueError(f'min_command_subscribers={minimum!r} must be an integer >= 1 '
+                             '(subscriptions)')
+        self._matched = SubscriptionGate(self, self.command_pub, minimum=minimum)
+        self._held = HoldReporter(self, self._matched)
         self._last_t: float | None = None
         self.answered = 0
         self.dropped = 0
@@ -126,6 +136,7 @@ class ControllerNode(Node):
 
     def _flush(self) -> None:
         if not self._matched():
+            self._held.report(len(self._pending))
             return
         pending, self._pending = self._pending, []
         for data in pending:

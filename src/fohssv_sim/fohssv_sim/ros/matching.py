@@ -7,25 +7,34 @@ import time
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 
-__all__ = ['SubscriptionGate']
+__all__ = ['HoldReporter', 'SubscriptionGate']
 
 
 class SubscriptionGate:
-    """Callable that turns True once ``publisher`` has matched every subscription the graph
-    lists on its topic (the plant, a recorder), and at least one; or at least one and
-    ``grace`` s have passed since the first match (a listed subscription may never match, e.g.
-    with incompatible QoS). It is re-checked at every message during the grace period (a
-    subscription the graph lists but the writer has not matched yet pauses sending: latching
-    at the first success let a recorder miss commands), and stays open after it, so a
-    subscriber joining a running loop later does not hold it."""
+    """Callable that turns True once ``publisher`` has matched at least ``minimum``
+    subscriptions and every subscription the graph lists on its topic (the plant, a recorder);
+    or at least ``minimum`` and ``grace`` s have passed since it first matched that many (a
+    listed subscription may never match, e.g. with incompatible QoS). It is re-checked at every
+    message during the grace period (a subscription the graph lists but the writer has not
+    matched yet pauses sending: latching at the first success let a recorder miss commands),
+    and stays open after it, so a subscriber joining a running loop later does not hold it.
 
-    def __init__(self, node: Node, publisher: Publisher, grace: float = 2.0) -> None:
+    The graph lists a remote subscription only once discovery has reached this process, which
+    can be after the plant's first sample: ``minimum`` is the guarantee (``minimum=2`` for a
+    plant and a recorder), the graph check a best effort on top of it.
+    """
+
+    def __init__(self, node: Node, publisher: Publisher, grace: float = 2.0,
+                 minimum: int = 1) -> None:
+        if minimum < 1:
+            raise ValueError(f'minimum={minimum!r} must be >= 1')
         self._node, self._pub, self._grace = node, publisher, grace
+        self._minimum = minimum
         self._deadline: float | None = None
 
     def __call__(self) -> bool:
         matched = self._pub.get_subscription_count()
-        if matched == 0:
+        if matched < self._minimum:
             return False
         now = time.monotonic()
         if self._deadline is None:
@@ -33,3 +42,31 @@ class SubscriptionGate:
         if now >= self._deadline:
             return True
         return matched >= self._node.count_subscribers(self._pub.topic_name)
+
+    def describe(self) -> str:
+        """Why the gate is shut, for a log line."""
+        return (f'{self._pub.topic_name} has matched {self._pub.get_subscription_count()} of '
+                f'{self._minimum} required subscription(s) (the graph lists '
+                f'{self._node.count_subscribers(self._pub.topic_name)})')
+
+
+class HoldReporter:
+    """Logs, every ``every`` s after the first ``after`` s, that messages are held behind a
+    shut :class:`SubscriptionGate` (a ``min_command_subscribers`` nobody meets would
+    otherwise look like a hang)."""
+
+    def __init__(self, node: Node, gate: SubscriptionGate, after: float = 2.0,
+                 every: float = 5.0) -> None:
+        self._node, self._gate, self._after, self._every = node, gate, after, every
+        self._first: float | None = None
+        self._next = 0.0
+
+    def report(self, held: int) -> None:
+        now = time.monotonic()
+        if self._first is None:
+            self._first, self._next = now, now + self._after
+        if now >= self._next:
+            self._next = now + self._every
+            self._node.get_logger().warning(
+                f'holding {held} message(s) for {now - self._first:.1f} s: '
+                f'{self._gate.describe()}')

@@ -49,7 +49,7 @@ from std_msgs.msg import Float64MultiArray
 from .. import contract
 from ..bag import BagError, scan
 from ..bag.writer import typestore
-from .matching import SubscriptionGate
+from .matching import HoldReporter, SubscriptionGate
 from .qos import profile
 from .spin import final_log, make_executor, spin_until
 
@@ -203,6 +203,10 @@ class Player(Node):
         d('min_subscribers', 1, ParameterDescriptor(
             description='republish: matched subscribers per topic to wait for before playing',
             read_only=True, additional_constraints='>= 0'))
+        d('min_command_subscribers', 1, ParameterDescriptor(
+            description='commands: matched subscriptions of command (the plant, recorders) to '
+                        'wait for before the first command; 2 with a recorder, so it hears '
+                        'every command', read_only=True, additional_constraints='>= 1'))
         d('start_timeout', 30.0, ParameterDescriptor(
             description='s to wait for subscribers (republish; rate 0 fails without them, '
                         'rate > 0 starts anyway) or for the plant (commands)', read_only=True,
@@ -217,6 +221,7 @@ class Player(Node):
         self.topics = [str(t) for t in gp('topics').value if str(t)]
         self.clock = bool(gp('clock').value)
         self.min_subscribers = int(gp('min_subscribers').value)
+        self.min_command_subscribers = int(gp('min_command_subscribers').value)
         self.start_timeout = float(gp('start_timeout').value)
         self.end_timeout = float(gp('end_timeout').value)
         if not self.bag_path:
@@ -229,6 +234,9 @@ class Player(Node):
                 raise ValueError(f'{name}={v!r} must be a finite number >= 0')
         if self.min_subscribers < 0:
             raise ValueError(f'min_subscribers={self.min_subscribers} must be >= 0')
+        if self.min_command_subscribers < 1:
+            raise ValueError(f'min_command_subscribers={self.min_command_subscribers} must be '
+                             '>= 1 (subscriptions)')
 
         self.scan = scan(self.bag_path)          # BagError: one line from main
         if not self.scan.complete:
@@ -365,7 +373,9 @@ class Player(Node):
                                                  profile(contract.COMMAND))
         self.state_sub = self.create_subscription(Float64MultiArray, contract.STATE.name,
                                                   self._on_state, profile(contract.STATE))
-        self._matched = SubscriptionGate(self, self.command_pub)
+        self._matched = SubscriptionGate(self, self.command_pub,
+                                         minimum=self.min_command_subscribers)
+        self._held = HoldReporter(self, self._matched)
         self._timer = self.create_timer(0.005, self._tick)
         self.get_logger().info(
             f'replaying {self.remaining} commands of {self.bag_path} ({name}, t in '
@@ -413,11 +423,14 @@ class Player(Node):
     def _tick(self) -> None:
         if self.finished.done():
             return
-        if self._pending and self._matched():
-            pending, self._pending = self._pending, []
-            for raw in pending:
-                self.command_pub.publish(raw)
-                self.published += 1
+        if self._pending:
+            if self._matched():
+                pending, self._pending = self._pending, []
+                for raw in pending:
+                    self.command_pub.publish(raw)
+                    self.published += 1
+            else:
+                self._held.report(len(self._pending))
         plants = self.state_sub.get_publisher_count()
         if plants > 0:
             self._plant_seen = True

@@ -88,17 +88,22 @@ def test_unknown_controller_lists_the_valid_ones():
             'lqr, state_feedback') in out
 
 
+def _first_state_to_controller(probe: Probe) -> None:
+    """Wait for the controller node, then publish the state t = 0 once it is matched."""
+    probe.wait(lambda: probe.node.count_subscribers('state') > 0
+               and probe.node.count_publishers('command') > 0, 20, 'the controller')
+    probe.publish_state([0.0, 0.0, 0.0, 0.0, 0.0])
+    # matched by the probe's own subscription and by the controller's
+    probe.wait(lambda: probe._state_pub.get_subscription_count() >= 2, 20, 'matching')
+
+
 def test_controller_drops_bad_state_messages():
     domain = rosproc.unique_domain_id()
     env = rosproc.ros_env(domain)
     probe = Probe(domain)
     ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
     try:
-        probe.wait(lambda: probe.node.count_subscribers('state') > 0
-                   and probe.node.count_publishers('command') > 0, 20, 'the controller')
-        probe.publish_state([0.0, 0.0, 0.0, 0.0, 0.0])
-        # matched by the probe's own subscription and by the controller's
-        probe.wait(lambda: probe._state_pub.get_subscription_count() >= 2, 20, 'matching')
+        _first_state_to_controller(probe)
         for data in ([0.1, 0.0, 0.0, 0.0, 0.0], [0.2, 1.0, 2.0], [0.3, float('nan'), 0, 0, 0],
                      [0.4, 0.01, 0.0, 0.0, 0.0]):
             probe.publish_state(data)
@@ -124,10 +129,7 @@ def test_controller_holds_commands_until_min_command_subscribers_match(tmp_path)
     ctl = rosproc.start('fohssv_controller', 'state_feedback',
                         ['--ros-args', '-p', 'min_command_subscribers:=2'], env=env, log=log)
     try:
-        probe.wait(lambda: probe.node.count_subscribers('state') > 0
-                   and probe.node.count_publishers('command') > 0, 20, 'the controller')
-        probe.publish_state([0.0, 0.0, 0.0, 0.0, 0.0])
-        probe.wait(lambda: probe._state_pub.get_subscription_count() >= 2, 20, 'matching')
+        _first_state_to_controller(probe)
         probe.publish_state([0.1, 0.01, 0.0, 0.0, 0.0])
         # the hold is reported after 2 s; nothing may have been sent by then
         rosproc.wait_for(lambda: 'holding 2 message(s)' in log.read_text(), 20,

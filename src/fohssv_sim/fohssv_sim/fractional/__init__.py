@@ -17,7 +17,8 @@ from .abm import ABMStepper, BatchABM
 from .batch import group_by_alpha
 from .fft import ABMSolution, solve_abm_fft
 from .registry import SOLVERS, SolverInfo, UnknownSolverError, get_solver
-from .soe import BatchSOE, SOEErrorReport, SOEModes, SOEStepper, soe_kernel_error, soe_modes
+from .soe import BatchSOE, SOEHistory, SOEStepper
+from .soe_kernel import SOEErrorReport, SOEModes, soe_kernel_error, soe_modes
 from .weights import (
     WeightTable,
     abm_weights,
@@ -30,6 +31,7 @@ from .weights import (
 __all__ = [
     'ABMStepper',
     'SOEStepper',
+    'SOEHistory',
     'BatchABM',
     'BatchSOE',
     'group_by_alpha',

@@ -26,10 +26,11 @@ from typing import Any
 import numpy as np
 
 from .coefficients import coefficients
-from .models import eq17
+from .kernels import eq17
 from .params import ModelParameters
 from .planing import planing_exact_array, planing_smooth_array
 from .simulate import simulate, steps_per_period
+from .solvers import SOLVERS, soe_options
 
 __all__ = ['BatchResult', 'BatchRHS', 'simulate_batch', 'group_points', 'shared_fields',
            'SHARED_FIELDS', 'PER_POINT_FIELDS']
@@ -134,17 +135,17 @@ def _check_shared(params: Sequence[ModelParameters]) -> None:
                              ' (split them with group_points)')
 
 
-def _stepper(params: Sequence[ModelParameters], rhs: BatchRHS, X0: np.ndarray):
+def _stepper(params: Sequence[ModelParameters], rhs: BatchRHS, X0: np.ndarray,
+             duration: float):
     p = params[0]
-    if p.model == 'fractional':
-        from .fractional import BatchABM, BatchSOE
-
-        if p.solver == 'soe':
-            alphas = np.array([q.fractional_order for q in params])   # equal: scalar path
-            return BatchSOE(rhs, alphas, p.step, X0, tolerance=p.soe_tolerance,
-                            horizon_steps=int(p.soe_horizon_steps), on_nonfinite='mask')
-        return BatchABM(rhs, p.fractional_order, p.step, X0, on_nonfinite='mask')
-    return _BatchRK4(rhs, p.step, X0)
+    solver = SOLVERS[p.solver]
+    if solver.batch is None:
+        return _BatchRK4(rhs, p.step, X0)
+    if p.solver == 'soe':       # per-point orders (all equal: the one-order path)
+        alphas = np.array([q.fractional_order for q in params])
+        return solver.batch(rhs, alphas, p.step, X0, on_nonfinite='mask',
+                            **soe_options(p, duration))
+    return solver.batch(rhs, p.fractional_order, p.step, X0, on_nonfinite='mask')
 
 
 class _BatchRK4:
@@ -223,7 +224,7 @@ def simulate_batch(params: Sequence[ModelParameters], controllers: Sequence[Any]
 
     law = _AffineLaw(controllers)
     rhs = BatchRHS(params)
-    stepper = _stepper(params, rhs, X0)
+    stepper = _stepper(params, rhs, X0, duration)
     hold = 0 if control_period is None else steps_per_period(control_period, h)
     first = int(math.ceil(record_from / h - 1e-9))
     rows = [n for n in range(first, n_steps + 1) if n % sample_every == 0]

@@ -9,10 +9,11 @@ every coefficient), and the cavity quantities of eqs. 9-14.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from .kernels import KernelCoefficients
 from .params import ModelParameters
 
 __all__ = ['Coefficients', 'coefficients']
@@ -55,6 +56,12 @@ class Coefficients:
     B: np.ndarray
     G: np.ndarray
     D: np.ndarray
+    #: The scalars the compiled kernels read, in :class:`~.kernels.KernelCoefficients` order.
+    kernel: KernelCoefficients = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, 'kernel', KernelCoefficients(
+            *(getattr(self, name) for name in KernelCoefficients._fields)))
 
     @property
     def contact_velocity(self) -> float:

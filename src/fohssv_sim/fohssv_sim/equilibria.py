@@ -21,7 +21,7 @@ import numpy as np
 from scipy.optimize import root
 
 from .coefficients import coefficients
-from .models import eq17
+from .kernels import eq17
 from .params import ModelParameters
 from .planing import planing_exact, planing_smooth
 

@@ -24,15 +24,23 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 
+from . import kernels
 from .coefficients import Coefficients, coefficients
+from .kernels import eq17, hermite_delayed, pack_law
 from .params import ModelParameters
 from .planing import planing_delayed, planing_exact, planing_smooth
+from .solvers import SOLVERS, soe_options
 
 __all__ = ['Plant', 'DelayFreeModel', 'DelayedModel', 'FractionalModel', 'make_plant',
-           'InputLike', 'STATE_NAMES', 'eq17']
+           'InputLike', 'STATE_NAMES', 'eq17', 'AffineLaw', 'ENGINES']
+
+#: How a plant steps: 'compiled' (numba kernels, :mod:`.kernels`) or 'python' (the interpreted
+#: reference); 'auto' = compiled when numba is available.
+ENGINES = ('auto', 'compiled', 'python')
 
 #: Names of the state components, in order (spec section 1).
 STATE_NAMES = ('z', 'w', 'theta', 'q')
@@ -55,19 +63,57 @@ def _as_state(x: Sequence[float] | None, name: str = 'initial_state') -> tuple:
     return vals
 
 
+class AffineLaw:
+    """The input law u = clamp(K x + u0, limit), evaluated at every solver stage.
+
+    The continuous feedback the compiled kernels can run (:meth:`Plant.advance`); called as
+    ``law(t, x)`` it gives the same numbers interpreted. ``K`` is (2, 4), ``u0`` (2,),
+    ``limit`` (2,) in rad (inf = no limit). :meth:`from_controller` builds it from a
+    controller's ``affine()`` and its deflection limits (None when the law is not affine).
+    """
+
+    def __init__(self, K, u0=(0.0, 0.0), limit=(math.inf, math.inf)) -> None:
+        self.packed = pack_law(K, u0, limit)
+
+    @classmethod
+    def from_controller(cls, controller: Any) -> AffineLaw | None:
+        affine = getattr(controller, 'affine', None)
+        law = affine() if affine is not None else None
+        if law is None:
+            return None
+        p = getattr(controller, 'params', None)
+        return cls(law[0], law[1], (getattr(p, 'max_fin_deflection', math.inf),
+                                    getattr(p, 'max_cavitator_deflection', math.inf)))
+
+    def __call__(self, t: float, x: Sequence[float]) -> tuple[float, float]:
+        return kernels._input(self.packed, True, x[0], x[1], x[2], x[3])
+
+
 class Plant:
     """Base of the three models; see the module docstring for the contract.
 
-    Subclasses implement ``_advance(u) -> tuple`` (one step from the current state) and
+    Subclasses implement ``_advance(u) -> tuple`` (one interpreted step from the current
+    state), ``_run_compiled(law, continuous, steps) -> int`` (steps through their kernel) and
     ``planing_force``. Cost per step: O(1) for the integer models; see the solver for the FOM.
     """
 
     def __init__(self, params: ModelParameters | None = None,
-                 initial_state: Sequence[float] | None = None) -> None:
+                 initial_state: Sequence[float] | None = None, *, engine: str = 'auto',
+                 duration: float | None = None) -> None:
         self.params = params if params is not None else ModelParameters()
         self.coefficients: Coefficients = coefficients(self.params)
         self.h: float = self.params.step
         self.initial_state = _as_state(initial_state)
+        if engine not in ENGINES:
+            raise ValueError(f"engine={engine!r} is not one of {', '.join(map(repr, ENGINES))}")
+        if engine == 'auto':
+            engine = 'compiled' if kernels.AVAILABLE else 'python'
+        self.engine = engine
+        self.duration = duration
+        self._cv = np.array(self.coefficients.kernel, dtype=float)
+        self._law = pack_law()                 # the held input, set per call
+        self._xa = np.zeros(4)                 # the state as the kernels advance it
+        self._bad = np.zeros(4)
         self.reset()
 
     # -- contract -----------------------------------------------------------------------------
@@ -86,6 +132,11 @@ class Plant:
         return self.n * self.h
 
     @property
+    def x(self) -> tuple:
+        """The current state (z, w, theta, q) as a tuple of floats (read-only, no copy)."""
+        return self._x
+
+    @property
     def state(self) -> np.ndarray:
         """The current state [z, w, theta, q] (a copy)."""
         return np.array(self._x, dtype=float)
@@ -97,19 +148,56 @@ class Plant:
             RuntimeError: the plant failed earlier and was not reset.
             FloatingPointError: the state turned non-finite (status becomes 'failed').
         """
+        self.advance(u, 1)
+        return np.array(self._x, dtype=float)
+
+    def advance(self, u: InputLike | AffineLaw, steps: int) -> None:
+        """Advance ``steps`` steps with ``u``: a held input (delta_f, delta_c), an
+        :class:`AffineLaw` (continuous feedback) or any callable ``u(t, state)``.
+
+        With the compiled engine a held input or an AffineLaw runs all the steps in one
+        compiled call; any other callable is evaluated step by step, interpreted.
+
+        Raises:
+            RuntimeError: the plant failed earlier and was not reset.
+            FloatingPointError: the state turned non-finite (status becomes 'failed').
+        """
         if self.status == 'failed':
             raise RuntimeError('the plant failed earlier; call reset() before stepping again')
-        x = self._advance(u)
-        if not all(math.isfinite(v) for v in x):
-            self.status = 'failed'
-            raise FloatingPointError(
-                f'state became non-finite at t={(self.n + 1) * self.h:.9g} s: '
-                f'[z, w, theta, q] = {list(x)} (from {list(self._x)} with u={_show(u)})'
-            )
-        self._x = x
-        self.n += 1
-        self.status = 'running'
-        return np.array(x, dtype=float)
+        if steps <= 0:
+            return
+        if isinstance(u, AffineLaw):
+            law, continuous = u.packed, True
+        elif callable(u):
+            law = None
+        else:
+            law, continuous = self._law, False
+            law[8] = float(u[0])
+            law[9] = float(u[1])
+        if law is not None and self.engine == 'compiled' and self._compiled():
+            self._xa[:] = self._x
+            taken = self._run_compiled(law, continuous, steps)
+            xa = self._xa
+            self._x = (float(xa[0]), float(xa[1]), float(xa[2]), float(xa[3]))
+            self.n += taken
+            self.status = 'running'
+            if taken < steps:
+                self._failed(tuple(self._bad), _show(u))
+            return
+        u = u if law is None or continuous else (law[8], law[9])
+        for _ in range(steps):
+            x = self._advance(u)
+            if not all(math.isfinite(v) for v in x):
+                self._failed(x, _show(u))
+            self._x = x
+            self.n += 1
+            self.status = 'running'
+
+    def _failed(self, x: Sequence[float], shown: str) -> None:
+        self.status = 'failed'
+        raise FloatingPointError(
+            f'state became non-finite at t={(self.n + 1) * self.h:.9g} s: '
+            f'[z, w, theta, q] = {list(x)} (from {list(self._x)} with u={shown})')
 
     @property
     def planing_force(self) -> float:
@@ -123,14 +211,23 @@ class Plant:
     def _advance(self, u: InputLike) -> tuple:
         raise NotImplementedError
 
+    def _compiled(self) -> bool:
+        """True when this instance has a compiled kernel."""
+        return True
+
+    def _run_compiled(self, law: np.ndarray, continuous: bool, steps: int) -> int:
+        raise NotImplementedError
+
     def describe(self) -> str:
         p = self.params
         extra = f', alpha={p.fractional_order:g}' if p.model == 'fractional' else ''
         return (f'{p.model} model, solver {p.solver}, step {p.step:g} s, V={p.speed:g} m/s'
-                f'{extra}')
+                f'{extra}, {self.engine}')
 
 
-def _show(u: InputLike) -> str:
+def _show(u: Any) -> str:
+    if isinstance(u, AffineLaw):
+        return 'affine law'
     return 'callable' if callable(u) else repr(tuple(u))
 
 
@@ -139,15 +236,6 @@ def _input(u: InputLike, t: float, x: tuple) -> Input:
         v = u(t, x)
         return float(v[0]), float(v[1])
     return u  # already normalised by the caller
-
-
-def eq17(c: Coefficients, w: float, th: float, q: float, uf: float, uc: float,
-         fp: float) -> tuple:
-    """dx/dt = A x + B u + G + D Fp of eq. 17 in float arithmetic (z does not enter)."""
-    return (w - c.V * th,
-            c.a22 * w + c.a24 * q + c.b21 * uf + c.b22 * uc + c.g + c.d2 * fp,
-            q,
-            c.a42 * w + c.a44 * q + c.b41 * uf + c.b42 * uc + c.d4 * fp)
 
 
 def _rk4(x: tuple, t: float, h: float, u: InputLike,
@@ -180,12 +268,13 @@ class DelayFreeModel(Plant):
     """
 
     def __init__(self, params: ModelParameters | None = None,
-                 initial_state: Sequence[float] | None = None) -> None:
+                 initial_state: Sequence[float] | None = None, **options: Any) -> None:
         params = params if params is not None else ModelParameters(model='delay-free')
         if params.model not in ('delay-free', 'fractional'):
             raise ValueError(f"DelayFreeModel needs model='delay-free', got {params.model!r}")
-        super().__init__(params, initial_state)
-        self._fp = planing_smooth if self.params.planing_form == 'smooth' else planing_exact
+        super().__init__(params, initial_state, **options)
+        self._smooth = self.params.planing_form == 'smooth'
+        self._fp = planing_smooth if self._smooth else planing_exact
 
     def rhs(self, x: Sequence[float], uf: float, uc: float) -> tuple:
         """dx/dt of eq. 17 for state ``x`` and input (``uf``, ``uc``)."""
@@ -195,6 +284,10 @@ class DelayFreeModel(Plant):
     def _advance(self, u: InputLike) -> tuple:
         rhs = self.rhs
         return _rk4(self._x, self.t, self.h, _held(u), lambda _c, x, uf, uc: rhs(x, uf, uc))
+
+    def _run_compiled(self, law: np.ndarray, continuous: bool, steps: int) -> int:
+        return kernels.delay_free_run(self._xa, steps, self.h, self._cv, self._smooth, law,
+                                      continuous, self._bad)
 
     @property
     def planing_force(self) -> float:
@@ -213,41 +306,27 @@ class DelayedModel(Plant):
     """
 
     def __init__(self, params: ModelParameters | None = None,
-                 initial_state: Sequence[float] | None = None) -> None:
+                 initial_state: Sequence[float] | None = None, **options: Any) -> None:
         params = params if params is not None else ModelParameters(model='delayed')
         if params.model != 'delayed':
             raise ValueError(f"DelayedModel needs model='delayed', got {params.model!r}")
         self.tau = params.delay
         self._lag = self.tau / params.step  # delay in steps
         self._size = int(math.ceil(self._lag)) + 3
-        super().__init__(params, initial_state)
-        self._form = self.params.immersion_form
+        self._form = params.immersion_form
+        super().__init__(params, initial_state, **options)
 
     def _reset_history(self) -> None:
-        self._hx: list = [None] * self._size   # states x_k at t_k, k % size
-        self._hf: list = [None] * self._size   # derivatives f_k at t_k
+        self._hx = np.zeros((self._size, 4))   # states x_k at t_k, row k % size
+        self._hf = np.zeros((self._size, 4))   # derivatives f_k at t_k
+        self._x_init = np.array(self.initial_state)
 
     def _delayed(self, c_stage: float, x_stage: tuple) -> tuple:
         """x(t_n + c h - tau), from the history (Hermite) or x(0) before t = 0."""
         if self.tau == 0.0:
             return x_stage
-        s = self.n + c_stage - self._lag   # in steps
-        if s <= 0.0:
-            return self.initial_state
-        k = int(s)
-        theta = s - k
-        size = self._size
-        xk = self._hx[k % size]
-        if theta == 0.0:
-            return xk
-        xk1, fk, fk1 = self._hx[(k + 1) % size], self._hf[k % size], self._hf[(k + 1) % size]
-        t2, t3 = theta * theta, theta * theta * theta
-        h00 = 2.0 * t3 - 3.0 * t2 + 1.0
-        h10 = (t3 - 2.0 * t2 + theta) * self.h
-        h01 = -2.0 * t3 + 3.0 * t2
-        h11 = (t3 - t2) * self.h
-        return tuple(h00 * a + h10 * b + h01 * c + h11 * d
-                     for a, b, c, d in zip(xk, fk, xk1, fk1))
+        return hermite_delayed(self._hx, self._hf, self.n, c_stage, self._lag, self.h,
+                               self.initial_state)
 
     def _force(self, x: tuple, xd: tuple) -> float:
         return planing_delayed(x[0], x[2], xd[0], xd[1], xd[2], self.coefficients, self._form)
@@ -268,6 +347,11 @@ class DelayedModel(Plant):
 
         return _rk4(self._x, self.t, self.h, _held(u), deriv)
 
+    def _run_compiled(self, law: np.ndarray, continuous: bool, steps: int) -> int:
+        return kernels.delayed_run(self._xa, self.n, steps, self.h, self._cv, self._hx,
+                                   self._hf, self._lag, self.tau, self._x_init,
+                                   self._form == 'paper', law, continuous, self._bad)
+
     @property
     def planing_force(self) -> float:
         return self._force(self._x, self._delayed(0.0, self._x))
@@ -286,24 +370,45 @@ class FractionalModel(Plant):
     """
 
     def __init__(self, params: ModelParameters | None = None,
-                 initial_state: Sequence[float] | None = None) -> None:
+                 initial_state: Sequence[float] | None = None, **options: Any) -> None:
         params = params if params is not None else ModelParameters(model='fractional')
         if params.model != 'fractional':
             raise ValueError(f"FractionalModel needs model='fractional', got {params.model!r}")
-        self._fp = planing_smooth if params.planing_form == 'smooth' else planing_exact
-        super().__init__(params, initial_state)
+        self._smooth = params.planing_form == 'smooth'
+        self._fp = planing_smooth if self._smooth else planing_exact
+        self._last_f = np.zeros(4)
+        super().__init__(params, initial_state, **options)
 
     def _reset_history(self) -> None:
-        from .fractional import ABMStepper, SOEStepper
-
         p = self.params
         x0 = np.array(self._x, dtype=float)
-        if p.solver == 'soe':
-            self._stepper = SOEStepper(self.rhs, p.fractional_order, p.step, x0,
-                                       tolerance=p.soe_tolerance,
-                                       horizon_steps=int(p.soe_horizon_steps))
-        else:
-            self._stepper = ABMStepper(self.rhs, p.fractional_order, p.step, x0)
+        self._x0a = x0.copy()
+        self._stepper = SOLVERS[p.solver].stepper(
+            self.rhs, p.fractional_order, p.step, x0,
+            **soe_options(p, self.duration) if p.solver == 'soe' else {})
+
+    @property
+    def horizon_steps(self) -> int | None:
+        """Steps over which the 'soe' history meets its kernel tolerance (None for 'abm')."""
+        hist = self._stepper.history
+        return getattr(hist, 'horizon', None)
+
+    def _compiled(self) -> bool:
+        return SOLVERS[self.params.solver].compiled
+
+    def _run_compiled(self, law: np.ndarray, continuous: bool, steps: int) -> int:
+        st = self._stepper
+        hist = st.history
+        x = st.live_state()
+        taken = kernels.fom_soe_run(
+            x, self._x0a, st.n, steps, self._cv, self._smooth, law, continuous, hist.H,
+            hist.W, hist.fill, hist.eps_k, hist.ET, hist.a0_coef, hist.a0_small,
+            float(hist.alphas[0]), float(hist.cp[0]), float(hist.cc[0]), self._last_f,
+            self._bad)
+        st.advanced(taken, self._last_f, failed=taken < steps)
+        hist.check_horizon(st.n)
+        self._xa[:] = x
+        return taken
 
     def rhs(self, t: float, x: np.ndarray, u: Sequence[float]) -> np.ndarray:
         """Right-hand side f(t, x, u) of D^alpha x = f (eq. 26)."""
@@ -334,9 +439,14 @@ class FractionalModel(Plant):
 
 
 def make_plant(params: ModelParameters | None = None,
-               initial_state: Sequence[float] | None = None) -> Plant:
-    """The model that ``params.model`` names, ready at t = 0."""
+               initial_state: Sequence[float] | None = None, *, engine: str = 'auto',
+               duration: float | None = None) -> Plant:
+    """The model that ``params.model`` names, ready at t = 0.
+
+    ``engine``: see :data:`ENGINES`. ``duration`` (s, None = open-ended) sizes the FOM's
+    'soe' history when ``soe_horizon_steps='auto'`` (:func:`fohssv_sim.solvers.soe_options`).
+    """
     params = params if params is not None else ModelParameters()
     cls = {'fractional': FractionalModel, 'delay-free': DelayFreeModel,
            'delayed': DelayedModel}[params.model]
-    return cls(params, initial_state)
+    return cls(params, initial_state, engine=engine, duration=duration)

@@ -20,6 +20,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from .solvers import SOLVERS
+from .solvers import SOLVERS_BY_MODEL as _SOLVERS_BY_MODEL
+
 __all__ = [
     'MODELS',
     'SOLVERS_BY_MODEL',
@@ -37,12 +40,8 @@ __all__ = [
 #: The three models of the paper: eq. 17 (delay-free), eqs. 22-25 (delayed), eqs. 26-30 (FOM).
 MODELS = ('fractional', 'delay-free', 'delayed')
 
-#: Solvers each model accepts. 'auto' picks the first one listed.
-SOLVERS_BY_MODEL = {
-    'fractional': ('abm', 'abm-fft', 'soe'),
-    'delay-free': ('rk4',),
-    'delayed': ('rk4',),
-}
+#: Solvers each model accepts (from the one solver table). 'auto' picks the first one listed.
+SOLVERS_BY_MODEL = _SOLVERS_BY_MODEL
 
 #: Default integration steps (s), chosen by the step-halving study in
 #: ``test/test_convergence.py``: halving them changes the last 0.5 s of the V = 75 closed loop
@@ -151,10 +150,10 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
     # -- model and solver selection -------------------------------------------------------
     _P('model', '-', 'fractional', '-', 'which model: FOM eqs. 26-30, delay-free eq. 17, '
        'or delayed eqs. 22-25', choices=MODELS, numeric=False),
-    _P('solver', '-', 'auto', '-', "integrator: 'rk4' for the integer models; 'abm' (exact "
-       "predictor-corrector), 'abm-fft' (exact, offline) or 'soe' (bounded cost per step) for "
-       "the FOM; 'auto' = the first of these for the model",
-       choices=('auto', 'rk4', 'abm', 'abm-fft', 'soe'), numeric=False),
+    _P('solver', '-', 'auto', '-', "integrator: 'rk4' for the integer models; 'soe' (bounded "
+       "cost per step, compiled), 'abm' (exact predictor-corrector) or 'abm-fft' (exact, "
+       "offline) for the FOM; 'auto' = the first of these for the model",
+       choices=('auto', *SOLVERS), numeric=False),
     _P('step', 'h', 'auto', 's', "integration step; 'auto' = the model's converged default "
        f"({', '.join(f'{k}: {v:g}' for k, v in DEFAULT_STEPS.items())})",
        low=0.0, high=0.01, high_open=False, choices=('auto',)),
@@ -196,8 +195,9 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
     # -- fast-solver settings -----------------------------------------------------------------
     _P('soe_tolerance', '-', 1e-10, '-', "relative kernel tolerance of the 'soe' solver",
        low=0.0, high=1e-3, high_open=False),
-    _P('soe_horizon_steps', '-', 1e8, 'steps', "steps over which the 'soe' kernel meets its "
-       'tolerance', low=1e3, low_open=False, high=1e12, high_open=False),
+    _P('soe_horizon_steps', '-', 'auto', 'steps', "steps over which the 'soe' kernel meets "
+       "its tolerance; 'auto' = the run's length (at least 1e8 steps; 1e12 when the run is "
+       "open-ended)", low=1e3, low_open=False, high=1e15, high_open=False, choices=('auto',)),
 )
 
 PARAMETER_BY_NAME: dict[str, ParameterSpec] = {p.name: p for p in PARAMETERS}

@@ -8,18 +8,18 @@ Three forms, all sharing eq. 10 (with the leading minus of spec 9.3)::
 * :func:`planing_delayed`: immersion from delayed states, eqs. 22-25 / spec section 4;
 * :func:`planing_smooth`: the tanh-smoothed form of the FOM, eqs. 28-29 / spec section 5.
 
-The scalar functions work in float arithmetic (the plant calls them at every stage);
+The scalar functions work in float arithmetic and are defined once in :mod:`.kernels` (the
+interpreted models and the compiled kernels run the same source; re-exported here);
 :func:`planing_smooth_array` and :func:`planing_exact_array` are their numpy counterparts for
 batched runs.
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from .coefficients import Coefficients
+from .kernels import planing_delayed, planing_exact, planing_force_law, planing_smooth
 
 __all__ = [
     'planing_force_law',
@@ -29,63 +29,6 @@ __all__ = [
     'planing_exact_array',
     'planing_smooth_array',
 ]
-
-
-def planing_force_law(h: float, alpha_p: float, c: Coefficients) -> float:
-    """Eq. 10 for immersion depth ``h`` (in body radii) and planing angle ``alpha_p``."""
-    rp = c.R_prime
-    ratio = rp / (h + rp)
-    return -c.V * c.V * (1.0 - ratio * ratio) * (1.0 + h) / (1.0 + 2.0 * h) * alpha_p
-
-
-def planing_exact(w: float, c: Coefficients) -> float:
-    """Delay-free planing force with the exact switching immersion (eqs. 10, 12-14).
-
-    h* = L w / (R V); the tail touches the wall when |h*| > R', i.e. |w| > R'RV/L.
-    """
-    hs = c.L * w / (c.R * c.V)
-    rp = c.R_prime
-    if hs > rp:
-        return planing_force_law(hs - rp, (w - c.Rc_dot) / c.V, c)
-    if hs < -rp:
-        return planing_force_law(-hs - rp, (w + c.Rc_dot) / c.V, c)
-    return 0.0
-
-
-def planing_delayed(z: float, theta: float, z_tau: float, w_tau: float, theta_tau: float,
-                    c: Coefficients, form: str = 'paper') -> float:
-    """Planing force of the delayed model (eqs. 22-25), from the states now and at t - tau.
-
-    ``form='paper'``: h* = [z - z_tau + L (theta - theta_tau) + L w_tau / V] / R (eq. 25 as
-    printed); ``form='geometric'``: h* = [z - z_tau + L theta] / R (spec 9.9). In both,
-    alpha_p = theta - theta_tau + (w_tau -+ Rc_dot)/V on the lower/upper wall.
-    """
-    if form == 'paper':
-        hs = (z - z_tau + c.L * (theta - theta_tau) + c.L * w_tau / c.V) / c.R
-    else:
-        hs = (z - z_tau + c.L * theta) / c.R
-    rp = c.R_prime
-    if hs > rp:
-        return planing_force_law(hs - rp, theta - theta_tau + (w_tau - c.Rc_dot) / c.V, c)
-    if hs < -rp:
-        return planing_force_law(-hs - rp, theta - theta_tau + (w_tau + c.Rc_dot) / c.V, c)
-    return 0.0
-
-
-def planing_smooth(w: float, c: Coefficients) -> float:
-    """Smooth planing force of the FOM (eqs. 28-29, the one-typo reading of spec 9.6).
-
-    h = tanh(k w) L/(2RV) [2w - (w + w0) tanh(k(w + w0)) + (w - w0) tanh(k(w - w0))],
-    clipped at h >= 0; alpha_p = w/V - tanh(k w) Rc_dot / V. As k -> inf this tends to
-    :func:`planing_exact` when w0 = R'RV/L.
-    """
-    k, w0 = c.k, c.w0
-    s = math.tanh(k * w)
-    h = s * c.L / (2.0 * c.R * c.V) * (
-        2.0 * w - (w + w0) * math.tanh(k * (w + w0)) + (w - w0) * math.tanh(k * (w - w0)))
-    if h < 0.0:
-        h = 0.0
-    return planing_force_law(h, w / c.V - s * c.Rc_dot / c.V, c)
 
 
 def _law_array(h: np.ndarray, alpha_p: np.ndarray, c: Coefficients) -> np.ndarray:

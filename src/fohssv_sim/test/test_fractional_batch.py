@@ -1,19 +1,19 @@
-"""Batched steppers equal per-point runs; grouping by alpha; the solver registry."""
+"""Batched steppers equal per-point runs; grouping by alpha; the solver table."""
 
 import numpy as np
 import pytest
 
 from fohssv_sim.fractional import (
-    SOLVERS,
     ABMStepper,
     BatchABM,
     BatchSOE,
     SOEStepper,
-    get_solver,
     group_by_alpha,
     solve_abm_fft,
 )
 from fohssv_sim.fractional.batch import make_batches
+from fohssv_sim.params import SOLVERS_BY_MODEL, ModelParameters
+from fohssv_sim.solvers import SOLVERS, get_solver
 
 from linear4 import A4
 from linear4 import B4 as B4_COL
@@ -134,18 +134,23 @@ def test_group_by_alpha_and_make_batches():
             np.testing.assert_allclose(X[k], x, rtol=1e-12, atol=1e-14)
 
 
-def test_registry():
-    assert list(SOLVERS) == ['abm', 'abm-fft', 'soe']
-    assert SOLVERS['abm'].stepper is ABMStepper
+def test_solver_table():
+    assert list(SOLVERS) == ['rk4', 'soe', 'abm', 'abm-fft']
+    assert SOLVERS['abm'].stepper is ABMStepper and SOLVERS['abm'].batch is BatchABM
     assert SOLVERS['abm-fft'].offline is solve_abm_fft
     assert SOLVERS['soe'].stepper is SOEStepper and SOLVERS['soe'].batch is BatchSOE
+    assert SOLVERS['rk4'].stepper is None and SOLVERS['rk4'].compiled
     for info in SOLVERS.values():
         assert info.accuracy and info.cost and info.name in info.doc
-    with pytest.raises(ValueError, match="solver='rk4' is not one of 'abm', 'abm-fft', 'soe'"):
-        SOLVERS['rk4']
-    with pytest.raises(ValueError, match="'abm', 'abm-fft', 'soe'"):
+    with pytest.raises(ValueError, match="solver='fft' is not one of 'rk4', 'soe', 'abm', "
+                                         "'abm-fft'"):
         get_solver('fft')
     assert SOLVERS.get('nope') is None
+    # params and 'auto' read the same table: the first solver serving the model
+    assert SOLVERS_BY_MODEL == {'fractional': ('soe', 'abm', 'abm-fft'),
+                                'delay-free': ('rk4',), 'delayed': ('rk4',)}
+    for model, names in SOLVERS_BY_MODEL.items():
+        assert ModelParameters(model=model).solver == names[0]
 
 
 # -- per-point orders in BatchSOE ------------------------------------------------------------

@@ -9,14 +9,14 @@ section 5), on a uniform grid t_n = t0 + n h, in three forms that give the same 
   sum-of-exponentials kernel with relative tolerance (default 1e-10);
 
 plus batched versions (:class:`BatchABM`, :class:`BatchSOE`) advancing P systems of the same
-order and step together, :func:`group_by_alpha`, the cancellation-free weights
-(:mod:`.weights`) and the :data:`SOLVERS` registry. Pure numpy/scipy; no ROS imports.
+order and step together, :func:`group_by_alpha` and the cancellation-free weights
+(:mod:`.weights`). Which solver a model uses is chosen by name in :mod:`fohssv_sim.solvers`.
+Pure numpy/scipy; no ROS imports.
 """
 
 from .abm import ABMStepper, BatchABM
 from .batch import group_by_alpha
 from .fft import ABMSolution, solve_abm_fft
-from .registry import SOLVERS, SolverInfo, UnknownSolverError, get_solver
 from .soe import BatchSOE, SOEHistory, SOEStepper
 from .soe_kernel import SOEErrorReport, SOEModes, soe_kernel_error, soe_modes
 from .weights import (
@@ -37,10 +37,6 @@ __all__ = [
     'group_by_alpha',
     'solve_abm_fft',
     'ABMSolution',
-    'SOLVERS',
-    'SolverInfo',
-    'UnknownSolverError',
-    'get_solver',
     'SOEModes',
     'SOEErrorReport',
     'soe_modes',

@@ -195,6 +195,26 @@ class PECEStepperBase:
         return self._status
 
     @property
+    def history(self):
+        """The history engine (its arrays are what a compiled kernel advances in place)."""
+        return self._hist
+
+    def live_state(self) -> np.ndarray:
+        """The current state array itself (not a copy), for a compiled kernel that advances
+        the stepper in place; report what it did with :meth:`advanced`."""
+        return self._x
+
+    def advanced(self, steps: int, last_rhs: np.ndarray, failed: bool = False) -> None:
+        """Record ``steps`` steps taken by a compiled kernel on :meth:`live_state` and
+        :attr:`history`; ``last_rhs`` is f of the last step; ``failed``: the next step
+        turned non-finite (the stepper then refuses to step until reset)."""
+        self._n += steps
+        if steps or failed:
+            self._last_rhs = np.array(last_rhs, dtype=float).reshape(self._shape)
+        if failed:
+            self._status = 'failed'
+
+    @property
     def last_rhs(self) -> np.ndarray | None:
         """History term f_{n-1} = rhs(t_{n-1}, x_{n-1}, u_{n-1}) of the last step (a copy), i.e.
         the Caputo derivative D^a x at the start of that step; None before the first step."""

@@ -39,19 +39,21 @@ def make_batches(solver: str, rhs_for: Callable[[np.ndarray], Callable], alphas,
                  X0, **kwargs) -> list[tuple[float, np.ndarray, object]]:
     """One batched stepper per distinct alpha.
 
-    ``solver`` is a :data:`~.registry.SOLVERS` name ('abm' / 'abm-fft' -> BatchABM, 'soe' ->
-    BatchSOE); ``rhs_for(indices)`` returns the batched rhs(t, X, U) for the points
-    ``indices`` (so per-point parameters can be sliced); X0 is (P, d). Returns a list of
-    ``(alpha, indices, stepper)``; stepper.x[i] is point indices[i]. Accuracy and cost: those
-    of the batched class.
+    ``solver`` is a fractional solver's name in :data:`fohssv_sim.solvers.SOLVERS` ('abm' /
+    'abm-fft' -> BatchABM, 'soe' -> BatchSOE); ``rhs_for(indices)`` returns the batched
+    rhs(t, X, U) for the points ``indices`` (so per-point parameters can be sliced); X0 is
+    (P, d). Returns a list of ``(alpha, indices, stepper)``; stepper.x[i] is point
+    indices[i]. Accuracy and cost: those of the batched class.
 
     Raises:
         ValueError: unknown solver (lists the valid ones), invalid alphas, step or X0, or
             len(alphas) != len(X0).
     """
-    from .registry import get_solver
+    from ..solvers import get_solver
 
     info = get_solver(solver)
+    if info.batch is None:
+        raise ValueError(f'solver={solver!r} is not a fractional solver')
     X0 = check_state(X0, 'X0', ndim=2)
     groups = group_by_alpha(alphas)
     if sum(idx.size for _, idx in groups) != X0.shape[0]:

@@ -85,8 +85,7 @@ class SampledPlant:
     def sample(self) -> tuple[tuple[float, ...], tuple[float, float]]:
         """``([t, z, w, theta, q], [t, Fp])`` of the current sample."""
         t = self.plant.t
-        x = self.plant._x
-        return (t, *x), (t, self.plant.planing_force)
+        return (t, *self.plant.x), (t, self.plant.planing_force)
 
     def advance(self) -> None:
         """One control period with the held command.
@@ -94,10 +93,7 @@ class SampledPlant:
         Raises:
             FloatingPointError: the state turned non-finite (names the time and state).
         """
-        u = self.command
-        step = self.plant.step
-        for _ in range(self.hold):
-            step(u)
+        self.plant.advance(self.command, self.hold)   # one compiled call (held input)
         self.samples += 1
 
     def reached(self, duration: float) -> bool:

@@ -1,0 +1,415 @@
+"""The model's arithmetic, written once, and the compiled loops that step it.
+
+**One source.** The physics -- eq. 17's right-hand side, the three planing forces (eq. 10 with
+the switching immersion of eqs. 12-14, the delayed one of eqs. 22-25, the smooth one of
+eqs. 28-29) and the delayed model's Hermite history -- is plain float arithmetic marked
+``@jitable`` (numba's ``register_jitable``): called from Python it runs interpreted, as the
+models in :mod:`.models` call it; called from a kernel below it is compiled inline. So the
+interpreted models and the compiled kernels evaluate the same source.
+
+**Kernels.** Each ``*_run`` function takes many integration steps of one model in one compiled
+call, advancing the model's own arrays in place (the plant calls one per control period):
+
+* :func:`delay_free_run` -- classical RK4 of eq. 17;
+* :func:`delayed_run` -- RK4 by the method of steps, delayed states from the Hermite history;
+* :func:`fom_soe_run` -- the ABM predictor-corrector of the FOM with the sum-of-exponentials
+  history of :class:`fohssv_sim.fractional.soe.SOEHistory` (the same arrays).
+
+The input is an affine law evaluated at every stage, packed as ``law`` = [K (2x4, row-major),
+u0 (2), limit (2)]: u = clamp(K x + u0, limit) when ``continuous``, else u = u0 held over the
+call (zero-order hold). The time-stepping loops are the compiled twins of the interpreted
+steppers (RK4 in :mod:`.models`, the PECE driver of :mod:`.fractional.abm`), tested against them
+step for step (``test/test_kernels.py``). Each kernel returns the number of steps taken: fewer
+than asked when a state turned non-finite; that state is left in ``bad`` and the arrays hold
+the last finite step.
+
+Compiled on first use and cached on disk (``cache=True``, next to this file or in numba's
+user cache); :func:`warm_up` compiles all kernels (a few seconds the first time, well under
+a second from the cache). Without numba everything still runs, interpreted.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+try:
+    import numba
+    from numba.extending import register_jitable as jitable
+except ImportError:  # pragma: no cover - numba is pinned in requirements.txt
+    numba = None
+
+    def jitable(fn):
+        return fn
+
+__all__ = ['AVAILABLE', 'KernelCoefficients', 'jitable', 'eq17', 'planing_force_law',
+           'planing_exact', 'planing_delayed', 'planing_smooth', 'hermite_delayed',
+           'delay_free_run', 'delayed_run', 'fom_soe_run', 'pack_law', 'warm_up']
+
+#: True when the kernels run compiled (numba importable).
+AVAILABLE = numba is not None
+
+
+class KernelCoefficients(NamedTuple):
+    """The scalar coefficients the stepping arithmetic reads (see :mod:`.coefficients`)."""
+
+    V: float
+    L: float
+    R: float
+    g: float
+    a22: float
+    a24: float
+    a42: float
+    a44: float
+    b21: float
+    b22: float
+    b41: float
+    b42: float
+    d2: float
+    d4: float
+    R_prime: float
+    Rc_dot: float
+    k: float
+    w0: float
+
+
+# -- the physics, one source ------------------------------------------------------------------
+
+@jitable
+def eq17(c, w, th, q, uf, uc, fp):
+    """dx/dt = A x + B u + G + D Fp of eq. 17 in float arithmetic (z does not enter)."""
+    return (w - c.V * th,
+            c.a22 * w + c.a24 * q + c.b21 * uf + c.b22 * uc + c.g + c.d2 * fp,
+            q,
+            c.a42 * w + c.a44 * q + c.b41 * uf + c.b42 * uc + c.d4 * fp)
+
+
+@jitable
+def planing_force_law(h, alpha_p, c):
+    """Eq. 10 for immersion depth ``h`` (in body radii) and planing angle ``alpha_p``."""
+    rp = c.R_prime
+    ratio = rp / (h + rp)
+    return -c.V * c.V * (1.0 - ratio * ratio) * (1.0 + h) / (1.0 + 2.0 * h) * alpha_p
+
+
+@jitable
+def planing_exact(w, c):
+    """Delay-free planing force with the exact switching immersion (eqs. 10, 12-14).
+
+    h* = L w / (R V); the tail touches the wall when |h*| > R', i.e. |w| > R'RV/L.
+    """
+    hs = c.L * w / (c.R * c.V)
+    rp = c.R_prime
+    if hs > rp:
+        return planing_force_law(hs - rp, (w - c.Rc_dot) / c.V, c)
+    if hs < -rp:
+        return planing_force_law(-hs - rp, (w + c.Rc_dot) / c.V, c)
+    return 0.0
+
+
+@jitable
+def planing_delayed(z, theta, z_tau, w_tau, theta_tau, c, form='paper'):
+    """Planing force of the delayed model (eqs. 22-25), from the states now and at t - tau.
+
+    ``form='paper'``: h* = [z - z_tau + L (theta - theta_tau) + L w_tau / V] / R (eq. 25 as
+    printed); ``form='geometric'``: h* = [z - z_tau + L theta] / R (docs/model.md §9.9). In
+    both, alpha_p = theta - theta_tau + (w_tau -+ Rc_dot)/V on the lower/upper wall.
+    """
+    if form == 'paper':
+        hs = (z - z_tau + c.L * (theta - theta_tau) + c.L * w_tau / c.V) / c.R
+    else:
+        hs = (z - z_tau + c.L * theta) / c.R
+    rp = c.R_prime
+    if hs > rp:
+        return planing_force_law(hs - rp, theta - theta_tau + (w_tau - c.Rc_dot) / c.V, c)
+    if hs < -rp:
+        return planing_force_law(-hs - rp, theta - theta_tau + (w_tau + c.Rc_dot) / c.V, c)
+    return 0.0
+
+
+@jitable
+def planing_smooth(w, c):
+    """Smooth planing force of the FOM (eqs. 28-29, the one-typo reading of docs/model.md §9.6).
+
+    h = tanh(k w) L/(2RV) [2w - (w + w0) tanh(k(w + w0)) + (w - w0) tanh(k(w - w0))],
+    clipped at h >= 0; alpha_p = w/V - tanh(k w) Rc_dot / V. As k -> inf this tends to
+    :func:`planing_exact` when w0 = R'RV/L.
+    """
+    k, w0 = c.k, c.w0
+    s = math.tanh(k * w)
+    h = s * c.L / (2.0 * c.R * c.V) * (
+        2.0 * w - (w + w0) * math.tanh(k * (w + w0)) + (w - w0) * math.tanh(k * (w - w0)))
+    if h < 0.0:
+        h = 0.0
+    return planing_force_law(h, w / c.V - s * c.Rc_dot / c.V, c)
+
+
+@jitable
+def hermite_delayed(hx, hf, n, c_stage, lag, h, x_init):
+    """x(t_n + c h - tau) from the history rings (states ``hx``, derivatives ``hf``, row k % size
+    for step k) by cubic Hermite interpolation, or x(0) = ``x_init`` before t = 0."""
+    s = n + c_stage - lag   # in steps
+    if s <= 0.0:
+        return x_init[0], x_init[1], x_init[2], x_init[3]
+    size = hx.shape[0]
+    k = int(s)
+    theta = s - k
+    i = k % size
+    if theta == 0.0:
+        return hx[i, 0], hx[i, 1], hx[i, 2], hx[i, 3]
+    j = (k + 1) % size
+    t2, t3 = theta * theta, theta * theta * theta
+    h00 = 2.0 * t3 - 3.0 * t2 + 1.0
+    h10 = (t3 - 2.0 * t2 + theta) * h
+    h01 = -2.0 * t3 + 3.0 * t2
+    h11 = (t3 - t2) * h
+    return (h00 * hx[i, 0] + h10 * hf[i, 0] + h01 * hx[j, 0] + h11 * hf[j, 0],
+            h00 * hx[i, 1] + h10 * hf[i, 1] + h01 * hx[j, 1] + h11 * hf[j, 1],
+            h00 * hx[i, 2] + h10 * hf[i, 2] + h01 * hx[j, 2] + h11 * hf[j, 2],
+            h00 * hx[i, 3] + h10 * hf[i, 3] + h01 * hx[j, 3] + h11 * hf[j, 3])
+
+
+# -- helpers of the loops ---------------------------------------------------------------------
+
+def pack_law(K=None, u0=(0.0, 0.0), limit=(math.inf, math.inf)) -> np.ndarray:
+    """The ``law`` array of the kernels: [K (2x4, row-major), u0 (2), limit (2)]."""
+    out = np.zeros(12)
+    if K is not None:
+        out[:8] = np.asarray(K, dtype=float).reshape(8)
+    out[8:10] = u0
+    out[10:12] = limit
+    return out
+
+
+@jitable
+def _coefficients(cv):
+    return KernelCoefficients(cv[0], cv[1], cv[2], cv[3], cv[4], cv[5], cv[6], cv[7], cv[8],
+                              cv[9], cv[10], cv[11], cv[12], cv[13], cv[14], cv[15], cv[16],
+                              cv[17])
+
+
+@jitable
+def _clamp(value, limit):
+    return max(-limit, min(limit, value))
+
+
+@jitable
+def _input(law, continuous, z, w, th, q):
+    """(delta_f, delta_c) at a stage: the held u0, or clamp(K x + u0) (same summation order
+    as the eq. 31 controller's ``update``)."""
+    if not continuous:
+        return law[8], law[9]
+    uf = (law[0] * z + law[1] * w + law[2] * th + law[3] * q) + law[8]
+    uc = (law[4] * z + law[5] * w + law[6] * th + law[7] * q) + law[9]
+    return _clamp(uf, law[10]), _clamp(uc, law[11])
+
+
+@jitable
+def _finite4(a, b, c, d):
+    return math.isfinite(a) and math.isfinite(b) and math.isfinite(c) and math.isfinite(d)
+
+
+@jitable
+def _fail(bad, a, b, c, d):
+    bad[0], bad[1], bad[2], bad[3] = a, b, c, d
+
+
+def _njit(fn):
+    if numba is None:  # pragma: no cover
+        return fn
+    return numba.njit(cache=True, nogil=True, error_model='numpy')(fn)
+
+
+# -- delay-free model: RK4 ----------------------------------------------------------------------
+
+@jitable
+def _rhs_free(c, smooth, w, th, q, uf, uc):
+    fp = planing_smooth(w, c) if smooth else planing_exact(w, c)
+    return eq17(c, w, th, q, uf, uc, fp)
+
+
+@_njit
+def delay_free_run(x, nsteps, h, cv, smooth, law, continuous, bad):
+    """``nsteps`` RK4 steps of eq. 17 from ``x`` (4,), in place; returns the steps taken."""
+    c = _coefficients(cv)
+    z, w, th, q = x[0], x[1], x[2], x[3]
+    hh = 0.5 * h
+    for i in range(nsteps):
+        uf, uc = _input(law, continuous, z, w, th, q)
+        k1 = _rhs_free(c, smooth, w, th, q, uf, uc)
+        z2, w2, t2, q2 = z + hh * k1[0], w + hh * k1[1], th + hh * k1[2], q + hh * k1[3]
+        uf, uc = _input(law, continuous, z2, w2, t2, q2)
+        k2 = _rhs_free(c, smooth, w2, t2, q2, uf, uc)
+        z3, w3, t3, q3 = z + hh * k2[0], w + hh * k2[1], th + hh * k2[2], q + hh * k2[3]
+        uf, uc = _input(law, continuous, z3, w3, t3, q3)
+        k3 = _rhs_free(c, smooth, w3, t3, q3, uf, uc)
+        z4, w4, t4, q4 = z + h * k3[0], w + h * k3[1], th + h * k3[2], q + h * k3[3]
+        uf, uc = _input(law, continuous, z4, w4, t4, q4)
+        k4 = _rhs_free(c, smooth, w4, t4, q4, uf, uc)
+        g = h / 6.0
+        zn = z + g * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0])
+        wn = w + g * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])
+        tn = th + g * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2])
+        qn = q + g * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3])
+        if not _finite4(zn, wn, tn, qn):
+            _fail(bad, zn, wn, tn, qn)
+            x[0], x[1], x[2], x[3] = z, w, th, q
+            return i
+        z, w, th, q = zn, wn, tn, qn
+    x[0], x[1], x[2], x[3] = z, w, th, q
+    return nsteps
+
+
+# -- delayed model: RK4 by the method of steps -------------------------------------------------
+
+@jitable
+def _rhs_delayed(c, paper, hx, hf, n, c_stage, lag, tau, h, x_init, z, w, th, q, uf, uc):
+    if tau == 0.0:
+        zd, wd, thd = z, w, th
+    else:
+        zd, wd, thd, _ = hermite_delayed(hx, hf, n, c_stage, lag, h, x_init)
+    fp = planing_delayed(z, th, zd, wd, thd, c, 'paper' if paper else 'geometric')
+    return eq17(c, w, th, q, uf, uc, fp)
+
+
+@_njit
+def delayed_run(x, n, nsteps, h, cv, hx, hf, lag, tau, x_init, paper, law, continuous, bad):
+    """``nsteps`` RK4 steps of eqs. 22-25 from step ``n`` at ``x``, in place (state and history
+    rings ``hx``, ``hf``); returns the steps taken."""
+    c = _coefficients(cv)
+    z, w, th, q = x[0], x[1], x[2], x[3]
+    size = hx.shape[0]
+    hh = 0.5 * h
+    for i in range(nsteps):
+        r = (n + i) % size
+        hx[r, 0], hx[r, 1], hx[r, 2], hx[r, 3] = z, w, th, q
+        m = n + i
+        uf, uc = _input(law, continuous, z, w, th, q)
+        k1 = _rhs_delayed(c, paper, hx, hf, m, 0.0, lag, tau, h, x_init, z, w, th, q, uf, uc)
+        hf[r, 0], hf[r, 1], hf[r, 2], hf[r, 3] = k1[0], k1[1], k1[2], k1[3]
+        z2, w2, t2, q2 = z + hh * k1[0], w + hh * k1[1], th + hh * k1[2], q + hh * k1[3]
+        uf, uc = _input(law, continuous, z2, w2, t2, q2)
+        k2 = _rhs_delayed(c, paper, hx, hf, m, 0.5, lag, tau, h, x_init, z2, w2, t2, q2, uf, uc)
+        z3, w3, t3, q3 = z + hh * k2[0], w + hh * k2[1], th + hh * k2[2], q + hh * k2[3]
+        uf, uc = _input(law, continuous, z3, w3, t3, q3)
+        k3 = _rhs_delayed(c, paper, hx, hf, m, 0.5, lag, tau, h, x_init, z3, w3, t3, q3, uf, uc)
+        z4, w4, t4, q4 = z + h * k3[0], w + h * k3[1], th + h * k3[2], q + h * k3[3]
+        uf, uc = _input(law, continuous, z4, w4, t4, q4)
+        k4 = _rhs_delayed(c, paper, hx, hf, m, 1.0, lag, tau, h, x_init, z4, w4, t4, q4, uf, uc)
+        g = h / 6.0
+        zn = z + g * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0])
+        wn = w + g * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])
+        tn = th + g * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2])
+        qn = q + g * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3])
+        if not _finite4(zn, wn, tn, qn):
+            _fail(bad, zn, wn, tn, qn)
+            x[0], x[1], x[2], x[3] = z, w, th, q
+            return i
+        z, w, th, q = zn, wn, tn, qn
+    x[0], x[1], x[2], x[3] = z, w, th, q
+    return nsteps
+
+
+# -- fractional model: ABM predictor-corrector with the SOE history -----------------------------
+
+@_njit
+def fom_soe_run(x, x0, n, nsteps, cv, smooth, law, continuous, H, W, fill, eps_k, ET,
+                a0_coef, a0_small, alpha, cp, cc, last_f, bad):
+    """``nsteps`` ABM steps of eq. 26 from step ``n`` at ``x`` with the SOE history arrays of a
+    one-group :class:`~fohssv_sim.fractional.soe.SOEHistory` (``H``, ``W``, ``fill``, ``eps_k``,
+    ``ET``, ``a0_coef``, ``a0_small``), in place; ``last_f`` receives f_n of the last step.
+    Returns the steps taken. Same arithmetic as ``SOEStepper.step`` (sums in another order)."""
+    c = _coefficients(cv)
+    L = eps_k.shape[2]
+    K = ET.shape[1]
+    n0 = W.shape[0] - 1 - K
+    base = 1 + L
+    ncoef = a0_coef.shape[1]
+    xp = np.empty(4)
+    xc = np.empty(4)
+    for i in range(nsteps):
+        m = n + i
+        z, w, th, q = x[0], x[1], x[2], x[3]
+        uf, uc = _input(law, continuous, z, w, th, q)
+        f = _rhs_free(c, smooth, w, th, q, uf, uc)
+        last_f[0], last_f[1], last_f[2], last_f[3] = f[0], f[1], f[2], f[3]
+        # push f_m
+        if m == 0:
+            for k in range(4):
+                H[0, k, 0] = f[k]
+        else:
+            fw = fill[0]
+            if fw == n0 + K:                     # fold the K oldest values into the modes
+                for k in range(4):
+                    for j in range(L):
+                        mj = H[0, k, 1 + j]
+                        mj -= mj * eps_k[0, 0, j]
+                        acc = 0.0
+                        for r in range(K):
+                            acc += H[0, k, base + r] * ET[0, r, j]
+                        H[0, k, 1 + j] = mj + acc
+                    for r in range(n0):
+                        H[0, k, base + r] = H[0, k, base + K + r]
+                fw = n0
+            for k in range(4):
+                H[0, k, base + fw] = f[k]
+            fill[0] = fw + 1
+        # f_0 weights b(m), a0(m)
+        fw = fill[0]
+        if m == 0:
+            bm = 1.0
+            a0m = a0_small[0, 0]
+        else:
+            bm = m ** alpha * math.expm1(alpha * math.log1p(1.0 / m))
+            if m < 64:
+                a0m = a0_small[0, m]
+            else:
+                y = 1.0 / m
+                acc = a0_coef[0, ncoef - 1]
+                for r in range(ncoef - 2, -1, -1):
+                    acc = acc * y + a0_coef[0, r]
+                a0m = m ** (alpha - 1.0) * acc
+        rows = base + fw
+        for k in range(4):
+            sp = cp * bm * H[0, k, 0]
+            sc = cc * a0m * H[0, k, 0]
+            for r in range(1, rows):
+                v = H[0, k, r]
+                sp += v * W[fw, 0, r, 0]
+                sc += v * W[fw, 0, r, 1]
+            xp[k] = x0[k] + sp
+            xc[k] = x0[k] + sc
+        uf, uc = _input(law, continuous, xp[0], xp[1], xp[2], xp[3])
+        fq = _rhs_free(c, smooth, xp[1], xp[2], xp[3], uf, uc)
+        zn = xc[0] + cc * fq[0]
+        wn = xc[1] + cc * fq[1]
+        tn = xc[2] + cc * fq[2]
+        qn = xc[3] + cc * fq[3]
+        if not _finite4(zn, wn, tn, qn):
+            _fail(bad, zn, wn, tn, qn)
+            return i
+        x[0], x[1], x[2], x[3] = zn, wn, tn, qn
+    return nsteps
+
+
+def warm_up() -> None:
+    """Compile (or load from the cache) every kernel, so the first control period of a run
+    does not pay for it."""
+    from .coefficients import coefficients
+    from .fractional.soe import SOEStepper
+    from .params import ModelParameters
+
+    cv = np.array(coefficients(ModelParameters()).kernel, dtype=float)
+    law = pack_law()
+    bad = np.zeros(4)
+    x = np.zeros(4)
+    delay_free_run(x, 0, 1e-5, cv, True, law, False, bad)
+    hx = np.zeros((4, 4))
+    delayed_run(x, 0, 0, 1e-5, cv, hx, hx.copy(), 1.0, 1e-5, x.copy(), True, law, False, bad)
+    st = SOEStepper(lambda t, x, u: x, 0.85, 2e-5, x)
+    hist = st._hist
+    fom_soe_run(x, x.copy(), 0, 0, cv, True, law, False, hist.H, hist.W, hist.fill,
+                hist.eps_k, hist.ET, hist.a0_coef, hist.a0_small, 0.85, 1.0, 1.0, x.copy(),
+                bad)

@@ -221,8 +221,9 @@ class Plant:
     def describe(self) -> str:
         p = self.params
         extra = f', alpha={p.fractional_order:g}' if p.model == 'fractional' else ''
-        return (f'{p.model} model, solver {p.solver}, step {p.step:g} s, V={p.speed:g} m/s'
-                f'{extra}, {self.engine}')
+        engine = 'compiled' if self.engine == 'compiled' and self._compiled() else 'interpreted'
+        return (f'{p.model} model, solver {p.solver} ({engine}), step {p.step:g} s, '
+                f'V={p.speed:g} m/s{extra}')
 
 
 def _show(u: Any) -> str:

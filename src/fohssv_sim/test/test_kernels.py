@@ -1,0 +1,162 @@
+"""The compiled stepping kernels against the interpreted reference and an exact solution.
+
+* Same trajectory: every model's closed loop (eq. 31, held over 1e-4 s as through ROS, and
+  continuous) run compiled and interpreted agrees to 1e-12 of its range, planing included.
+* Independent check of the compiled FOM kernel: in the linear regime (exact planing, no wall
+  contact) the FOM is D^a x = A x + b, whose solution is the Mittag-Leffler series
+  x(t) = sum_k A^k b t^(a(k+1)) / Gamma(a(k+1) + 1), evaluated here in 40-digit mpmath; the
+  compiled run converges to it at the ABM scheme's order.
+* Shared state: interpreted and compiled steps can alternate on one plant (they advance the
+  same arrays); a non-finite state is reported at the same step by both engines.
+* The 'soe' horizon follows the run (``soe_horizon_steps='auto'``).
+"""
+
+import math
+import warnings
+
+import mpmath
+import numpy as np
+import pytest
+
+from fohssv_controller.state_feedback import StateFeedback
+from fohssv_sim import kernels
+from fohssv_sim.coefficients import coefficients
+from fohssv_sim.models import AffineLaw, make_plant
+from fohssv_sim.params import ModelParameters
+from fohssv_sim.simulate import simulate
+from fohssv_sim.solvers import SOE_HORIZON_MIN, SOE_HORIZON_OPEN
+
+pytestmark = pytest.mark.skipif(not kernels.AVAILABLE, reason='numba not installed')
+
+MODELS = ('delay-free', 'delayed', 'fractional')
+X_START = (0.0, 1.5, 0.0, 0.0)     # w beyond the contact velocity: planing from the start
+
+
+def run(model, engine, duration, control_period, law=None):
+    p = ModelParameters(model=model)
+    plant = make_plant(p, X_START, engine=engine, duration=duration)
+    ctl = StateFeedback()
+    return simulate(plant, law or ctl, duration, control_period=control_period,
+                    initial_state=X_START)
+
+
+def rel_diff(a, b):
+    return np.max(np.abs(a.state - b.state)) / np.max(np.abs(b.state))
+
+
+@pytest.mark.parametrize('model', MODELS)
+def test_compiled_equals_interpreted_with_the_command_held(model):
+    fast = run(model, 'compiled', 0.2, 1e-4)
+    ref = run(model, 'python', 0.2, 1e-4)
+    assert np.array_equal(fast.t, ref.t)
+    assert np.max(np.abs(ref.planing_force)) > 1.0        # the planing branches were taken
+    assert rel_diff(fast, ref) <= 1e-12, rel_diff(fast, ref)
+    assert np.max(np.abs(fast.inputs - ref.inputs)) <= 1e-12 * np.max(np.abs(ref.inputs))
+
+
+@pytest.mark.parametrize('model', MODELS)
+def test_compiled_affine_law_equals_the_controller_at_every_stage(model):
+    ctl = StateFeedback()
+    fast = run(model, 'compiled', 0.1, None)                      # AffineLaw, compiled
+    # interpreted, with the controller's own command() called at every stage
+    ref = run(model, 'python', 0.1, None, law=lambda t, x: ctl.command(t, x))
+    assert np.max(np.abs(ref.planing_force)) > 1.0
+    assert rel_diff(fast, ref) <= 1e-12, rel_diff(fast, ref)
+
+
+def test_affine_law_clamps_like_the_controller():
+    ctl = StateFeedback(max_cavitator_deflection=0.01)
+    law = AffineLaw.from_controller(ctl)
+    for x in ([0.0, 0.0, 0.3, 0.0], [0.0, 0.0, -0.3, 0.0], [0.1, 0.2, 0.001, -0.4]):
+        assert law(0.0, x) == ctl.command(0.0, x)
+    assert AffineLaw.from_controller(object()) is None
+
+
+def mittag_leffler_series(A, b, t, alpha, digits=40):
+    """sum_k A^k b t^(a(k+1)) / Gamma(a(k+1)+1) in mpmath (x(0) = 0)."""
+    with mpmath.workdps(digits):
+        A = mpmath.matrix(A.tolist())
+        term = mpmath.matrix(b.tolist())
+        ta = mpmath.mpf(t) ** alpha
+        total = mpmath.matrix(4, 1)
+        power = ta
+        for k in range(400):
+            add = term * (power / mpmath.gamma(alpha * (k + 1) + 1))
+            total += add
+            if k > 10 and mpmath.norm(add) < mpmath.mpf(10) ** (-digits + 5) * mpmath.norm(total):
+                break
+            term = A * term
+            power *= ta
+        return np.array([float(v) for v in total])
+
+
+def test_compiled_fom_converges_to_the_mittag_leffler_solution():
+    alpha, T, u = 0.85, 0.02, (0.002, -0.004)
+    errors, steps = [], (4e-4, 2e-4, 1e-4)
+    for h in steps:
+        p = ModelParameters(fractional_order=alpha, planing_form='exact', step=h)
+        c = coefficients(p)
+        plant = make_plant(p)
+        assert plant.engine == 'compiled'
+        plant.advance(u, round(T / h))
+        assert abs(plant.state[1]) < 0.5 * c.contact_velocity      # no wall contact: linear
+        exact = mittag_leffler_series(c.A, c.B @ np.array(u) + c.G, T, alpha)
+        errors.append(np.max(np.abs(plant.state - exact)) / np.max(np.abs(exact)))
+    order = np.diff(np.log(errors)) / np.diff(np.log(steps))
+    assert errors[-1] < 1e-4, errors
+    assert np.all((order > 1.5) & (order < 2.3)), order      # ABM: about 1 + alpha
+
+
+@pytest.mark.parametrize('model', MODELS)
+def test_interpreted_and_compiled_steps_share_the_plant_state(model):
+    p = ModelParameters(model=model)
+    a = make_plant(p, X_START)
+    b = make_plant(p, X_START)
+    u = (0.0, -0.01)
+    a.advance(u, 400)
+    for _ in range(20):                      # alternate: 7 interpreted, 13 compiled steps
+        b.advance(lambda t, x: u, 7)         # a plain callable runs interpreted
+        b.advance(u, 13)
+    assert a.n == b.n == 400
+    np.testing.assert_allclose(b.state, a.state, rtol=1e-12, atol=1e-15)
+
+
+@pytest.mark.parametrize('model', MODELS)
+def test_non_finite_state_reported_at_the_same_step_by_both_engines(model):
+    p = ModelParameters(model=model, step=0.01)       # unstable at this step from w = 1e300
+    fails = []
+    for engine in ('compiled', 'python'):
+        plant = make_plant(p, (0.0, 1e300, 0.0, 0.0), engine=engine)
+        with pytest.raises(FloatingPointError, match=r'state became non-finite at t='):
+            plant.advance((0.0, 0.0), 1000)
+        assert plant.status == 'failed' and 0 < plant.n < 1000
+        fails.append(plant.n)
+        with pytest.raises(RuntimeError, match='reset'):
+            plant.advance((0.0, 0.0), 1)
+        plant.reset((0.0, 0.0, 0.0, 0.0))
+        plant.advance((0.0, 0.0), 10)                 # usable again after reset
+        assert plant.n == 10 and np.isfinite(plant.state).all()
+    assert fails[0] == fails[1]
+
+
+def test_soe_horizon_follows_the_run():
+    p = ModelParameters()
+    assert make_plant(p).horizon_steps == SOE_HORIZON_OPEN                   # open-ended
+    assert make_plant(p, duration=2.0).horizon_steps == SOE_HORIZON_MIN     # short run
+    long_run = 1e4                                                           # s
+    assert make_plant(p, duration=long_run).horizon_steps == math.ceil(long_run / p.step) + 1
+    assert make_plant(ModelParameters(solver='abm')).horizon_steps is None
+    small = make_plant(ModelParameters(soe_horizon_steps=1000))
+    assert small.horizon_steps == 1000
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        small.advance((0.0, 0.0), 1000)                  # within the horizon: silent
+    with pytest.warns(RuntimeWarning, match='beyond horizon_steps=1000'):
+        small.advance((0.0, 0.0), 100)
+
+
+def test_engine_is_checked():
+    with pytest.raises(ValueError, match="engine='fast' is not one of 'auto', 'compiled'"):
+        make_plant(ModelParameters(), engine='fast')
+    assert 'interpreted' in make_plant(ModelParameters(solver='abm')).describe()
+    assert 'compiled' in make_plant(ModelParameters()).describe()

@@ -395,21 +395,11 @@ def fom_soe_run(x, x0, n, nsteps, cv, smooth, law, continuous, H, W, fill, eps_k
 
 
 def warm_up() -> None:
-    """Compile (or load from the cache) every kernel, so the first control period of a run
-    does not pay for it."""
-    from .coefficients import coefficients
-    from .fractional.soe import SOEStepper
+    """Compile (or load from the cache) every kernel with the argument types the plants pass,
+    so the first control period of a run does not pay for it."""
+    from .models import make_plant
     from .params import ModelParameters
 
-    cv = np.array(coefficients(ModelParameters()).kernel, dtype=float)
-    law = pack_law()
-    bad = np.zeros(4)
-    x = np.zeros(4)
-    delay_free_run(x, 0, 1e-5, cv, True, law, False, bad)
-    hx = np.zeros((4, 4))
-    delayed_run(x, 0, 0, 1e-5, cv, hx, hx.copy(), 1.0, 1e-5, x.copy(), True, law, False, bad)
-    st = SOEStepper(lambda t, x, u: x, 0.85, 2e-5, x)
-    hist = st._hist
-    fom_soe_run(x, x.copy(), 0, 0, cv, True, law, False, hist.H, hist.W, hist.fill,
-                hist.eps_k, hist.ET, hist.a0_coef, hist.a0_small, 0.85, 1.0, 1.0, x.copy(),
-                bad)
+    for model in ('delay-free', 'delayed', 'fractional'):
+        plant = make_plant(ModelParameters(model=model), duration=1.0)
+        plant.advance((0.0, 0.0), 1)

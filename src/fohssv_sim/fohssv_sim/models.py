@@ -123,8 +123,10 @@ class Plant:
             self.initial_state = _as_state(initial_state)
         self.n = 0
         self._x = self.initial_state
+        self._stale = True
         self.status = 'ready'
         self._reset_history()
+        self._use_kernel = self.engine == 'compiled' and self._compiled()
 
     @property
     def t(self) -> float:
@@ -174,17 +176,16 @@ class Plant:
             law, continuous = self._law, False
             law[8] = float(u[0])
             law[9] = float(u[1])
-        if law is not None and self.engine == 'compiled' and self._compiled():
-            self._xa[:] = self._x
-            taken = self._run_compiled(law, continuous, steps)
-            xa = self._xa
-            self._x = (float(xa[0]), float(xa[1]), float(xa[2]), float(xa[3]))
+        if law is not None and self._use_kernel:
+            taken, xa = self._run_compiled(law, continuous, steps)
+            self._x = tuple(xa.tolist())
             self.n += taken
             self.status = 'running'
             if taken < steps:
                 self._failed(tuple(self._bad), _show(u))
             return
         u = u if law is None or continuous else (law[8], law[9])
+        self._stale = True                       # the kernels' copy of the state
         for _ in range(steps):
             x = self._advance(u)
             if not all(math.isfinite(v) for v in x):
@@ -192,6 +193,14 @@ class Plant:
             self._x = x
             self.n += 1
             self.status = 'running'
+
+    def _state_array(self) -> np.ndarray:
+        """The state as the integer models' kernels advance it (refreshed after interpreted
+        steps or a reset)."""
+        if self._stale:
+            self._xa[:] = self._x
+            self._stale = False
+        return self._xa
 
     def _failed(self, x: Sequence[float], shown: str) -> None:
         self.status = 'failed'
@@ -215,7 +224,9 @@ class Plant:
         """True when this instance has a compiled kernel."""
         return True
 
-    def _run_compiled(self, law: np.ndarray, continuous: bool, steps: int) -> int:
+    def _run_compiled(self, law: np.ndarray, continuous: bool, steps: int
+                      ) -> tuple[int, np.ndarray]:
+        """Run ``steps`` steps through the kernel; return (steps taken, the state array)."""
         raise NotImplementedError
 
     def describe(self) -> str:
@@ -286,9 +297,11 @@ class DelayFreeModel(Plant):
         rhs = self.rhs
         return _rk4(self._x, self.t, self.h, _held(u), lambda _c, x, uf, uc: rhs(x, uf, uc))
 
-    def _run_compiled(self, law: np.ndarray, continuous: bool, steps: int) -> int:
-        return kernels.delay_free_run(self._xa, steps, self.h, self._cv, self._smooth, law,
-                                      continuous, self._bad)
+    def _run_compiled(self, law: np.ndarray, continuous: bool, steps: int
+                      ) -> tuple[int, np.ndarray]:
+        xa = self._state_array()
+        return kernels.delay_free_run(xa, steps, self.h, self._cv, self._smooth, law,
+                                      continuous, self._bad), xa
 
     @property
     def planing_force(self) -> float:
@@ -348,10 +361,12 @@ class DelayedModel(Plant):
 
         return _rk4(self._x, self.t, self.h, _held(u), deriv)
 
-    def _run_compiled(self, law: np.ndarray, continuous: bool, steps: int) -> int:
-        return kernels.delayed_run(self._xa, self.n, steps, self.h, self._cv, self._hx,
-                                   self._hf, self._lag, self.tau, self._x_init,
-                                   self._form == 'paper', law, continuous, self._bad)
+    def _run_compiled(self, law: np.ndarray, continuous: bool, steps: int
+                      ) -> tuple[int, np.ndarray]:
+        xa = self._state_array()
+        return kernels.delayed_run(xa, self.n, steps, self.h, self._cv, self._hx, self._hf,
+                                   self._lag, self.tau, self._x_init, self._form == 'paper',
+                                   law, continuous, self._bad), xa
 
     @property
     def planing_force(self) -> float:
@@ -384,32 +399,37 @@ class FractionalModel(Plant):
         p = self.params
         x0 = np.array(self._x, dtype=float)
         self._x0a = x0.copy()
-        self._stepper = SOLVERS[p.solver].stepper(
+        solver = SOLVERS[p.solver]
+        st = self._stepper = solver.stepper(
             self.rhs, p.fractional_order, p.step, x0,
             **soe_options(p, self.duration) if p.solver == 'soe' else {})
+        self._kernel_args = None
+        if solver.compiled:       # the arrays the compiled kernel advances, gathered once
+            hist = st.history
+            self._kernel_args = (hist.H, hist.W, hist.fill, hist.eps_k, hist.ET,
+                                 hist.a0_coef, hist.a0_small, float(hist.alphas[0]),
+                                 float(hist.cp[0]), float(hist.cc[0]), self._last_f,
+                                 self._bad)
 
     @property
     def horizon_steps(self) -> int | None:
         """Steps over which the 'soe' history meets its kernel tolerance (None for 'abm')."""
-        hist = self._stepper.history
-        return getattr(hist, 'horizon', None)
+        return getattr(self._stepper.history, 'horizon', None)
 
     def _compiled(self) -> bool:
-        return SOLVERS[self.params.solver].compiled
+        return self._kernel_args is not None
 
-    def _run_compiled(self, law: np.ndarray, continuous: bool, steps: int) -> int:
-        st = self._stepper
-        hist = st.history
+    def _run_compiled(self, law: np.ndarray, continuous: bool, steps: int
+                      ) -> tuple[int, np.ndarray]:
+        st = self._stepper                 # advanced in place: its state array and history
         x = st.live_state()
-        taken = kernels.fom_soe_run(
-            x, self._x0a, st.n, steps, self._cv, self._smooth, law, continuous, hist.H,
-            hist.W, hist.fill, hist.eps_k, hist.ET, hist.a0_coef, hist.a0_small,
-            float(hist.alphas[0]), float(hist.cp[0]), float(hist.cc[0]), self._last_f,
-            self._bad)
+        taken = kernels.fom_soe_run(x, self._x0a, st.n, steps, self._cv, self._smooth, law,
+                                    continuous, *self._kernel_args)
         st.advanced(taken, self._last_f, failed=taken < steps)
-        hist.check_horizon(st.n)
-        self._xa[:] = x
-        return taken
+        hist = st.history
+        if st.n > hist.horizon:
+            hist.check_horizon(st.n)
+        return taken, x
 
     def rhs(self, t: float, x: np.ndarray, u: Sequence[float]) -> np.ndarray:
         """Right-hand side f(t, x, u) of D^alpha x = f (eq. 26)."""

@@ -206,11 +206,13 @@ class PECEStepperBase:
 
     def advanced(self, steps: int, last_rhs: np.ndarray, failed: bool = False) -> None:
         """Record ``steps`` steps taken by a compiled kernel on :meth:`live_state` and
-        :attr:`history`; ``last_rhs`` is f of the last step; ``failed``: the next step
-        turned non-finite (the stepper then refuses to step until reset)."""
+        :attr:`history`; ``last_rhs`` is f of the last step (kept by reference: the caller's
+        buffer, which the kernel overwrites on its next call; :attr:`last_rhs` copies);
+        ``failed``: the next step turned non-finite (the stepper then refuses to step until
+        reset)."""
         self._n += steps
         if steps or failed:
-            self._last_rhs = np.array(last_rhs, dtype=float).reshape(self._shape)
+            self._last_rhs = last_rhs
         if failed:
             self._status = 'failed'
 

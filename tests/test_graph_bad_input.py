@@ -155,17 +155,18 @@ def test_lockstep_timeout_names_the_stalled_controller():
 
 
 def test_lockstep_timeout_names_an_overrunning_plant():
-    """A control period of 1e5 RK4 steps takes far longer than command_timeout."""
+    """A control period of 25000 steps of the exact, interpreted ABM solver (O(n) per step)
+    takes far longer than command_timeout."""
     env = rosproc.ros_env()
     ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
-    plant = _plant({'model': 'delay-free', 'step': 1e-6, 'control_period': 0.1,
+    plant = _plant({'model': 'fractional', 'solver': 'abm', 'control_period': 0.5,
                     'command_timeout': 0.3}, env)
     try:
         code, out = finish(plant, 60)
     finally:
         stop_all(ctl)
     assert code == 3, out
-    assert 'lockstep timeout: the plant is overrunning: one control period (100000 steps)' in out
+    assert 'lockstep timeout: the plant is overrunning: one control period (25000 steps)' in out
 
 
 def test_missing_peers_at_start_exit_4():

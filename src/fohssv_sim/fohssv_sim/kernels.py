@@ -401,5 +401,4 @@ def warm_up() -> None:
     from .params import ModelParameters
 
     for model in ('delay-free', 'delayed', 'fractional'):
-        plant = make_plant(ModelParameters(model=model), duration=1.0)
-        plant.advance((0.0, 0.0), 1)
+        make_plant(ModelParameters(model=model)).compile()

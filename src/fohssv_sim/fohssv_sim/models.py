@@ -23,6 +23,7 @@ parameters name.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -182,7 +183,7 @@ class Plant:
             self.n += taken
             self.status = 'running'
             if taken < steps:
-                self._failed(tuple(self._bad), _show(u))
+                self._failed(self._bad.tolist(), _show(u))
             return
         u = u if law is None or continuous else (law[8], law[9])
         self._stale = True                       # the kernels' copy of the state
@@ -202,11 +203,22 @@ class Plant:
             self._stale = False
         return self._xa
 
+    def compile(self) -> float:
+        """Compile this plant's kernel now (or load it from numba's on-disk cache), on a
+        scratch copy, so that the first control period of a run does not pay for it. Returns
+        the seconds it took: a few seconds the first time on a machine, well under one after.
+        """
+        start = time.perf_counter()
+        if self._use_kernel:
+            type(self)(self.params, engine=self.engine, duration=1.0).advance((0.0, 0.0), 1)
+        return time.perf_counter() - start
+
     def _failed(self, x: Sequence[float], shown: str) -> None:
         self.status = 'failed'
         raise FloatingPointError(
             f'state became non-finite at t={(self.n + 1) * self.h:.9g} s: '
-            f'[z, w, theta, q] = {list(x)} (from {list(self._x)} with u={shown})')
+            f'[z, w, theta, q] = {[float(v) for v in x]} (from {list(self._x)} with '
+            f'u={shown})')
 
     @property
     def planing_force(self) -> float:

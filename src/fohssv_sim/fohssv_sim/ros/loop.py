@@ -64,10 +64,14 @@ class SampledPlant:
     """
 
     def __init__(self, params: ModelParameters, control_period: float,
-                 initial_state: Sequence[float] | None = None) -> None:
+                 initial_state: Sequence[float] | None = None,
+                 duration: float | None = None) -> None:
         self.hold = steps_per_period(control_period, params.step)
         self.control_period = control_period
-        self.plant: Plant = make_plant(params, initial_state)
+        # duration (s, None or 0 = open-ended) sizes the FOM's 'soe' history as simulate() does
+        # for the same run, so lockstep and the batch runner give the same numbers
+        self.plant: Plant = make_plant(params, initial_state, duration=duration or None)
+        self.compile_seconds = self.plant.compile()   # before the first sample, not during it
         self.command: tuple[float, float] = (0.0, 0.0)
         self.samples = 0
 

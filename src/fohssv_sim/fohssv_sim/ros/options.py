@@ -91,6 +91,11 @@ NODE_PARAMETERS: tuple[ParameterSpec, ...] = (
     _P('start_timeout', '-', 30.0, 's', 'wall time to wait for those matches; lockstep fails '
        '(exit code 4) when they are missing, realtime starts anyway with a warning',
        low=0.0, low_open=False, high=3600.0, high_open=False),
+    _P('end_linger', '-', 1.0, 's', 'wall time the plant keeps its publishers after the run '
+       'ended, so a subscriber that lags (a recorder, a plotter) can still take the last '
+       'samples: Fast DDS drops the samples a reader has not taken when their writer goes '
+       'away; ends early once nothing subscribes to state and planing_force', low=0.0,
+       low_open=False, high=3600.0, high_open=False, needs_reset=False),
 )
 
 NODE_PARAMETER_BY_NAME: dict[str, ParameterSpec] = {p.name: p for p in NODE_PARAMETERS}
@@ -121,6 +126,7 @@ class PlantOptions:
     min_state_subscribers: int = _f('min_state_subscribers')
     min_command_publishers: int = _f('min_command_publishers')
     start_timeout: float = _f('start_timeout')
+    end_linger: float = _f('end_linger')
 
     def __post_init__(self) -> None:
         validate_fields(self)

@@ -83,7 +83,7 @@ class PlantNode(Node):
         values = declare(self, PARAMETERS + NODE_PARAMETERS)
         self.model, self.options, hold = build_config(values)
         self.sim = SampledPlant(self.model, self.options.control_period,
-                                self.options.initial_state)
+                                self.options.initial_state, self.options.duration)
         install_validation(self, _MODEL_NAMES + _NODE_NAMES, build_config, self._apply)
 
         self.finished = Future()
@@ -112,6 +112,7 @@ class PlantNode(Node):
         self._run_wall_start = 0.0
         self._timer = None
         self.pacer: Pacer | None = None
+        self._minimums_since: float | None = None
         self._peer_timer = self.create_timer(0.01, self._wait_for_peers)
         self.get_logger().info(
             f'{self.sim.plant.describe()}; mode {self.options.mode}, control period '
@@ -129,10 +130,24 @@ class PlantNode(Node):
     def _peers(self) -> tuple[int, int]:
         return self.state_pub.get_subscription_count(), self.command_sub.get_publisher_count()
 
+    def _listed_matched(self) -> bool:
+        """Every subscription the graph lists on the sample topics has matched the plant's
+        writer (a recorder or probe whose planing_force reader matches after its state reader
+        would otherwise miss the start of a short, fast run). Best effort: after 2 s with the
+        minimums met the plant starts anyway (a listed reader may never match, e.g. with
+        incompatible QoS)."""
+        if self._minimums_since is None:
+            self._minimums_since = time.monotonic()
+        if time.monotonic() - self._minimums_since > 2.0:
+            return True
+        return all(pub.get_subscription_count() >= self.count_subscribers(pub.topic_name)
+                   for pub in (self.state_pub, self.force_pub))
+
     def _wait_for_peers(self) -> None:
         subs, pubs = self._peers()
         o = self.options
-        if subs >= o.min_state_subscribers and pubs >= o.min_command_publishers:
+        if (subs >= o.min_state_subscribers and pubs >= o.min_command_publishers
+                and self._listed_matched()):
             self._start()
             return
         waited = time.monotonic() - self._wall_start
@@ -359,6 +374,17 @@ class PlantNode(Node):
             if pub.get_subscription_count() > 0:
                 pub.wait_for_all_acked(Duration(seconds=timeout))
 
+    def linger(self, executor: Any) -> None:
+        """Keep the publishers (and services) up for ``end_linger`` s after the run ended, or
+        until nothing subscribes to the samples any more: a reader drops what it has not
+        taken yet from a writer that goes away, so a subscriber lagging behind a fast run
+        would lose its tail when the plant exits."""
+        deadline = time.monotonic() + self.options.end_linger
+        samples = (self.state_pub, self.force_pub)
+        while (rclpy.ok() and time.monotonic() < deadline
+               and any(p.get_subscription_count() > 0 for p in samples)):
+            executor.spin_once(timeout_sec=0.05)
+
 
 def main(args: list[str] | None = None) -> None:
     """Entry point of ``ros2 run fohssv_sim plant``; exits with the node's exit code."""
@@ -377,6 +403,7 @@ def main(args: list[str] | None = None) -> None:
             spin_until(executor, node.finished)
             code = node.exit_code
             node.flush()
+            node.linger(executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         if node is not None:
             code = node.exit_code

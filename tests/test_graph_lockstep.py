@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from ament_index_python.packages import get_package_share_directory
-from test_graph_support import Probe, batch_samples, finish, plant_args, stop_all
+from test_graph_support import Probe, batch_samples, plant_args, stop_all
 
 from fohssv_controller.lqr import LQR
 from fohssv_controller.state_feedback import StateFeedback

@@ -1,12 +1,12 @@
 """Normalised planing force Fp (physical force / rho pi R^2, m^2/s^2, positive down).
 
-Three forms, all sharing eq. 10 (with the leading minus of spec 9.3)::
+Three forms, all sharing eq. 10 (with the leading minus of docs/model.md §9.3)::
 
     Fp = -V^2 [1 - (R'/(h + R'))^2] (1 + h)/(1 + 2h) alpha_p
 
-* :func:`planing_exact`: delay-free switching immersion, eqs. 12-14 / spec section 3;
-* :func:`planing_delayed`: immersion from delayed states, eqs. 22-25 / spec section 4;
-* :func:`planing_smooth`: the tanh-smoothed form of the FOM, eqs. 28-29 / spec section 5.
+* :func:`planing_exact`: delay-free switching immersion, eqs. 12-14 / docs/model.md §3.3;
+* :func:`planing_delayed`: immersion from delayed states, eqs. 22-25 / docs/model.md §4;
+* :func:`planing_smooth`: the tanh-smoothed form of the FOM, eqs. 28-29 / docs/model.md §5.2.
 
 The scalar functions work in float arithmetic (the plant calls them at every stage);
 :func:`planing_smooth_array` and :func:`planing_exact_array` are their numpy counterparts for
@@ -57,7 +57,7 @@ def planing_delayed(z: float, theta: float, z_tau: float, w_tau: float, theta_ta
     """Planing force of the delayed model (eqs. 22-25), from the states now and at t - tau.
 
     ``form='paper'``: h* = [z - z_tau + L (theta - theta_tau) + L w_tau / V] / R (eq. 25 as
-    printed); ``form='geometric'``: h* = [z - z_tau + L theta] / R (spec 9.9). In both,
+    printed); ``form='geometric'``: h* = [z - z_tau + L theta] / R (docs/model.md §9.9). In both,
     alpha_p = theta - theta_tau + (w_tau -+ Rc_dot)/V on the lower/upper wall.
     """
     if form == 'paper':
@@ -73,7 +73,7 @@ def planing_delayed(z: float, theta: float, z_tau: float, w_tau: float, theta_ta
 
 
 def planing_smooth(w: float, c: Coefficients) -> float:
-    """Smooth planing force of the FOM (eqs. 28-29, the one-typo reading of spec 9.6).
+    """Smooth planing force of the FOM (eqs. 28-29, the one-typo reading of docs/model.md §9.6).
 
     h = tanh(k w) L/(2RV) [2w - (w + w0) tanh(k(w + w0)) + (w - w0) tanh(k(w - w0))],
     clipped at h >= 0; alpha_p = w/V - tanh(k w) Rc_dot / V. As k -> inf this tends to

@@ -76,7 +76,8 @@ def test_sweep_maxima_are_those_of_a_direct_simulation():
     _, peaks = local_maxima(r.t[keep], r.state[keep, 1])
     assert row['n_maxima'] == peaks.size > 10
     assert np.allclose(row['maxima'], peaks[-64:], rtol=1e-12)
-    assert row['label'] == 'periodic-1'   # the delay-free tail slap at 75 m/s (spec 8, Fig. 3)
+    # the delay-free tail slap at 75 m/s (docs/model.md §8, Fig. 3)
+    assert row['label'] == 'periodic-1'
 
 
 def test_classification_agrees_with_matignon_and_the_root_finder():

@@ -1,4 +1,4 @@
-"""``fohssv report``: the paper's claims (spec section 8) beside what the model gives.
+"""``fohssv report``: the paper's claims (docs/model.md §8) beside what the model gives.
 
 Each experiment runs at the stated settings and again at half the step (the numerical
 evidence), writes its figures, and contributes rows to the claims table of ``report.md``:
@@ -279,8 +279,8 @@ def make_report(out: Path, settings: ReportSettings | None = None,
     lines = [
         '# fohssv reproduction report',
         '',
-        'Each claim of the paper (spec section 8) beside what the model, as restated in the '
-        'spec, gives. The model is never tuned toward a figure. Evidence: every time response '
+        'Each claim of the paper (docs/model.md §8) beside what the model, as docs/model.md '
+        'states it, gives. The model is never tuned toward a figure. Evidence: every time response '
         'is re-run at half the step, and every k-th sweep point (k = '
         f'{s.check_step}) is re-classified at half the step.',
         '',

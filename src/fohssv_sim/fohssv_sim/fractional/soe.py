@@ -1,6 +1,6 @@
 """Bounded-cost ABM stepping: the history convolution with a sum-of-exponentials kernel.
 
-The ABM weights of spec section 5 are integrals of the Caputo kernel tau^(a-1) (tau = lag in
+The ABM weights of docs/model.md §5.4 are integrals of the Caputo kernel tau^(a-1) (tau = lag in
 steps) against piecewise-constant and piecewise-linear hats:
 
     b(k) = a      * int_k^{k+1}  tau^(a-1) dtau                        (predictor)
@@ -537,7 +537,7 @@ def _batch_orders(alpha) -> float | np.ndarray:
 class SOEStepper(PECEStepperBase):
     """ABM predictor-corrector with bounded cost per step (sum-of-exponentials history).
 
-    Same scheme and :meth:`step` semantics as :class:`~.abm.ABMStepper` (spec section 5;
+    Same scheme and :meth:`step` semantics as :class:`~.abm.ABMStepper` (docs/model.md §5.4, §5.6;
     Diethelm-Ford-Freed 2002):
 
         x^P_{n+1} = x0 + h^a/G(a+1) sum_j b_{j,n+1} f_j,

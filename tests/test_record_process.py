@@ -3,9 +3,11 @@ the plant: it steps the real delay-free model and publishes the contract message
 
 Asserts: the recorded state series equals the model's trajectory sample for sample with
 exact times and log times round(t * 1e9); the bag carries the plant's parameters and the
-source revision; SIGINT and SIGTERM give complete bags that pass the structural check and
-open with rosbags and mcap_ros2; SIGKILL leaves a bag that loads with every flushed message
-and that repair makes complete.
+source revision; SIGINT and SIGTERM give complete bags that pass the structural check,
+``pymcap-cli doctor`` without error or warning, and open with rosbags and mcap_ros2; every
+topic's ``offered_qos_profiles`` (metadata.yaml and MCAP channel) deserializes to what the
+plant's publisher offers, as the ROS graph reports it; SIGKILL leaves a bag that loads with
+every flushed message and that repair makes complete and doctor-clean.
 """
 
 from __future__ import annotations
@@ -17,11 +19,16 @@ import time
 import numpy as np
 import pytest
 import rclpy
+from mcap.reader import make_reader
 from rclpy.context import Context
+from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, ReliabilityPolicy
 from rosbags.rosbag2 import Reader
+from rosbags.rosbag2.metadata import parse_qos
 from rosgraph_msgs.msg import Clock
+from ruamel.yaml import YAML
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from fohssv_sim import contract
@@ -32,6 +39,7 @@ from fohssv_sim.models import make_plant
 from fohssv_sim.params import ModelParameters
 from fohssv_sim.ros.qos import profile
 
+from mcap_doctor import assert_doctor_clean
 from rosproc import ros_env, start, stop, unique_domain_id, wait_exit, wait_for
 
 pytestmark = pytest.mark.graph
@@ -123,6 +131,36 @@ def _assert_matches(run, plant, n=None):
     assert np.array_equal(run.command_t, t) and np.array_equal(run.planing_force_t, t)
 
 
+def _assert_qos_is_what_the_plant_offers(bag, plant) -> None:
+    """Deserialize each topic's offered_qos_profiles from metadata.yaml and from the MCAP
+    channel; compare with the plant publisher's profile as the graph reports it (history and
+    depth, which the graph does not report, with the profile the publisher was created with)."""
+    info = YAML(typ='safe').load((bag / 'metadata.yaml').read_text())
+    from_yaml = {t['topic_metadata']['name']: parse_qos(t['topic_metadata']['offered_qos_profiles'])
+                 for t in info['rosbag2_bagfile_information']['topics_with_message_count']}
+    with open(bag / 'run.mcap', 'rb') as f:
+        summary = make_reader(f).get_summary()
+    from_mcap = {c.topic: parse_qos(c.metadata['offered_qos_profiles'])
+                 for c in summary.channels.values()}
+    assert set(from_yaml) == set(from_mcap) == {'/state', '/planing_force', '/command', '/clock'}
+    for topic in contract.TOPICS:
+        name = topic.name if topic.name.startswith('/') else '/' + topic.name
+        offered = [i.qos_profile for i in plant.node.get_publishers_info_by_topic(name)]
+        assert len(offered) == 1, (name, offered)
+        graph, made = offered[0], profile(topic)
+        for qos_list in (from_yaml[name], from_mcap[name]):
+            assert len(qos_list) == 1, (name, qos_list)
+            q = qos_list[0]
+            assert HistoryPolicy[q.history.name] == made.history and q.depth == made.depth
+            assert ReliabilityPolicy[q.reliability.name] == graph.reliability, name
+            assert DurabilityPolicy[q.durability.name] == graph.durability, name
+            assert LivelinessPolicy[q.liveliness.name] == graph.liveliness, name
+            for field in ('deadline', 'lifespan', 'liveliness_lease_duration'):
+                t = getattr(q, field)
+                assert Duration(seconds=t.sec, nanoseconds=t.nsec) == getattr(graph, field)
+    assert from_yaml['/state'][0].durability.name == 'TRANSIENT_LOCAL'   # not all defaults
+
+
 def _recorded(bag) -> int:
     try:
         run = load_run(bag)
@@ -162,6 +200,8 @@ def test_signal_closes_a_complete_bag_equal_to_the_trajectory(tmp_path, domain, 
     assert report.ok, report.problems
     with Reader(bag) as reader:
         assert reader.message_count == 3 * 1500 + clock
+    assert_doctor_clean(bag / 'run.mcap')
+    _assert_qos_is_what_the_plant_offers(bag, plant)
 
 
 def test_sigkill_keeps_every_flushed_message_and_repair_completes_it(tmp_path, domain, plant):
@@ -187,6 +227,7 @@ def test_sigkill_keeps_every_flushed_message_and_repair_completes_it(tmp_path, d
     assert run.metadata['fohssv.plant_node'] == 'none'
     assert repair(bag).repaired
     assert check(bag).ok
+    assert_doctor_clean(bag / 'killed.mcap')
     again = load_run(bag)
     assert not again.truncated and np.array_equal(again.state, run.state)
 
@@ -200,6 +241,7 @@ def test_default_path_and_bad_parameters(tmp_path, domain):
     bags = list((tmp_path / 'runs').iterdir())
     assert len(bags) == 1 and f'recording to {bags[0]}' in out
     assert check(bags[0]).ok     # an empty run is still a sound bag
+    assert_doctor_clean(next(bags[0].glob('*.mcap')))
     for bad, words in ((['topics:=[speed]'], "'speed' is not a contract topic"),
                        ([f'bag_path:={bags[0]}'], 'exists already'),
                        (['flush_period:=0.0'], 'flush_period')):

@@ -1,4 +1,4 @@
-"""The paper's state feedback (eq. 31, signs of spec 9.5)::
+"""The paper's state feedback (eq. 31, signs of docs/model.md §9.5)::
 
     delta_c = 15 z - 30 theta - 0.3 q,    delta_f = 0
 """

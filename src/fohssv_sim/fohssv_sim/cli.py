@@ -136,7 +136,7 @@ def cmd_stability(args: argparse.Namespace) -> int:
             print(f'  lambda = {lam.real:+.6g} {lam.imag:+.6g}j   |arg|/(pi/2) = {arg:.5f}')
         print(f'  alpha_c = {e.critical_order:.5f}: Matignon {verdict} at alpha = {alpha:g}')
         stem = args.out / f'wedge_V{params.speed:g}_alpha{alpha:g}_eq{i}'
-        plot_wedge(e, alpha, _figure_paths(stem))
+        plot_wedge(e, alpha, _figure_paths(stem), speed=params.speed)
         print(f'  wedge plot: {stem}.png/.svg')
         result['equilibria'].append({
             'state': e.state.tolist(), 'inputs': list(e.inputs),
@@ -149,7 +149,9 @@ def cmd_stability(args: argparse.Namespace) -> int:
         for p in points:
             print(f'  {p.speed:10.4g}   {p.critical_order:.5f}')
         stem = args.out / 'critical_order'
-        plot_critical_order(points, _figure_paths(stem), alpha)
+        plot_critical_order(points, _figure_paths(stem), alpha,
+                            caption=f'{params.model} model, planing {params.planing_form}, '
+                                    f'controller {args.controller}')
         result['critical_order_curve'] = [[p.speed, p.critical_order] for p in points]
         print(f'alpha_c(V) plot: {stem}.png/.svg')
     (args.out / 'stability.json').write_text(json.dumps(result, indent=2) + '\n')

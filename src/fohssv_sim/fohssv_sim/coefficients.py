@@ -1,4 +1,4 @@
-"""Coefficients of the HSSV dive-plane model (spec section 3; paper eqs. 5-21, Appendix A).
+"""Coefficients of the HSSV dive-plane model (docs/model.md §3; paper eqs. 5-21, Appendix A).
 
     d/dt [z, w, theta, q] = A x + B u + G + D Fp,     u = [delta_f, delta_c]
 
@@ -71,9 +71,9 @@ class Coefficients:
 
 
 def coefficients(p: ModelParameters) -> Coefficients:
-    """Evaluate every coefficient of spec section 3 for the parameters ``p``.
+    """Evaluate every coefficient of docs/model.md §3.2 and §3.3 for the parameters ``p``.
 
-    Exact fractions are used where the seed prints rounded decimals (0.18 -> 11/60,
+    Exact fractions are used where the paper prints rounded decimals (0.18 -> 11/60,
     0.328 -> 133/405, 0.7 -> 7/9, 0.2 -> 17/36 or 11/36).
     """
     V, L, R, Rn = p.speed, p.length, p.body_radius, p.cavitator_radius
@@ -96,7 +96,7 @@ def coefficients(p: ModelParameters) -> Coefficients:
     d2 = (T / m) * (S / L - 17.0 * L / 36.0)
     d4 = 11.0 * T / (36.0 * m)
 
-    # Cavity at the transom (eqs. 12-14) and its contraction rate (spec 9.4: negative).
+    # Cavity at the transom (eqs. 12-14) and its contraction rate (docs/model.md §9.4: negative).
     closure = 1.92 / sigma - 3.0
     K1 = L / (Rn * closure) - 1.0
     shape = 1.0 - 4.5 * sigma / (1.0 + sigma)

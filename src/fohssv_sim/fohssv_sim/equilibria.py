@@ -1,4 +1,4 @@
-"""Closed-loop equilibria, linearisation and Matignon stability (spec section 5, eq. 30).
+"""Closed-loop equilibria, linearisation and Matignon stability (docs/model.md §5.3, eq. 30).
 
 For the commensurate FOM  D^alpha x = f(x),  an equilibrium x* (f(x*) = 0) is locally
 asymptotically stable iff every eigenvalue lambda of the Jacobian J = df/dx(x*) satisfies

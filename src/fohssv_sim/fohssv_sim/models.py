@@ -43,7 +43,7 @@ __all__ = ['Plant', 'DelayFreeModel', 'DelayedModel', 'FractionalModel', 'make_p
 #: reference); 'auto' = compiled when numba is available.
 ENGINES = ('auto', 'compiled', 'python')
 
-#: Names of the state components, in order (spec section 1).
+#: Names of the state components, in order (docs/model.md §1).
 STATE_NAMES = ('z', 'w', 'theta', 'q')
 
 Input = tuple[float, float]
@@ -283,7 +283,7 @@ def _held(u: InputLike) -> InputLike:
 
 
 class DelayFreeModel(Plant):
-    """Delay-free integer-order model (eq. 17, spec section 3), classical RK4.
+    """Delay-free integer-order model (eq. 17, docs/model.md §3), classical RK4.
 
     Planing force: exact switching (eqs. 10, 12-14) or, with ``planing_form='smooth'``, the
     FOM's tanh form (eqs. 28-29), so that alpha = 1 of the FOM can be compared with it.
@@ -321,7 +321,7 @@ class DelayFreeModel(Plant):
 
 
 class DelayedModel(Plant):
-    """Delayed integer-order model (eqs. 22-25, spec section 4), RK4 by the method of steps.
+    """Delayed integer-order model (eqs. 22-25, docs/model.md §4), RK4 by the method of steps.
 
     The planing force uses the states at t - tau (tau = L/V unless ``advection_delay`` sets
     it). The history before t = 0 is x(s) = x(0); past states are kept in a ring buffer
@@ -386,7 +386,7 @@ class DelayedModel(Plant):
 
 
 class FractionalModel(Plant):
-    """Fractional-order model (eqs. 26-30, spec section 5): Caputo derivative of commensurate
+    """Fractional-order model (eqs. 26-30, docs/model.md §5): Caputo derivative of commensurate
     order alpha in (0, 1], the coefficients of eq. 17, the smooth planing force (eqs. 28-29)
     or, with ``planing_form='exact'``, the switching one.
 

@@ -7,7 +7,7 @@ table are all generated from it.
 
 Physics defaults are Table A1 of Doan et al., "Stability Analysis of a Fractional-Order
 High-Speed Supercavitating Vehicle Model with Delay", Machines 2021, 9(7), 129, with the
-resolutions of ``shared/spec/model.md`` section 9 (notably L = 1.8 m, not the printed 1.18 m).
+resolutions of docs/model.md §9 (notably L = 1.8 m, not the printed 1.18 m).
 Every alternative reading of the paper stays reachable as a named option; the preset
 ``'paper-literal'`` selects all of them at once.
 """
@@ -162,7 +162,7 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
     # -- Table A1 ---------------------------------------------------------------------------
     _P('speed', 'V', 75.0, 'm/s', 'forward speed', low=0.0, reference='Table A1'),
     _P('length', 'L', 1.8, 'm', 'body length (Table A1 prints 1.18)', low=0.0,
-       reference='Table A1, spec 9.1'),
+       reference='Table A1, docs/model.md §9.1'),
     _P('body_radius', 'R', 0.0508, 'm', 'body radius', low=0.0, reference='Table A1'),
     _P('cavitator_radius', 'Rn', 0.0191, 'm', 'cavitator radius', low=0.0,
        reference='Table A1'),
@@ -178,15 +178,15 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
        reference='Table A1'),
     _P('tanh_sharpness', 'k', 300.0, 's/m', 'sharpness of the smooth planing switch',
        low=0.0, reference='eqs. 28-29'),
-    # -- the seed's ambiguities (spec 9) ------------------------------------------------------
+    # -- the paper's ambiguities (docs/model.md §9) ------------------------------------------
     _P('planing_offset', 'w0', 'consistent', 'm/s', "contact velocity of the smooth planing "
-       "form; 'consistent' = R'RV/L (spec 9.7), the paper prints 2.8",
+       "form; 'consistent' = R'RV/L (docs/model.md §9.7), the paper prints 2.8",
        low=0.0, choices=('consistent',), reference='eq. 28'),
     _P('advection_delay', 'tau', 'consistent', 's', "advection delay of the delayed model; "
-       "'consistent' = L/V (spec 9.8); 0 gives the delay-free model",
+       "'consistent' = L/V (docs/model.md §9.8); 0 gives the delay-free model",
        low=0.0, low_open=False, high=1.0, choices=('consistent',), reference='eq. 22'),
     _P('immersion_form', '-', 'paper', '-', "delayed immersion depth: 'paper' = eq. 25 as "
-       "printed, 'geometric' = [z - z_tau + L theta]/R (spec 9.9)",
+       "printed, 'geometric' = [z - z_tau + L theta]/R (docs/model.md §9.9)",
        choices=('paper', 'geometric'), numeric=False, reference='eq. 25'),
     _P('planing_form', '-', 'auto', '-', "planing force of the delay-free and fractional "
        "models: 'smooth' tanh form (eqs. 28-29) or 'exact' switching (eqs. 10, 12-14); "
@@ -202,7 +202,7 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
 
 PARAMETER_BY_NAME: dict[str, ParameterSpec] = {p.name: p for p in PARAMETERS}
 
-#: Named presets: the spec's resolutions (default) and the paper's literal reading.
+#: Named presets: the resolutions of docs/model.md §9 (default) and the paper's literal reading.
 PRESETS: dict[str, dict[str, Any]] = {
     'resolved': {},
     # Table A1 as printed: L = 1.18, w0 = 2.8, and the text's tau = 0.02069 s.

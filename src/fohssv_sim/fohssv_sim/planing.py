@@ -1,12 +1,12 @@
 """Normalised planing force Fp (physical force / rho pi R^2, m^2/s^2, positive down).
 
-Three forms, all sharing eq. 10 (with the leading minus of spec 9.3)::
+Three forms, all sharing eq. 10 (with the leading minus of docs/model.md §9.3)::
 
     Fp = -V^2 [1 - (R'/(h + R'))^2] (1 + h)/(1 + 2h) alpha_p
 
-* :func:`planing_exact`: delay-free switching immersion, eqs. 12-14 / spec section 3;
-* :func:`planing_delayed`: immersion from delayed states, eqs. 22-25 / spec section 4;
-* :func:`planing_smooth`: the tanh-smoothed form of the FOM, eqs. 28-29 / spec section 5.
+* :func:`planing_exact`: delay-free switching immersion, eqs. 12-14 / docs/model.md §3.3;
+* :func:`planing_delayed`: immersion from delayed states, eqs. 22-25 / docs/model.md §4;
+* :func:`planing_smooth`: the tanh-smoothed form of the FOM, eqs. 28-29 / docs/model.md §5.2.
 
 The scalar functions work in float arithmetic and are defined once in :mod:`.kernels` (the
 interpreted models and the compiled kernels run the same source; re-exported here);

@@ -7,10 +7,12 @@ from pathlib import Path
 
 import numpy as np
 from ament_index_python.packages import get_package_prefix
+from PIL import Image
 
 from test_equilibria import analytic_jacobian, reduced_equilibrium
 
 FOHSSV = Path(get_package_prefix('fohssv_sim')) / 'lib' / 'fohssv_sim' / 'fohssv'
+QUICK = 'quick (not converged)'
 
 
 def test_quick_report_has_every_claim_with_independent_numbers(tmp_path):
@@ -29,7 +31,7 @@ def test_quick_report_has_every_claim_with_independent_numbers(tmp_path):
     alpha_c = min(abs(math.atan2(v.imag, v.real)) for v in lam) / (math.pi / 2)
     fig5 = next(r for r in rows if r['claim'].startswith('Fig. 5'))
     assert f'alpha_c = {alpha_c:.4f}' in fig5['model']
-    assert fig5['verdict'] == ('holds' if alpha_c > 0.85 else 'does not hold')
+    assert fig5['verdict'] == f"{QUICK}: {'holds' if alpha_c > 0.85 else 'does not hold'}"
     c, x = reduced_equilibrium(84.5)
     fig7 = next(r for r in rows if r['claim'].startswith('Fig. 7: equilibrium'))
     assert f'({x[0]:.4f}, {x[1]:.4f}, {x[2]:.4f}' in fig7['model']
@@ -40,3 +42,15 @@ def test_quick_report_has_every_claim_with_independent_numbers(tmp_path):
         assert f'({fig}.png)' in report
     side = json.loads((tmp_path / 'fig6_alpha_V84.5' / 'sweep.json').read_text())
     assert side['step'] == 2e-5 and side['solver'] == 'soe'
+
+    # quick: labelled in report.md, in every claims.json row and on every figure
+    assert report.startswith(f'# fohssv reproduction report: {QUICK}\n')
+    assert f'**{QUICK}**' in report
+    assert all(r['run'] == QUICK and r['verdict'].startswith(f'{QUICK}: ') for r in rows)
+    pngs = sorted(tmp_path.glob('*.png'))
+    assert len(pngs) == 7
+    for png in pngs:
+        with Image.open(png) as im:
+            assert im.text.get('Title', '').startswith(QUICK + '\n'), png.name
+    # sweep progress per point on a pipe: lines, no carriage returns
+    assert '\r' not in out.stderr and 'fig6_alpha_V84.5: points 2/2' in out.stderr

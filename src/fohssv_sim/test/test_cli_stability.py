@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 from ament_index_python.packages import get_package_prefix
+from PIL import Image
 
 from test_equilibria import analytic_jacobian, reduced_equilibrium
 
@@ -36,6 +37,11 @@ def test_stability_reports_alpha_c_of_the_eigenvalue_formula_and_draws_the_wedge
         assert f.stat().st_size > 5000
     assert (tmp_path / 'wedge_V84.5_alpha0.7_eq0.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     assert f'alpha_c = {alpha_c:.5f}' in out.stdout
+    # the figures say what they show (titles read back from the PNG text chunk)
+    with Image.open(tmp_path / 'wedge_V84.5_alpha0.7_eq0.png') as im:
+        assert im.text['Title'].startswith('Matignon test at V = 84.5 m/s, α = 0.7: ')
+    with Image.open(tmp_path / 'critical_order.png') as im:
+        assert im.text['Title'].startswith('Critical order α_c(V)')
 
 
 def test_bad_input_is_one_line_and_exit_2(tmp_path):

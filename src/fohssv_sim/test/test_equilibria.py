@@ -60,7 +60,7 @@ def test_equilibrium_matches_reduced_scalar_equation(speed):
 
 
 def test_equilibrium_at_84_5_is_near_the_papers_quoted_point():
-    # the paper quotes (0.04, 1.803, 0.02, 0.001) at V = 84.5 (Fig. 7); spec 9.1: L = 1.8
+    # the paper quotes (0.04, 1.803, 0.02, 0.001) at V = 84.5 (Fig. 7); docs/model.md §9.1: L = 1.8
     # puts the model's equilibrium within rounding of the depth and pitch, w within 4 %.
     e = find_equilibria(ModelParameters(speed=84.5), StateFeedback())[0]
     assert round(e.state[0], 2) == 0.04 and round(e.state[2], 2) == 0.02
@@ -87,7 +87,7 @@ def test_matignon_wedge():
 
 
 def test_open_loop_has_a_zero_eigenvalue_so_no_order_is_stable():
-    # spec 6: open-loop eigenvalues {0, 0, -31.197, 15.546}: unstable for every alpha
+    # docs/model.md §6: open-loop eigenvalues {0, 0, -31.197, 15.546}: unstable for every alpha
     lam = np.linalg.eigvals(coefficients(ModelParameters()).A)
     assert critical_order(lam) == 0.0
     assert not matignon_stable(lam, 0.01)

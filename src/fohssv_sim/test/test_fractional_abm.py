@@ -140,7 +140,7 @@ def test_alpha_one_nonlinear_second_order_and_close_to_heun():
 
 def test_callable_input_semantics_match_spec_loop():
     # u(t, x) evaluated at (t_n, x_n) for f_n and at (t_{n+1}, x^P_{n+1}) for the corrector,
-    # checked against a direct implementation of spec section 5 with spec-indexed weights
+    # checked against a direct implementation of docs/model.md §5.4 with its indexing of the weights
     alpha, h, N = 0.8, 0.02, 40
     B = np.array([0.0, 1.0])
 

@@ -1,4 +1,4 @@
-"""ABM weights (spec section 5) against 50-digit mpmath, at small and very large indices."""
+"""ABM weights (docs/model.md §5.4) against 50-digit mpmath, at small and very large indices."""
 
 import mpmath as mp
 import numpy as np

@@ -67,3 +67,21 @@ def test_period_of_a_sampled_map_orbit(p):
     t = np.arange(400 * 10) / 4000.0
     y = np.repeat(x, 10) * np.sin(np.pi * (np.arange(4000) % 10) / 10) ** 2
     assert classify(t, y)[0].label == f'periodic-{p}'
+
+
+def test_a_window_without_maxima_is_equilibrium_only_below_the_amplitude_tolerance():
+    # the README's rule: equilibrium only when the peak-to-peak range is below eq_tol. A
+    # monotone algebraic approach (alpha = 0.70 at V = 84.5: range 1.6e-4 m/s over the window,
+    # eq_tol 1e-5 in the report) has no local maxima but is not yet steady.
+    t = np.linspace(1.5, 2.0, 12501)
+    shape = t ** -0.7 - 2.0 ** -0.7          # decreasing, derivative shrinking
+    amp = 1.5 ** -0.7 - 2.0 ** -0.7          # its range over the window, by hand
+    slow = 1.87 + 1.6e-4 * shape / amp
+    cls, peaks = classify(t, slow, eq_tol=1e-5)
+    assert peaks.size == 0 and abs(cls.amplitude - 1.6e-4) < 1e-12
+    assert cls.kind == 'converging'
+    settled = 1.87 + 5e-6 * shape / amp      # the same approach, below the tolerance
+    assert classify(t, settled, eq_tol=1e-5)[0].kind == 'equilibrium'
+    ramp = 1.87 + 1e-3 * (t - 1.5)           # no maxima, range not shrinking
+    cls, _ = classify(t, ramp, eq_tol=1e-5)
+    assert cls.kind == 'drifting' and cls.label == 'drifting'

@@ -80,7 +80,7 @@ def test_defaults_are_table_a1_with_the_spec_resolutions():
     assert (p.density_ratio, p.fin_effectiveness, p.cavitation_number) == (2.0, 0.5, 0.03)
     assert (p.cavitator_drag_coefficient, p.gravity, p.tanh_sharpness) == (0.82, 9.81, 300.0)
     assert p.model == 'fractional' and p.solver == 'soe' and p.planing_form == 'smooth'
-    assert p.delay == pytest.approx(0.024)   # L / V at 75 m/s (spec 6)
+    assert p.delay == pytest.approx(0.024)   # L / V at 75 m/s (docs/model.md §6)
     assert ModelParameters(model='delay-free').planing_form == 'exact'
 
 

@@ -20,7 +20,7 @@ C = coefficients(ModelParameters())
 
 
 def reference_exact(w):
-    """Eq. 10 with eqs. 12-14 written out from the spec, in 40-digit arithmetic."""
+    """Eq. 10 with eqs. 12-14 written out from docs/model.md §3.3, in 40-digit arithmetic."""
     mpmath.mp.dps = 40
     w = mpmath.mpf(w)
     L, R, V = mpmath.mpf('1.8'), mpmath.mpf('0.0508'), mpmath.mpf(75)
@@ -43,7 +43,7 @@ def test_exact_form_matches_high_precision_evaluation(w):
 def test_force_pushes_the_tail_back_and_vanishes_inside_the_cavity():
     wc = C.contact_velocity
     assert planing_exact(0.99 * wc, C) == 0.0 and planing_exact(-0.99 * wc, C) == 0.0
-    assert planing_exact(1.2 * wc, C) < 0.0 < planing_exact(-1.2 * wc, C)  # spec 9.3
+    assert planing_exact(1.2 * wc, C) < 0.0 < planing_exact(-1.2 * wc, C)  # docs/model.md §9.3
 
 
 def test_exact_form_is_continuous_at_contact():
@@ -60,7 +60,8 @@ def test_smooth_form_tends_to_exact_as_k_grows():
 
 
 def test_smooth_immersion_is_clipped_at_zero():
-    # near |w| ~ w0 the tanh form of h dips slightly below 0 (spec 5); clipped, Fp stays finite
+    # near |w| ~ w0 the tanh form of h dips slightly below 0 (docs/model.md §5.2); clipped,
+    # Fp stays finite
     ws = np.linspace(-2 * C.w0, 2 * C.w0, 20001)
     fp = planing_smooth_array(ws, C)
     assert np.all(np.isfinite(fp))

@@ -3,6 +3,7 @@
 import csv
 import json
 import os
+import re
 import signal
 import subprocess
 import time
@@ -76,7 +77,8 @@ def test_sweep_maxima_are_those_of_a_direct_simulation():
     _, peaks = local_maxima(r.t[keep], r.state[keep, 1])
     assert row['n_maxima'] == peaks.size > 10
     assert np.allclose(row['maxima'], peaks[-64:], rtol=1e-12)
-    assert row['label'] == 'periodic-1'   # the delay-free tail slap at 75 m/s (spec 8, Fig. 3)
+    # the delay-free tail slap at 75 m/s (docs/model.md §8, Fig. 3)
+    assert row['label'] == 'periodic-1'
 
 
 def test_classification_agrees_with_matignon_and_the_root_finder():
@@ -162,3 +164,20 @@ def test_sweep_rejects_bad_input_in_one_line(tmp_path):
         r = subprocess.run([str(FOHSSV), 'sweep', 'alpha', *args, '--out', str(tmp_path)],
                            capture_output=True, text=True, timeout=60)
         assert r.returncode == 2 and text in r.stderr and 'Traceback' not in r.stderr
+
+
+def test_progress_counts_points_inside_a_chunk_and_writes_lines_to_a_pipe(tmp_path):
+    # three FOM points batch into one chunk (one Dask task on one worker): progress still
+    # advances point by point, from the worker; stderr is a pipe, so no carriage returns
+    r = subprocess.run([str(FOHSSV), 'sweep', 'alpha', '--set', 'solver=soe', '--alpha',
+                        '0.8,0.9,1.0', '--speed', '84.5', '--transient', '0.05', '--window',
+                        '0.05', '--workers', '2', '--check-step', '1', '--out',
+                        str(tmp_path / 's')], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert '1 chunks computed' in r.stdout
+    assert '\r' not in r.stderr
+    done = [int(m) for m in re.findall(r'^  points (\d)/3 ', r.stderr, re.M)]
+    assert done == sorted(set(done)) and done[-1] == 3 and done[0] < 3, r.stderr
+    checked = [int(m) for m in re.findall(r'^  step check: points at half step (\d)/3 ',
+                                          r.stderr, re.M)]
+    assert checked and checked[-1] == 3, r.stderr

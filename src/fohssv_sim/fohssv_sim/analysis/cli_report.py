@@ -8,11 +8,12 @@ from pathlib import Path
 
 
 def register(sub) -> None:
-    p = sub.add_parser('report', help="reproduce the paper's claims (spec 8): figures and a "
-                       'Markdown claims table', description='Runs Figs. 3-10 of the paper at '
-                       'the stated settings, each with a half-step check, and writes '
-                       'OUT/report.md, OUT/claims.json and the figures. Takes tens of minutes '
-                       'on 2 cores at the default settings; sweeps resume if interrupted.')
+    p = sub.add_parser('report', help="reproduce the paper's claims (docs/model.md §8): "
+                       'figures and a Markdown claims table',
+                       description='Runs Figs. 3-10 of the paper at the stated settings, '
+                       'each with a half-step check, and writes OUT/report.md, OUT/claims.json '
+                       'and the figures. Takes tens of minutes on 2 cores at the default '
+                       'settings; sweeps resume if interrupted.')
     p.add_argument('--out', type=Path, default=Path('reports/paper'), help='output folder')
     p.add_argument('--quick', action='store_true', help='tiny grid and short runs: a smoke '
                    'test of the pipeline, NOT converged results')

@@ -13,6 +13,34 @@ DEFAULT_ALPHAS = '0.6:1.0:0.02'
 DEFAULT_SPEEDS = '75:90:1'
 
 
+class ProgressPrinter:
+    """``progress(done, total, elapsed)`` for :func:`.sweep.run_sweep`, on stderr: one line
+    rewritten in place (``\\r``) on a terminal, one line per update otherwise (log files get
+    no carriage returns)."""
+
+    def __init__(self, what: str, stream=None) -> None:
+        self.what = what
+        self.stream = stream if stream is not None else sys.stderr
+        self.tty = bool(getattr(self.stream, 'isatty', lambda: False)())
+        self.open = False
+
+    def __call__(self, done: int, total: int, elapsed: float) -> None:
+        eta = elapsed / max(done, 1) * (total - done)
+        text = (f'  {self.what} {done}/{total}  {elapsed:6.1f} s elapsed  '
+                f'~{eta:6.1f} s left')
+        if self.tty:
+            print('\r' + text, end='', file=self.stream, flush=True)
+            self.open = True
+        else:
+            print(text, file=self.stream, flush=True)
+
+    def end(self) -> None:
+        """End the in-place line (terminal only)."""
+        if self.open:
+            print(file=self.stream, flush=True)
+            self.open = False
+
+
 def register(sub) -> None:
     p = sub.add_parser('sweep', help='orbit diagrams over alpha, V or the alpha-V grid',
                        description='Local maxima of a state after a transient, per parameter '
@@ -92,17 +120,15 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     print(f'sweep {args.kind}: {n} points, {len(spec.alphas)} alpha x {len(spec.speeds)} V, '
           f'transient {spec.transient:g} s, window {spec.window:g} s -> {out}', flush=True)
 
-    def progress(done: int, total: int, elapsed: float) -> None:
-        eta = elapsed / max(done, 1) * (total - done)
-        print(f'\r  chunks {done}/{total}  {elapsed:6.1f} s elapsed  ~{eta:6.1f} s left',
-              end='', file=sys.stderr, flush=True)
-
+    progress = ProgressPrinter('points')
+    check = ProgressPrinter('step check: points at half step')
     try:
         result = run_sweep(spec, out, scheduler=args.scheduler, workers=args.workers,
-                           progress=progress)
+                           progress=progress, check_progress=check)
     except ValueError as e:
         raise CliError(str(e)) from None
-    print(file=sys.stderr)
+    progress.end()
+    check.end()
     side = result.sidecar
     print(f"step {side['step']:g} s, solver {side['solver']}, model {side['model']}; "
           f'{result.computed_chunks} chunks computed, {result.reused_chunks} reused')

@@ -12,21 +12,13 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from .figures import STATE_UNITS, pyplot, save, titled
 from .sweep import SweepResult
 
 __all__ = ['plot_orbit_diagram', 'alpha_star', 'plot_alpha_v']
 
-COLORS = {'equilibrium': 'tab:green', 'converging': 'tab:olive', 'periodic': 'tab:blue',
-          'aperiodic': 'tab:red', 'diverged': 'k'}
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-
-    return plt
+COLORS = {'equilibrium': 'tab:green', 'converging': 'tab:olive', 'drifting': 'tab:cyan',
+          'periodic': 'tab:blue', 'aperiodic': 'tab:red', 'diverged': 'k'}
 
 
 def _caption(side: dict[str, Any]) -> str:
@@ -37,9 +29,23 @@ def _caption(side: dict[str, Any]) -> str:
             f"transient {s['transient']:g} s, window {s['window']:g} s, {ctl}")
 
 
-def plot_orbit_diagram(result: SweepResult, axis: str, paths: Sequence[Path]) -> None:
-    """Maxima of the swept state against ``axis`` ('alpha' or 'speed'), coloured by class."""
-    plt = _plt()
+def _fixed(side: dict[str, Any], axis: str) -> str:
+    """The parameter held fixed along an orbit diagram's axis, e.g. 'V = 84.5 m/s'."""
+    s = side['spec']
+    if axis == 'alpha':
+        speeds = s['speeds']
+        return ('V = ' + ', '.join(f'{v:g}' for v in speeds) + ' m/s') if speeds else ''
+    if side['model'] != 'fractional':
+        return ''           # no order to hold fixed: the caption names the model
+    return 'α = ' + ', '.join(f'{a:g}' for a in s['alphas'])
+
+
+def plot_orbit_diagram(result: SweepResult, axis: str, paths: Sequence[Path],
+                       label: str = '') -> Any:
+    """Maxima of the swept state against ``axis`` ('alpha' or 'speed'), coloured by class;
+    the title names the fixed parameter (V or alpha) and ``label`` (e.g. quick). Returns the
+    (closed) figure."""
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(8, 5))
     state = result.sidecar['spec']['state']
     seen = set()
@@ -57,13 +63,15 @@ def plot_orbit_diagram(result: SweepResult, axis: str, paths: Sequence[Path]) ->
                     label=None if 'step' in seen else 'classification changes at half step')
             seen.add('step')
     ax.set_xlabel('fractional order α' if axis == 'alpha' else 'V (m/s)')
-    ax.set_ylabel(f'local maxima of {state}')
-    ax.set_title('Orbit diagram\n' + _caption(result.sidecar), fontsize=9)
+    ax.set_ylabel(f'local maxima of {state} ({STATE_UNITS[state]})')
+    fixed = _fixed(result.sidecar, axis)
+    ax.set_title(titled(f"Orbit diagram{' at ' + fixed if fixed else ''}\n"
+                        + _caption(result.sidecar), label), fontsize=9)
     ax.legend(fontsize=8, markerscale=4)
     fig.tight_layout()
-    for p in paths:
-        fig.savefig(p, dpi=130)
+    save(fig, paths, dpi=130)
     plt.close(fig)
+    return fig
 
 
 def alpha_star(result: SweepResult) -> list[tuple[float, float]]:
@@ -85,9 +93,12 @@ def alpha_star(result: SweepResult) -> list[tuple[float, float]]:
 
 
 def plot_alpha_v(result: SweepResult, paths: Sequence[Path],
-                 critical: Sequence[tuple[float, float]] | None = None) -> None:
-    """Class of every (alpha, V) point, alpha*(V), and Matignon's alpha_c(V) if given."""
-    plt = _plt()
+                 critical: Sequence[tuple[float, float]] | None = None, label: str = '') -> Any:
+    """Class of every (alpha, V) point, alpha*(V) where the grid shows it, and Matignon's
+    alpha_c(V) if given. alpha*(V) is drawn with markers (a speed alone is visible too) and is
+    in the legend only when drawn; otherwise the legend says it was not found. Returns the
+    (closed) figure."""
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(8, 5))
     for kind, color in COLORS.items():
         pts = [(r['speed'], r['alpha']) for r in result.rows if r['kind'] == kind]
@@ -96,14 +107,17 @@ def plot_alpha_v(result: SweepResult, paths: Sequence[Path],
             ax.scatter(v, a, s=12, color=color, label=kind)
     star = [(v, a) for v, a in alpha_star(result) if not math.isnan(a)]
     if star:
-        ax.plot(*zip(*star), 'k-', lw=1.5, label='α*(V): first change of class')
+        ax.plot(*zip(*star), 'k-', marker='D', ms=5, lw=1.5,
+                label='α*(V): first change of class')
+    else:
+        ax.plot([], [], ' ', label='α*(V): no change of class on the grid')
     if critical:
         ax.plot(*zip(*critical), 'm--', lw=1, label='Matignon α_c(V) (linear)')
     ax.set_xlabel('V (m/s)')
     ax.set_ylabel('fractional order α')
-    ax.set_title('α–V map\n' + _caption(result.sidecar), fontsize=9)
+    ax.set_title(titled('α–V map\n' + _caption(result.sidecar), label), fontsize=9)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    for p in paths:
-        fig.savefig(p, dpi=130)
+    save(fig, paths, dpi=130)
     plt.close(fig)
+    return fig

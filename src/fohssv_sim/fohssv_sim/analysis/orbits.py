@@ -4,14 +4,18 @@ Method (recorded with every result as :data:`METHOD`):
 
 1. The signal (w by default) over the sampling window, after the transient.
 2. ``equilibrium`` when its peak-to-peak range is below ``eq_tol`` (absolute, in the signal's
-   unit). Fractional trajectories converge algebraically (~t^-alpha), not exponentially, so a
-   window whose oscillation still shrinks is reported as ``converging`` rather than periodic:
-   the peak-to-peak range of the window's last quarter is compared with its first quarter.
-3. Local maxima, refined by a parabola through the three samples around each.
-4. ``periodic`` with period count p when the last maxima repeat with period p (p <= max_period)
+   unit), and only then: a window without local maxima is not steady by itself (a monotone
+   approach or drift can have a range far above the tolerance).
+3. Fractional trajectories converge algebraically (~t^-alpha), not exponentially, so a
+   window whose range still shrinks is reported as ``converging`` rather than periodic: the
+   peak-to-peak range of the window's last quarter is compared with its first quarter
+   (last < 0.8 first). A window without local maxima whose range does not shrink is
+   ``drifting`` (monotone, not settled).
+4. Local maxima, refined by a parabola through the three samples around each.
+5. ``periodic`` with period count p when the last maxima repeat with period p (p <= max_period)
    to within ``rel_tol`` of the window's range; p is the number of distinct maxima per period,
    as an orbit diagram shows them.
-5. Otherwise ``aperiodic`` (quasi-periodic or chaotic), with the 0-1 test for chaos
+6. Otherwise ``aperiodic`` (quasi-periodic or chaotic), with the 0-1 test for chaos
    (Gottwald & Melbourne 2004, 2009; correlation method, median over 100 frequencies c in
    (pi/5, 4pi/5)) applied to the sequence of maxima: K near 1 suggests chaos, near 0
    quasi-periodic motion. K is reported, not thresholded into a verdict by itself.
@@ -26,16 +30,16 @@ import numpy as np
 __all__ = ['METHOD', 'OrbitClass', 'local_maxima', 'classify', 'zero_one_test']
 
 METHOD = ('peak-to-peak < eq_tol -> equilibrium; shrinking last-vs-first-quarter range -> '
-          'converging; maxima repeating with period p <= max_period within rel_tol of the '
-          'range -> periodic-p; else aperiodic with the 0-1 test statistic K of the maxima '
-          '(Gottwald-Melbourne correlation method)')
+          'converging; no local maxima otherwise -> drifting; maxima repeating with period '
+          'p <= max_period within rel_tol of the range -> periodic-p; else aperiodic with '
+          'the 0-1 test statistic K of the maxima (Gottwald-Melbourne correlation method)')
 
 
 @dataclass(frozen=True)
 class OrbitClass:
     """The classification of one orbit."""
 
-    kind: str             # 'equilibrium' | 'converging' | 'periodic' | 'aperiodic'
+    kind: str             # 'equilibrium' | 'converging' | 'drifting' | 'periodic' | 'aperiodic'
     period: int           # distinct maxima per period (periodic), else 0
     n_maxima: int
     amplitude: float      # peak-to-peak of the signal over the window
@@ -108,12 +112,14 @@ def classify(t: np.ndarray, y: np.ndarray, *, eq_tol: float = 1e-6, rel_tol: flo
     y = np.asarray(y, dtype=float)
     amplitude = float(np.ptp(y)) if y.size else 0.0
     _, peaks = local_maxima(t, y)
-    if amplitude < eq_tol or peaks.size == 0:
+    if amplitude < eq_tol:
         return OrbitClass('equilibrium', 0, int(peaks.size), amplitude, float('nan')), peaks
     quarter = max(3, y.size // 4)
     first, last = np.ptp(y[:quarter]), np.ptp(y[-quarter:])
     if last < 0.8 * first:
         return OrbitClass('converging', 0, int(peaks.size), amplitude, float('nan')), peaks
+    if peaks.size == 0:
+        return OrbitClass('drifting', 0, 0, amplitude, float('nan')), peaks
     tol = rel_tol * amplitude
     for p in range(1, max_period + 1):
         need = p * (min_repeats + 1)

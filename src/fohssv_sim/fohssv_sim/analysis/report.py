@@ -1,9 +1,13 @@
-"""``fohssv report``: the paper's claims (spec section 8) beside what the model gives.
+"""``fohssv report``: the paper's claims (docs/model.md §8) beside what the model gives.
 
 Each experiment runs at the stated settings and again at half the step (the numerical
 evidence), writes its figures, and contributes rows to the claims table of ``report.md``:
 claim, what the model gives, evidence, verdict. Verdicts are computed by stated rules, never
 tuned: the software reports what the model does.
+
+A quick report (:meth:`ReportSettings.quick`) runs too briefly on too coarse a grid for its
+verdicts to stand: report.md (title and a note), claims.json (every row's ``run`` and
+``verdict``) and every figure (first line of its title) say "quick (not converged)".
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ from ..equilibria import find_equilibria
 from ..params import ModelParameters
 from ..simulate import simulate
 from .diagrams import alpha_star, plot_alpha_v, plot_orbit_diagram
+from .figures import QUICK_LABEL, pyplot, save, titled
 from .orbits import classify
 from .stability import critical_order_curve, plot_critical_order, plot_wedge
 from .sweep import SweepSpec, run_sweep
@@ -45,12 +50,13 @@ class ReportSettings:
     workers: int = 0
     scheduler: str | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    label: str = ''                # on every output: '' (full) or QUICK_LABEL
 
     @classmethod
     def quick(cls) -> ReportSettings:
         return cls(duration=0.3, transient=0.2, window=0.1, alphas=(0.7, 0.85),
                    speeds=(75.0, 84.5), grid_alphas=(0.7, 0.85), grid_speeds=(75.0, 84.5),
-                   check_step=2)
+                   check_step=2, label=QUICK_LABEL)
 
 
 Row = dict[str, str]
@@ -88,7 +94,7 @@ def _time_responses(s: ReportSettings, out: Path, log: Callable[[str], None]) ->
             if factor == 1.0:
                 keep = r
         res[name] = {'freq': freqs, 'class': classes, 'run': keep}
-    _plot_three(res, out)
+    _plot_three(res, out, s.label)
     f_df = res['delay-free']['freq'][0]
     rows = []
     ok_periodic = res['delay-free']['class'][0].startswith('periodic')
@@ -110,12 +116,8 @@ def _time_responses(s: ReportSettings, out: Path, log: Callable[[str], None]) ->
     return rows
 
 
-def _plot_three(res: dict[str, dict[str, Any]], out: Path) -> None:
-    import matplotlib
-
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-
+def _plot_three(res: dict[str, dict[str, Any]], out: Path, label: str = '') -> None:
+    plt = pyplot()
     fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
     for name, d in res.items():
         r = d['run']
@@ -127,10 +129,10 @@ def _plot_three(res: dict[str, dict[str, Any]], out: Path) -> None:
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
     axes[-1].set_xlabel('t (s)')
-    fig.suptitle('V = 75 m/s, x(0) = 0, eq. 31 continuous feedback', fontsize=10)
+    fig.suptitle(titled('V = 75 m/s, x(0) = 0, eq. 31 continuous feedback', label),
+                 fontsize=10)
     fig.tight_layout()
-    for ext in ('png', 'svg'):
-        fig.savefig(out / f'fig3_time_responses.{ext}', dpi=120)
+    save(fig, [out / f'fig3_time_responses.{ext}' for ext in ('png', 'svg')], dpi=120)
     plt.close(fig)
 
 
@@ -141,7 +143,8 @@ def _stability(s: ReportSettings, out: Path, log: Callable[[str], None]) -> list
     rows = []
     p75 = ModelParameters()
     (e75,) = find_equilibria(p75, StateFeedback())
-    plot_wedge(e75, 0.85, [out / 'fig5_wedge_V75.png', out / 'fig5_wedge_V75.svg'])
+    plot_wedge(e75, 0.85, [out / 'fig5_wedge_V75.png', out / 'fig5_wedge_V75.svg'],
+               speed=p75.speed, label=s.label)
     rows.append({'claim': 'Fig. 5: Matignon stability of the closed loop at alpha = 0.85',
                  'model': f'V = 75: alpha_c = {e75.critical_order:.4f}; '
                           f"{'stable' if e75.stable(0.85) else 'unstable'} at 0.85",
@@ -167,7 +170,9 @@ def _stability(s: ReportSettings, out: Path, log: Callable[[str], None]) -> list
                             'does not hold'})
     speeds = np.linspace(75, 90, 31)
     curve = critical_order_curve(p75, StateFeedback(), speeds)
-    plot_critical_order(curve, [out / 'alpha_c_of_V.png', out / 'alpha_c_of_V.svg'], 0.85)
+    plot_critical_order(curve, [out / 'alpha_c_of_V.png', out / 'alpha_c_of_V.svg'], 0.85,
+                        caption=f'{p75.model} model, planing {p75.planing_form}, eq. 31',
+                        label=s.label)
     return rows
 
 
@@ -180,7 +185,16 @@ def _sweep(s: ReportSettings, name: str, base: ModelParameters, alphas, speeds,
                      transient=s.transient, window=s.window, check_step=s.check_step,
                      sample_every=max(1, round(4e-5 / base.step)), eq_tol=1e-5)
     log(f'  sweep {name}: {len(spec.points())} points')
-    return run_sweep(spec, out / name, client=client)
+    from .cli_sweep import ProgressPrinter
+
+    progress, check = ProgressPrinter(f'{name}: points'), ProgressPrinter(
+        f'{name}: step check points')
+    try:
+        return run_sweep(spec, out / name, client=client, progress=progress,
+                         check_progress=check)
+    finally:
+        progress.end()
+        check.end()
 
 
 def _classes(result, key: str) -> str:
@@ -206,7 +220,8 @@ def _sweeps(s: ReportSettings, out: Path, log: Callable[[str], None], client: An
     fom = ModelParameters(solver=s.fom_solver)
     # Fig. 6: alpha sweep at V = 84.5
     r6 = _sweep(s, 'fig6_alpha_V84.5', fom, s.alphas, (84.5,), out, log, client)
-    plot_orbit_diagram(r6, 'alpha', [out / 'fig6_orbit_alpha.png', out / 'fig6_orbit_alpha.svg'])
+    plot_orbit_diagram(r6, 'alpha', [out / 'fig6_orbit_alpha.png', out / 'fig6_orbit_alpha.svg'],
+                       s.label)
     steady = [r['alpha'] for r in r6.rows if r['kind'] in ('equilibrium', 'converging')]
     rows.append({'claim': 'Fig. 6: at V = 84.5 stable for alpha > 0.78; chaos at 0.78, period '
                           'doubling at 0.69, chaotic bands at 0.65',
@@ -218,7 +233,8 @@ def _sweeps(s: ReportSettings, out: Path, log: Callable[[str], None], client: An
     # Fig. 8: delay-free V sweep
     r8 = _sweep(s, 'fig8_V_delay_free', ModelParameters(model='delay-free'), (1.0,), s.speeds,
                 out, log, client)
-    plot_orbit_diagram(r8, 'speed', [out / 'fig8_orbit_V.png', out / 'fig8_orbit_V.svg'])
+    plot_orbit_diagram(r8, 'speed', [out / 'fig8_orbit_V.png', out / 'fig8_orbit_V.svg'],
+                       s.label)
     per = [r['speed'] for r in r8.rows if r['kind'] in ('periodic', 'aperiodic')]
     rows.append({'claim': 'Fig. 8: delay-free model periodic for V <= 83.4, steady above',
                  'model': _classes(r8, 'speed'), 'evidence': _step_evidence(r8),
@@ -226,7 +242,8 @@ def _sweeps(s: ReportSettings, out: Path, log: Callable[[str], None], client: An
                  else 'does not hold'})
     # Fig. 9: FOM alpha = 0.85 V sweep
     r9 = _sweep(s, 'fig9_V_alpha0.85', fom, (0.85,), s.speeds, out, log, client)
-    plot_orbit_diagram(r9, 'speed', [out / 'fig9_orbit_V.png', out / 'fig9_orbit_V.svg'])
+    plot_orbit_diagram(r9, 'speed', [out / 'fig9_orbit_V.png', out / 'fig9_orbit_V.svg'],
+                       s.label)
     steady9 = [r['speed'] for r in r9.rows if r['kind'] in ('equilibrium', 'converging')]
     rows.append({'claim': 'Fig. 9: FOM alpha = 0.85 steady for V > 83.3, period doubling in '
                           '[81, 83.3], chaos below 81',
@@ -236,7 +253,7 @@ def _sweeps(s: ReportSettings, out: Path, log: Callable[[str], None], client: An
     r10 = _sweep(s, 'fig10_alpha_V', fom, s.grid_alphas, s.grid_speeds, out, log, client)
     crit = critical_order_curve(fom, StateFeedback(), s.grid_speeds)
     plot_alpha_v(r10, [out / 'fig10_alpha_V.png', out / 'fig10_alpha_V.svg'],
-                 [(p.speed, p.critical_order) for p in crit])
+                 [(p.speed, p.critical_order) for p in crit], s.label)
     star = alpha_star(r10)
     rows.append({'claim': 'Fig. 10: alpha* = 0.92 for V <= 84, 0.82 at 84.1, then falling '
                           'roughly as 1/V',
@@ -274,13 +291,24 @@ def make_report(out: Path, settings: ReportSettings | None = None,
         if cluster is not None:
             cluster.close()
     elapsed = time.monotonic() - start
+    run = s.label or 'full'
+    for r in rows:
+        r['run'] = run
+        if s.label:
+            r['verdict'] = f"{s.label}: {r['verdict']}"
     (out / 'claims.json').write_text(json.dumps(rows, indent=2) + '\n')
     fom = ModelParameters(solver=s.fom_solver)
     lines = [
-        '# fohssv reproduction report',
+        '# fohssv reproduction report' + (f': {s.label}' if s.label else ''),
         '',
-        'Each claim of the paper (spec section 8) beside what the model, as restated in the '
-        'spec, gives. The model is never tuned toward a figure. Evidence: every time response '
+    ]
+    if s.label:
+        lines += [f'**{s.label}**: short runs on a tiny grid, a smoke test of the pipeline. '
+                  'These verdicts are not converged results and can contradict the full '
+                  'report (`fohssv report` without `--quick`).', '']
+    lines += [
+        'Each claim of the paper (docs/model.md §8) beside what the model, as docs/model.md '
+        'states it, gives. The model is never tuned toward a figure. Evidence: every time response '
         'is re-run at half the step, and every k-th sweep point (k = '
         f'{s.check_step}) is re-classified at half the step.',
         '',

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..equilibria import Equilibrium, find_equilibria
 from ..params import ModelParameters
+from .figures import pyplot, save, titled
 
 __all__ = ['StabilityPoint', 'critical_order_curve', 'plot_wedge', 'plot_critical_order']
 
@@ -43,19 +44,13 @@ def critical_order_curve(params: ModelParameters, controller: Any,
     return out
 
 
-def _figure():
-    import matplotlib
-
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def plot_wedge(eq: Equilibrium, alpha: float, paths: Sequence[Path], title: str = '') -> None:
+def plot_wedge(eq: Equilibrium, alpha: float, paths: Sequence[Path], title: str = '', *,
+               speed: float | None = None, label: str = '') -> Any:
     """Eigenvalues of the Jacobian and the Matignon wedge |arg lambda| = alpha pi/2 (Fig. 5).
-    Eigenvalues outside the shaded unstable sector mean stability at this alpha."""
-    plt = _figure()
+    Eigenvalues outside the shaded unstable sector mean stability at this alpha. The title
+    names the speed V of the equilibrium (``speed``) and ``label``. Returns the (closed)
+    figure."""
+    plt = pyplot()
     lam = eq.eigenvalues
     r = 1.15 * max(1.0, float(np.max(np.abs(lam))))
     fig, ax = plt.subplots(figsize=(6, 5))
@@ -75,19 +70,23 @@ def plot_wedge(eq: Equilibrium, alpha: float, paths: Sequence[Path], title: str 
     ax.set_xlabel('Re λ (1/s)')
     ax.set_ylabel('Im λ (1/s)')
     verdict = 'stable' if stable else 'unstable'
-    ax.set_title(title or f'Matignon test at α = {alpha:g}: {verdict} (α_c = '
-                 f'{eq.critical_order:.4f})')
+    at = f'V = {speed:g} m/s, ' if speed is not None else ''
+    ax.set_title(titled(title or f'Matignon test at {at}α = {alpha:g}: {verdict} (α_c = '
+                        f'{eq.critical_order:.4f})', label), fontsize=10)
     ax.legend(loc='lower left', fontsize=8)
     fig.tight_layout()
-    for p in paths:
-        fig.savefig(p)
+    save(fig, paths)
     plt.close(fig)
+    return fig
 
 
 def plot_critical_order(points: Sequence[StabilityPoint], paths: Sequence[Path],
-                        alpha: float | None = None) -> None:
-    """alpha_c against V; the equilibrium is Matignon-stable below the curve."""
-    plt = _figure()
+                        alpha: float | None = None, *, caption: str = '', label: str = ''
+                        ) -> Any:
+    """alpha_c against V; the equilibrium is Matignon-stable below the curve. ``caption``
+    (e.g. the model and controller) is the title's second line. Returns the (closed)
+    figure."""
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 4))
     v = [p.speed for p in points]
     a = [p.critical_order for p in points]
@@ -96,8 +95,10 @@ def plot_critical_order(points: Sequence[StabilityPoint], paths: Sequence[Path],
         ax.axhline(alpha, color='tab:red', lw=1, ls='--', label=f'α = {alpha:g}')
     ax.set_xlabel('V (m/s)')
     ax.set_ylabel('critical order α_c')
+    title = 'Critical order α_c(V) of the closed-loop equilibrium (Matignon, eq. 30)'
+    ax.set_title(titled(title + (f'\n{caption}' if caption else ''), label), fontsize=9)
     ax.legend()
     fig.tight_layout()
-    for p in paths:
-        fig.savefig(p)
+    save(fig, paths)
     plt.close(fig)
+    return fig

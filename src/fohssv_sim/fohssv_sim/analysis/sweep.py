@@ -16,6 +16,13 @@ scheduler: each chunk's computation is deterministic.
 
 ``check_step``: re-runs every k-th point at half the step and flags the points whose
 classification changes (column ``step_check``).
+
+Progress is counted in points, not chunks: a chunk's task reports the fraction of its batch
+steps done (every 1 %, or after each point for the models the batch runner steps point by
+point) from whichever Dask worker runs it, as a Dask event on a topic the client subscribes
+to; ``progress(done, total, elapsed)`` gets the number of points done (finished chunks plus
+the finished share of running ones) each time it grows by one. The half-step check reports
+the same way, in-process.
 """
 
 from __future__ import annotations
@@ -26,7 +33,9 @@ import json
 import math
 import os
 import sys
+import threading
 import time
+import uuid
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -86,14 +95,42 @@ class SweepSpec:
         return d
 
 
-def run_chunk(spec_dict: dict[str, Any], indices: Sequence[int], step_factor: float = 1.0
-              ) -> list[dict[str, Any]]:
+def _simulate(params: list[ModelParameters], ctl: Any, spec: SweepSpec, every: int,
+              progress: Callable[[float], None] | None):
+    """simulate_batch over ``params``, reporting progress as a fraction of the chunk. The
+    batch runner steps the delayed model (and small delay-free batches) point by point and
+    reports nothing then, so with ``progress`` those run one point per call (same numbers:
+    each point is independent there)."""
+    from ..batch import BatchResult, simulate_batch
+
+    duration = spec.transient + spec.window
+    kwargs = {'control_period': spec.control_period, 'sample_every': every,
+              'record_from': spec.transient}
+    serial = params[0].model == 'delayed' or (params[0].model == 'delay-free'
+                                              and len(params) < 8)
+    if progress is None or not serial or len(params) == 1:
+        return simulate_batch(params, [ctl], duration, progress=progress, **kwargs)
+    parts = []
+    for i, p in enumerate(params):
+        parts.append(simulate_batch([p], [ctl], duration, **kwargs))
+        progress((i + 1) / len(params))
+    ok = [r for r in parts if not r.failed[0]]
+    t = ok[0].t if ok else np.empty(0)
+    states = np.full((len(params), t.size, 4), np.nan)
+    for i, r in enumerate(parts):
+        if not r.failed[0]:
+            states[i] = r.states[0]
+    return BatchResult(t=t, states=states, failed=np.array([r.failed[0] for r in parts]),
+                       params=list(params))
+
+
+def run_chunk(spec_dict: dict[str, Any], indices: Sequence[int], step_factor: float = 1.0,
+              progress: Callable[[float], None] | None = None) -> list[dict[str, Any]]:
     """Compute the rows of the points ``indices`` of the sweep ``spec_dict`` (one Dask task).
 
     Pure function of its arguments (deterministic), so any scheduler gives the same rows.
+    ``progress(fraction)`` is called as the chunk's batch steps (or points) complete.
     """
-    from ..batch import simulate_batch
-
     spec = SweepSpec(**{**spec_dict, 'alphas': tuple(spec_dict['alphas']),
                         'speeds': tuple(spec_dict['speeds'])})
     pts = spec.points()
@@ -103,9 +140,7 @@ def run_chunk(spec_dict: dict[str, Any], indices: Sequence[int], step_factor: fl
     ctl = load_controller(spec.controller, spec.gains)
     h = params[0].step
     every = max(1, round(spec.sample_every / step_factor))
-    res = simulate_batch(params, [ctl], spec.transient + spec.window,
-                         control_period=spec.control_period, sample_every=every,
-                         record_from=spec.transient)
+    res = _simulate(params, ctl, spec, every, progress)
     k = STATE_INDEX[spec.state]
     rows = []
     for j, i in enumerate(indices):
@@ -126,6 +161,44 @@ def run_chunk(spec_dict: dict[str, Any], indices: Sequence[int], step_factor: fl
                      'step_check': '', 'maxima': [float(v) for v in peaks[-64:]],
                      'step': h})
     return rows
+
+
+def _run_chunk_reporting(spec_dict: dict[str, Any], indices: Sequence[int], topic: str,
+                         chunk: int) -> list[dict[str, Any]]:
+    """:func:`run_chunk` as a Dask task that reports its progress as events on ``topic``."""
+    from dask.distributed import get_worker
+
+    worker = get_worker()
+
+    def report(fraction: float) -> None:
+        worker.log_event(topic, {'chunk': chunk, 'fraction': float(fraction)})
+
+    return run_chunk(spec_dict, indices, progress=report)
+
+
+class _PointProgress:
+    """Points done across chunks (finished chunks plus running chunks' fractions); calls
+    ``progress(done, total, elapsed)`` whenever the whole number of points done grows.
+    Thread-safe: Dask events arrive on the client's event-loop thread."""
+
+    def __init__(self, sizes: Sequence[int], done: int, total: int,
+                 progress: Callable[[int, int, float], None] | None, start: float) -> None:
+        self.sizes, self.total, self.progress, self.start = list(sizes), total, progress, start
+        self.base = done
+        self.fraction = [0.0] * len(self.sizes)
+        self.reported = done
+        self.lock = threading.Lock()
+
+    def update(self, k: int, fraction: float) -> None:
+        if self.progress is None:
+            return
+        with self.lock:
+            self.fraction[k] = max(self.fraction[k], min(1.0, fraction))
+            done = self.base + sum(f * n for f, n in zip(self.fraction, self.sizes))
+            whole = min(self.total, int(done + 1e-9))
+            if whole > self.reported:
+                self.reported = whole
+                self.progress(whole, self.total, time.monotonic() - self.start)
 
 
 def _chunks(spec: SweepSpec) -> list[list[int]]:
@@ -201,8 +274,13 @@ def load_sweep(out: Path) -> SweepResult:
 
 def run_sweep(spec: SweepSpec, out: Path, *, scheduler: str | None = None, workers: int = 0,
               progress: Callable[[int, int, float], None] | None = None,
-              client: Any = None) -> SweepResult:
+              client: Any = None,
+              check_progress: Callable[[int, int, float], None] | None = None
+              ) -> SweepResult:
     """Run (or resume) the sweep ``spec`` into folder ``out``; see the module docstring.
+
+    ``progress(done, total, elapsed)`` / ``check_progress``: points of the sweep / of the
+    half-step check done, each time one more is (see the module docstring).
 
     ``client``: an existing ``dask.distributed.Client`` to use (then ``scheduler`` and
     ``workers`` are ignored and the client is left open).
@@ -228,7 +306,9 @@ def run_sweep(spec: SweepSpec, out: Path, *, scheduler: str | None = None, worke
     reused = len(chunks) - len(todo)
     spec_dict = spec.to_dict()
     start = time.monotonic()
-    done = reused
+    n_points = len(spec.points())
+    points = _PointProgress([len(chunks[k]) for k in todo], n_points - sum(
+        len(chunks[k]) for k in todo), n_points, progress, start)
     if todo:
         from dask.distributed import Client, LocalCluster, as_completed
 
@@ -243,16 +323,22 @@ def run_sweep(spec: SweepSpec, out: Path, *, scheduler: str | None = None, worke
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                    dashboard_address=None)
             client = Client(cluster)
+        topic = f'fohssv-sweep-{uuid.uuid4().hex}'
+        slot = {k: i for i, k in enumerate(todo)}
+        if progress is not None:
+            client.subscribe_topic(
+                topic, lambda event: points.update(slot[event[1]['chunk']],
+                                                   event[1]['fraction']))
         try:
-            futures = {client.submit(run_chunk, spec_dict, chunks[k], pure=False): k
-                       for k in todo}
+            futures = {client.submit(_run_chunk_reporting, spec_dict, chunks[k], topic, k,
+                                     pure=False): k for k in todo}
             for fut in as_completed(futures):
                 k = futures[fut]
                 _write_rows(out / 'chunks' / f'chunk_{k:05d}.csv', fut.result())
-                done += 1
-                if progress is not None:
-                    progress(done, len(chunks), time.monotonic() - start)
+                points.update(slot[k], 1.0)
         finally:
+            if progress is not None:
+                client.unsubscribe_topic(topic)
             if own:
                 client.close()
             if cluster is not None:
@@ -260,12 +346,14 @@ def run_sweep(spec: SweepSpec, out: Path, *, scheduler: str | None = None, worke
     result = load_sweep(out)
     result.computed_chunks, result.reused_chunks = len(todo), reused
     if spec.check_step:
-        _check_step(spec, out, result)
+        _check_step(spec, out, result, check_progress)
     return result
 
 
-def _check_step(spec: SweepSpec, out: Path, result: SweepResult) -> None:
-    """Re-run every ``check_step``-th point at half the step; mark changed classifications."""
+def _check_step(spec: SweepSpec, out: Path, result: SweepResult,
+                progress: Callable[[int, int, float], None] | None = None) -> None:
+    """Re-run every ``check_step``-th point at half the step; mark changed classifications.
+    ``progress(done, total, elapsed)`` counts the re-run points as they complete."""
     path = out / 'step_check.json'
     if path.exists():
         checks = {int(k): v for k, v in json.loads(path.read_text()).items()}
@@ -276,9 +364,17 @@ def _check_step(spec: SweepSpec, out: Path, result: SweepResult) -> None:
         sample = [result.rows[i]['point'] for i in range(0, len(result.rows), spec.check_step)]
         params = [spec.params_for(*pts[i]) for i in sample]
         checks = {}
-        for idx in group_points(params).values():
-            for r in run_chunk(spec.to_dict(), [sample[i] for i in idx], step_factor=0.5):
+        groups = list(group_points(params).values())
+        points = _PointProgress([len(g) for g in groups], 0, len(sample), progress,
+                                time.monotonic())
+        for k, idx in enumerate(groups):
+            def report(fraction: float, k: int = k) -> None:
+                points.update(k, fraction)
+
+            for r in run_chunk(spec.to_dict(), [sample[i] for i in idx], step_factor=0.5,
+                               progress=report):
                 checks[r['point']] = r['label']
+            points.update(k, 1.0)
         path.write_text(json.dumps({str(k): v for k, v in checks.items()}, indent=2) + '\n')
     for r in result.rows:
         if r['point'] in checks:

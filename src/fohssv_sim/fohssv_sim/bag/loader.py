@@ -27,7 +27,7 @@ from ruamel.yaml import YAML
 from ruamel.yaml.error import YAMLError
 
 from .. import contract
-from .writer import METADATA_NAME, typestore
+from .writer import is_run_metadata, typestore
 
 __all__ = ['BagError', 'BagFiles', 'ChannelInfo', 'Scan', 'Run', 'locate', 'scan', 'load_run',
            'decode_metadata']
@@ -94,7 +94,7 @@ class Scan:
         if self.files.info is not None:
             merged.update(self.files.info.get('custom_data') or {})
         for name, values in self.metadata_records:
-            if name == METADATA_NAME:
+            if is_run_metadata(name):
                 merged.update(values)
         return decode_metadata(merged)
 

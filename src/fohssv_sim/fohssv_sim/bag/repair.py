@@ -24,7 +24,7 @@ from rosbags.rosbag2.metadata import parse_qos
 from ruamel.yaml import YAML
 
 from .loader import BagError, scan
-from .writer import METADATA_NAME, RunWriter, typestore
+from .writer import RunWriter, is_run_metadata, typestore
 
 __all__ = ['RepairReport', 'repair', 'main_repair']
 
@@ -85,7 +85,7 @@ def repair(path: str | Path, *, backup: bool = True, force: bool = False) -> Rep
             topic_of[chan.id] = chan.topic
         meta: dict[str, str] = {}
         for name, values in sc.metadata_records:
-            if name == METADATA_NAME:
+            if is_run_metadata(name):
                 meta.update(values)
         if files.info is not None:
             for key, value in (files.info.get('custom_data') or {}).items():

@@ -14,7 +14,13 @@ record. The replacement writes what rosbag2's MCAP storage writes (profile ``ros
   ``docs/recording.md`` for the bound the recorder guarantees);
 * :meth:`RunWriter.add_metadata`: an MCAP metadata record written at once (outside any chunk),
   so the run's metadata survives a SIGKILL. The same keys go into ``metadata.yaml``
-  ``custom_data`` at close.
+  ``custom_data`` at close. Record names are unique (MCAP tools warn about duplicates):
+  ``fohssv``, then ``fohssv.2``, ``fohssv.3``, ... (:func:`is_run_metadata`); readers merge
+  them in file order.
+
+Every MCAP file written here passes ``pymcap-cli doctor`` without error or warning (tested):
+no summary offset for an index group that is empty, schemas and channels in the data section
+even without messages, unique metadata names.
 
 Pure module: no rclpy.
 """
@@ -27,17 +33,25 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
-from mcap.writer import CompressionType
+from mcap.writer import CompressionType, IndexType
 from mcap.writer import Writer as McapFileWriter
 from rosbags.interfaces import Connection, MessageDefinitionFormat, Qos
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 __all__ = ['RunWriter', 'METADATA_NAME', 'DEFAULT_CHUNK_SIZE', 'typestore', 'encode_metadata',
-           'library_versions']
+           'library_versions', 'is_run_metadata']
 
-#: Name of the MCAP metadata records that carry the run's metadata.
+#: Name of the first MCAP metadata record that carries the run's metadata; later ones are
+#: ``fohssv.2``, ``fohssv.3``, ...
 METADATA_NAME = 'fohssv'
+
+
+def is_run_metadata(name: str) -> bool:
+    """Whether an MCAP metadata record named ``name`` carries run metadata (``fohssv`` or
+    ``fohssv.<n>``; bags written before the names were unique repeat ``fohssv``)."""
+    head, _, tail = name.partition('.')
+    return head == METADATA_NAME and (not tail or tail.isdigit())
 #: Upper bound of one chunk's uncompressed size (bytes); a chunk also ends at every flush.
 DEFAULT_CHUNK_SIZE = 64 * 1024
 
@@ -81,9 +95,13 @@ class _McapStorage:
         _ = compression  # the bag is written uncompressed (small messages, flushed often)
         self.path = path / f'{path.name}.mcap'
         self._file = self.path.open('xb')
+        # no attachment index: a run has no attachments, and the library writes a summary
+        # offset for every index type it is given, even an empty group, which MCAP readers
+        # (``pymcap-cli doctor``: SUMMARY_OFFSET_WITHOUT_GROUP) report as an error
         self._mcap = McapFileWriter(self._file, chunk_size=self.chunk_size,
                                     compression=CompressionType.NONE, enable_crcs=True,
-                                    enable_data_crcs=True)
+                                    enable_data_crcs=True,
+                                    index_types=IndexType.ALL & ~IndexType.ATTACHMENT)
         self._mcap.start(profile='ros2', library=library_versions())
         self._schemas: dict[str, int] = {}
         self._channels: dict[int, int] = {}
@@ -118,8 +136,33 @@ class _McapStorage:
     def close(self, version: int, metadata: str) -> None:
         _ = version
         self._mcap.add_metadata('rosbag2', {'serialized_metadata': metadata})
+        if not any(self._sequence.values()):
+            self._finish_empty()
         self._mcap.finish()
         self._file.close()
+
+    def _finish_empty(self) -> None:
+        """Prepare a run without messages for ``finish()`` (mcap 1.6.0 internals, pinned; the
+        doctor test of an empty bag fails if they change).
+
+        The library keeps schemas and channels in the chunk in progress and never writes a
+        chunk without messages, so they would be in the summary only (doctor:
+        SUMMARY_SCHEMA_MISSING_IN_DATA, STATISTICS_MISMATCH): write them in the data section,
+        outside any chunk, as MCAP allows. And no chunk means an empty chunk-index group,
+        which would again get a summary offset (see ``__init__``), as would empty schema and
+        channel groups (a recorder stopped before it declared its topics)."""
+        mcap = self._mcap
+        records = mcap._Writer__record_builder  # noqa: SLF001
+        schemas = list(mcap._Writer__schemas.values())  # noqa: SLF001
+        channels = list(mcap._Writer__channels.values())  # noqa: SLF001
+        for record in (*schemas, *channels):
+            record.write(records)
+        mcap.flush()      # into the data section and its CRC
+        mcap._Writer__index_types &= ~IndexType.CHUNK  # noqa: SLF001
+        if not schemas:
+            mcap._Writer__repeat_schemas = False  # noqa: SLF001
+        if not channels:
+            mcap._Writer__repeat_channels = False  # noqa: SLF001
 
     def abort(self) -> None:
         self._mcap.flush()
@@ -156,6 +199,7 @@ class RunWriter:
         self._connections: dict[str, Connection] = {}
         self.counts: dict[str, int] = {}
         self._metadata: dict[str, str] = {}
+        self._records = 0
 
     @property
     def mcap_path(self) -> Path:
@@ -195,11 +239,14 @@ class RunWriter:
         self.counts[topic] += 1
 
     def add_metadata(self, values: Mapping[str, Any]) -> None:
-        """Write ``values`` now as an MCAP metadata record named :data:`METADATA_NAME` and keep
-        them for ``metadata.yaml`` ``custom_data`` (non-string values are stored as JSON)."""
+        """Write ``values`` now as an MCAP metadata record (named :data:`METADATA_NAME` the first
+        time, ``fohssv.<n>`` the n-th) and keep them for ``metadata.yaml`` ``custom_data``
+        (non-string values are stored as JSON)."""
         encoded = encode_metadata(values)
         self._metadata.update(encoded)
-        self._storage().add_metadata(METADATA_NAME, encoded)
+        self._records += 1
+        name = METADATA_NAME if self._records == 1 else f'{METADATA_NAME}.{self._records}'
+        self._storage().add_metadata(name, encoded)
 
     def flush(self) -> None:
         """End the chunk in progress (if any) and hand everything written to the OS."""

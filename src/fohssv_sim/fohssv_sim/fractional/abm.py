@@ -1,7 +1,7 @@
 """Online Adams-Bashforth-Moulton (ABM) predictor-corrector for Caputo systems.
 
 Solves  D^a x(t) = f(t, x, u),  0 < a <= 1,  x(t0) = x0  on t_n = t0 + n h with the scheme of
-Diethelm, Ford & Freed (2002), Nonlinear Dyn. 29:3-22, eqs. (1.4)-(1.9) (spec section 5):
+Diethelm, Ford & Freed (2002), Nonlinear Dyn. 29:3-22, eqs. (1.4)-(1.9) (docs/model.md §5.4):
 
     x^P_{n+1} = x0 + h^a/G(a+1) * sum_{j=0..n} b_{j,n+1} f_j
     x_{n+1}   = x0 + h^a/G(a+2) * [ f(t_{n+1}, x^P_{n+1}, u) + sum_{j=0..n} a_{j,n+1} f_j ]
@@ -40,7 +40,7 @@ class ExactHistory:
 
         [ cp * sum_{j=0..n} b_{j,n+1} f_j ,  cc * sum_{j=0..n} a_{j,n+1} f_j ]
 
-    of spec section 5, with ``scale = (cp, cc) = (h^a/G(a+1), h^a/G(a+2))``. Accuracy: exact up
+    of docs/model.md §5.4, with ``scale = (cp, cc) = (h^a/G(a+1), h^a/G(a+2))``. Accuracy: exact up
     to rounding (one BLAS product over the history). Cost: O(n m) per call to ``sums``; memory
     (capacity) x m doubles, doubled when full.
 
@@ -95,7 +95,7 @@ class ExactHistory:
 
 
 class PECEStepperBase:
-    """Shared driver of the ABM predictor-corrector (spec section 5) for any history engine.
+    """Shared driver of the ABM predictor-corrector (docs/model.md §5.4) for any history engine.
 
     Per step n -> n+1 (t_n = t0 + n h):
 
@@ -293,7 +293,7 @@ class PECEStepperBase:
 
 
 class ABMStepper(PECEStepperBase):
-    """Exact online ABM predictor-corrector (Diethelm-Ford-Freed 2002; spec section 5).
+    """Exact online ABM predictor-corrector (Diethelm-Ford-Freed 2002; docs/model.md §5.4).
 
     Integrates D^a x = rhs(t, x, u), 0 < a <= 1, x(t0) = x0 in R^d with uniform step h:
 

@@ -1,7 +1,7 @@
 """Offline exact ABM solver with FFT-blocked history sums (O(N log^2 N)).
 
-Same scheme and same numbers as :class:`~.abm.ABMStepper` (spec section 5; Diethelm, Ford &
-Freed 2002), but the lag convolutions
+Same scheme and same numbers as :class:`~.abm.ABMStepper` (docs/model.md §5.4, §5.5;
+Diethelm, Ford & Freed 2002), but the lag convolutions
 
     S^P_n = sum_{j=1..n} b(n-j) f_j,   S^C_n = sum_{j=1..n} c(n-j) f_j
 
@@ -129,7 +129,7 @@ def solve_abm_fft(rhs, alpha: float, step: float, x0, n_steps: int, u=None,
                   t0: float = 0.0, engine: str = 'auto') -> ABMSolution:
     """Solve D^a x = rhs(t, x, u), x(t0) = x0 for n_steps ABM steps, offline, via FFT.
 
-    Scheme (spec section 5; Diethelm-Ford-Freed 2002, eqs. 1.4-1.9):
+    Scheme (docs/model.md §5.4, §5.5; Diethelm-Ford-Freed 2002, eqs. 1.4-1.9):
 
         x^P_{n+1} = x0 + h^a/G(a+1) sum_{j=0..n} b_{j,n+1} f_j
         x_{n+1}   = x0 + h^a/G(a+2) [ rhs(t_{n+1}, x^P_{n+1}, u^P) + sum_{j=0..n} a_{j,n+1} f_j ]

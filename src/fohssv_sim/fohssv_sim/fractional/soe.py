@@ -190,7 +190,7 @@ def _batch_orders(alpha) -> float | np.ndarray:
 class SOEStepper(PECEStepperBase):
     """ABM predictor-corrector with bounded cost per step (sum-of-exponentials history).
 
-    Same scheme and :meth:`step` semantics as :class:`~.abm.ABMStepper` (spec section 5;
+    Same scheme and :meth:`step` semantics as :class:`~.abm.ABMStepper` (docs/model.md §5.4, §5.6;
     Diethelm-Ford-Freed 2002):
 
         x^P_{n+1} = x0 + h^a/G(a+1) sum_j b_{j,n+1} f_j,

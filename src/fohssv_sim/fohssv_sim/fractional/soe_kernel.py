@@ -1,6 +1,6 @@
 """The sum-of-exponentials (SOE) approximation of the ABM tail weights: modes, quadrature, error.
 
-The ABM weights of spec section 5 are integrals of the Caputo kernel tau^(a-1) (tau = lag in
+The ABM weights of docs/model.md §5.4 are integrals of the Caputo kernel tau^(a-1) (tau = lag in
 steps) against piecewise-constant and piecewise-linear hats:
 
     b(k) = a      * int_k^{k+1}  tau^(a-1) dtau                        (predictor)

@@ -150,8 +150,8 @@ def _a0(alpha: float, n: np.ndarray) -> np.ndarray:
 def predictor_weights(alpha: float, k) -> np.ndarray:
     """Predictor (product-rectangle) weights b(k) = (k+1)^a - k^a by lag k = n - j >= 0.
 
-    Equals b_{j,n+1} of spec section 5 / Diethelm-Ford-Freed (2002) eq. (1.7). Accuracy: relative
-    error below 1e-14 for all k (no power differences are formed). Cost: O(1) per entry.
+    Equals b_{j,n+1} of docs/model.md §5.4 / Diethelm-Ford-Freed (2002) eq. (1.7). Accuracy:
+    relative error below 1e-14 for all k (no power differences are formed). Cost: O(1) per entry.
 
     Raises:
         ValueError: alpha outside (0, 1] or k not non-negative integers.
@@ -164,7 +164,7 @@ def predictor_weights(alpha: float, k) -> np.ndarray:
 def corrector_weights(alpha: float, k) -> np.ndarray:
     """Corrector (product-trapezoid) weights c(k) = (k+2)^(a+1) - 2(k+1)^(a+1) + k^(a+1).
 
-    Equals a_{j,n+1} of spec section 5 / Diethelm-Ford-Freed (2002) eq. (1.5) for j >= 1 with
+    Equals a_{j,n+1} of docs/model.md §5.4 / Diethelm-Ford-Freed (2002) eq. (1.5) for j >= 1 with
     lag k = n - j. Accuracy: relative error below 1e-14 for all k (binomial series in 1/(k+1),
     all terms positive). Cost: O(1) per entry (<= 32 terms).
 
@@ -191,10 +191,10 @@ def corrector_start_weights(alpha: float, n) -> np.ndarray:
 
 
 def abm_weights(alpha: float, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """The ABM weights of step n -> n+1 in the spec's j indexing.
+    """The ABM weights of step n -> n+1 in the j indexing of docs/model.md §5.4.
 
     Returns ``(b, a)`` with ``b[j] = b_{j,n+1}`` for j = 0..n and ``a[j] = a_{j,n+1}`` for
-    j = 0..n+1 (``a[n+1] = 1`` multiplies f(t_{n+1}, x^P_{n+1})), spec section 5,
+    j = 0..n+1 (``a[n+1] = 1`` multiplies f(t_{n+1}, x^P_{n+1})), docs/model.md §5.4,
     Diethelm-Ford-Freed (2002) eqs. (1.5), (1.7). Accuracy: relative error below 1e-14 per
     weight. Cost: O(n).
 

@@ -4,7 +4,7 @@ Pure (no rclpy): the table :data:`NODE_PARAMETERS` is declared as ROS parameters
 :data:`fohssv_sim.params.PARAMETERS` by :mod:`fohssv_sim.ros.ros_params`, and documented in
 ``docs/ros.md`` from the same rows. ``needs_reset=True`` rows are read-only on a running node.
 
-Control period versus spec section 7: the plant holds each command for ``control_period``
+Control period versus docs/model.md §7: the plant holds each command for ``control_period``
 (zero-order hold). The default 1e-4 s (5 FOM steps of 2e-5 s, 10 RK4 steps of 1e-5 s) shifts
 the FOM limit cycle at V = 75 by about 1-2 % against continuous feedback; 1e-3 s would shift it
 by more than 10 %. Every result must state the control period it ran with.

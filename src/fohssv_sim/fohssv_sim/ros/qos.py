@@ -14,15 +14,36 @@
 
 Publishers and subscribers must take their profile from :func:`profile` with the topic's
 ``qos`` field, never build one inline.
+
+:func:`offered_qos` gives the profile the plant offers on a topic as rosbag2 records it
+(``offered_qos_profiles`` in metadata.yaml and in the MCAP channel metadata), so that
+``ros2 bag play`` offers the same reliability and durability as the plant and the project's
+transient-local readers match a replay.
 """
 
 from __future__ import annotations
 
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.duration import Duration
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    LivelinessPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+)
+from rosbags.interfaces import (
+    Qos,
+    QosDurability,
+    QosHistory,
+    QosLiveliness,
+    QosReliability,
+    QosTime,
+)
 
 from ..contract import Topic
 
-__all__ = ['SAMPLE_DEPTH', 'COMMAND_DEPTH', 'PROFILES', 'profile']
+__all__ = ['SAMPLE_DEPTH', 'COMMAND_DEPTH', 'PROFILES', 'profile', 'offered_qos',
+           'DURATION_INFINITE']
 
 #: Queue depth of state and force samples (0.2 s at the default 1e-4 s control period).
 SAMPLE_DEPTH = 2000
@@ -58,3 +79,34 @@ def profile(topic: Topic | str) -> QoSProfile:
         return PROFILES[name]
     except KeyError:
         raise KeyError(f"no QoS profile {name!r}; valid: {', '.join(PROFILES)}") from None
+
+
+#: RMW_DURATION_INFINITE as rosbag2 writes it: {sec: 9223372036, nsec: 854775807}.
+DURATION_INFINITE = QosTime(9223372036, 854775807)
+
+
+def _time(d: Duration) -> QosTime:
+    # 0 is "the rmw's default", which for deadline, lifespan and liveliness lease duration is
+    # infinite: that is what the graph reports for the plant's publishers (tested)
+    ns = d.nanoseconds
+    return DURATION_INFINITE if ns == 0 else QosTime(ns // 10**9, ns % 10**9)
+
+
+def offered_qos(topic: Topic | str) -> Qos:
+    """The profile a publisher of ``topic`` (as :func:`profile`) offers, in rosbags' form
+    (which writes it as rosbag2 does: policy names, ``{sec, nsec}`` durations).
+
+    History and depth are the profile's (the graph does not report them); the durations and
+    liveliness the profile leaves to the rmw are written as the rmw resolves them (infinite,
+    automatic).
+    """
+    p = profile(topic)
+    liveliness = (LivelinessPolicy.AUTOMATIC if p.liveliness == LivelinessPolicy.SYSTEM_DEFAULT
+                  else p.liveliness)
+    return Qos(history=QosHistory[p.history.name], depth=int(p.depth),
+               reliability=QosReliability[p.reliability.name],
+               durability=QosDurability[p.durability.name],
+               deadline=_time(p.deadline), lifespan=_time(p.lifespan),
+               liveliness=QosLiveliness[liveliness.name],
+               liveliness_lease_duration=_time(p.liveliness_lease_duration),
+               avoid_ros_namespace_conventions=bool(p.avoid_ros_namespace_conventions))

@@ -3,6 +3,9 @@
 ``ros2 run fohssv_sim recorder --ros-args -p bag_path:=runs/x``
 
 * Messages are subscribed with ``raw=True`` and written as received (CDR bytes untouched).
+* Each topic carries the profile the plant offers on it (:func:`.qos.offered_qos`) as
+  ``offered_qos_profiles``, in metadata.yaml and in the MCAP channel, as rosbag2 writes it:
+  ``ros2 bag play`` then offers the plant's reliability and durability.
 * Log time = simulation time in ns: ``round(data[0] * 1e9)`` for the contract's
   Float64MultiArray topics (``data[0]`` is the exact t the plant computed), the stamp itself
   for ``/clock``. The exact doubles stay in the messages; the log time is for ordering and for
@@ -48,7 +51,7 @@ from std_msgs.msg import Float64MultiArray
 
 from .. import contract
 from ..bag.writer import DEFAULT_CHUNK_SIZE, RunWriter, typestore
-from .qos import SAMPLE_DEPTH, profile
+from .qos import SAMPLE_DEPTH, offered_qos, profile
 
 __all__ = ['Recorder', 'main', 'default_bag_path', 'source_info']
 
@@ -164,11 +167,12 @@ class Recorder(Node):
             if topic is contract.STATE and wait_commands > 0:
                 # deferred until the command subscription hears enough publishers
                 self._deferred = (name, topic, qos)
-                self.writer.add_topic(self.resolve_topic_name(name), topic.type)
+                self.writer.add_topic(self.resolve_topic_name(name), topic.type,
+                                      qos=[offered_qos(topic)])
                 continue
             sub = self.create_subscription(_MSG_CLASSES[topic.type], name,
                                            self._callback(topic), qos, raw=True)
-            self.writer.add_topic(sub.topic_name, topic.type)
+            self.writer.add_topic(sub.topic_name, topic.type, qos=[offered_qos(topic)])
             self.subscriptions_.append(sub)
         self.topic_names = [self.resolve_topic_name(n) for n, _ in topics]
         if self._deferred is not None:

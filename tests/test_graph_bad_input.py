@@ -117,6 +117,14 @@ def test_invalid_parameter_change_is_refused_and_the_run_is_untouched():
     ({'control_period': 1.05e-4, 'model': 'delay-free'},
      'control_period=0.000105 s must be a whole multiple of the integration step 1e-05 s'),
     ({'model': 'quantum'}, "model='quantum' is not valid; choose one of 'fractional'"),
+    ({'mode': 'realtime', 'clock_period': 2.5e-4},
+     'clock_period=0.00025 s is not 0 or a whole multiple of control_period=0.0001 s '
+     '(allowed: 0 or k * control_period'),
+    # rclpy's own range check at declaration, completed with the table's range and unit
+    ({'clock_period': 2.0}, 'Invalid parameter value (2.0) for parameter. Reason: Parameter '
+     'clock_period out of range Min: 0.0, Max: 1.0, value: 2.0: clock_period; allowed: '
+     '[0, 1] s (realtime mode: simulated time between /clock messages'),
+    ({'profile': 2}, 'profile out of range'),
 ])
 def test_invalid_parameters_at_start_exit_2(params, message):
     env = rosproc.ros_env()

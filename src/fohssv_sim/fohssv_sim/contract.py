@@ -72,7 +72,8 @@ COMMAND = Topic('command', FLOAT64_ARRAY, ('t', 'delta_f', 'delta_c'), ('s', 'ra
                 'fin and cavitator deflections; t = time of the state they answer',
                 'reliable_commands')
 CLOCK = Topic('/clock', 'rosgraph_msgs/msg/Clock', ('clock',), ('s',),
-              'simulation time, published by the plant at every published step', 'clock')
+              'simulation time, published by the plant at every published step (realtime '
+              'mode: every clock_period if set)', 'clock')
 
 TOPICS = (STATE, PLANING_FORCE, COMMAND, CLOCK)
 

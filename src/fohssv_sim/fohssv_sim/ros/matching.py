@@ -43,6 +43,13 @@ class SubscriptionGate:
             return True
         return matched >= self._node.count_subscribers(self._pub.topic_name)
 
+    @property
+    def settled(self) -> bool:
+        """True once the grace period has passed: from then on the gate is open whenever
+        ``minimum`` subscriptions are matched, and a caller that found it open may stop asking
+        (the controller node does, so that it makes no graph query per sample)."""
+        return self._deadline is not None and time.monotonic() >= self._deadline
+
     def describe(self) -> str:
         """Why the gate is shut, for a log line."""
         return (f'{self._pub.topic_name} has matched {self._pub.get_subscription_count()} of '

@@ -21,7 +21,7 @@ from ..params import ModelParameters, ParameterError, ParameterSpec, spec_field,
 from ..simulate import steps_per_period
 
 __all__ = ['MODES', 'NODE_PARAMETERS', 'NODE_PARAMETER_BY_NAME', 'StateSpec', 'PlantOptions',
-           'check_options']
+           'check_options', 'clock_samples']
 
 #: The plant node's two modes.
 MODES = ('lockstep', 'realtime')
@@ -68,9 +68,18 @@ NODE_PARAMETERS: tuple[ParameterSpec, ...] = (
               numeric=False, needs_reset=False),
     _P('real_time_factor', '-', 1.0, '-', 'realtime mode: simulated seconds per wall second',
        low=0.0, high=1000.0, high_open=False, needs_reset=False),
-    _P('pacing_period', '-', 1e-3, 's', 'realtime mode: wall-clock period of the pacing timer; '
-       'each tick publishes every sample due by then (ticks are max(this, control_period / '
-       'real_time_factor))', low=1e-5, low_open=False, high=1.0, high_open=False),
+    _P('pacing_period', '-', 1e-3, 's', 'realtime mode: deadline tolerance (one pacing tick): '
+       'a sample published more than max(this, control_period / real_time_factor) after its '
+       'due time is a deadline miss; a backlog of 10 ticks slips the schedule', low=1e-5,
+       low_open=False, high=1.0, high_open=False),
+    _P('clock_period', '-', 0.0, 's', 'realtime mode: simulated time between /clock messages '
+       '(published at t = k clock_period); 0 = at every sample; a whole multiple of '
+       'control_period. Lockstep publishes /clock at every sample', low=0.0, low_open=False,
+       high=1.0, high_open=False),
+    _P('profile', '-', 0, '-', '1: time each part of the per-sample path (advance, each '
+       'publish, the command callback) and add the figures to the summary; 0: off (the hot '
+       'path then makes no timing calls)', low=0.0, low_open=False, high=1.0,
+       high_open=False),
     _P('command_timeout', '-', 5.0, 's', 'lockstep mode: wall time to wait for the command '
        'answering a state before the plant fails (exit code 3)', low=0.0, high=3600.0,
        high_open=False, needs_reset=False),
@@ -119,6 +128,8 @@ class PlantOptions:
     initial_state: tuple = _f('initial_state')
     real_time_factor: float = _f('real_time_factor')
     pacing_period: float = _f('pacing_period')
+    clock_period: float = _f('clock_period')
+    profile: int = _f('profile')
     command_timeout: float = _f('command_timeout')
     watchdog_timeout: float = _f('watchdog_timeout')
     max_fin_deflection: float = _f('max_fin_deflection')
@@ -130,7 +141,7 @@ class PlantOptions:
 
     def __post_init__(self) -> None:
         validate_fields(self)
-        for name in ('min_state_subscribers', 'min_command_publishers'):
+        for name in ('min_state_subscribers', 'min_command_publishers', 'profile'):
             v = getattr(self, name)
             if v != int(v):
                 raise ParameterError(f'{name}={v!r} must be a whole number')
@@ -145,9 +156,31 @@ def check_options(model: ModelParameters, options: PlantOptions) -> int:
     """Check the options against the model; return the integration steps per sample.
 
     Raises:
-        ParameterError: ``control_period`` is not a whole multiple of the model's step.
+        ParameterError: ``control_period`` is not a whole multiple of the model's step, or
+            ``clock_period`` is not 0 or a whole multiple of ``control_period``.
     """
     try:
-        return steps_per_period(options.control_period, model.step)
+        hold = steps_per_period(options.control_period, model.step)
     except ValueError as exc:
         raise ParameterError(str(exc)) from None
+    clock_samples(options)
+    return hold
+
+
+def clock_samples(options: PlantOptions) -> int:
+    """Samples per /clock message: 1 in lockstep or with ``clock_period`` 0, else
+    ``clock_period / control_period``.
+
+    Raises:
+        ParameterError: ``clock_period`` is not a whole multiple of ``control_period``.
+    """
+    if options.clock_period == 0.0:
+        return 1
+    k = round(options.clock_period / options.control_period)
+    if k < 1 or abs(k * options.control_period - options.clock_period) > (
+            1e-9 * options.clock_period):
+        raise ParameterError(
+            f'clock_period={options.clock_period!r} s is not 0 or a whole multiple of '
+            f'control_period={options.control_period!r} s (allowed: 0 or k * control_period, '
+            f'k = 1, 2, ...; {NODE_PARAMETER_BY_NAME["clock_period"].description})')
+    return 1 if options.mode == 'lockstep' else k

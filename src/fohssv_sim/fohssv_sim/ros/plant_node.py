@@ -20,29 +20,40 @@ Exit codes: 0 clean stop (signal or ``duration`` reached), 1 state turned non-fi
 
 from __future__ import annotations
 
+import array
 import json
 import sys
 import time
 from collections.abc import Mapping
+from time import monotonic, perf_counter_ns
 from typing import Any
 
 import rclpy
 from rclpy.duration import Duration
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.task import Future
-from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from std_srvs.srv import Trigger
 
 from ..contract import CLOCK, COMMAND, PLANING_FORCE, STATE, Topic
 from ..params import PARAMETERS, ModelParameters, ParameterError
-from .loop import CommandRejected, Pacer, SampledPlant, answered_time, check_command
-from .options import NODE_PARAMETERS, PlantOptions, check_options
+from .loop import (
+    CommandRejected,
+    Pacer,
+    Profile,
+    SampledPlant,
+    answered_time,
+    check_command,
+    cpu_seconds,
+)
+from .options import NODE_PARAMETERS, PlantOptions, check_options, clock_samples
 from .qos import profile
 from .ros_params import declare, install_validation
-from .spin import final_log, make_executor, spin_until
+from .spin import final_log, make_executor, spin_until, tighten_timer_slack
+from .wire import ArrayReader, ArrayWriter, ClockWriter
 
 __all__ = ['PlantNode', 'main', 'EXIT_OK', 'EXIT_DIVERGED', 'EXIT_BAD_PARAMETERS',
            'EXIT_TIMEOUT', 'EXIT_NO_PEERS']
@@ -53,13 +64,18 @@ _MODEL_NAMES = tuple(p.name for p in PARAMETERS)
 _NODE_NAMES = tuple(p.name for p in NODE_PARAMETERS)
 #: Rejected commands logged one by one; later ones are throttled to one line per second.
 _LOG_EACH = 20
+#: Realtime mode: wall-clock period of the watchdog check (s).
+_WATCHDOG_CHECK = 0.01
 
 
 def array_message(topic: Topic) -> Float64MultiArray:
-    """An empty message of ``topic`` with its self-describing layout."""
+    """A message of ``topic`` with its self-describing layout and ``data`` preallocated as an
+    ``array.array('d')`` of the layout's length (zeros): fill it in place, ``msg.data[i] = v``,
+    and publish the same message again (no allocation per sample)."""
     msg = Float64MultiArray()
     n = len(topic.fields)
     msg.layout.dim = [MultiArrayDimension(label=topic.label, size=n, stride=n)]
+    msg.data = array.array('d', bytes(8 * n))
     return msg
 
 
@@ -88,15 +104,27 @@ class PlantNode(Node):
 
         self.finished = Future()
         self.exit_code = EXIT_OK
-        self._state_msg = array_message(STATE)
-        self._force_msg = array_message(PLANING_FORCE)
-        self._clock_msg = Clock()
+        # the messages of every sample, serialized once and written in place (wire.py)
+        self._state_out = ArrayWriter(STATE)
+        self._force_out = ArrayWriter(PLANING_FORCE)
+        self._state_data = self._state_out.values   # [t, z, w, theta, q] inside the CDR
+        self._force_data = self._force_out.values
+        self._clock_out = ClockWriter()
+        self._command_in = ArrayReader(COMMAND)
+        self._clock_every = clock_samples(self.options)
+        self._lockstep = self.options.mode == 'lockstep'
+        self.profile: Profile | None = Profile() if self.options.profile else None
+        self._cpu_start = 0.0
         self.state_pub = self.create_publisher(Float64MultiArray, STATE.name, profile(STATE))
         self.force_pub = self.create_publisher(Float64MultiArray, PLANING_FORCE.name,
                                                profile(PLANING_FORCE))
         self.clock_pub = self.create_publisher(Clock, CLOCK.name, profile(CLOCK))
+        on_command = self._on_command if self.profile is None else self._on_command_profiled
         self.command_sub = self.create_subscription(Float64MultiArray, COMMAND.name,
-                                                    self._on_command, profile(COMMAND))
+                                                    on_command, profile(COMMAND), raw=True)
+        if self.profile is not None:
+            self._publish = self._publish_profiled   # type: ignore[method-assign]
+            self._step = self._step_profiled         # type: ignore[method-assign]
         self.reset_srv = self.create_service(Trigger, 'reset', self._on_reset)
 
         self.running = False
@@ -166,6 +194,7 @@ class PlantNode(Node):
         self.destroy_timer(self._peer_timer)
         self.running = True
         self._run_wall_start = time.monotonic()
+        self._cpu_start = cpu_seconds()
         self._last_command_wall = self._run_wall_start
         self.get_logger().info('peers matched; starting at t = 0')
         if self.options.mode == 'lockstep':
@@ -178,33 +207,57 @@ class PlantNode(Node):
             wall_period = o.control_period / o.real_time_factor
             tick = max(o.pacing_period, wall_period)
             batch = max(1, round(tick / wall_period))
-            self.pacer = Pacer(period=wall_period, tolerance=tick, max_batch=2 * batch,
-                               max_backlog=10 * batch)
-            self.pacer.begin(time.monotonic())
+            pacer = Pacer(period=wall_period, tolerance=tick, max_batch=2 * batch,
+                          max_backlog=10 * batch)
+            pacer.begin(time.monotonic())
             self._publish()
-            self.pacer.published(time.monotonic())
-            self._timer = self.create_timer(tick, self._tick)
+            pacer.published(time.monotonic())
+            self.pacer = pacer   # from now on the spin loop publishes the samples when due
+            self._timer = self.create_timer(_WATCHDOG_CHECK, self._check_watchdog)
 
-    # -- publishing --------------------------------------------------------------------------
+    # -- publishing (every sample: preallocated messages written in place) --------------------
     def _publish(self) -> None:
-        state, force = self.sim.sample()
-        self._state_msg.data = state
-        self._force_msg.data = force
-        self._clock_msg.clock = Time(nanoseconds=round(state[0] * 1e9)).to_msg()
-        self.state_pub.publish(self._state_msg)
-        self.force_pub.publish(self._force_msg)
-        self.clock_pub.publish(self._clock_msg)
+        self.sim.write_sample(self._state_data, self._force_data)
+        self.state_pub.publish(self._state_out.payload())
+        self.force_pub.publish(self._force_out.payload())
+        if self.sim.samples % self._clock_every == 0:
+            self.clock_pub.publish(self._clock_out.payload(round(self._state_data[0] * 1e9)))
+
+    def _publish_profiled(self) -> None:
+        add = self.profile.add
+        t0 = perf_counter_ns()
+        self.sim.write_sample(self._state_data, self._force_data)
+        t1 = perf_counter_ns()
+        self.state_pub.publish(self._state_out.payload())
+        t2 = perf_counter_ns()
+        self.force_pub.publish(self._force_out.payload())
+        t3 = perf_counter_ns()
+        add(1, t1 - t0)
+        add(2, t2 - t1)
+        add(3, t3 - t2)
+        if self.sim.samples % self._clock_every == 0:
+            t3 = perf_counter_ns()
+            self.clock_pub.publish(self._clock_out.payload(round(self._state_data[0] * 1e9)))
+            add(4, perf_counter_ns() - t3)
+
+    def _step(self) -> None:
+        self.sim.advance()
+
+    def _step_profiled(self) -> None:
+        t0 = perf_counter_ns()
+        self.sim.advance()
+        self.profile.add(0, perf_counter_ns() - t0)
 
     def _advance(self) -> bool:
         """One control period and its sample; False when the run ended."""
         try:
-            self.sim.advance()
+            self._step()
         except FloatingPointError as exc:
             self._fail(EXIT_DIVERGED, f'simulation failed: {exc}')
             return False
         self._publish()
         if self.pacer is not None:
-            self.pacer.published(time.monotonic())
+            self.pacer.published(monotonic())
         if self.sim.reached(self.options.duration):
             self._finish(f'duration {self.options.duration:g} s reached')
             return False
@@ -229,8 +282,7 @@ class PlantNode(Node):
                    f'{self.options.command_timeout:g} s ({last}; command has '
                    f'{self.command_sub.get_publisher_count()} publisher(s))')
 
-    def _lockstep_command(self, data: Any) -> None:
-        t = answered_time(data)
+    def _lockstep_command(self, data: Any, t: float | None) -> None:
         if self._awaiting is None or t != self._awaiting:
             self.ignored += 1
             self.get_logger().warning(
@@ -239,10 +291,10 @@ class PlantNode(Node):
             return
         self._take(data)
         self._awaiting = None
-        begin = time.monotonic()
+        begin = monotonic()
         if not self._advance():
             return
-        took = time.monotonic() - begin
+        took = monotonic() - begin
         if took > self.options.command_timeout:
             self._fail(EXIT_TIMEOUT,
                        f'lockstep timeout: the plant is overrunning: one control period '
@@ -252,13 +304,23 @@ class PlantNode(Node):
         self._await_command()
 
     # -- real time ---------------------------------------------------------------------------
-    def _tick(self) -> None:
-        if not self.running or self.pacer is None:
-            return
+    def pacing_wait(self) -> float | None:
+        """Seconds until the next real-time sample is due (<= 0: due now); None when no
+        sample is paced (lockstep, not started, or ended). Called by the spin loop."""
         pacer = self.pacer
-        for _ in range(pacer.due(time.monotonic())):
-            if not self._advance():
-                return
+        if pacer is None or not self.running:
+            return None
+        return pacer.start + pacer.produced * pacer.period - monotonic()
+
+    def publish_due(self) -> None:
+        """Advance and publish the next real-time sample if it is due (the spin loop calls
+        this when :meth:`pacing_wait` is <= 0)."""
+        if self.running and self.pacer.due(monotonic()):
+            self._advance()
+
+    def _check_watchdog(self) -> None:
+        if not self.running:
+            return
         wd = self.options.watchdog_timeout
         if wd > 0.0 and not self._watchdog_warned and self._last_command_wall is not None:
             silent = time.monotonic() - self._last_command_wall
@@ -270,20 +332,27 @@ class PlantNode(Node):
                     f't={self.sim.t:.6f} s; holding delta_f={df!r} rad, delta_c={dc!r} rad')
 
     # -- commands ----------------------------------------------------------------------------
-    def _on_command(self, msg: Float64MultiArray) -> None:
+    def _on_command_profiled(self, raw: bytes) -> None:
+        t0 = perf_counter_ns()
+        self._on_command(raw)
+        self.profile.add(5, perf_counter_ns() - t0)
+
+    def _on_command(self, raw: bytes) -> None:
+        """A serialized ``command`` (the subscription is raw: see wire.py)."""
         if not self.running:
             return
-        data = msg.data
-        self._last_command_t = answered_time(data)
-        self._last_command_wall = time.monotonic()
+        data = self._command_in.read(raw)
+        self._last_command_t = t = answered_time(data)
+        self._last_command_wall = monotonic()
         if self._watchdog_warned:
             self._watchdog_warned = False
             self.get_logger().info('watchdog: commands are arriving again')
-        if self.options.mode == 'lockstep':
-            self._lockstep_command(data)
-        else:
-            if self._take(data) and self._last_command_t is not None:
-                self._max_lag = max(self._max_lag, self.sim.t - self._last_command_t)
+        if self._lockstep:
+            self._lockstep_command(data, t)
+        elif self._take(data) and t is not None:
+            lag = self.sim.t - t
+            if lag > self._max_lag:
+                self._max_lag = lag
 
     def _take(self, data: Any) -> bool:
         """Hold the command in ``data`` if it is valid; else log and keep the last good one."""
@@ -329,19 +398,27 @@ class PlantNode(Node):
     def summary(self) -> dict[str, Any]:
         """Figures of the run so far (also logged as one JSON line at the end)."""
         wall = time.monotonic() - self._run_wall_start if self.running else 0.0
+        cpu = cpu_seconds() - self._cpu_start if self.running else 0.0
         s: dict[str, Any] = {
             'mode': self.options.mode, 'model': self.model.model, 'solver': self.model.solver,
             'step': self.model.step, 'control_period': self.options.control_period,
             't': self.sim.t, 'samples': self.sim.samples,
-            'steps': self.sim.plant.n, 'wall_time': wall,
+            'steps': self.sim.plant.n, 'wall_time': wall, 'cpu_time': cpu,
+            'cpu_per_sample_us': cpu / self.sim.samples * 1e6 if self.sim.samples else 0.0,
+            'clock_samples': self._clock_every,
             'rejected_commands': self.rejected, 'ignored_commands': self.ignored,
         }
+        if self.profile is not None:
+            s['profile'] = self.profile.summary()
         if self.pacer is not None:
             p = self.pacer
             s.update(real_time_factor=self.options.real_time_factor,
                      achieved_real_time_factor=self.sim.t / wall if wall > 0 else 0.0,
+                     deadline_tolerance=p.tolerance,
                      deadline_misses=p.misses, samples_paced=p.produced,
                      deadline_miss_rate=p.misses / p.produced if p.produced else 0.0,
+                     late_samples=p.late,
+                     mean_lateness=p.lateness_sum / p.produced if p.produced else 0.0,
                      slips=p.slips, worst_lateness=p.worst_lateness,
                      max_command_lag=self._max_lag)
         elif wall > 0:
@@ -386,6 +463,16 @@ class PlantNode(Node):
             executor.spin_once(timeout_sec=0.05)
 
 
+def _explain(exc: ParameterException) -> str:
+    """rclpy's text (it names the parameter and the value) plus the table's range and unit."""
+    name = str(exc).rsplit(': ', 1)[-1]
+    spec = next((p for p in PARAMETERS + NODE_PARAMETERS if p.name == name), None)
+    if spec is None:
+        return str(exc)
+    unit = f' {spec.unit}' if spec.unit and spec.unit != '-' else ''
+    return f'{exc}; allowed: {spec.range_text()}{unit} ({spec.description})'
+
+
 def main(args: list[str] | None = None) -> None:
     """Entry point of ``ros2 run fohssv_sim plant``; exits with the node's exit code."""
     rclpy.init(args=args)
@@ -397,10 +484,15 @@ def main(args: list[str] | None = None) -> None:
         except (ParameterError, ValueError) as exc:
             rclpy.logging.get_logger('plant').error(f'invalid parameters: {exc}')
             code = EXIT_BAD_PARAMETERS
+        except ParameterException as exc:   # rclpy's own range/type check at declaration
+            rclpy.logging.get_logger('plant').error(f'invalid parameters: {_explain(exc)}')
+            code = EXIT_BAD_PARAMETERS
         else:
             executor = make_executor()
             executor.add_node(node)
-            spin_until(executor, node.finished)
+            if node.options.mode == 'realtime':
+                tighten_timer_slack()
+            spin_until(executor, node.finished, paced=node)
             code = node.exit_code
             node.flush()
             node.linger(executor)

@@ -1,0 +1,128 @@
+"""The bare DDS round trip that bench_ros.py compares the lockstep loop with (bench only).
+
+Two processes, each one rclpy node on the executor the product's nodes use
+(:func:`fohssv_sim.ros.spin.make_executor`, spun the same way as :func:`spin_until`):
+
+* ``pong`` answers every ``echo_state`` message (a ``std_msgs/Float64MultiArray`` of 5
+  doubles, the ``state`` topic's QoS) with one ``echo_command`` message (3 doubles, the
+  ``command`` topic's QoS) echoing ``data[0]``, like a controller that computes nothing;
+* ``ping`` sends the first message once both directions are matched and answers every echo
+  with the next message, like a lockstep plant that integrates and publishes nothing else;
+  after ``--count`` round trips it prints one JSON line ``{"round_trips": n, "seconds": s,
+  "round_trips_per_second": r}`` and exits.
+
+Messages travel as the product's nodes send and take them: serialized once and written in
+place, taken by raw subscriptions and unpacked at their known offset
+(:mod:`fohssv_sim.ros.wire`).
+
+    python bench/ros_echo.py pong &
+    python bench/ros_echo.py ping --count 20000
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.task import Future
+from std_msgs.msg import Float64MultiArray
+
+from fohssv_sim.contract import COMMAND, STATE
+from fohssv_sim.ros.qos import profile
+from fohssv_sim.ros.spin import make_executor, spin_until
+from fohssv_sim.ros.wire import ArrayReader, ArrayWriter
+
+STATE_TOPIC, COMMAND_TOPIC = 'echo_state', 'echo_command'
+
+
+def pong(node) -> Future:
+    command = ArrayWriter(COMMAND)
+    out = command.values
+    state = ArrayReader(STATE)
+    pub = node.create_publisher(Float64MultiArray, COMMAND_TOPIC, profile(COMMAND))
+
+    def on_state(raw: bytes) -> None:
+        out[0] = state.read(raw)[0]
+        pub.publish(command.payload())
+
+    node.create_subscription(Float64MultiArray, STATE_TOPIC, on_state, profile(STATE),
+                             raw=True)
+    return Future()   # runs until SIGINT
+
+
+def ping(node, count: int, timeout: float) -> Future:
+    done = Future()
+    state = ArrayWriter(STATE)
+    out = state.values
+    command = ArrayReader(COMMAND)
+    pub = node.create_publisher(Float64MultiArray, STATE_TOPIC, profile(STATE))
+    n = 0
+    start = 0.0
+
+    def on_echo(raw: bytes) -> None:
+        nonlocal n
+        command.read(raw)
+        n += 1
+        if n >= count:
+            seconds = time.perf_counter() - start
+            done.set_result({'round_trips': n, 'seconds': seconds,
+                             'round_trips_per_second': n / seconds})
+            return
+        out[0] = n * 1e-4
+        pub.publish(state.payload())
+
+    sub = node.create_subscription(Float64MultiArray, COMMAND_TOPIC, on_echo, profile(COMMAND),
+                                   raw=True)
+    began = time.monotonic()
+
+    matched_at: float | None = None
+
+    def wait_for_peer() -> None:
+        # both directions matched on this side, then 0.5 s for the peer's side of the
+        # matches (the echo topic is volatile: an echo sent before its writer matched is lost)
+        nonlocal start, matched_at
+        if pub.get_subscription_count() > 0 and sub.get_publisher_count() > 0:
+            if matched_at is None:
+                matched_at = time.monotonic()
+            if time.monotonic() - matched_at < 0.5:
+                return
+            node.destroy_timer(timer)
+            start = time.perf_counter()
+            pub.publish(state.payload())
+        elif time.monotonic() - began > timeout:
+            node.destroy_timer(timer)
+            done.set_result({'error': f'no echo peer within {timeout:g} s'})
+
+    timer = node.create_timer(0.01, wait_for_peer)
+    return done
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('role', choices=('ping', 'pong'))
+    ap.add_argument('--count', type=int, default=20000)
+    ap.add_argument('--timeout', type=float, default=30.0, help='wait for the peer (s)')
+    a = ap.parse_args()
+    rclpy.init()
+    node = rclpy.create_node(f'echo_{a.role}')
+    done = ping(node, a.count, a.timeout) if a.role == 'ping' else pong(node)
+    executor = make_executor()
+    executor.add_node(node)
+    try:
+        spin_until(executor, done)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 0
+    finally:
+        node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    print(json.dumps(done.result()), flush=True)
+    return 1 if 'error' in done.result() else 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,103 @@
+"""The real-time plant with a controller node, real processes over DDS: what the run reports
+and the /clock decimation. Timing targets are not asserted here (the machine is shared and
+noisy; `make bench` measures them); the figures' consistency and the schedule's bookkeeping
+are.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from test_graph_support import Probe, finish, plant_args, stop_all
+
+import rosproc
+
+PARTS = ('advance', 'write_sample', 'publish_state', 'publish_planing_force', 'publish_clock',
+         'command_callback')
+
+
+def _summary(out: str) -> dict:
+    line = [ln for ln in out.splitlines() if 'summary: {' in ln][-1]
+    return json.loads(line.split('summary: ', 1)[1])
+
+
+class ClockListener:
+    """Records /clock (nanoseconds) in the probe's process, best effort like use_sim_time."""
+
+    def __init__(self, probe: Probe) -> None:
+        self.ns: list[int] = []
+        probe.node.create_subscription(
+            Clock, '/clock', lambda m: self.ns.append(m.clock.sec * 10**9 + m.clock.nanosec),
+            QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE))
+
+
+def _run(duration: float, **params) -> tuple[dict, Probe, ClockListener, str]:
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    probe = Probe(domain)
+    clock = ClockListener(probe)
+    ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
+    plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+        model='delay-free', duration=duration, min_state_subscribers=2, **params), env=env)
+    try:
+        code, out = finish(plant, 60)
+        assert code == 0, out
+        n = round(duration / params.get('control_period', 1e-4)) + 1
+        probe.wait(lambda: len(probe.states) >= n, 10, f'{n} states at the probe')
+        return _summary(out), probe, clock, out
+    finally:
+        stop_all(plant, ctl)
+        probe.close()
+
+
+def test_realtime_summary_profile_and_clock_decimation():
+    """clock_period = 10 control periods: /clock only at t = k * 0.01 s; every state still
+    published; the summary's schedule and cost figures are consistent with the run. (3 s, so
+    that the probe's /clock subscription has matched for most of the run: discovery can take
+    2.3 s; a step of 1e-4 s keeps the load low.)"""
+    s, probe, clock, out = _run(3.0, mode='realtime', control_period=1e-3, step=1e-4,
+                                clock_period=0.01, profile=1)
+    assert s['mode'] == 'realtime' and s['samples'] == 3000 and s['samples_paced'] == 3001
+    assert s['clock_samples'] == 10
+    assert s['deadline_tolerance'] == pytest.approx(1e-3)   # max(pacing_period, period)
+    assert 0 <= s['deadline_misses'] <= s['samples_paced']
+    assert 0 <= s['late_samples'] <= s['samples_paced']
+    assert s['deadline_miss_rate'] == pytest.approx(s['deadline_misses'] / 3001)
+    assert s['mean_lateness'] <= s['worst_lateness']
+    assert 0.0 < s['achieved_real_time_factor'] <= 1.05
+    assert s['cpu_time'] > 0.0
+    assert s['cpu_per_sample_us'] == pytest.approx(s['cpu_time'] / 3000 * 1e6)
+    prof = s['profile']
+    assert tuple(prof) == PARTS
+    assert prof['advance']['calls'] == 3000
+    assert prof['publish_state']['calls'] == prof['publish_planing_force']['calls'] == 3001
+    assert prof['publish_clock']['calls'] == 301            # t = 0, 0.01, ..., 3.0
+    assert 0 < prof['command_callback']['calls'] <= 3001
+    for part in PARTS:
+        assert 0.0 < prof[part]['mean_us'] <= prof[part]['worst_us']
+    # every state reached the probe, /clock only at multiples of clock_period
+    assert [round(x[0] * 1e3) for x in probe.states] == list(range(3001))
+    assert len(clock.ns) >= 20, clock.ns
+    assert all(ns % 10_000_000 == 0 for ns in clock.ns), clock.ns
+    assert clock.ns == sorted(set(clock.ns)) and clock.ns[-1] == 3_000_000_000
+
+
+def test_lockstep_publishes_clock_at_every_sample_whatever_clock_period():
+    """Counted by the plant's profile (a 0.02 s lockstep run can end before the probe's /clock
+    subscription is discovered)."""
+    s, _, _, _ = _run(0.02, clock_period=0.01, profile=1)
+    assert s['mode'] == 'lockstep' and s['clock_samples'] == 1 and s['samples'] == 200
+    assert s['profile']['publish_clock']['calls'] == 201
+    # the command that ends the run is still in its callback when the summary is written
+    assert s['profile']['command_callback']['calls'] == 199
+
+
+def test_profile_off_by_default_and_realtime_summary_without_it():
+    s, _, _, _ = _run(0.2, mode='realtime', control_period=1e-3)
+    assert 'profile' not in s and s['clock_samples'] == 1
+    assert s['samples_paced'] == 201 and 'deadline_tolerance' in s
+
+

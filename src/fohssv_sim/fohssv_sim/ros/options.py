@@ -100,6 +100,10 @@ NODE_PARAMETERS: tuple[ParameterSpec, ...] = (
     _P('start_timeout', '-', 30.0, 's', 'wall time to wait for those matches; lockstep fails '
        '(exit code 4) when they are missing, realtime starts anyway with a warning',
        low=0.0, low_open=False, high=3600.0, high_open=False),
+    _P('realtime_priority', '-', 0, '-', 'realtime mode: SCHED_FIFO priority (1-99) of the '
+       "plant's pacing thread, as real-time ROS 2 nodes use; needs CAP_SYS_NICE or an rtprio "
+       'limit (the plant warns and runs normally without it); 0 = the normal scheduler',
+       low=0.0, low_open=False, high=99.0, high_open=False),
     _P('end_linger', '-', 1.0, 's', 'wall time the plant keeps its publishers after the run '
        'ended, so a subscriber that lags (a recorder, a plotter) can still take the last '
        'samples: Fast DDS drops the samples a reader has not taken when their writer goes '
@@ -137,11 +141,13 @@ class PlantOptions:
     min_state_subscribers: int = _f('min_state_subscribers')
     min_command_publishers: int = _f('min_command_publishers')
     start_timeout: float = _f('start_timeout')
+    realtime_priority: int = _f('realtime_priority')
     end_linger: float = _f('end_linger')
 
     def __post_init__(self) -> None:
         validate_fields(self)
-        for name in ('min_state_subscribers', 'min_command_publishers', 'profile'):
+        for name in ('min_state_subscribers', 'min_command_publishers', 'profile',
+                     'realtime_priority'):
             v = getattr(self, name)
             if v != int(v):
                 raise ParameterError(f'{name}={v!r} must be a whole number')

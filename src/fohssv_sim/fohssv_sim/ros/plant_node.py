@@ -52,7 +52,14 @@ from .loop import (
 from .options import NODE_PARAMETERS, PlantOptions, check_options, clock_samples
 from .qos import profile
 from .ros_params import declare, install_validation
-from .spin import final_log, make_executor, spin_until, tighten_timer_slack
+from .spin import (
+    PausedCollector,
+    final_log,
+    make_executor,
+    set_realtime_priority,
+    spin_until,
+    tighten_timer_slack,
+)
 from .wire import ArrayReader, ArrayWriter, ClockWriter
 
 __all__ = ['PlantNode', 'main', 'EXIT_OK', 'EXIT_DIVERGED', 'EXIT_BAD_PARAMETERS',
@@ -492,7 +499,13 @@ def main(args: list[str] | None = None) -> None:
             executor.add_node(node)
             if node.options.mode == 'realtime':
                 tighten_timer_slack()
-            spin_until(executor, node.finished, paced=node)
+                refused = set_realtime_priority(node.options.realtime_priority)
+                if refused:
+                    node.get_logger().warning(f'{refused}; running with the normal scheduler')
+                with PausedCollector():
+                    spin_until(executor, node.finished, paced=node)
+            else:
+                spin_until(executor, node.finished, paced=node)
             code = node.exit_code
             node.flush()
             node.linger(executor)

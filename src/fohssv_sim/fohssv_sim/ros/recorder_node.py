@@ -44,7 +44,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
-from rclpy.qos import QoSProfile
+from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock as ClockMsg
 from std_msgs.msg import Float64MultiArray
@@ -161,8 +161,10 @@ class Recorder(Node):
             raise ValueError(f'command_publishers={wait_commands!r} must be >= 0')
         for name, topic in topics:
             base = profile(topic)
-            # same reliability/durability as the plant's; the recorder's own queue is deep
-            qos = QoSProfile(history=base.history, depth=max(base.depth, SAMPLE_DEPTH),
+            # same reliability/durability as the plant's; keep-all: when the recorder falls
+            # behind, its reader stops acknowledging instead of overwriting what it has not
+            # written yet, and a lockstep plant waits for it (nothing lost)
+            qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=max(base.depth, SAMPLE_DEPTH),
                              reliability=base.reliability, durability=base.durability)
             if topic is contract.STATE and wait_commands > 0:
                 # deferred until the command subscription hears enough publishers

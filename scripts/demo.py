@@ -67,7 +67,9 @@ def main() -> int:
                  '-p', f'model:={args.model}', '-p', f'fractional_order:={args.alpha}',
                  '-p', f'speed:={args.speed}', '-p', 'mode:=lockstep',
                  '-p', f'duration:={args.duration}', '-p', 'initial_state:=[0.0,0.0,0.0,0.0]',
-                 '-p', 'min_state_subscribers:=2']
+                 '-p', 'min_state_subscribers:=2',
+                 # the recorder is slower than the loop: it paces the run, loses nothing
+                 '-p', 'pace_to_subscribers:=512']
     ctl_cmd = [_exe('fohssv_controller', 'controller'), '--ros-args',
                '-p', f'controller:={args.controller}',
                # the plant and the recorder: no command goes out before both match it

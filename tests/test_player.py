@@ -89,7 +89,7 @@ def _lockstep_run(tmp_path, name: str, feeder) -> tuple[object, str]:
     rec = _recorder(env, bag, logs['recorder'])
     feed = feeder(env, logs['feeder'])
     plant = _plant(env, logs['plant'], model='delay-free', duration=DURATION,
-                   min_state_subscribers=2, start_timeout=60.0)
+                   min_state_subscribers=2, start_timeout=60.0, pace_to_subscribers=512)
     code = rosproc.wait_exit(plant, 90)
     assert code == 0, logs['plant'].read_text()
     feed_code = rosproc.wait_exit(feed, 30) if name == 'B' else rosproc.stop(feed)

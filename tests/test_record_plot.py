@@ -38,7 +38,7 @@ def test_recorded_closed_loop_equals_batch_run_and_plots(tmp_path):
                             ['--ros-args', '-p', 'min_command_subscribers:=2'], env=env)
         plant = rosproc.start('fohssv_sim', 'plant', plant_args(
             model='delay-free', mode='lockstep', duration=DURATION,
-            min_state_subscribers=2), env=env)
+            min_state_subscribers=2, pace_to_subscribers=512), env=env)
         code, out = finish(plant, 120)
         assert code == 0, out
         time.sleep(0.5)   # the recorder's last flush period

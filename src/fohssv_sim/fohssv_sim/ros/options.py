@@ -100,6 +100,11 @@ NODE_PARAMETERS: tuple[ParameterSpec, ...] = (
     _P('start_timeout', '-', 30.0, 's', 'wall time to wait for those matches; lockstep fails '
        '(exit code 4) when they are missing, realtime starts anyway with a warning',
        low=0.0, low_open=False, high=3600.0, high_open=False),
+    _P('pace_to_subscribers', '-', 0, 'samples', 'lockstep mode: every this many samples wait '
+       "(at most 1 s) until every subscriber acknowledged the samples, so a recorder slower "
+       "than the loop paces the run instead of losing samples (set it when recording, e.g. "
+       "512; below the queue depth of 2000); 0 = off: the loop runs at the controller's pace",
+       low=0.0, low_open=False, high=1900.0, high_open=False),
     _P('realtime_priority', '-', 0, '-', 'realtime mode: SCHED_FIFO priority (1-99) of the '
        "plant's pacing thread, as real-time ROS 2 nodes use; needs CAP_SYS_NICE or an rtprio "
        'limit (the plant warns and runs normally without it); 0 = the normal scheduler',
@@ -141,13 +146,14 @@ class PlantOptions:
     min_state_subscribers: int = _f('min_state_subscribers')
     min_command_publishers: int = _f('min_command_publishers')
     start_timeout: float = _f('start_timeout')
+    pace_to_subscribers: int = _f('pace_to_subscribers')
     realtime_priority: int = _f('realtime_priority')
     end_linger: float = _f('end_linger')
 
     def __post_init__(self) -> None:
         validate_fields(self)
         for name in ('min_state_subscribers', 'min_command_publishers', 'profile',
-                     'realtime_priority'):
+                     'pace_to_subscribers', 'realtime_priority'):
             v = getattr(self, name)
             if v != int(v):
                 raise ParameterError(f'{name}={v!r} must be a whole number')

@@ -69,9 +69,7 @@ EXIT_OK, EXIT_DIVERGED, EXIT_BAD_PARAMETERS, EXIT_TIMEOUT, EXIT_NO_PEERS = 0, 1,
 
 _MODEL_NAMES = tuple(p.name for p in PARAMETERS)
 _NODE_NAMES = tuple(p.name for p in NODE_PARAMETERS)
-#: Lockstep: every this many samples the plant waits for its subscribers' acknowledgements
-#: (well inside the writers' queue of SAMPLE_DEPTH), at most _ACK_TIMEOUT s.
-_ACK_EVERY = 4096
+#: Lockstep with pace_to_subscribers: the longest wait for the acknowledgements (s).
 _ACK_TIMEOUT = 1.0
 #: Rejected commands logged one by one; later ones are throttled to one line per second.
 _LOG_EACH = 20
@@ -312,16 +310,17 @@ class PlantNode(Node):
                        f'({self.sim.hold} steps) took {took:.3f} s > command_timeout='
                        f'{self.options.command_timeout:g} s at t={self.sim.t!r} s')
             return
-        if self.sim.samples % _ACK_EVERY == 0:
+        every = self.options.pace_to_subscribers
+        if every and self.sim.samples % every == 0:
             self._keep_subscribers_up()
         self._await_command()
 
     def _keep_subscribers_up(self) -> None:
-        """Lockstep: wait until every subscriber of the samples has acknowledged them, so a
-        subscriber slower than the loop paces the run instead of losing what falls out of the
-        writer's queue. Only a reader that stops acknowledging when its own queue is full (the
-        recorder's keep-all readers) holds the plant; keep-last readers acknowledge at once.
-        One that stays silent for _ACK_TIMEOUT (stalled) is left behind, with a warning."""
+        """Lockstep with ``pace_to_subscribers``: wait until every subscriber of the samples
+        has acknowledged them, so a subscriber slower than the loop (a recorder, whose keep-all
+        readers stop acknowledging when their queue is full) paces the run instead of losing
+        what falls out of the writer's queue. One that stays silent for _ACK_TIMEOUT (stalled)
+        is left behind, with a warning."""
         for pub in (self.state_pub, self.force_pub):
             if not pub.wait_for_all_acked(Duration(seconds=_ACK_TIMEOUT)):
                 self.get_logger().warning(

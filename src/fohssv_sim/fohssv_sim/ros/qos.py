@@ -3,9 +3,10 @@
 * ``reliable_samples`` (``state``, ``planing_force``): reliable, keep-last with a deep queue
   (:data:`SAMPLE_DEPTH`), transient-local: the lockstep loop stalled when the controller's
   reader matched the plant only after the sample t = 0 was written. A recorder must keep
-  every sample: at the default 10 kHz sample rate the queue covers 1 s of backlog, and a
-  lockstep plant waits for its subscribers' acknowledgements every 4096 samples, so a
+  every sample: at the default 10 kHz sample rate the queue covers 0.2 s of backlog; with
+  ``pace_to_subscribers`` a lockstep plant waits for its subscribers' acknowledgements, so a
   keep-all reader (the recorder's) that falls behind paces the run instead of losing samples.
+  (A deeper queue slowed Fast DDS: 10000 halved the lockstep rate.)
 * ``reliable_commands`` (``command``): reliable, keep-last :data:`COMMAND_DEPTH`, volatile.
   Lockstep depends on every command arriving, and a recorder must keep them all: a reliable
   keep-last writer drops what a slow reader has not acknowledged once its queue is full, so
@@ -46,8 +47,8 @@ from ..contract import Topic
 __all__ = ['SAMPLE_DEPTH', 'COMMAND_DEPTH', 'PROFILES', 'profile', 'offered_qos',
            'DURATION_INFINITE']
 
-#: Queue depth of state and force samples (1 s at the default 1e-4 s control period).
-SAMPLE_DEPTH = 10000
+#: Queue depth of state and force samples (0.2 s at the default 1e-4 s control period).
+SAMPLE_DEPTH = 2000
 #: Queue depth of commands: as deep as the samples (a recorder lags the same on both).
 COMMAND_DEPTH = SAMPLE_DEPTH
 

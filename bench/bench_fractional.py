@@ -25,13 +25,14 @@ for _var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
 
 import argparse  # noqa: E402
 import copy  # noqa: E402
-import json  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
+from functools import partial  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from benchutil import finish, target  # noqa: E402
 
 try:
     import fohssv_sim.fractional  # noqa: F401
@@ -168,12 +169,7 @@ def targets(res: dict) -> list[dict]:
     """The issue's targets, each with the figure measured in this run (when it was run)."""
     rows = []
 
-    def add(name, measured, op, goal):
-        if measured is None:
-            return
-        met = measured <= goal if op == '<=' else measured >= goal
-        rows.append({'name': name, 'measured': float(measured), 'op': op, 'goal': goal,
-                     'met': bool(met)})
+    add = partial(target, rows)
 
     cost = res['per_step_cost']
     last = cost['n'][-1]
@@ -342,18 +338,7 @@ def main(argv=None) -> int:
     print(f"\nSOE kernel (alpha={ALPHA}, tol 1e-10, horizon 1e8): {rep.n_modes} modes, max rel "
           f"weight error {rep.max:.2e} over {rep.n_lags_checked} lags")
     res['targets'] = targets(res)
-    print('\nTargets of issue #4 (ratios from this run)')
-    print(f"{'target':<58} {'measured':>10} {'goal':>10}  met")
-    for row in res['targets']:
-        print(f"{row['name']:<58} {row['measured']:>10.3g} {row['op']}{row['goal']:>8g}  "
-              f"{'yes' if row['met'] else 'NO'}")
-    res['load_avg_end'] = os.getloadavg()
-    print(f"load avg at end {os.getloadavg()[0]:.2f}")
-    if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(res, indent=2))
-        print(f"wrote {args.out}")
-    return 0
+    return finish(res, 'Targets of issue #4 (ratios from this run)', args.out, width=58)
 
 
 if __name__ == '__main__':

@@ -20,15 +20,16 @@ The machine may be shared: the load average is printed and stored with the resul
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import statistics
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
+from benchutil import finish, target
 
 from fohssv_controller.state_feedback import StateFeedback
 from fohssv_sim import kernels
@@ -136,10 +137,7 @@ def long_run(duration: float) -> dict:
 def targets(res: dict) -> list[dict]:
     rows = []
 
-    def add(name, measured, op, goal):
-        met = measured <= goal if op == '<=' else measured >= goal
-        rows.append({'name': name, 'measured': float(measured), 'op': op, 'goal': goal,
-                     'met': bool(met)})
+    add = partial(target, rows)
 
     cost = res['per_step']
     add('compiled / interpreted speed-up, RK4 delay-free', cost['delay-free']['speedup'],
@@ -203,18 +201,7 @@ def main(argv=None) -> int:
           f"{lr['wall_per_sim_s_last_1pct']:.3f} s (last 1 %)")
 
     res['targets'] = targets(res)
-    print('\nTargets of issue #11 (ratios from this run)')
-    print(f"{'target':<62} {'measured':>10} {'goal':>10}  met")
-    for row in res['targets']:
-        print(f"{row['name']:<62} {row['measured']:>10.3g} {row['op']}{row['goal']:>8g}  "
-              f"{'yes' if row['met'] else 'NO'}")
-    res['load_avg_end'] = os.getloadavg()
-    print(f"load avg at end {os.getloadavg()[0]:.2f}")
-    if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(res, indent=2))
-        print(f"wrote {args.out}")
-    return 0
+    return finish(res, 'Targets of issue #11 (ratios from this run)', args.out, width=62)
 
 
 if __name__ == '__main__':

@@ -216,6 +216,22 @@ def _fail(bad, a, b, c, d):
     bad[0], bad[1], bad[2], bad[3] = a, b, c, d
 
 
+@jitable
+def _shift(x, k, a):
+    """x + a k for 4-tuples (an RK4 stage point)."""
+    return x[0] + a * k[0], x[1] + a * k[1], x[2] + a * k[2], x[3] + a * k[3]
+
+
+@jitable
+def _rk4_sum(x, k1, k2, k3, k4, h):
+    """The RK4 update x + h/6 (k1 + 2 k2 + 2 k3 + k4), in the interpreted models' order."""
+    g = h / 6.0
+    return (x[0] + g * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0]),
+            x[1] + g * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1]),
+            x[2] + g * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2]),
+            x[3] + g * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3]))
+
+
 def _njit(fn):
     if numba is None:  # pragma: no cover
         return fn
@@ -234,44 +250,41 @@ def _rhs_free(c, smooth, w, th, q, uf, uc):
 def delay_free_run(x, nsteps, h, cv, smooth, law, continuous, bad):
     """``nsteps`` RK4 steps of eq. 17 from ``x`` (4,), in place; returns the steps taken."""
     c = _coefficients(cv)
-    z, w, th, q = x[0], x[1], x[2], x[3]
+    xs = (x[0], x[1], x[2], x[3])
     hh = 0.5 * h
+    taken = nsteps
     for i in range(nsteps):
-        uf, uc = _input(law, continuous, z, w, th, q)
-        k1 = _rhs_free(c, smooth, w, th, q, uf, uc)
-        z2, w2, t2, q2 = z + hh * k1[0], w + hh * k1[1], th + hh * k1[2], q + hh * k1[3]
-        uf, uc = _input(law, continuous, z2, w2, t2, q2)
-        k2 = _rhs_free(c, smooth, w2, t2, q2, uf, uc)
-        z3, w3, t3, q3 = z + hh * k2[0], w + hh * k2[1], th + hh * k2[2], q + hh * k2[3]
-        uf, uc = _input(law, continuous, z3, w3, t3, q3)
-        k3 = _rhs_free(c, smooth, w3, t3, q3, uf, uc)
-        z4, w4, t4, q4 = z + h * k3[0], w + h * k3[1], th + h * k3[2], q + h * k3[3]
-        uf, uc = _input(law, continuous, z4, w4, t4, q4)
-        k4 = _rhs_free(c, smooth, w4, t4, q4, uf, uc)
-        g = h / 6.0
-        zn = z + g * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0])
-        wn = w + g * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])
-        tn = th + g * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2])
-        qn = q + g * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3])
-        if not _finite4(zn, wn, tn, qn):
-            _fail(bad, zn, wn, tn, qn)
-            x[0], x[1], x[2], x[3] = z, w, th, q
-            return i
-        z, w, th, q = zn, wn, tn, qn
-    x[0], x[1], x[2], x[3] = z, w, th, q
-    return nsteps
+        uf, uc = _input(law, continuous, xs[0], xs[1], xs[2], xs[3])
+        k1 = _rhs_free(c, smooth, xs[1], xs[2], xs[3], uf, uc)
+        x2 = _shift(xs, k1, hh)
+        uf, uc = _input(law, continuous, x2[0], x2[1], x2[2], x2[3])
+        k2 = _rhs_free(c, smooth, x2[1], x2[2], x2[3], uf, uc)
+        x3 = _shift(xs, k2, hh)
+        uf, uc = _input(law, continuous, x3[0], x3[1], x3[2], x3[3])
+        k3 = _rhs_free(c, smooth, x3[1], x3[2], x3[3], uf, uc)
+        x4 = _shift(xs, k3, h)
+        uf, uc = _input(law, continuous, x4[0], x4[1], x4[2], x4[3])
+        k4 = _rhs_free(c, smooth, x4[1], x4[2], x4[3], uf, uc)
+        xn = _rk4_sum(xs, k1, k2, k3, k4, h)
+        if not _finite4(xn[0], xn[1], xn[2], xn[3]):
+            _fail(bad, xn[0], xn[1], xn[2], xn[3])
+            taken = i
+            break
+        xs = xn
+    x[0], x[1], x[2], x[3] = xs
+    return taken
 
 
 # -- delayed model: RK4 by the method of steps -------------------------------------------------
 
 @jitable
-def _rhs_delayed(c, paper, hx, hf, n, c_stage, lag, tau, h, x_init, z, w, th, q, uf, uc):
+def _rhs_delayed(c, paper, hx, hf, n, c_stage, lag, tau, h, x_init, xs, uf, uc):
     if tau == 0.0:
-        zd, wd, thd = z, w, th
+        zd, wd, thd = xs[0], xs[1], xs[2]
     else:
         zd, wd, thd, _ = hermite_delayed(hx, hf, n, c_stage, lag, h, x_init)
-    fp = planing_delayed(z, th, zd, wd, thd, c, 'paper' if paper else 'geometric')
-    return eq17(c, w, th, q, uf, uc, fp)
+    fp = planing_delayed(xs[0], xs[2], zd, wd, thd, c, 'paper' if paper else 'geometric')
+    return eq17(c, xs[1], xs[2], xs[3], uf, uc, fp)
 
 
 @_njit
@@ -279,37 +292,34 @@ def delayed_run(x, n, nsteps, h, cv, hx, hf, lag, tau, x_init, paper, law, conti
     """``nsteps`` RK4 steps of eqs. 22-25 from step ``n`` at ``x``, in place (state and history
     rings ``hx``, ``hf``); returns the steps taken."""
     c = _coefficients(cv)
-    z, w, th, q = x[0], x[1], x[2], x[3]
+    xs = (x[0], x[1], x[2], x[3])
     size = hx.shape[0]
     hh = 0.5 * h
+    taken = nsteps
     for i in range(nsteps):
-        r = (n + i) % size
-        hx[r, 0], hx[r, 1], hx[r, 2], hx[r, 3] = z, w, th, q
         m = n + i
-        uf, uc = _input(law, continuous, z, w, th, q)
-        k1 = _rhs_delayed(c, paper, hx, hf, m, 0.0, lag, tau, h, x_init, z, w, th, q, uf, uc)
-        hf[r, 0], hf[r, 1], hf[r, 2], hf[r, 3] = k1[0], k1[1], k1[2], k1[3]
-        z2, w2, t2, q2 = z + hh * k1[0], w + hh * k1[1], th + hh * k1[2], q + hh * k1[3]
-        uf, uc = _input(law, continuous, z2, w2, t2, q2)
-        k2 = _rhs_delayed(c, paper, hx, hf, m, 0.5, lag, tau, h, x_init, z2, w2, t2, q2, uf, uc)
-        z3, w3, t3, q3 = z + hh * k2[0], w + hh * k2[1], th + hh * k2[2], q + hh * k2[3]
-        uf, uc = _input(law, continuous, z3, w3, t3, q3)
-        k3 = _rhs_delayed(c, paper, hx, hf, m, 0.5, lag, tau, h, x_init, z3, w3, t3, q3, uf, uc)
-        z4, w4, t4, q4 = z + h * k3[0], w + h * k3[1], th + h * k3[2], q + h * k3[3]
-        uf, uc = _input(law, continuous, z4, w4, t4, q4)
-        k4 = _rhs_delayed(c, paper, hx, hf, m, 1.0, lag, tau, h, x_init, z4, w4, t4, q4, uf, uc)
-        g = h / 6.0
-        zn = z + g * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0])
-        wn = w + g * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])
-        tn = th + g * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2])
-        qn = q + g * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3])
-        if not _finite4(zn, wn, tn, qn):
-            _fail(bad, zn, wn, tn, qn)
-            x[0], x[1], x[2], x[3] = z, w, th, q
-            return i
-        z, w, th, q = zn, wn, tn, qn
-    x[0], x[1], x[2], x[3] = z, w, th, q
-    return nsteps
+        r = m % size
+        hx[r, 0], hx[r, 1], hx[r, 2], hx[r, 3] = xs
+        uf, uc = _input(law, continuous, xs[0], xs[1], xs[2], xs[3])
+        k1 = _rhs_delayed(c, paper, hx, hf, m, 0.0, lag, tau, h, x_init, xs, uf, uc)
+        hf[r, 0], hf[r, 1], hf[r, 2], hf[r, 3] = k1     # f_m: the Hermite slope at t_m
+        x2 = _shift(xs, k1, hh)
+        uf, uc = _input(law, continuous, x2[0], x2[1], x2[2], x2[3])
+        k2 = _rhs_delayed(c, paper, hx, hf, m, 0.5, lag, tau, h, x_init, x2, uf, uc)
+        x3 = _shift(xs, k2, hh)
+        uf, uc = _input(law, continuous, x3[0], x3[1], x3[2], x3[3])
+        k3 = _rhs_delayed(c, paper, hx, hf, m, 0.5, lag, tau, h, x_init, x3, uf, uc)
+        x4 = _shift(xs, k3, h)
+        uf, uc = _input(law, continuous, x4[0], x4[1], x4[2], x4[3])
+        k4 = _rhs_delayed(c, paper, hx, hf, m, 1.0, lag, tau, h, x_init, x4, uf, uc)
+        xn = _rk4_sum(xs, k1, k2, k3, k4, h)
+        if not _finite4(xn[0], xn[1], xn[2], xn[3]):
+            _fail(bad, xn[0], xn[1], xn[2], xn[3])
+            taken = i
+            break
+        xs = xn
+    x[0], x[1], x[2], x[3] = xs
+    return taken
 
 
 # -- fractional model: ABM predictor-corrector with the SOE history -----------------------------

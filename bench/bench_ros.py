@@ -150,6 +150,15 @@ def _row(name: str, value: float, goal: str, ok: bool, fmt: str = '{:.3f}') -> d
             'text': fmt.format(value)}
 
 
+def _rt_priority_permitted() -> bool:
+    """Whether this process could set SCHED_FIFO (root, or an rtprio limit)."""
+    import resource
+
+    if not hasattr(os, 'sched_setscheduler'):
+        return False
+    return os.geteuid() == 0 or resource.getrlimit(resource.RLIMIT_RTPRIO)[0] > 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--out', type=Path, default=Path('bench/results/ros.json'))
@@ -201,8 +210,27 @@ def main() -> int:
                   f"{s['deadline_misses']}/{s['samples_paced']} "
                   f"({100 * s['deadline_miss_rate']:.2f} %), slips {s['slips']}, plant CPU "
                   f"{s['cpu_per_sample_us']:.0f} us/sample, controller CPU "
-                  f"{s.get('controller_cpu_per_sample_us', float('nan')):.0f} us/sample",
-                  flush=True)
+                  f"{s.get('controller_cpu_per_sample_us', float('nan')):.0f} us/sample, worst "
+                  f"lateness {1e3 * s['worst_lateness']:.1f} ms", flush=True)
+
+    # the same runs with the plant's thread under SCHED_FIFO (realtime_priority), where the
+    # machine permits it: shows how much of the misses are scheduling stalls of the process
+    fifo = []
+    if _rt_priority_permitted():
+        for model in MODELS:
+            for period in (1e-4, 1e-3):
+                params = {'model': model, 'mode': 'realtime', 'control_period': period,
+                          'duration': sim_time, 'real_time_factor': 1.0,
+                          'realtime_priority': 50, **MODEL_PARAMS[model]}
+                s = run_plant(domains, params, timeout=900.0)
+                fifo.append(s)
+                print(f"realtime  {model:11s} T={period:g} s, realtime_priority 50: achieved "
+                      f"RTF {s['achieved_real_time_factor']:.3f}, deadline misses "
+                      f"{s['deadline_misses']}/{s['samples_paced']} "
+                      f"({100 * s['deadline_miss_rate']:.2f} %), worst lateness "
+                      f"{1e3 * s['worst_lateness']:.1f} ms", flush=True)
+    else:
+        print('realtime  (SCHED_FIFO not permitted here: no realtime_priority runs)')
 
     profiles = {}
     for model in MODELS:
@@ -242,7 +270,8 @@ def main() -> int:
         'benchmark': 'ros graph', 'machine': platform.platform(), 'cpus': os.cpu_count(),
         'python': sys.version.split()[0], 'quick': a.quick,
         'simulated_time_realtime': sim_time, 'wall_time': time.monotonic() - started,
-        'echo': echo, 'lockstep': lockstep, 'realtime': realtime, 'profile': profiles,
+        'echo': echo, 'lockstep': lockstep, 'realtime': realtime,
+        'realtime_priority_50': fifo, 'profile': profiles,
         'targets': targets}, indent=2) + '\n')
     print(f'wrote {a.out}')
     return 0

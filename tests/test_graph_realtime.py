@@ -7,6 +7,7 @@ are.
 from __future__ import annotations
 
 import json
+import time
 
 import pytest
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -101,3 +102,58 @@ def test_profile_off_by_default_and_realtime_summary_without_it():
     assert s['samples_paced'] == 201 and 'deadline_tolerance' in s
 
 
+
+
+def _policy(pid: int) -> int:
+    """The scheduling policy of a process's main thread (field 41 of /proc/PID/stat)."""
+    with open(f'/proc/{pid}/stat') as f:
+        return int(f.read().rsplit(')', 1)[1].split()[38])
+
+
+def test_realtime_priority_puts_the_plant_under_sched_fifo_or_warns(tmp_path):
+    """realtime_priority:=10: while the run is paced the plant's thread is SCHED_FIFO (1) where
+    permitted; elsewhere the plant says why and runs with the normal scheduler."""
+    import os
+
+    env = rosproc.ros_env(rosproc.unique_domain_id())
+    log = tmp_path / 'plant.log'
+    ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
+    plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+        model='delay-free', mode='realtime', control_period=1e-3, duration=3.0,
+        realtime_priority=10, end_linger=0.0), env=env, log=log)
+    policies: list[int] = []
+    try:
+        rosproc.wait_for(lambda: 'peers matched' in log.read_text(), 30, what='the run')
+        deadline = time.monotonic() + 2.0
+        while time.monotonic() < deadline and plant.poll() is None:
+            policies.append(_policy(plant.pid))
+            time.sleep(0.05)
+        code = rosproc.wait_exit(plant, 60)
+        out = log.read_text()
+        assert code == 0, out
+    finally:
+        stop_all(plant, ctl)
+    if os.geteuid() == 0:
+        assert 1 in policies and 'not permitted' not in out, (policies, out)
+    else:
+        assert 'running with the normal scheduler' in out, out
+
+
+def test_plant_lingers_after_the_run_while_samples_are_subscribed(tmp_path):
+    """end_linger:=2: after 'stopping cleanly' the plant keeps its publishers for 2 s while a
+    controller still subscribes to state (so a lagging subscriber can take the tail)."""
+    env = rosproc.ros_env(rosproc.unique_domain_id())
+    log = tmp_path / 'plant.log'
+    ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
+    plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+        model='delay-free', duration=0.05, end_linger=2.0), env=env, log=log)
+    try:
+        rosproc.wait_for(lambda: 'stopping cleanly' in log.read_text(), 60,
+                         what='the end of the run', interval=0.005)
+        ended = time.monotonic()
+        code = rosproc.wait_exit(plant, 30)
+        lingered = time.monotonic() - ended
+        assert code == 0, log.read_text()
+    finally:
+        stop_all(plant, ctl)
+    assert 1.5 <= lingered <= 10.0, lingered

@@ -152,7 +152,8 @@ class PlantNode(Node):
         self._minimums_since: float | None = None
         self._peer_timer = self.create_timer(0.01, self._wait_for_peers)
         self.get_logger().info(
-            f'{self.sim.plant.describe()}; mode {self.options.mode}, control period '
+            f'{self.sim.plant.describe()} (ready in {self.sim.compile_seconds:.2f} s); mode '
+            f'{self.options.mode}, control period '
             f'{self.options.control_period:g} s = {hold} steps (zero-order hold), duration '
             f'{self.options.duration:g} s; waiting for {self.options.min_state_subscribers} '
             f'state subscriber(s) and {self.options.min_command_publishers} command '

@@ -14,6 +14,7 @@ import pytest
 from ament_index_python.packages import get_package_share_directory
 from test_graph_support import Probe, batch_samples, plant_args, stop_all
 
+from fohssv_controller.fractional_pid import FractionalPID
 from fohssv_controller.lqr import LQR
 from fohssv_controller.state_feedback import StateFeedback
 
@@ -110,3 +111,16 @@ def test_reset_service_returns_to_t0_and_replays_the_run():
     ref, _ = batch_samples('delay-free', StateFeedback(), 0.1)
     assert after.shape == ref.shape
     assert np.max(np.abs(after - ref)) <= TOL
+
+
+def test_fractional_pid_node_equals_the_batch_run():
+    """The PI^lambda D^mu plugin through its own node over DDS, with fractional integral and
+    derivative terms active, equals the in-process run sample for sample."""
+    gains = {'integral_order': 0.85, 'derivative_order': 0.7, 'depth_ki': 2.0,
+             'pitch_ki': -1.0, 'pitch_kd': -0.2}
+    args = ['--ros-args'] + [a for k, v in gains.items() for a in ('-p', f'{k}:={v}')]
+    duration = 0.1
+    states, _, _ = _run('fractional', 'fractional_pid', duration, args)
+    ref, _ = batch_samples('fractional', FractionalPID(**gains), duration)
+    assert states.shape == ref.shape
+    assert np.max(np.abs(states - ref)) <= TOL

@@ -24,11 +24,13 @@ setup(
         'fohssv.controllers': [
             'state_feedback = fohssv_controller.state_feedback:StateFeedback',
             'lqr = fohssv_controller.lqr:LQR',
+            'fractional_pid = fohssv_controller.fractional_pid:FractionalPID',
         ],
         'console_scripts': [
             'controller = fohssv_controller.ros.controller_node:main',
             'state_feedback = fohssv_controller.ros.controller_node:main_state_feedback',
             'lqr = fohssv_controller.ros.controller_node:main_lqr',
+            'fractional_pid = fohssv_controller.ros.controller_node:main_fractional_pid',
         ],
     },
 )

@@ -213,3 +213,8 @@ def main_state_feedback(args: list[str] | None = None) -> None:
 def main_lqr(args: list[str] | None = None) -> None:
     """``ros2 run fohssv_controller lqr``: the node with the LQR."""
     main(args, 'lqr')
+
+
+def main_fractional_pid(args: list[str] | None = None) -> None:
+    """``ros2 run fohssv_controller fractional_pid``: the node with the PI^lambda D^mu."""
+    main(args, 'fractional_pid')

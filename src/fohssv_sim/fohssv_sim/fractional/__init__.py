@@ -17,6 +17,7 @@ Pure numpy/scipy; no ROS imports.
 from .abm import ABMStepper, BatchABM
 from .batch import group_by_alpha
 from .fft import ABMSolution, solve_abm_fft
+from .operators import OnlineCaputoDerivative, OnlineIntegral
 from .soe import BatchSOE, SOEHistory, SOEStepper
 from .soe_kernel import SOEErrorReport, SOEModes, soe_kernel_error, soe_modes
 from .weights import (
@@ -31,6 +32,8 @@ from .weights import (
 __all__ = [
     'ABMStepper',
     'SOEStepper',
+    'OnlineIntegral',
+    'OnlineCaputoDerivative',
     'SOEHistory',
     'BatchABM',
     'BatchSOE',

@@ -7,7 +7,11 @@ Contract (:class:`Plant`), shaped like scipy's steppers:
   rad, held constant over the step (zero-order hold, as through ROS), or a callable
   ``u(t, state) -> (delta_f, delta_c)`` evaluated at every solver stage (continuous feedback,
   as in the paper's simulations). It returns the new state;
-* ``t`` (s), ``n`` (steps taken; t = n h exactly), ``state`` (copy of [z, w, theta, q]),
+* ``advance(u, steps)`` takes ``steps`` steps with the same ``u``: a held input or an
+  :class:`AffineLaw` runs them in one compiled call (:mod:`.kernels`), any other callable
+  interpreted, step by step;
+* ``t`` (s), ``n`` (steps taken; t = n h exactly), ``x`` (the state as a tuple, no copy),
+  ``state`` (copy of [z, w, theta, q]),
   ``planing_force`` (Fp at the current state, eq. 10), ``status`` ('ready' | 'running' |
   'failed').
 
@@ -17,7 +21,8 @@ naming the time and the state; a failed plant refuses further steps until ``rese
 Models: :class:`DelayFreeModel` (eq. 17, RK4), :class:`DelayedModel` (eqs. 22-25, RK4 with the
 method of steps and cubic-Hermite history), :class:`FractionalModel` (eqs. 26-30, Caputo,
 predictor-corrector from :mod:`fohssv_sim.fractional`). :func:`make_plant` builds the one the
-parameters name.
+parameters name. ``engine='python'`` steps every model interpreted: the readable reference
+the compiled kernels are tested against (``test/test_kernels.py``).
 """
 
 from __future__ import annotations
@@ -94,8 +99,8 @@ class Plant:
     """Base of the three models; see the module docstring for the contract.
 
     Subclasses implement ``_advance(u) -> tuple`` (one interpreted step from the current
-    state), ``_run_compiled(law, continuous, steps) -> int`` (steps through their kernel) and
-    ``planing_force``. Cost per step: O(1) for the integer models; see the solver for the FOM.
+    state), ``_run_compiled(law, continuous, steps) -> (steps taken, state array)`` (steps
+    through their kernel), ``_compiled()`` and ``planing_force``. Cost per step: O(1) for the integer models; see the solver for the FOM.
     """
 
     def __init__(self, params: ModelParameters | None = None,

@@ -100,7 +100,8 @@ class Plant:
 
     Subclasses implement ``_advance(u) -> tuple`` (one interpreted step from the current
     state), ``_run_compiled(law, continuous, steps) -> (steps taken, state array)`` (steps
-    through their kernel), ``_compiled()`` and ``planing_force``. Cost per step: O(1) for the integer models; see the solver for the FOM.
+    through their kernel), ``_compiled()`` and ``planing_force``. Cost per step: O(1) for the
+    integer models; see the solver for the FOM.
     """
 
     def __init__(self, params: ModelParameters | None = None,

@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 EXECUTABLES = {
     'fohssv_sim': ['plant', 'recorder', 'player', 'fohssv'],
-    'fohssv_controller': ['controller', 'state_feedback', 'lqr'],
+    'fohssv_controller': ['controller', 'state_feedback', 'lqr', 'fractional_pid'],
 }
 
 

@@ -97,9 +97,10 @@ NODE_PARAMETERS: tuple[ParameterSpec, ...] = (
        high_open=False),
     _P('min_command_publishers', '-', 1, '-', 'matched publishers of command to wait for '
        'before the first sample', low=0.0, low_open=False, high=1000.0, high_open=False),
-    _P('start_timeout', '-', 30.0, 's', 'wall time to wait for those matches; lockstep fails '
-       '(exit code 4) when they are missing, realtime starts anyway with a warning',
-       low=0.0, low_open=False, high=3600.0, high_open=False),
+    _P('start_timeout', '-', 0.0, 's', 'wall time to wait for those matches; 0 = wait until '
+       'they are there (the plant logs what it waits for every 5 s); when a positive timeout '
+       'expires the plant exits with code 4 (both modes)', low=0.0, low_open=False,
+       high=3600.0, high_open=False),
     _P('end_linger', '-', 1.0, 's', 'wall time the plant keeps its publishers after the run '
        'ended, so a subscriber that lags (a recorder, a plotter) can still take the last '
        'samples: Fast DDS drops the samples a reader has not taken when their writer goes '

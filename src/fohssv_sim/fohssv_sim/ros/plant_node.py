@@ -14,8 +14,15 @@ Modes:
   holding the newest good command; deadline misses are counted and reported; the watchdog
   warns once per outage when no command came for ``watchdog_timeout``.
 
+Start: the plant publishes nothing (no sample, no ``/clock``) until ``min_command_publishers``
+controllers and ``min_state_subscribers`` readers have matched; it logs what it still waits
+for whenever that changes and every 5 s. ``start_timeout`` 0 (default) waits indefinitely, so
+``ros2 run fohssv_sim plant`` and a controller started later in another terminal just work; a
+positive ``start_timeout`` is for scripts: exit 4 when it expires, in both modes.
+
 Exit codes: 0 clean stop (signal or ``duration`` reached), 1 state turned non-finite,
-2 invalid parameters at start, 3 lockstep timeout or plant overrun, 4 peers missing at start.
+2 invalid parameters at start, 3 lockstep timeout or plant overrun, 4 peers missing when a
+positive ``start_timeout`` expired.
 """
 
 from __future__ import annotations
@@ -66,6 +73,9 @@ _NODE_NAMES = tuple(p.name for p in NODE_PARAMETERS)
 _LOG_EACH = 20
 #: Realtime mode: wall-clock period of the watchdog check (s).
 _WATCHDOG_CHECK = 0.01
+#: While waiting for its peers, the plant says what it waits for this often (s) and whenever
+#: the matched counts change.
+_WAIT_LOG_PERIOD = 5.0
 
 
 def array_message(topic: Topic) -> Float64MultiArray:
@@ -141,13 +151,13 @@ class PlantNode(Node):
         self._timer = None
         self.pacer: Pacer | None = None
         self._minimums_since: float | None = None
+        self._peers_logged: tuple[int, int] | None = None
+        self._next_wait_log = 0.0
         self._peer_timer = self.create_timer(0.01, self._wait_for_peers)
         self.get_logger().info(
             f'{self.sim.plant.describe()}; mode {self.options.mode}, control period '
             f'{self.options.control_period:g} s = {hold} steps (zero-order hold), duration '
-            f'{self.options.duration:g} s; waiting for {self.options.min_state_subscribers} '
-            f'state subscriber(s) and {self.options.min_command_publishers} command '
-            'publisher(s)')
+            f'{self.options.duration:g} s')
 
     # -- parameters ------------------------------------------------------------------------
     def _apply(self, config: tuple[ModelParameters, PlantOptions, int]) -> None:
@@ -171,24 +181,49 @@ class PlantNode(Node):
         return all(pub.get_subscription_count() >= self.count_subscribers(pub.topic_name)
                    for pub in (self.state_pub, self.force_pub))
 
+    def _waiting_for(self, subs: int, pubs: int) -> str:
+        """What the plant waits for, in words (logged at start, on a change, every 5 s)."""
+        o = self.options
+        missing = []
+        if pubs < o.min_command_publishers:
+            missing.append('a controller' if o.min_command_publishers - pubs == 1 else
+                           f'{o.min_command_publishers - pubs} command publishers')
+        if subs < o.min_state_subscribers:
+            missing.append(f'{o.min_state_subscribers - subs} more state subscriber(s) '
+                           '(controllers, recorders)')
+        what = ' and '.join(missing) or 'the listed subscribers to match'
+        return (f'waiting for {what}: command has {pubs}/{o.min_command_publishers} '
+                f'publisher(s), {self.state_pub.topic_name} has {subs}/'
+                f'{o.min_state_subscribers} subscriber(s)')
+
     def _wait_for_peers(self) -> None:
         subs, pubs = self._peers()
         o = self.options
-        if (subs >= o.min_state_subscribers and pubs >= o.min_command_publishers
-                and self._listed_matched()):
-            self._start()
-            return
-        waited = time.monotonic() - self._wall_start
-        if waited < o.start_timeout:
-            return
-        what = (f'state has {subs}/{o.min_state_subscribers} subscriber(s), command has '
-                f'{pubs}/{o.min_command_publishers} publisher(s) after {waited:.1f} s')
-        if o.mode == 'lockstep':
-            self._fail(EXIT_NO_PEERS, f'start timeout: {what}; is the controller running '
-                       'in the same ROS_DOMAIN_ID and namespace?')
+        if subs >= o.min_state_subscribers and pubs >= o.min_command_publishers:
+            if self._listed_matched():
+                self._start()
+                return
         else:
-            self.get_logger().warning(f'starting without all peers: {what}')
-            self._start()
+            self._minimums_since = None    # a peer left again (a controller swapped)
+        now = time.monotonic()
+        waited = now - self._wall_start
+        if o.start_timeout == 0.0 or waited < o.start_timeout:
+            # no clock, no sample: say what is missing when it changes and every 5 s
+            if (subs, pubs) != self._peers_logged or now >= self._next_wait_log:
+                self._peers_logged = (subs, pubs)
+                self._next_wait_log = now + _WAIT_LOG_PERIOD
+                limit = ('no start timeout' if o.start_timeout == 0.0 else
+                         f'start_timeout {o.start_timeout:g} s')
+                hint = ('; start one in the same ROS_DOMAIN_ID and namespace, e.g. '
+                        '`ros2 run fohssv_controller state_feedback`'
+                        if pubs < o.min_command_publishers else '')
+                self.get_logger().info(f'{self._waiting_for(subs, pubs)} (waited {waited:.0f} '
+                                       f's, {limit}){hint}')
+            return
+        self._fail(EXIT_NO_PEERS, f'start timeout: state has {subs}/{o.min_state_subscribers} '
+                   f'subscriber(s), command has {pubs}/{o.min_command_publishers} '
+                   f'publisher(s) after {waited:.1f} s (start_timeout={o.start_timeout:g} s); '
+                   'is the controller running in the same ROS_DOMAIN_ID and namespace?')
 
     def _start(self) -> None:
         self.destroy_timer(self._peer_timer)
@@ -196,7 +231,9 @@ class PlantNode(Node):
         self._run_wall_start = time.monotonic()
         self._cpu_start = cpu_seconds()
         self._last_command_wall = self._run_wall_start
-        self.get_logger().info('peers matched; starting at t = 0')
+        subs, pubs = self._peers()
+        self.get_logger().info(f'peers matched (command: {pubs} publisher(s), state: {subs} '
+                               'subscriber(s)); starting at t = 0')
         if self.options.mode == 'lockstep':
             self._publish()
             self._await_command()

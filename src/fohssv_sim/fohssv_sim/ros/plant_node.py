@@ -3,7 +3,8 @@
 A thin wrapper around :class:`fohssv_sim.ros.loop.SampledPlant` (the model the parameters name,
 sampled every ``control_period`` with the command held). Topics (relative names, see
 :mod:`fohssv_sim.contract` and ``docs/ros.md``): publishes ``state``, ``planing_force`` and
-``/clock`` at every sample, subscribes ``command``; service ``reset`` (std_srvs/Trigger).
+``/clock`` at every sample, the typed views (:mod:`.views`) every ``view_period``, subscribes
+``command``; service ``reset`` (std_srvs/Trigger).
 
 Modes:
 
@@ -56,10 +57,11 @@ from .loop import (
     check_command,
     cpu_seconds,
 )
-from .options import NODE_PARAMETERS, PlantOptions, check_options, clock_samples
+from .options import NODE_PARAMETERS, PlantOptions, check_options, clock_samples, view_samples
 from .qos import profile
 from .ros_params import declare, install_validation
 from .spin import final_log, make_executor, spin_until, tighten_timer_slack
+from .views import ViewPublisher
 from .wire import ArrayReader, ArrayWriter, ClockWriter
 
 __all__ = ['PlantNode', 'main', 'EXIT_OK', 'EXIT_DIVERGED', 'EXIT_BAD_PARAMETERS',
@@ -129,6 +131,9 @@ class PlantNode(Node):
         self.force_pub = self.create_publisher(Float64MultiArray, PLANING_FORCE.name,
                                                profile(PLANING_FORCE))
         self.clock_pub = self.create_publisher(Clock, CLOCK.name, profile(CLOCK))
+        # typed views for viewers, every view_period (views.py); None when off
+        self._view_every = view_samples(self.options)
+        self.views = ViewPublisher(self, self.model) if self._view_every else None
         on_command = self._on_command if self.profile is None else self._on_command_profiled
         self.command_sub = self.create_subscription(Float64MultiArray, COMMAND.name,
                                                     on_command, profile(COMMAND), raw=True)
@@ -259,6 +264,8 @@ class PlantNode(Node):
         self.force_pub.publish(self._force_out.payload())
         if self.sim.samples % self._clock_every == 0:
             self.clock_pub.publish(self._clock_out.payload(round(self._state_data[0] * 1e9)))
+        if self._view_every and self.sim.samples % self._view_every == 0:
+            self.views.publish(self._state_data, self._force_data[1])
 
     def _publish_profiled(self) -> None:
         add = self.profile.add
@@ -276,6 +283,10 @@ class PlantNode(Node):
             t3 = perf_counter_ns()
             self.clock_pub.publish(self._clock_out.payload(round(self._state_data[0] * 1e9)))
             add(4, perf_counter_ns() - t3)
+        if self._view_every and self.sim.samples % self._view_every == 0:
+            t3 = perf_counter_ns()
+            self.views.publish(self._state_data, self._force_data[1])
+            add(6, perf_counter_ns() - t3)
 
     def _step(self) -> None:
         self.sim.advance()
@@ -442,7 +453,8 @@ class PlantNode(Node):
             't': self.sim.t, 'samples': self.sim.samples,
             'steps': self.sim.plant.n, 'wall_time': wall, 'cpu_time': cpu,
             'cpu_per_sample_us': cpu / self.sim.samples * 1e6 if self.sim.samples else 0.0,
-            'clock_samples': self._clock_every,
+            'clock_samples': self._clock_every, 'view_samples': self._view_every,
+            'views': self.views.published if self.views is not None else 0,
             'rejected_commands': self.rejected, 'ignored_commands': self.ignored,
         }
         if self.profile is not None:

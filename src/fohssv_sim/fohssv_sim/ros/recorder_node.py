@@ -57,13 +57,20 @@ from visualization_msgs.msg import Marker
 
 from .. import contract
 from ..bag.writer import DEFAULT_CHUNK_SIZE, RunWriter, typestore
-from .qos import SAMPLE_DEPTH, offered_qos, profile
+from .qos import offered_qos, profile
 
 __all__ = ['Recorder', 'main', 'default_bag_path', 'source_info']
 
 _MSG_CLASSES = {contract.FLOAT64_ARRAY: Float64MultiArray, contract.CLOCK.type: ClockMsg,
                 contract.POSE.type: PoseStamped, contract.TWIST.type: TwistStamped,
                 contract.WRENCH.type: WrenchStamped, contract.MARKER.type: Marker}
+#: Depth of the recorder's own reader queues (messages per topic). The plant's writers keep
+#: 2000 (qos.py), but a reliable writer hands a sample over as soon as the reader's DDS layer
+#: has it: what the reader keeps until the recorder takes it is this queue. A lockstep plant
+#: runs at up to about 10k samples/s, faster than the recorder takes 4 messages per sample, so
+#: a 2000-deep queue overflowed mid-run (a README walkthrough bag lost 7 % of its samples);
+#: this one holds seconds of such a backlog (an idle recorder measured 75 MB resident).
+READER_DEPTH = 100_000
 #: What the recorder records by default: the contract and the typed views.
 RECORDED = contract.TOPICS + contract.VIEW_TOPICS
 _CDR_LE = b'\x00\x01'
@@ -173,7 +180,7 @@ class Recorder(Node):
         for name, topic in topics:
             base = profile(topic)
             # same reliability/durability as the plant's; the recorder's own queue is deep
-            qos = QoSProfile(history=base.history, depth=max(base.depth, SAMPLE_DEPTH),
+            qos = QoSProfile(history=base.history, depth=max(base.depth, READER_DEPTH),
                              reliability=base.reliability, durability=base.durability)
             if topic is contract.STATE and wait_commands > 0:
                 # deferred until the command subscription hears enough publishers

@@ -134,6 +134,9 @@ class PlantNode(Node):
         # typed views for viewers, every view_period (views.py); None when off
         self._view_every = view_samples(self.options)
         self.views = ViewPublisher(self, self.model) if self._view_every else None
+        # the writers whose readers (recorders, viewers) the start, flush and linger wait for
+        self._sample_pubs = (self.state_pub, self.force_pub) + (
+            self.views.publishers if self.views is not None else ())
         on_command = self._on_command if self.profile is None else self._on_command_profiled
         self.command_sub = self.create_subscription(Float64MultiArray, COMMAND.name,
                                                     on_command, profile(COMMAND), raw=True)
@@ -184,7 +187,7 @@ class PlantNode(Node):
         if time.monotonic() - self._minimums_since > 2.0:
             return True
         return all(pub.get_subscription_count() >= self.count_subscribers(pub.topic_name)
-                   for pub in (self.state_pub, self.force_pub))
+                   for pub in self._sample_pubs)
 
     def _waiting_for(self, subs: int, pubs: int) -> str:
         """What the plant waits for, in words (logged at start, on a change, every 5 s)."""
@@ -496,17 +499,17 @@ class PlantNode(Node):
 
     def flush(self, timeout: float = 2.0) -> None:
         """Wait until subscribers acknowledged what was published (reliable topics)."""
-        for pub in (self.state_pub, self.force_pub):
+        for pub in self._sample_pubs:
             if pub.get_subscription_count() > 0:
                 pub.wait_for_all_acked(Duration(seconds=timeout))
 
     def linger(self, executor: Any) -> None:
         """Keep the publishers (and services) up for ``end_linger`` s after the run ended, or
-        until nothing subscribes to the samples any more: a reader drops what it has not
+        until nothing subscribes to the samples (or views) any more: a reader drops what it has not
         taken yet from a writer that goes away, so a subscriber lagging behind a fast run
         would lose its tail when the plant exits."""
         deadline = time.monotonic() + self.options.end_linger
-        samples = (self.state_pub, self.force_pub)
+        samples = self._sample_pubs
         while (rclpy.ok() and time.monotonic() < deadline
                and any(p.get_subscription_count() > 0 for p in samples)):
             executor.spin_once(timeout_sec=0.05)

@@ -27,10 +27,45 @@ import numpy as np
 from ament_index_python.packages import get_package_prefix
 
 from fohssv_sim.bag import BagError, load_run
+from fohssv_sim.closed_loop import (
+    DEFAULT_CONTROLLER,
+    DEFAULT_DURATION,
+    DEMO_PLANT,
+    NodeSpec,
+    closed_loop,
+    ros_args,
+)
 
 
 def _exe(package: str, name: str) -> str:
     return os.path.join(get_package_prefix(package), 'lib', package, name)
+
+
+def command(spec: NodeSpec) -> list[str]:
+    """The command line that starts ``spec`` (what ``ros2 run`` resolves, with its
+    parameters)."""
+    return [_exe(spec.package, spec.executable), *ros_args(spec)]
+
+
+def specs(args: argparse.Namespace, bag: Path) -> tuple[NodeSpec, NodeSpec, NodeSpec]:
+    """The nodes of the demo: the launch file's list (fohssv_sim.closed_loop) with the
+    command line's choices."""
+    return closed_loop(controller=args.controller, duration=args.duration, bag_path=str(bag),
+                       plant={'model': args.model, 'fractional_order': args.alpha,
+                              'speed': args.speed})
+
+
+def parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('--model', default=DEMO_PLANT['model'])
+    ap.add_argument('--alpha', type=float, default=DEMO_PLANT['fractional_order'])
+    ap.add_argument('--speed', type=float, default=DEMO_PLANT['speed'])
+    ap.add_argument('--duration', type=float, default=DEFAULT_DURATION)
+    ap.add_argument('--controller', default=DEFAULT_CONTROLLER)
+    ap.add_argument('--timeout', type=float, default=600.0, help='wall-clock limit (s)')
+    ap.add_argument('--bag', type=Path, default=None,
+                    help='bag folder to record (default runs/demo-<UTC time>)')
+    return ap
 
 
 def dominant_frequency(t: np.ndarray, x: np.ndarray, pad: int = 16) -> float:
@@ -44,16 +79,7 @@ def dominant_frequency(t: np.ndarray, x: np.ndarray, pad: int = 16) -> float:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    ap.add_argument('--model', default='fractional')
-    ap.add_argument('--alpha', type=float, default=0.85)
-    ap.add_argument('--speed', type=float, default=75.0)
-    ap.add_argument('--duration', type=float, default=2.0)
-    ap.add_argument('--controller', default='state_feedback')
-    ap.add_argument('--timeout', type=float, default=600.0, help='wall-clock limit (s)')
-    ap.add_argument('--bag', type=Path, default=None,
-                    help='bag folder to record (default runs/demo-<UTC time>)')
-    args = ap.parse_args()
+    args = parser().parse_args()
     stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%SZ')
     bag = args.bag or Path('runs') / f'demo-{stamp}'
     if bag.exists():
@@ -63,17 +89,9 @@ def main() -> int:
     domain = int(os.environ.get('FOHSSV_DEMO_DOMAIN', 1 + os.getpid() % 200))
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                PYTHONUNBUFFERED='1')
-    plant_cmd = [_exe('fohssv_sim', 'plant'), '--ros-args',
-                 '-p', f'model:={args.model}', '-p', f'fractional_order:={args.alpha}',
-                 '-p', f'speed:={args.speed}', '-p', 'mode:=lockstep',
-                 '-p', f'duration:={args.duration}', '-p', 'initial_state:=[0.0,0.0,0.0,0.0]',
-                 '-p', 'min_state_subscribers:=2',
-                 # the recorder is slower than the loop: it paces the run, loses nothing
-                 '-p', 'pace_to_subscribers:=512']
-    ctl_cmd = [_exe('fohssv_controller', 'controller'), '--ros-args',
-               '-p', f'controller:={args.controller}',
-               # the plant and the recorder: no command goes out before both match it
-               '-p', 'min_command_subscribers:=2']
+    # plant, controller, recorder: the launch file's nodes and parameters (closed_loop.py:
+    # the settings that make the bag complete are explained there)
+    plant_cmd, ctl_cmd, rec_cmd = (command(s) for s in specs(args, bag))
     print(f'demo: plant ({args.model}, alpha={args.alpha:g}, V={args.speed:g} m/s, x(0)=0, '
           f'lockstep, {args.duration:g} s), controller {args.controller!r} and recorder as '
           f'three processes, ROS_DOMAIN_ID={domain}', flush=True)
@@ -81,11 +99,7 @@ def main() -> int:
     bag.parent.mkdir(parents=True, exist_ok=True)
     rec_log = bag.parent / f'{bag.name}.recorder.log'
     with open(rec_log, 'w') as log:
-        # command_publishers:=1: the recorder subscribes to state, which the plant waits for,
-        # only once it hears the controller, so the bag holds every command
-        recorder = subprocess.Popen([_exe('fohssv_sim', 'recorder'), '--ros-args', '-p',
-                                     f'bag_path:={bag}', '-p', 'command_publishers:=1'],
-                                    env=env, stdout=log,
+        recorder = subprocess.Popen(rec_cmd, env=env, stdout=log,
                                     stderr=subprocess.STDOUT, text=True, start_new_session=True)
     deadline = time.monotonic() + 60
     while 'recording to' not in rec_log.read_text() and time.monotonic() < deadline:

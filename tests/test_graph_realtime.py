@@ -17,7 +17,7 @@ from test_graph_support import Probe, finish, plant_args, stop_all
 import rosproc
 
 PARTS = ('advance', 'write_sample', 'publish_state', 'publish_planing_force', 'publish_clock',
-         'command_callback')
+         'command_callback', 'publish_views')
 
 
 def _summary(out: str) -> dict:
@@ -76,6 +76,8 @@ def test_realtime_summary_profile_and_clock_decimation():
     assert prof['advance']['calls'] == 3000
     assert prof['publish_state']['calls'] == prof['publish_planing_force']['calls'] == 3001
     assert prof['publish_clock']['calls'] == 301            # t = 0, 0.01, ..., 3.0
+    # the typed views at the default view_period 0.01 s: decimated the same way
+    assert s['view_samples'] == 10 and s['views'] == prof['publish_views']['calls'] == 301
     assert 0 < prof['command_callback']['calls'] <= 3001
     for part in PARTS:
         assert 0.0 < prof[part]['mean_us'] <= prof[part]['worst_us']
@@ -92,6 +94,8 @@ def test_lockstep_publishes_clock_at_every_sample_whatever_clock_period():
     s, _, _, _ = _run(0.02, clock_period=0.01, profile=1)
     assert s['mode'] == 'lockstep' and s['clock_samples'] == 1 and s['samples'] == 200
     assert s['profile']['publish_clock']['calls'] == 201
+    # views every 100 samples (view_period 0.01 s): t = 0, 0.01, 0.02
+    assert s['view_samples'] == 100 and s['profile']['publish_views']['calls'] == 3
     # the command that ends the run is still in its callback when the summary is written
     assert s['profile']['command_callback']['calls'] == 199
 
@@ -99,6 +103,7 @@ def test_lockstep_publishes_clock_at_every_sample_whatever_clock_period():
 def test_profile_off_by_default_and_realtime_summary_without_it():
     s, _, _, _ = _run(0.2, mode='realtime', control_period=1e-3)
     assert 'profile' not in s and s['clock_samples'] == 1
+    assert s['views'] == 21            # t = 0, 0.01, ..., 0.2
     assert s['samples_paced'] == 201 and 'deadline_tolerance' in s
 
 

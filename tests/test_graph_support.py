@@ -18,10 +18,11 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
+from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
-from fohssv_sim.contract import COMMAND, PLANING_FORCE, STATE
+from fohssv_sim.contract import CLOCK, COMMAND, PLANING_FORCE, STATE
 from fohssv_sim.params import ModelParameters
 from fohssv_sim.ros.plant_node import array_message
 from fohssv_sim.ros.qos import profile
@@ -37,7 +38,11 @@ Answer = Callable[[float, tuple], Sequence[float] | None]
 class Probe:
     """A test node: records states and forces; optionally answers them with commands."""
 
-    def __init__(self, domain_id: int, answer: Answer | None = None) -> None:
+    def __init__(self, domain_id: int, answer: Answer | None = None, *,
+                 command_publisher: bool = True, clock: bool = False) -> None:
+        """``command_publisher=False``: a passive listener (the plant counts it as a state
+        subscriber, never as a controller); ``clock=True``: also record ``/clock`` times
+        (ns) in ``clocks``."""
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain_id)
         self.node = rclpy.create_node('probe', context=self.context)
@@ -55,7 +60,12 @@ class Probe:
                               profile(PLANING_FORCE))
         n.create_subscription(Float64MultiArray, COMMAND.name,
                               lambda m: self.commands.append(tuple(m.data)), profile(COMMAND))
-        self.command_pub = n.create_publisher(Float64MultiArray, COMMAND.name, profile(COMMAND))
+        self.clocks: list[int] = []
+        if clock:
+            n.create_subscription(Clock, CLOCK.name, lambda m: self.clocks.append(
+                m.clock.sec * 1_000_000_000 + m.clock.nanosec), profile(CLOCK))
+        self.command_pub = (n.create_publisher(Float64MultiArray, COMMAND.name, profile(COMMAND))
+                            if command_publisher else None)
         self.reset_client = n.create_client(Trigger, 'reset')
         self.params = AsyncParameterClient(n, 'plant')
         self.executor = SingleThreadedExecutor(context=self.context)

@@ -67,16 +67,21 @@ def _recorder(env, bag, log):
                                              '-p', 'command_publishers:=1'], env, log)
 
 
-def _states_recorded(bag) -> int:
+def _recorded(bag) -> tuple[int, int]:
     try:
-        return len(load_run(bag).t)
+        run = load_run(bag)
     except BagError:
-        return 0
+        return 0, 0
+    return len(run.t), len(run.command_t)
 
 
 def _close_recorder(proc, bag, n: int, log) -> None:
-    rosproc.wait_for(lambda: _states_recorded(bag) >= n, 30, interval=0.1,
-                     what=f'{n} states in {bag}')
+    # the commands too: under load the recorder takes them later than the states
+    def complete() -> bool:
+        states, commands = _recorded(bag)
+        return states >= n and commands >= n - 1
+
+    rosproc.wait_for(complete, 30, interval=0.1, what=f'{n} states and {n - 1} commands in {bag}')
     assert rosproc.stop(proc, signal.SIGINT) == 0, log.read_text()
 
 
@@ -92,8 +97,10 @@ def _lockstep_run(tmp_path, name: str, feeder) -> tuple[object, str]:
                    min_state_subscribers=2, start_timeout=60.0, pace_to_subscribers=512)
     code = rosproc.wait_exit(plant, 90)
     assert code == 0, logs['plant'].read_text()
-    feed_code = rosproc.wait_exit(feed, 30) if name == 'B' else rosproc.stop(feed)
+    # the bag first, then the feeder: a reader loses the samples it has not taken yet when
+    # their writer goes away, so stopping the controller early cut the recorded commands
     _close_recorder(rec, bag, N, logs['recorder'])
+    feed_code = rosproc.wait_exit(feed, 30) if name == 'B' else rosproc.stop(feed)
     text = '\n'.join(f'--- {k}\n{v.read_text()}' for k, v in logs.items())
     assert feed_code == 0, text
     return load_run(bag), text

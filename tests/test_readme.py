@@ -19,8 +19,9 @@ def test_readme_parameter_table_is_generated_from_the_parameter_table():
 
 
 def test_readme_topic_table_and_controller_example_are_the_real_ones():
-    from fohssv_sim.docs import topic_table
+    from fohssv_sim.docs import topic_table, view_table
 
     assert topic_table() in README
+    assert view_table() in README, 'regenerate with: python -m fohssv_sim.docs'
     example = (ROOT / 'tests' / 'examples' / 'pitch_damper.py').read_text().rstrip()
     assert f'```python\n{example}\n```' in README

@@ -1,10 +1,15 @@
 """A run recorded by the real recorder from the real plant and controller (three processes over
 DDS): the bag holds the batch runner's trajectory sample for sample, and `fohssv plot` on it
-summarises what an independent in-process run gives."""
+summarises what an independent in-process run gives. The same bag holds the typed views
+(pose, twist, planing_wrench, vehicle_marker) every view_period, equal to the state and Fp
+samples at the same t to rounding, and every topic and field the Foxglove layout
+(docs/foxglove/fohssv_layout.json) names."""
 
 from __future__ import annotations
 
 import json
+import math
+import re
 import signal
 import subprocess
 import time
@@ -15,13 +20,101 @@ from ament_index_python.packages import get_package_prefix
 from test_graph_support import batch_samples, finish, plant_args, stop_all
 
 from fohssv_controller.state_feedback import StateFeedback
+from fohssv_sim import contract
 from fohssv_sim.bag import load_run
 from fohssv_sim.bag.check import check
+from fohssv_sim.bag.loader import scan
+from fohssv_sim.bag.writer import typestore
 
 import rosproc
 
 FOHSSV = Path(get_package_prefix('fohssv_sim')) / 'lib' / 'fohssv_sim' / 'fohssv'
 DURATION = 0.3
+ROOT = Path(__file__).resolve().parents[1]
+LAYOUT = ROOT / 'docs' / 'foxglove' / 'fohssv_layout.json'
+
+
+def _decoded(bag: Path) -> dict[str, list]:
+    """Every message of the bag, decoded, by topic (in recorded order)."""
+    sc, ts = scan(bag), typestore()
+    out: dict[str, list] = {}
+    for cid, _, raw in sc.messages:
+        chan = sc.channels[cid]
+        out.setdefault(chan.topic, []).append(ts.deserialize_cdr(raw, chan.msgtype))
+    return out
+
+
+def _ns(stamp) -> int:
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def _assert_views_equal_the_samples(run, msgs: dict[str, list]) -> None:
+    """pose, twist, planing_wrench every 100th sample (view_period 0.01 s at 1e-4 s), equal
+    to state and Fp at the same t: exact negations, theta from the quaternion to rounding."""
+    row = {round(t * 1e9): i for i, t in enumerate(run.t)}
+    due = [round(t * 1e9) for t in run.t[::100]]          # t = 0, 0.01, ..., 0.3
+    assert len(due) == 31
+    for name in ('/pose', '/twist', '/planing_wrench'):
+        assert [_ns(m.header.stamp) for m in msgs[name]] == due, name
+    for m in msgs['/pose']:
+        z, w, theta, q = run.state[row[_ns(m.header.stamp)]]
+        assert m.header.frame_id == contract.VIEW_WORLD_FRAME
+        p, o = m.pose.position, m.pose.orientation
+        assert (p.x, p.y, p.z) == (0.0, 0.0, -z)
+        assert o.x == o.z == 0.0 and abs(o.y ** 2 + o.w ** 2 - 1.0) <= 1e-15
+        assert abs(-2.0 * math.atan2(o.y, o.w) - theta) <= 1e-15 + 1e-12 * abs(theta)
+    for m in msgs['/twist']:
+        z, w, theta, q = run.state[row[_ns(m.header.stamp)]]
+        assert m.header.frame_id == contract.VIEW_BODY_FRAME
+        lin, ang = m.twist.linear, m.twist.angular
+        assert (lin.x, lin.y, lin.z) == (75.0, 0.0, -w)
+        assert (ang.x, ang.y, ang.z) == (0.0, -q, 0.0)
+    fp_at = {round(t * 1e9): f for t, f in zip(run.planing_force_t, run.planing_force)}
+    for m in msgs['/planing_wrench']:
+        assert m.header.frame_id == contract.VIEW_BODY_FRAME
+        f, tq = m.wrench.force, m.wrench.torque
+        assert (f.x, f.y, f.z) == (0.0, 0.0, -fp_at[_ns(m.header.stamp)])
+        assert (tq.x, tq.y, tq.z) == (0.0, 0.0, 0.0)
+    assert any(m.wrench.force.z != 0.0 for m in msgs['/planing_wrench'])   # it planes
+    markers = msgs['/vehicle_marker']
+    assert [m.id for m in markers] == [0, 1] * 31
+    assert [_ns(m.header.stamp) for m in markers[::2]] == due
+    for body, pose in zip(markers[::2], msgs['/pose']):
+        assert body.pose.orientation == pose.pose.orientation
+        assert body.scale.x == 1.8 and body.scale.y == body.scale.z == 2 * 0.0508
+        assert body.header.frame_id == contract.VIEW_WORLD_FRAME
+
+
+def _field(msg, path: list):
+    for part in path:
+        msg = msg[part] if isinstance(part, int) else getattr(msg, part)
+    return msg
+
+
+def _assert_layout_names_what_the_bag_has(msgs: dict[str, list]) -> None:
+    """Every topic the layout's 3D panel shows and every message path its plots draw exists
+    in the bag, and the path resolves to a number in a recorded message."""
+    layout = json.loads(LAYOUT.read_text())
+    topics, paths = set(), []
+    for panel_id, config in layout['configById'].items():
+        topics |= set(config.get('topics', {}))
+        paths += [p['value'] for p in config.get('paths', [])]
+        if 'xAxisPath' in config:
+            paths.append(config['xAxisPath']['value'])
+        if panel_id.startswith('3D!'):
+            assert config['followTf'] == contract.VIEW_WORLD_FRAME
+    assert {'/pose', '/vehicle_marker'} <= topics and '/state.data[2]' in paths
+    for topic in topics:
+        assert msgs.get(topic), f'the layout shows {topic}, which the bag lacks'
+    for path in paths:
+        m = re.fullmatch(r'(/[\w/]+?)((?:\.\w+|\[\d+\])+)', path)
+        assert m, path
+        topic = m.group(1)
+        assert msgs.get(topic), f'the layout plots {path}: {topic} is not in the bag'
+        parts = [int(x[1:-1]) if x.startswith('[') else x[1:]
+                 for x in re.findall(r'\.\w+|\[\d+\]', m.group(2))]
+        value = _field(msgs[topic][-1], parts)
+        assert isinstance(value, float), (path, value)
 
 
 def test_recorded_closed_loop_equals_batch_run_and_plots(tmp_path):
@@ -57,6 +150,9 @@ def test_recorded_closed_loop_equals_batch_run_and_plots(tmp_path):
     assert np.array_equal(run.log_time['state'], np.round(ref[:, 0] * 1e9).astype(np.int64))
     assert run.parameters['model'] == 'delay-free' and run.parameters['control_period'] == 1e-4
     assert check(bag).ok
+    msgs = _decoded(bag)
+    _assert_views_equal_the_samples(run, msgs)
+    _assert_layout_names_what_the_bag_has(msgs)
 
     out = subprocess.run([str(FOHSSV), 'plot', str(bag), '--out', str(tmp_path / 'fig')],
                          capture_output=True, text=True, timeout=120)

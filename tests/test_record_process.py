@@ -19,6 +19,7 @@ import time
 import numpy as np
 import pytest
 import rclpy
+from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
 from mcap.reader import make_reader
 from rclpy.context import Context
 from rclpy.duration import Duration
@@ -30,6 +31,7 @@ from rosbags.rosbag2.metadata import parse_qos
 from rosgraph_msgs.msg import Clock
 from ruamel.yaml import YAML
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from visualization_msgs.msg import Marker
 
 from fohssv_sim import contract
 from fohssv_sim.bag import BagError, load_run
@@ -44,6 +46,11 @@ from rosproc import ros_env, start, stop, unique_domain_id, wait_exit, wait_for
 
 pytestmark = pytest.mark.graph
 
+_CLASSES = {contract.FLOAT64_ARRAY: Float64MultiArray, contract.CLOCK.type: Clock,
+            contract.POSE.type: PoseStamped, contract.TWIST.type: TwistStamped,
+            contract.WRENCH.type: WrenchStamped, contract.MARKER.type: Marker}
+VIEWS = {'/' + t.name for t in contract.VIEW_TOPICS}
+
 
 class FakePlant:
     """A node named 'plant' with parameters, publishing a real model's steps."""
@@ -55,9 +62,9 @@ class FakePlant:
         self.node.declare_parameter('model', 'delay-free')
         self.node.declare_parameter('V', 75.0)
         self.node.declare_parameter('control_period', 1e-4)
-        self.pubs = {t.name: self.node.create_publisher(
-            Clock if t is contract.CLOCK else Float64MultiArray, t.name, profile(t))
-            for t in contract.TOPICS}
+        # the typed views too (the recorder records them by default); none is published here
+        self.pubs = {t.name: self.node.create_publisher(_CLASSES[t.type], t.name, profile(t))
+                     for t in contract.TOPICS + contract.VIEW_TOPICS}
         self.executor = SingleThreadedExecutor(context=self.ctx)
         self.executor.add_node(self.node)
         self.thread = threading.Thread(target=self.executor.spin, daemon=True)
@@ -142,8 +149,9 @@ def _assert_qos_is_what_the_plant_offers(bag, plant) -> None:
         summary = make_reader(f).get_summary()
     from_mcap = {c.topic: parse_qos(c.metadata['offered_qos_profiles'])
                  for c in summary.channels.values()}
-    assert set(from_yaml) == set(from_mcap) == {'/state', '/planing_force', '/command', '/clock'}
-    for topic in contract.TOPICS:
+    assert set(from_yaml) == set(from_mcap) == {'/state', '/planing_force', '/command',
+                                                '/clock'} | VIEWS
+    for topic in contract.TOPICS + contract.VIEW_TOPICS:
         name = topic.name if topic.name.startswith('/') else '/' + topic.name
         offered = [i.qos_profile for i in plant.node.get_publishers_info_by_topic(name)]
         assert len(offered) == 1, (name, offered)
@@ -190,6 +198,7 @@ def test_signal_closes_a_complete_bag_equal_to_the_trajectory(tmp_path, domain, 
     assert not run.truncated
     _assert_matches(run, plant)
     clock = run.topics.pop('/clock')
+    assert {v: run.topics.pop(v) for v in VIEWS} == dict.fromkeys(VIEWS, 0)
     assert run.topics == {'/state': 1500, '/planing_force': 1500, '/command': 1500}
     # /clock is keep-last 1 at the publisher (qos.py): the newest may replace an unsent one
     assert 0 < clock <= 1500 and set(run.clock_t) <= {round(t * 1e9) * 1e-9 for t in plant.t}

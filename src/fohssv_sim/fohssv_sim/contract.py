@@ -35,7 +35,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 __all__ = ['Topic', 'STATE', 'PLANING_FORCE', 'COMMAND', 'CLOCK', 'TOPICS', 'decode',
-           'ContractError']
+           'ContractError', 'POSE', 'TWIST', 'WRENCH', 'MARKER', 'VIEW_TOPICS',
+           'VIEW_WORLD_FRAME', 'VIEW_BODY_FRAME']
 
 
 class ContractError(ValueError):
@@ -76,6 +77,44 @@ CLOCK = Topic('/clock', 'rosgraph_msgs/msg/Clock', ('clock',), ('s',),
               'mode: every clock_period if set)', 'clock')
 
 TOPICS = (STATE, PLANING_FORCE, COMMAND, CLOCK)
+
+# -- views for people ------------------------------------------------------------------------
+# Typed messages that viewers (Foxglove, RViz, PlotJuggler) draw and name without knowing the
+# contract: published every ``view_period`` of simulated time (decimated; ``view_period`` 0 =
+# off), never the control interface. Frames (no tf is published; REP 103 axes, z up):
+#
+# * ``fohssv_world``: x along the direction of travel (horizontal), y to port, z up, origin at
+#   depth 0. It travels with the vehicle at V (the model has no horizontal position), so the
+#   pose's x and y are 0.
+# * ``fohssv_body``: at the nose (cavitator, the model's reference point), x along the body
+#   axis forward, y to port, z up in the body.
+#
+# The model's z, w, Fp are positive down and theta, q nose up: on these z-up axes the views
+# carry -z, -w, -Fp, and the nose-up pitch theta is a rotation of -theta about y (all exact
+# negations; theta = -2 atan2(qy, qw) to rounding). ``header.stamp`` = round(t * 1e9) ns.
+VIEW_WORLD_FRAME = 'fohssv_world'
+VIEW_BODY_FRAME = 'fohssv_body'
+POSE = Topic('pose', 'geometry_msgs/msg/PoseStamped',
+             ('header.stamp', 'pose.position.z', 'pose.orientation'), ('s', 'm', '-'),
+             'view: the nose in fohssv_world: position.z = -z (up), orientation = pitch theta '
+             '(nose up) as the quaternion (0, -sin(theta/2), 0, cos(theta/2))', 'views')
+TWIST = Topic('twist', 'geometry_msgs/msg/TwistStamped',
+              ('header.stamp', 'twist.linear.x', 'twist.linear.z', 'twist.angular.y'),
+              ('s', 'm/s', 'm/s', 'rad/s'),
+              'view: body velocity in fohssv_body: linear.x = V (forward speed), linear.z = -w, '
+              'angular.y = -q', 'views')
+WRENCH = Topic('planing_wrench', 'geometry_msgs/msg/WrenchStamped',
+               ('header.stamp', 'wrench.force.z'), ('s', 'm^2/s^2'),
+               'view: the planing force in fohssv_body: force.z = -Fp, normalised like Fp '
+               '(force / rho pi R^2, m^2/s^2, not N); torque 0', 'views')
+MARKER = Topic('vehicle_marker', 'visualization_msgs/msg/Marker',
+               ('header.stamp', 'id', 'pose', 'scale'), ('s', '-', 'm', 'm'),
+               'view: id 0 the body (ellipsoid L x 2R, pitched), id 1 the cavity (ellipsoid of '
+               'length 2 Rn (1.92/sigma - 3) and radius Rn sqrt(0.82 (1 + sigma)/sigma), eqs. '
+               '12-14, behind the nose along the travel) in fohssv_world', 'views')
+
+#: The typed views (not the control contract): see above.
+VIEW_TOPICS = (POSE, TWIST, WRENCH, MARKER)
 
 
 def decode(topic: Topic, data: Sequence[float]) -> tuple[float, ...]:

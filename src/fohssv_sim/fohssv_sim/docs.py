@@ -6,7 +6,7 @@ so the README cannot drift from the code.
 
 from __future__ import annotations
 
-from .contract import TOPICS
+from .contract import TOPICS, VIEW_TOPICS
 from .params import PARAMETERS, ParameterSpec
 
 
@@ -24,15 +24,22 @@ def parameter_table() -> str:
     return head + '\n' + '\n'.join(_row(s) for s in PARAMETERS)
 
 
-def topic_table() -> str:
+def topic_table(topics=TOPICS) -> str:
     """The topic contract (contract.TOPICS) as Markdown."""
     head = '| topic | type | data | units | QoS | meaning |\n|---|---|---|---|---|---|'
     rows = [f'| `{t.name}` | `{t.type}` | [{", ".join(t.fields)}] | {", ".join(t.units)} | '
-            f'{t.qos} | {t.description} |' for t in TOPICS]
+            f'{t.qos} | {t.description} |' for t in topics]
     return head + '\n' + '\n'.join(rows)
+
+
+def view_table() -> str:
+    """The typed views (contract.VIEW_TOPICS) as Markdown."""
+    return topic_table(VIEW_TOPICS)
 
 
 if __name__ == '__main__':
     print(parameter_table())
     print()
     print(topic_table())
+    print()
+    print(view_table())

@@ -1,32 +1,47 @@
 """The closed loop of ``make demo`` for a full ROS 2 install (launch is not on PyPI, so this
 file does not run in the project's venv): the plant (FOM, alpha = 0.85, V = 75 m/s,
-x(0) = 0) in lockstep for 2 s of simulated time, and a controller node hosting the law named by
-the ``controller`` argument (default: eq. 31).
+x(0) = 0, lockstep), a controller node hosting the law named by the ``controller`` argument
+(default: eq. 31) and the recorder, with the settings that make the bag complete. The nodes and
+their parameters are :func:`fohssv_sim.closed_loop.closed_loop`, the list ``scripts/demo.py``
+starts too. When the plant exits (``duration`` reached, or an error) everything shuts down and
+the recorder closes the bag.
 
-    ros2 launch fohssv_sim closed_loop.launch.py controller:=lqr duration:=2.0
+    ros2 launch fohssv_sim closed_loop.launch.py controller:=lqr duration:=2.0 \\
+        bag_path:=runs/launched
 """
 
-import os
-
-from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, LogInfo, RegisterEventHandler, Shutdown
+from launch.event_handlers import OnProcessExit
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
+from launch_ros.parameter_descriptions import ParameterValue
+
+from fohssv_sim.closed_loop import DEFAULT_CONTROLLER, DEFAULT_DURATION, closed_loop
+
+#: Launch arguments: the keyword arguments of closed_loop(), with default, type, meaning.
+ARGUMENTS = {
+    'controller': (DEFAULT_CONTROLLER, str, 'controller plugin hosted by the controller node '
+                   '(group fohssv.controllers): state_feedback, lqr, ...'),
+    'duration': (str(DEFAULT_DURATION), float,
+                 'simulated seconds the plant runs before it exits'),
+    'bag_path': ('', str, "the recorder's bag directory; empty = runs/<UTC time>"),
+}
 
 
 def generate_launch_description():
-    plant_yaml = os.path.join(get_package_share_directory('fohssv_sim'), 'config',
-                              'plant.yaml')
+    specs = closed_loop(**{name: ParameterValue(LaunchConfiguration(name), value_type=kind)
+                           for name, (_, kind, _) in ARGUMENTS.items()})
+    nodes = [Node(package=s.package, executable=s.executable, name=s.name, output='screen',
+                  parameters=[s.parameters]) for s in specs]
+    plant = nodes[0]
     return LaunchDescription([
-        DeclareLaunchArgument('controller', default_value='state_feedback'),
-        DeclareLaunchArgument('duration', default_value='2.0'),
-        Node(package='fohssv_sim', executable='plant', name='plant', output='screen',
-             parameters=[plant_yaml, {'model': 'fractional', 'fractional_order': 0.85,
-                                      'speed': 75.0, 'mode': 'lockstep',
-                                      'initial_state': [0.0, 0.0, 0.0, 0.0],
-                                      'duration': LaunchConfiguration('duration')}]),
-        Node(package='fohssv_controller', executable='controller', name='controller',
-             output='screen',
-             parameters=[{'controller': LaunchConfiguration('controller')}]),
+        *(DeclareLaunchArgument(name, default_value=default, description=text)
+          for name, (default, _, text) in ARGUMENTS.items()),
+        *nodes,
+        # the run is over when the plant exits: stop the controller and close the bag (the
+        # recorder closes it completely on the SIGINT that launch sends at shutdown)
+        RegisterEventHandler(OnProcessExit(target_action=plant, on_exit=[
+            LogInfo(msg='the plant exited: shutting down the controller and the recorder'),
+            Shutdown(reason='the plant exited')])),
     ])

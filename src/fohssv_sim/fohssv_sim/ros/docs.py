@@ -16,7 +16,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Iterable
 
-from ..contract import TOPICS
+from ..contract import TOPICS, VIEW_TOPICS
 from ..params import PARAMETERS, ParameterSpec
 from .options import NODE_PARAMETERS, StateSpec
 
@@ -102,14 +102,15 @@ def parameter_table(specs: Iterable[ParameterSpec]) -> str:
     return '\n'.join(rows) + '\n'
 
 
-def topic_table() -> str:
-    """The topic contract as a markdown table."""
+def topic_table(topics=TOPICS) -> str:
+    """The topic contract (or the typed views) as a markdown table."""
     from .qos import PROFILES  # noqa: PLC0415 - needs rclpy
 
     rows = ['| topic | type | data | units | QoS | description |', '|---|---|---|---|---|---|']
-    for t in TOPICS:
+    for t in topics:
         q = PROFILES[t.qos]
-        qos = f'{t.qos}: {q.reliability.name.lower()}, keep last {q.depth}'
+        qos = (f'{t.qos}: {q.reliability.name.lower()}, {q.durability.name.lower()}, '
+               f'keep last {q.depth}')
         rows.append(f'| `{t.name}` | `{t.type}` | [{", ".join(t.fields)}] | '
                     f'{", ".join(t.units)} | {qos} | {t.description} |')
     return '\n'.join(rows) + '\n'
@@ -122,6 +123,7 @@ def tables() -> str:
     from ..params import field_specs
 
     parts = ['<!-- generated: topics -->\n' + topic_table(),
+             '<!-- generated: view topics -->\n' + topic_table(VIEW_TOPICS),
              '<!-- generated: model parameters -->\n' + parameter_table(PARAMETERS),
              '<!-- generated: plant node parameters -->\n' + parameter_table(NODE_PARAMETERS)]
     for name in registry.available():

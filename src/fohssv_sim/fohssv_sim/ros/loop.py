@@ -190,7 +190,7 @@ class Pacer:
 
 #: The per-sample costs :class:`Profile` measures, in the order of its ``ns`` accumulators.
 PROFILE_PARTS = ('advance', 'write_sample', 'publish_state', 'publish_planing_force',
-                 'publish_clock', 'command_callback')
+                 'publish_clock', 'command_callback', 'publish_views')
 
 
 @dataclass

@@ -21,7 +21,7 @@ from ..params import ModelParameters, ParameterError, ParameterSpec, spec_field,
 from ..simulate import steps_per_period
 
 __all__ = ['MODES', 'NODE_PARAMETERS', 'NODE_PARAMETER_BY_NAME', 'StateSpec', 'PlantOptions',
-           'check_options', 'clock_samples']
+           'check_options', 'clock_samples', 'view_samples']
 
 #: The plant node's two modes.
 MODES = ('lockstep', 'realtime')
@@ -76,6 +76,11 @@ NODE_PARAMETERS: tuple[ParameterSpec, ...] = (
        '(published at t = k clock_period); 0 = at every sample; a whole multiple of '
        'control_period. Lockstep publishes /clock at every sample', low=0.0, low_open=False,
        high=1.0, high_open=False),
+    _P('view_period', '-', 0.01, 's', 'simulated time between the typed views for viewers '
+       '(pose, twist, planing_wrench, vehicle_marker; published at t = k view_period, both '
+       'modes); 0 = off; a whole multiple of control_period, or at most control_period (then '
+       'every sample). The contract topics are unaffected', low=0.0, low_open=False,
+       high=1.0, high_open=False),
     _P('profile', '-', 0, '-', '1: time each part of the per-sample path (advance, each '
        'publish, the command callback) and add the figures to the summary; 0: off (the hot '
        'path then makes no timing calls)', low=0.0, low_open=False, high=1.0,
@@ -97,9 +102,10 @@ NODE_PARAMETERS: tuple[ParameterSpec, ...] = (
        high_open=False),
     _P('min_command_publishers', '-', 1, '-', 'matched publishers of command to wait for '
        'before the first sample', low=0.0, low_open=False, high=1000.0, high_open=False),
-    _P('start_timeout', '-', 30.0, 's', 'wall time to wait for those matches; lockstep fails '
-       '(exit code 4) when they are missing, realtime starts anyway with a warning',
-       low=0.0, low_open=False, high=3600.0, high_open=False),
+    _P('start_timeout', '-', 0.0, 's', 'wall time to wait for those matches; 0 = wait until '
+       'they are there (the plant logs what it waits for every 5 s); when a positive timeout '
+       'expires the plant exits with code 4 (both modes)', low=0.0, low_open=False,
+       high=3600.0, high_open=False),
     _P('pace_to_subscribers', '-', 0, 'samples', 'lockstep mode: every this many samples wait '
        "(at most 1 s) until every subscriber acknowledged the samples, so a recorder slower "
        "than the loop paces the run instead of losing samples (set it when recording, e.g. "
@@ -138,6 +144,7 @@ class PlantOptions:
     real_time_factor: float = _f('real_time_factor')
     pacing_period: float = _f('pacing_period')
     clock_period: float = _f('clock_period')
+    view_period: float = _f('view_period')
     profile: int = _f('profile')
     command_timeout: float = _f('command_timeout')
     watchdog_timeout: float = _f('watchdog_timeout')
@@ -176,6 +183,7 @@ def check_options(model: ModelParameters, options: PlantOptions) -> int:
     except ValueError as exc:
         raise ParameterError(str(exc)) from None
     clock_samples(options)
+    view_samples(options)
     return hold
 
 
@@ -196,3 +204,26 @@ def clock_samples(options: PlantOptions) -> int:
             f'control_period={options.control_period!r} s (allowed: 0 or k * control_period, '
             f'k = 1, 2, ...; {NODE_PARAMETER_BY_NAME["clock_period"].description})')
     return 1 if options.mode == 'lockstep' else k
+
+
+def view_samples(options: PlantOptions) -> int:
+    """Samples per typed view: 0 (off) when ``view_period`` is 0, 1 when it is at most
+    ``control_period`` (every sample), else ``view_period / control_period``.
+
+    Raises:
+        ParameterError: ``view_period`` is longer than ``control_period`` and not a whole
+            multiple of it.
+    """
+    if options.view_period == 0.0:
+        return 0
+    if options.view_period <= options.control_period:
+        return 1
+    k = round(options.view_period / options.control_period)
+    if abs(k * options.control_period - options.view_period) > (
+            1e-9 * options.view_period):
+        raise ParameterError(
+            f'view_period={options.view_period!r} s is not 0, at most control_period or a '
+            f'whole multiple of control_period={options.control_period!r} s (allowed: 0, '
+            f'(0, control_period] or k * control_period, k = 2, 3, ...; '
+            f'{NODE_PARAMETER_BY_NAME["view_period"].description})')
+    return k

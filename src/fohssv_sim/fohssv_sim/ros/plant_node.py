@@ -3,7 +3,8 @@
 A thin wrapper around :class:`fohssv_sim.ros.loop.SampledPlant` (the model the parameters name,
 sampled every ``control_period`` with the command held). Topics (relative names, see
 :mod:`fohssv_sim.contract` and ``docs/ros.md``): publishes ``state``, ``planing_force`` and
-``/clock`` at every sample, subscribes ``command``; service ``reset`` (std_srvs/Trigger).
+``/clock`` at every sample, the typed views (:mod:`.views`) every ``view_period``, subscribes
+``command``; service ``reset`` (std_srvs/Trigger).
 
 Modes:
 
@@ -14,8 +15,15 @@ Modes:
   holding the newest good command; deadline misses are counted and reported; the watchdog
   warns once per outage when no command came for ``watchdog_timeout``.
 
+Start: the plant publishes nothing (no sample, no ``/clock``) until ``min_command_publishers``
+controllers and ``min_state_subscribers`` readers have matched; it logs what it still waits
+for whenever that changes and every 5 s. ``start_timeout`` 0 (default) waits indefinitely, so
+``ros2 run fohssv_sim plant`` and a controller started later in another terminal just work; a
+positive ``start_timeout`` is for scripts: exit 4 when it expires, in both modes.
+
 Exit codes: 0 clean stop (signal or ``duration`` reached), 1 state turned non-finite,
-2 invalid parameters at start, 3 lockstep timeout or plant overrun, 4 peers missing at start.
+2 invalid parameters at start, 3 lockstep timeout or plant overrun, 4 peers missing when a
+positive ``start_timeout`` expired.
 """
 
 from __future__ import annotations
@@ -49,7 +57,7 @@ from .loop import (
     check_command,
     cpu_seconds,
 )
-from .options import NODE_PARAMETERS, PlantOptions, check_options, clock_samples
+from .options import NODE_PARAMETERS, PlantOptions, check_options, clock_samples, view_samples
 from .qos import profile
 from .ros_params import declare, install_validation
 from .spin import (
@@ -60,6 +68,7 @@ from .spin import (
     spin_until,
     tighten_timer_slack,
 )
+from .views import ViewPublisher
 from .wire import ArrayReader, ArrayWriter, ClockWriter
 
 __all__ = ['PlantNode', 'main', 'EXIT_OK', 'EXIT_DIVERGED', 'EXIT_BAD_PARAMETERS',
@@ -75,6 +84,9 @@ _ACK_TIMEOUT = 1.0
 _LOG_EACH = 20
 #: Realtime mode: wall-clock period of the watchdog check (s).
 _WATCHDOG_CHECK = 0.01
+#: While waiting for its peers, the plant says what it waits for this often (s) and whenever
+#: the matched counts change.
+_WAIT_LOG_PERIOD = 5.0
 
 
 def array_message(topic: Topic) -> Float64MultiArray:
@@ -128,6 +140,12 @@ class PlantNode(Node):
         self.force_pub = self.create_publisher(Float64MultiArray, PLANING_FORCE.name,
                                                profile(PLANING_FORCE))
         self.clock_pub = self.create_publisher(Clock, CLOCK.name, profile(CLOCK))
+        # typed views for viewers, every view_period (views.py); None when off
+        self._view_every = view_samples(self.options)
+        self.views = ViewPublisher(self, self.model) if self._view_every else None
+        # the writers whose readers (recorders, viewers) the start, flush and linger wait for
+        self._sample_pubs = (self.state_pub, self.force_pub) + (
+            self.views.publishers if self.views is not None else ())
         on_command = self._on_command if self.profile is None else self._on_command_profiled
         self.command_sub = self.create_subscription(Float64MultiArray, COMMAND.name,
                                                     on_command, profile(COMMAND), raw=True)
@@ -150,14 +168,14 @@ class PlantNode(Node):
         self._timer = None
         self.pacer: Pacer | None = None
         self._minimums_since: float | None = None
+        self._peers_logged: tuple[int, int] | None = None
+        self._next_wait_log = 0.0
         self._peer_timer = self.create_timer(0.01, self._wait_for_peers)
         self.get_logger().info(
             f'{self.sim.plant.describe()} (ready in {self.sim.compile_seconds:.2f} s); mode '
             f'{self.options.mode}, control period '
             f'{self.options.control_period:g} s = {hold} steps (zero-order hold), duration '
-            f'{self.options.duration:g} s; waiting for {self.options.min_state_subscribers} '
-            f'state subscriber(s) and {self.options.min_command_publishers} command '
-            'publisher(s)')
+            f'{self.options.duration:g} s')
 
     # -- parameters ------------------------------------------------------------------------
     def _apply(self, config: tuple[ModelParameters, PlantOptions, int]) -> None:
@@ -179,26 +197,51 @@ class PlantNode(Node):
         if time.monotonic() - self._minimums_since > 2.0:
             return True
         return all(pub.get_subscription_count() >= self.count_subscribers(pub.topic_name)
-                   for pub in (self.state_pub, self.force_pub))
+                   for pub in self._sample_pubs)
+
+    def _waiting_for(self, subs: int, pubs: int) -> str:
+        """What the plant waits for, in words (logged at start, on a change, every 5 s)."""
+        o = self.options
+        missing = []
+        if pubs < o.min_command_publishers:
+            missing.append('a controller' if o.min_command_publishers - pubs == 1 else
+                           f'{o.min_command_publishers - pubs} command publishers')
+        if subs < o.min_state_subscribers:
+            missing.append(f'{o.min_state_subscribers - subs} more state subscriber(s) '
+                           '(controllers, recorders)')
+        what = ' and '.join(missing) or 'the listed subscribers to match'
+        return (f'waiting for {what}: command has {pubs}/{o.min_command_publishers} '
+                f'publisher(s), {self.state_pub.topic_name} has {subs}/'
+                f'{o.min_state_subscribers} subscriber(s)')
 
     def _wait_for_peers(self) -> None:
         subs, pubs = self._peers()
         o = self.options
-        if (subs >= o.min_state_subscribers and pubs >= o.min_command_publishers
-                and self._listed_matched()):
-            self._start()
-            return
-        waited = time.monotonic() - self._wall_start
-        if waited < o.start_timeout:
-            return
-        what = (f'state has {subs}/{o.min_state_subscribers} subscriber(s), command has '
-                f'{pubs}/{o.min_command_publishers} publisher(s) after {waited:.1f} s')
-        if o.mode == 'lockstep':
-            self._fail(EXIT_NO_PEERS, f'start timeout: {what}; is the controller running '
-                       'in the same ROS_DOMAIN_ID and namespace?')
+        if subs >= o.min_state_subscribers and pubs >= o.min_command_publishers:
+            if self._listed_matched():
+                self._start()
+                return
         else:
-            self.get_logger().warning(f'starting without all peers: {what}')
-            self._start()
+            self._minimums_since = None    # a peer left again (a controller swapped)
+        now = time.monotonic()
+        waited = now - self._wall_start
+        if o.start_timeout == 0.0 or waited < o.start_timeout:
+            # no clock, no sample: say what is missing when it changes and every 5 s
+            if (subs, pubs) != self._peers_logged or now >= self._next_wait_log:
+                self._peers_logged = (subs, pubs)
+                self._next_wait_log = now + _WAIT_LOG_PERIOD
+                limit = ('no start timeout' if o.start_timeout == 0.0 else
+                         f'start_timeout {o.start_timeout:g} s')
+                hint = ('; start one in the same ROS_DOMAIN_ID and namespace, e.g. '
+                        '`ros2 run fohssv_controller state_feedback`'
+                        if pubs < o.min_command_publishers else '')
+                self.get_logger().info(f'{self._waiting_for(subs, pubs)} (waited {waited:.0f} '
+                                       f's, {limit}){hint}')
+            return
+        self._fail(EXIT_NO_PEERS, f'start timeout: state has {subs}/{o.min_state_subscribers} '
+                   f'subscriber(s), command has {pubs}/{o.min_command_publishers} '
+                   f'publisher(s) after {waited:.1f} s (start_timeout={o.start_timeout:g} s); '
+                   'is the controller running in the same ROS_DOMAIN_ID and namespace?')
 
     def _start(self) -> None:
         self.destroy_timer(self._peer_timer)
@@ -206,7 +249,9 @@ class PlantNode(Node):
         self._run_wall_start = time.monotonic()
         self._cpu_start = cpu_seconds()
         self._last_command_wall = self._run_wall_start
-        self.get_logger().info('peers matched; starting at t = 0')
+        subs, pubs = self._peers()
+        self.get_logger().info(f'peers matched (command: {pubs} publisher(s), state: {subs} '
+                               'subscriber(s)); starting at t = 0')
         if self.options.mode == 'lockstep':
             self._publish()
             self._await_command()
@@ -232,6 +277,8 @@ class PlantNode(Node):
         self.force_pub.publish(self._force_out.payload())
         if self.sim.samples % self._clock_every == 0:
             self.clock_pub.publish(self._clock_out.payload(round(self._state_data[0] * 1e9)))
+        if self._view_every and self.sim.samples % self._view_every == 0:
+            self.views.publish(self._state_data, self._force_data[1])
 
     def _publish_profiled(self) -> None:
         add = self.profile.add
@@ -249,6 +296,10 @@ class PlantNode(Node):
             t3 = perf_counter_ns()
             self.clock_pub.publish(self._clock_out.payload(round(self._state_data[0] * 1e9)))
             add(4, perf_counter_ns() - t3)
+        if self._view_every and self.sim.samples % self._view_every == 0:
+            t3 = perf_counter_ns()
+            self.views.publish(self._state_data, self._force_data[1])
+            add(6, perf_counter_ns() - t3)
 
     def _step(self) -> None:
         self.sim.advance()
@@ -431,7 +482,8 @@ class PlantNode(Node):
             't': self.sim.t, 'samples': self.sim.samples,
             'steps': self.sim.plant.n, 'wall_time': wall, 'cpu_time': cpu,
             'cpu_per_sample_us': cpu / self.sim.samples * 1e6 if self.sim.samples else 0.0,
-            'clock_samples': self._clock_every,
+            'clock_samples': self._clock_every, 'view_samples': self._view_every,
+            'views': self.views.published if self.views is not None else 0,
             'rejected_commands': self.rejected, 'ignored_commands': self.ignored,
         }
         if self.profile is not None:
@@ -473,17 +525,17 @@ class PlantNode(Node):
 
     def flush(self, timeout: float = 2.0) -> None:
         """Wait until subscribers acknowledged what was published (reliable topics)."""
-        for pub in (self.state_pub, self.force_pub):
+        for pub in self._sample_pubs:
             if pub.get_subscription_count() > 0:
                 pub.wait_for_all_acked(Duration(seconds=timeout))
 
     def linger(self, executor: Any) -> None:
         """Keep the publishers (and services) up for ``end_linger`` s after the run ended, or
-        until nothing subscribes to the samples any more: a reader drops what it has not
+        until nothing subscribes to the samples (or views) any more: a reader drops what it has not
         taken yet from a writer that goes away, so a subscriber lagging behind a fast run
         would lose its tail when the plant exits."""
         deadline = time.monotonic() + self.options.end_linger
-        samples = (self.state_pub, self.force_pub)
+        samples = self._sample_pubs
         while (rclpy.ok() and time.monotonic() < deadline
                and any(p.get_subscription_count() > 0 for p in samples)):
             executor.spin_once(timeout_sec=0.05)

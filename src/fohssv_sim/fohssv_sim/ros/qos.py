@@ -13,6 +13,10 @@
   commands get the samples' depth (with 100, a recorder lagging 70 ms lost commands).
 * ``clock`` (``/clock``): reliable, keep-last 1, volatile. A reliable writer also serves the
   best-effort reader that rclpy's time source creates for ``use_sim_time``.
+* ``views`` (the typed views ``pose``, ``twist``, ``planing_wrench``, ``vehicle_marker``):
+  reliable, keep-last :data:`VIEW_DEPTH`, transient-local (a viewer or recorder that matches
+  late still gets the last second of views at the default ``view_period``); volatile readers
+  match too.
 
 Publishers and subscribers must take their profile from :func:`profile` with the topic's
 ``qos`` field, never build one inline.
@@ -44,13 +48,15 @@ from rosbags.interfaces import (
 
 from ..contract import Topic
 
-__all__ = ['SAMPLE_DEPTH', 'COMMAND_DEPTH', 'PROFILES', 'profile', 'offered_qos',
+__all__ = ['SAMPLE_DEPTH', 'COMMAND_DEPTH', 'VIEW_DEPTH', 'PROFILES', 'profile', 'offered_qos',
            'DURATION_INFINITE']
 
 #: Queue depth of state and force samples (0.2 s at the default 1e-4 s control period).
 SAMPLE_DEPTH = 2000
 #: Queue depth of commands: as deep as the samples (a recorder lags the same on both).
 COMMAND_DEPTH = SAMPLE_DEPTH
+#: Queue depth of the typed views (1 s of simulated time at the default view_period 0.01 s).
+VIEW_DEPTH = 100
 
 
 def _reliable(depth: int, durability: DurabilityPolicy = DurabilityPolicy.VOLATILE
@@ -66,6 +72,7 @@ PROFILES: dict[str, QoSProfile] = {
     'reliable_samples': _reliable(SAMPLE_DEPTH, DurabilityPolicy.TRANSIENT_LOCAL),
     'reliable_commands': _reliable(COMMAND_DEPTH),
     'clock': _reliable(1),
+    'views': _reliable(VIEW_DEPTH, DurabilityPolicy.TRANSIENT_LOCAL),
 }
 
 

@@ -6,10 +6,13 @@
 * Each topic carries the profile the plant offers on it (:func:`.qos.offered_qos`) as
   ``offered_qos_profiles``, in metadata.yaml and in the MCAP channel, as rosbag2 writes it:
   ``ros2 bag play`` then offers the plant's reliability and durability.
+* Topics (``topics``): by default the contract (``state``, ``planing_force``, ``command``,
+  ``/clock``) and the plant's typed views (``pose``, ``twist``, ``planing_wrench``,
+  ``vehicle_marker``: see :mod:`.views`).
 * Log time = simulation time in ns: ``round(data[0] * 1e9)`` for the contract's
   Float64MultiArray topics (``data[0]`` is the exact t the plant computed), the stamp itself
-  for ``/clock``. The exact doubles stay in the messages; the log time is for ordering and for
-  tools (``ros2 bag info``, Foxglove).
+  for ``/clock`` and the typed views (``header.stamp``). The exact doubles stay in the
+  messages; the log time is for ordering and for tools (``ros2 bag info``, Foxglove).
 * Run metadata, written at once as an MCAP metadata record ``fohssv`` and at close into
   ``metadata.yaml`` custom_data: package version, ``git describe`` and revision of
   ``$FOHSSV_ROOT``, recorder settings, and (when the plant answers its parameter services)
@@ -29,6 +32,7 @@ from __future__ import annotations
 
 import math
 import os
+import struct
 import subprocess
 import sys
 import time
@@ -38,6 +42,7 @@ from pathlib import Path
 from typing import Any
 
 import rclpy
+from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 from rcl_interfaces.srv import GetParameters, ListParameters
 from rclpy.clock import Clock, ClockType
@@ -48,14 +53,20 @@ from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock as ClockMsg
 from std_msgs.msg import Float64MultiArray
+from visualization_msgs.msg import Marker
 
 from .. import contract
 from ..bag.writer import DEFAULT_CHUNK_SIZE, RunWriter, typestore
-from .qos import SAMPLE_DEPTH, offered_qos, profile
+from .qos import offered_qos, profile
 
 __all__ = ['Recorder', 'main', 'default_bag_path', 'source_info']
 
-_MSG_CLASSES = {contract.FLOAT64_ARRAY: Float64MultiArray, contract.CLOCK.type: ClockMsg}
+_MSG_CLASSES = {contract.FLOAT64_ARRAY: Float64MultiArray, contract.CLOCK.type: ClockMsg,
+                contract.POSE.type: PoseStamped, contract.TWIST.type: TwistStamped,
+                contract.WRENCH.type: WrenchStamped, contract.MARKER.type: Marker}
+#: What the recorder records by default: the contract and the typed views.
+RECORDED = contract.TOPICS + contract.VIEW_TOPICS
+_CDR_LE = b'\x00\x01'
 
 
 def default_bag_path(now: datetime | None = None) -> Path:
@@ -87,10 +98,10 @@ def source_info() -> dict[str, str]:
 
 def _contract_topic(name: str) -> contract.Topic:
     base = name.rstrip('/').rsplit('/', 1)[-1]
-    for topic in contract.TOPICS:
+    for topic in RECORDED:
         if topic.name.lstrip('/') == base:
             return topic
-    valid = ', '.join(t.name for t in contract.TOPICS)
+    valid = ', '.join(t.name for t in RECORDED)
     raise ValueError(f'topics: {name!r} is not a contract topic; the recorder records: {valid} '
                      '(in any namespace)')
 
@@ -103,10 +114,10 @@ class Recorder(Node):
         d = self.declare_parameter
         d('bag_path', '', ParameterDescriptor(
             description='bag directory to create; empty = runs/<UTC timestamp>', read_only=True))
-        d('topics', [t.name for t in contract.TOPICS], ParameterDescriptor(
+        d('topics', [t.name for t in RECORDED], ParameterDescriptor(
             type=ParameterType.PARAMETER_STRING_ARRAY, read_only=True,
-            description='topics to record (contract topics, relative names resolved in the '
-                        "recorder's namespace)"))
+            description='topics to record (contract topics and typed views, relative names '
+                        "resolved in the recorder's namespace)"))
         d('plant_node', 'plant', ParameterDescriptor(
             description="node whose parameters are stored with the run; '' or 'none' = no node",
             read_only=True))
@@ -164,7 +175,7 @@ class Recorder(Node):
             # same reliability/durability as the plant's; keep-all: when the recorder falls
             # behind, its reader stops acknowledging instead of overwriting what it has not
             # written yet, and a lockstep plant waits for it (nothing lost)
-            qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=max(base.depth, SAMPLE_DEPTH),
+            qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=base.depth,
                              reliability=base.reliability, durability=base.durability)
             if topic is contract.STATE and wait_commands > 0:
                 # deferred until the command subscription hears enough publishers
@@ -227,6 +238,17 @@ class Recorder(Node):
                 c = self._ts.deserialize_cdr(raw, topic.type).clock
                 write(name, c.sec * 1_000_000_000 + c.nanosec, raw)
             return on_clock
+        if topic.type != contract.FLOAT64_ARRAY:
+            # the typed views start with a std_msgs/Header: the stamp is the log time
+            def on_stamped(raw: bytes) -> None:
+                if raw[:2] == _CDR_LE and len(raw) >= 12:
+                    sec, nanosec = struct.unpack_from('<iI', raw, 4)
+                else:
+                    stamp = self._ts.deserialize_cdr(raw, topic.type).header.stamp
+                    sec, nanosec = stamp.sec, stamp.nanosec
+                log = sec * 1_000_000_000 + nanosec
+                write(name, log if log >= 0 else self._last_log, raw)
+            return on_stamped
 
         def on_array(raw: bytes) -> None:
             data = self._ts.deserialize_cdr(raw, topic.type).data

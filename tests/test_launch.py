@@ -1,0 +1,170 @@
+"""The launch file, `make demo` and the README's graph walkthrough start the same closed loop,
+and it ends on its own with a complete bag.
+
+`launch` is not on PyPI, so the launch file cannot run here: it is compiled, and its structure
+read with `ast` (its nodes come from fohssv_sim.closed_loop, the list scripts/demo.py starts;
+its arguments are closed_loop()'s with the same defaults; the plant's exit shuts everything
+down). The list itself is run for real: the three installed executables with exactly those
+parameters (a shorter duration), over DDS, to a complete bag whose plant parameters are the
+list's, and whose controller and recorder report the list's parameters as declared. The
+README walkthrough is run as written (only its bag path is moved to a temporary folder).
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib.util
+import inspect
+import re
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rclpy.parameter import parameter_value_to_python
+from test_graph_support import Probe, batch_samples
+
+from fohssv_controller.state_feedback import StateFeedback
+from fohssv_sim import closed_loop as cl
+from fohssv_sim.bag import load_run
+from fohssv_sim.bag.check import check
+
+import rosproc
+
+ROOT = Path(__file__).resolve().parents[1]
+LAUNCH = ROOT / 'src' / 'fohssv_sim' / 'launch' / 'closed_loop.launch.py'
+README = (ROOT / 'README.md').read_text()
+
+
+def _demo():
+    spec = importlib.util.spec_from_file_location('fohssv_demo', ROOT / 'scripts' / 'demo.py')
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _calls(tree: ast.AST, name: str) -> list[ast.Call]:
+    return [n for n in ast.walk(tree) if isinstance(n, ast.Call) and (
+        getattr(n.func, 'id', None) == name or getattr(n.func, 'attr', None) == name)]
+
+
+def test_launch_file_starts_the_shared_node_list_and_stops_with_the_plant():
+    text = LAUNCH.read_text()
+    tree = ast.parse(compile(text, str(LAUNCH), 'exec', ast.PyCF_ONLY_AST))
+    imports = {(n.module, a.name) for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)
+               for a in n.names}
+    assert ('fohssv_sim.closed_loop', 'closed_loop') in imports
+    # one Node per spec of closed_loop(), every field taken from the spec
+    (node,) = _calls(tree, 'Node')
+    kw = {k.arg: k.value for k in node.keywords}
+    for field in ('package', 'executable', 'name'):
+        assert isinstance(kw[field], ast.Attribute) and kw[field].attr == field
+    assert ast.unparse(kw['parameters']) == '[s.parameters]'
+    (call,) = _calls(tree, 'closed_loop')
+    # the launch arguments are closed_loop()'s keyword arguments, with its defaults
+    assign = next(n for n in tree.body if isinstance(n, ast.Assign)
+                  and getattr(n.targets[0], 'id', None) == 'ARGUMENTS')
+    arguments = eval(compile(ast.Expression(assign.value), str(LAUNCH), 'eval'),  # noqa: S307
+                     {'DEFAULT_CONTROLLER': cl.DEFAULT_CONTROLLER,
+                      'DEFAULT_DURATION': cl.DEFAULT_DURATION, 'str': str, 'float': float})
+    signature = inspect.signature(cl.closed_loop).parameters
+    for name, (default, kind, _) in arguments.items():
+        assert kind(default) == kind(signature[name].default), name
+    assert set(arguments) == {'controller', 'duration', 'bag_path'}
+    assert len(_calls(tree, 'DeclareLaunchArgument')) == 1   # in a loop over ARGUMENTS
+    # the plant's exit shuts the launch down
+    (handler,) = _calls(tree, 'OnProcessExit')
+    hk = {k.arg: k.value for k in handler.keywords}
+    assert ast.unparse(hk['target_action']) == 'plant'
+    assert 'Shutdown(' in ast.unparse(hk['on_exit'])
+    plant = next(n for n in ast.walk(tree) if isinstance(n, ast.Assign)
+                 and getattr(n.targets[0], 'id', None) == 'plant')
+    assert ast.unparse(plant.value) == 'nodes[0]'
+    assert cl.closed_loop()[0].executable == 'plant'
+    assert _calls(tree, 'RegisterEventHandler')
+
+
+def test_demo_starts_the_launch_files_list_with_its_defaults(tmp_path):
+    demo = _demo()
+    args = demo.parser().parse_args([])
+    bag = tmp_path / 'bag'
+    assert demo.specs(args, bag) == cl.closed_loop(bag_path=str(bag))
+    plant, ctl, rec = demo.specs(args, bag)
+    assert demo.command(plant)[-2:] == ['-p', 'min_state_subscribers:=2']
+    assert plant.parameters['duration'] == 2.0 and plant.parameters['model'] == 'fractional'
+    assert ctl.parameters == {'controller': 'state_feedback', 'min_command_subscribers': 2}
+    assert rec.parameters == {'bag_path': str(bag), 'command_publishers': 1}
+    for spec in (plant, ctl, rec):
+        assert Path(demo.command(spec)[0]) == rosproc.executable(spec.package, spec.executable)
+
+
+def _parameters(probe: Probe, node: str, names: list[str]) -> dict:
+    from rcl_interfaces.srv import GetParameters
+
+    client = probe.node.create_client(GetParameters, f'/{node}/get_parameters')
+    rosproc.wait_for(client.service_is_ready, 10, what=f'/{node}/get_parameters')
+    values = probe.result(client.call_async(GetParameters.Request(names=names))).values
+    return {n: parameter_value_to_python(v) for n, v in zip(names, values)}
+
+
+@pytest.mark.graph
+def test_the_node_list_runs_to_a_complete_bag_with_its_parameters(tmp_path):
+    """The demo's three nodes as the list gives them (duration 0.05 s instead of 2): the
+    bag holds every sample, command and view; the plant's recorded parameters, the
+    controller's and the recorder's are the list's (an undeclared name would be ignored by
+    rclpy and show here as missing)."""
+    bag = tmp_path / 'run'
+    specs = cl.closed_loop(duration=0.05, bag_path=str(bag))
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    procs = [rosproc.start(s.package, s.executable, cl.ros_args(s), env=env,
+                           log=tmp_path / f'{s.name}.log') for s in reversed(specs)]
+    rec, ctl, plant = procs
+    probe = None
+    try:
+        assert rosproc.wait_exit(plant, 120) == 0, (tmp_path / 'plant.log').read_text()
+        probe = Probe(domain, command_publisher=False)
+        for spec in specs[1:]:
+            got = _parameters(probe, spec.name, list(spec.parameters))
+            assert got == spec.parameters, (spec.name, got)
+    finally:
+        if probe is not None:
+            probe.close()
+        rosproc.stop(ctl)
+        assert rosproc.stop(rec) == 0, (tmp_path / 'recorder.log').read_text()
+    run = load_run(bag)
+    assert check(bag).ok and not run.truncated
+    recorded = {k: run.parameters[k] for k in specs[0].parameters}
+    assert recorded == specs[0].parameters
+    # every sample and every command (the answer to the last sample may be recorded too)
+    assert len(run.t) == 501 and np.array_equal(run.command_t[:500], run.t[:500])
+    assert run.topics['/pose'] == run.topics['/twist'] == 6     # t = 0, 0.01, ..., 0.05
+
+
+def _walkthrough() -> str:
+    block = re.search(r'## The ROS 2 graph\n.*?```bash\n(.*?)```', README, re.S)
+    assert block, 'README: no bash block in "The ROS 2 graph"'
+    return block.group(1)
+
+
+@pytest.mark.graph
+def test_readme_walkthrough_ends_on_its_own_with_a_complete_bag(tmp_path):
+    script = _walkthrough()
+    for needed in ('command_publishers:=1', 'min_state_subscribers:=2',
+                   'min_command_subscribers:=2', 'runs/mine'):
+        assert needed in script, needed
+    duration = float(re.search(r'duration:=([\d.]+)', script).group(1))
+    script = script.replace('runs/mine', str(tmp_path / 'mine'))
+    out = subprocess.run(['bash', '-c', script], cwd=ROOT, env=rosproc.ros_env(),
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stdout + out.stderr
+    run = load_run(tmp_path / 'mine')
+    assert check(tmp_path / 'mine').ok and not run.truncated
+    n = round(duration / 1e-4)
+    assert len(run.t) == n + 1                                  # every sample
+    assert np.array_equal(run.command_t[:n], run.t[:n])         # and every command
+    assert run.parameters['model'] == 'fractional'
+    ref, _ = batch_samples('fractional', StateFeedback(), duration)
+    assert np.max(np.abs(run.state - ref[:, 1:])) <= 1e-12
+    assert run.topics['/pose'] == round(duration / 0.01) + 1
+    assert list((tmp_path / 'mine-plots').glob('*.png')), out.stdout

@@ -90,7 +90,8 @@ def test_demo_starts_the_launch_files_list_with_its_defaults(tmp_path):
     bag = tmp_path / 'bag'
     assert demo.specs(args, bag) == cl.closed_loop(bag_path=str(bag))
     plant, ctl, rec = demo.specs(args, bag)
-    assert demo.command(plant)[-2:] == ['-p', 'min_state_subscribers:=2']
+    assert demo.command(plant)[-4:] == ['-p', 'min_state_subscribers:=2',
+                                        '-p', 'pace_to_subscribers:=512']
     assert plant.parameters['duration'] == 2.0 and plant.parameters['model'] == 'fractional'
     assert ctl.parameters == {'controller': 'state_feedback', 'min_command_subscribers': 2}
     assert rec.parameters == {'bag_path': str(bag), 'command_publishers': 1}

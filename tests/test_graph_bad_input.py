@@ -120,11 +120,10 @@ def test_invalid_parameter_change_is_refused_and_the_run_is_untouched():
     ({'mode': 'realtime', 'clock_period': 2.5e-4},
      'clock_period=0.00025 s is not 0 or a whole multiple of control_period=0.0001 s '
      '(allowed: 0 or k * control_period'),
-    # rclpy's own range check at declaration, completed with the table's range and unit
-    ({'clock_period': 2.0}, 'Invalid parameter value (2.0) for parameter. Reason: Parameter '
-     'clock_period out of range Min: 0.0, Max: 1.0, value: 2.0: clock_period; allowed: '
-     '[0, 1] s (realtime mode: simulated time between /clock messages'),
-    ({'profile': 2}, 'profile out of range'),
+    # outside the descriptor's range too: checked against the table before rclpy declares it
+    ({'clock_period': 2.0}, 'invalid parameters: clock_period=2.0 is outside the allowed '
+     'range [0, 1] s (realtime mode: simulated time between /clock messages'),
+    ({'profile': 2}, 'profile=2 is outside the allowed range [0, 1]'),
 ])
 def test_invalid_parameters_at_start_exit_2(params, message):
     env = rosproc.ros_env()

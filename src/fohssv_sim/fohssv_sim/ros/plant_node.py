@@ -33,13 +33,14 @@ from rclpy.duration import Duration
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from std_srvs.srv import Trigger
 
 from ..contract import CLOCK, COMMAND, PLANING_FORCE, STATE, Topic
-from ..params import PARAMETERS, ModelParameters, ParameterError
+from ..params import PARAMETERS, ModelParameters
 from .loop import (
     CommandRejected,
     Pacer,
@@ -52,7 +53,8 @@ from .loop import (
 from .options import NODE_PARAMETERS, PlantOptions, check_options, clock_samples
 from .qos import profile
 from .ros_params import declare, install_validation
-from .spin import final_log, make_executor, spin_until, tighten_timer_slack
+from .spin import STOP, final_log, make_executor, spin_until, tighten_timer_slack
+from .startup import BadParameters, init, refuse_unknown, report
 from .wire import ArrayReader, ArrayWriter, ClockWriter
 
 __all__ = ['PlantNode', 'main', 'EXIT_OK', 'EXIT_DIVERGED', 'EXIT_BAD_PARAMETERS',
@@ -97,6 +99,7 @@ class PlantNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('plant', **kwargs)
         values = declare(self, PARAMETERS + NODE_PARAMETERS)
+        refuse_unknown(self)
         self.model, self.options, hold = build_config(values)
         self.sim = SampledPlant(self.model, self.options.control_period,
                                 self.options.initial_state, self.options.duration)
@@ -458,35 +461,32 @@ class PlantNode(Node):
         would lose its tail when the plant exits."""
         deadline = time.monotonic() + self.options.end_linger
         samples = (self.state_pub, self.force_pub)
-        while (rclpy.ok() and time.monotonic() < deadline
+        while (rclpy.ok() and STOP.received is None and time.monotonic() < deadline
                and any(p.get_subscription_count() > 0 for p in samples)):
             executor.spin_once(timeout_sec=0.05)
 
 
-def _explain(exc: ParameterException) -> str:
-    """rclpy's text (it names the parameter and the value) plus the table's range and unit."""
-    name = str(exc).rsplit(': ', 1)[-1]
-    spec = next((p for p in PARAMETERS + NODE_PARAMETERS if p.name == name), None)
-    if spec is None:
-        return str(exc)
-    unit = f' {spec.unit}' if spec.unit and spec.unit != '-' else ''
-    return f'{exc}; allowed: {spec.range_text()}{unit} ({spec.description})'
+def _interrupted(node: PlantNode) -> None:
+    final_log(node.get_name(), 'interrupted; stopping cleanly. summary: '
+              + json.dumps(node.summary()))
 
 
 def main(args: list[str] | None = None) -> None:
     """Entry point of ``ros2 run fohssv_sim plant``; exits with the node's exit code."""
-    rclpy.init(args=args)
+    try:
+        # SIGINT/SIGTERM only set STOP; the loop ends between callbacks (see StopSignal):
+        # rclpy's handler would shut the context down under a callback publishing a sample
+        init(args, signal_handler_options=SignalHandlerOptions.NO)
+    except BadParameters as exc:
+        sys.exit(report('plant', exc))
+    STOP.install()
     code = EXIT_OK
     node = None
     try:
         try:
             node = PlantNode()
-        except (ParameterError, ValueError) as exc:
-            rclpy.logging.get_logger('plant').error(f'invalid parameters: {exc}')
-            code = EXIT_BAD_PARAMETERS
-        except ParameterException as exc:   # rclpy's own range/type check at declaration
-            rclpy.logging.get_logger('plant').error(f'invalid parameters: {_explain(exc)}')
-            code = EXIT_BAD_PARAMETERS
+        except (ValueError, ParameterException) as exc:   # ParameterError, BadParameters
+            code = report('plant', exc, PARAMETERS + NODE_PARAMETERS)
         else:
             executor = make_executor()
             executor.add_node(node)
@@ -494,14 +494,16 @@ def main(args: list[str] | None = None) -> None:
                 tighten_timer_slack()
             spin_until(executor, node.finished, paced=node)
             code = node.exit_code
-            node.flush()
-            node.linger(executor)
+            if STOP.received is not None and not node.finished.done():
+                _interrupted(node)
+            else:
+                node.flush()
+                node.linger(executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         if node is not None:
             code = node.exit_code
             if not node.finished.done():
-                final_log(node.get_name(), 'interrupted; stopping cleanly. summary: '
-                          + json.dumps(node.summary()))
+                _interrupted(node)
     finally:
         if node is not None:
             node.destroy_node()

@@ -132,6 +132,7 @@ class PlantNode(Node):
 
         self.running = False
         self.rejected = 0
+        self.stale = 0                            # realtime: of those, stale or future
         self.ignored = 0
         self._awaiting: float | None = None       # lockstep: t of the state awaiting a command
         self._published_wall = 0.0                # lockstep: when that state went out
@@ -156,6 +157,18 @@ class PlantNode(Node):
     def _apply(self, config: tuple[ModelParameters, PlantOptions, int]) -> None:
         _, options, _ = config
         self.options = options
+        # a lowered deflection limit applies to the command held now, not only to the next
+        # ones: a held command beyond it is replaced by the command clamped to the limit
+        df, dc = self.sim.command
+        lf, lc = options.max_fin_deflection, options.max_cavitator_deflection
+        if abs(df) > lf or abs(dc) > lc:
+            held = (max(-lf, min(lf, df)), max(-lc, min(lc, dc)))
+            self.sim.command = held
+            self.get_logger().warning(
+                f'deflection limits now max_fin_deflection={lf:g} rad, '
+                f'max_cavitator_deflection={lc:g} rad at t={self.sim.t!r} s: the held command '
+                f'delta_f={df!r}, delta_c={dc!r} rad is beyond them; holding the clamped '
+                f'command delta_f={held[0]!r}, delta_c={held[1]!r} rad')
 
     # -- start -------------------------------------------------------------------------------
     def _peers(self) -> tuple[int, int]:
@@ -352,10 +365,28 @@ class PlantNode(Node):
             self.get_logger().info('watchdog: commands are arriving again')
         if self._lockstep:
             self._lockstep_command(data, t)
-        elif self._take(data) and t is not None:
-            lag = self.sim.t - t
-            if lag > self._max_lag:
+            return
+        if t is not None:
+            now = self.sim.t
+            lag = now - t
+            if not (0.0 <= lag <= self.options.max_command_age):
+                self._stale(t, now)
+                return
+            if self._take(data) and lag > self._max_lag:
                 self._max_lag = lag
+        else:
+            self._take(data)    # rejected: no finite t
+
+    def _stale(self, t: float, now: float) -> None:
+        """Reject a real-time command answering a time after the current sample or older
+        than ``max_command_age``."""
+        self.stale += 1
+        if t > now:
+            why = f"it answers t={t!r} s, after the plant's current sample t={now!r} s"
+        else:
+            why = (f'it answers t={t!r} s, {now - t:g} s of simulated time before the current '
+                   f'sample: older than max_command_age={self.options.max_command_age:g} s')
+        self._reject(f'stale command: {why}')
 
     def _take(self, data: Any) -> bool:
         """Hold the command in ``data`` if it is valid; else log and keep the last good one."""
@@ -363,17 +394,22 @@ class PlantNode(Node):
         try:
             _, df, dc = check_command(data, o.max_fin_deflection, o.max_cavitator_deflection)
         except CommandRejected as exc:
-            self.rejected += 1
-            df, dc = self.sim.command
-            text = (f'rejected command at t={self.sim.t!r} s: {exc}; keeping the last good '
-                    f'command delta_f={df!r}, delta_c={dc!r} rad ({self.rejected} rejected)')
-            if self.rejected <= _LOG_EACH:
-                self.get_logger().error(text)
-            else:
-                self.get_logger().error(text, throttle_duration_sec=1.0)
+            self._reject(str(exc))
             return False
         self.sim.command = (df, dc)
         return True
+
+    def _reject(self, reason: str) -> None:
+        """Count and log a rejected command (the first 20 one by one, then at most one line a
+        second); the last good command stays held."""
+        self.rejected += 1
+        df, dc = self.sim.command
+        text = (f'rejected command at t={self.sim.t!r} s: {reason}; keeping the last good '
+                f'command delta_f={df!r}, delta_c={dc!r} rad ({self.rejected} rejected)')
+        if self.rejected <= _LOG_EACH:
+            self.get_logger().error(text)
+        else:
+            self.get_logger().error(text, throttle_duration_sec=1.0)
 
     # -- reset -------------------------------------------------------------------------------
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response
@@ -423,7 +459,7 @@ class PlantNode(Node):
                      late_samples=p.late,
                      mean_lateness=p.lateness_sum / p.produced if p.produced else 0.0,
                      slips=p.slips, worst_lateness=p.worst_lateness,
-                     max_command_lag=self._max_lag)
+                     max_command_lag=self._max_lag, stale_commands=self.stale)
         elif wall > 0:
             s.update(samples_per_second=self.sim.samples / wall,
                      steps_per_second=self.sim.plant.n / wall)

@@ -361,8 +361,10 @@ def _pick_channels(sc: Scan, name: str, namespace: str | None) -> list[int]:
     ids = [c.id for c in sc.channels.values() if _basename(c.topic) == name]
     topics = sorted({sc.channels[i].topic for i in ids})
     if len(topics) > 1:
-        raise BagError(f'{sc.files.directory}: several {name!r} topics {topics}; '
-                       'give the namespace')
+        spaces = sorted({t.rsplit('/', 1)[0] or '/' for t in topics})
+        raise BagError(f'{sc.files.directory}: several {name!r} topics {topics}; give the '
+                       f"namespace: one of {', '.join(spaces)} (fohssv plot --namespace NS, "
+                       "load_run(path, namespace='NS'))")
     return ids
 
 

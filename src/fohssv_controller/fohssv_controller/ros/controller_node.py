@@ -42,7 +42,14 @@ from fohssv_sim.ros.matching import HoldReporter, SubscriptionGate
 from fohssv_sim.ros.qos import profile
 from fohssv_sim.ros.ros_params import declare, install_validation
 from fohssv_sim.ros.spin import STOP, final_log, make_executor, spin_until
-from fohssv_sim.ros.startup import BadParameters, declare_rows, init, refuse_unknown, report
+from fohssv_sim.ros.startup import (
+    BadParameters,
+    declare_rows,
+    destroy_on_error,
+    init,
+    refuse_unknown,
+    report,
+)
 from fohssv_sim.ros.wire import ArrayReader, ArrayWriter
 
 from .. import registry
@@ -68,6 +75,7 @@ class ControllerNode(Node):
         ParameterError: invalid controller parameters.
     """
 
+    @destroy_on_error
     def __init__(self, default_controller: str | type[Controller] = 'state_feedback',
                  **kwargs: Any) -> None:
         super().__init__('controller', **kwargs)

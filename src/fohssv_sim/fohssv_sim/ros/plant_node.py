@@ -54,7 +54,13 @@ from .options import NODE_PARAMETERS, PlantOptions, check_options, clock_samples
 from .qos import profile
 from .ros_params import declare, install_validation
 from .spin import STOP, final_log, make_executor, spin_until, tighten_timer_slack
-from .startup import BadParameters, init, refuse_unknown, report
+from .startup import (
+    BadParameters,
+    destroy_on_error,
+    init,
+    refuse_unknown,
+    report,
+)
 from .wire import ArrayReader, ArrayWriter, ClockWriter
 
 __all__ = ['PlantNode', 'main', 'EXIT_OK', 'EXIT_DIVERGED', 'EXIT_BAD_PARAMETERS',
@@ -96,6 +102,7 @@ def build_config(values: Mapping[str, Any]) -> tuple[ModelParameters, PlantOptio
 class PlantNode(Node):
     """See the module docstring. Raises ParameterError from the constructor on bad values."""
 
+    @destroy_on_error
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('plant', **kwargs)
         values = declare(self, PARAMETERS + NODE_PARAMETERS)

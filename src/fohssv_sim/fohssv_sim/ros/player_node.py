@@ -61,7 +61,14 @@ from ..params import PARAMETERS, ModelParameters, ParameterError
 from .matching import HoldReporter, SubscriptionGate
 from .qos import profile
 from .spin import final_log, make_executor, spin_until
-from .startup import BadParameters, declare_rows, init, refuse_unknown, report
+from .startup import (
+    BadParameters,
+    declare_rows,
+    destroy_on_error,
+    init,
+    refuse_unknown,
+    report,
+)
 
 __all__ = ['Player', 'PlayerError', 'Track', 'select_tracks', 'command_table', 'main',
            'compare_plant', 'COMPARED',
@@ -220,6 +227,7 @@ class Player(Node):
     """See the module docstring. Raises ValueError (bad parameters) or PlayerError/BagError
     (bad bag) from the constructor."""
 
+    @destroy_on_error
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('player', **kwargs)
         D = ParameterDescriptor

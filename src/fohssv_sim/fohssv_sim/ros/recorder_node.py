@@ -54,7 +54,14 @@ from std_msgs.msg import Float64MultiArray
 from .. import contract
 from ..bag.writer import DEFAULT_CHUNK_SIZE, RunWriter, typestore
 from .qos import SAMPLE_DEPTH, offered_qos, profile
-from .startup import BadParameters, declare_rows, init, refuse_unknown, report
+from .startup import (
+    BadParameters,
+    declare_rows,
+    destroy_on_error,
+    init,
+    refuse_unknown,
+    report,
+)
 
 __all__ = ['Recorder', 'main', 'default_bag_path', 'source_info']
 
@@ -101,6 +108,7 @@ def _contract_topic(name: str) -> contract.Topic:
 class Recorder(Node):
     """Subscribes to the run's topics and writes them to a bag; see the module docstring."""
 
+    @destroy_on_error
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('recorder', **kwargs)
         D = ParameterDescriptor

@@ -120,11 +120,10 @@ def test_invalid_parameter_change_is_refused_and_the_run_is_untouched():
     ({'mode': 'realtime', 'clock_period': 2.5e-4},
      'clock_period=0.00025 s is not 0 or a whole multiple of control_period=0.0001 s '
      '(allowed: 0 or k * control_period'),
-    # rclpy's own range check at declaration, completed with the table's range and unit
-    ({'clock_period': 2.0}, 'Invalid parameter value (2.0) for parameter. Reason: Parameter '
-     'clock_period out of range Min: 0.0, Max: 1.0, value: 2.0: clock_period; allowed: '
-     '[0, 1] s (realtime mode: simulated time between /clock messages'),
-    ({'profile': 2}, 'profile out of range'),
+    # outside the descriptor's range too: checked against the table before rclpy declares it
+    ({'clock_period': 2.0}, 'invalid parameters: clock_period=2.0 is outside the allowed '
+     'range [0, 1] s (realtime mode: simulated time between /clock messages'),
+    ({'profile': 2}, 'profile=2 is outside the allowed range [0, 1]'),
 ])
 def test_invalid_parameters_at_start_exit_2(params, message):
     env = rosproc.ros_env()
@@ -185,14 +184,94 @@ def test_missing_peers_at_start_exit_4():
 
 
 def test_realtime_watchdog_warns_once_and_holds_the_command():
+    # the delayed model: with no command it stays within |w| <= V for more than 0.5 s (the
+    # delay-free one leaves it after 0.26 s, and the plant then stops with exit 1)
     env = rosproc.ros_env()
-    plant = _plant({'model': 'delay-free', 'mode': 'realtime', 'control_period': 1e-3,
-                    'watchdog_timeout': 0.2, 'duration': 1.0, **ALONE}, env)
+    plant = _plant({'model': 'delayed', 'mode': 'realtime', 'control_period': 1e-3,
+                    'watchdog_timeout': 0.2, 'duration': 0.5, **ALONE}, env)
     code, out = finish(plant, 30)
     assert code == 0, out
     warnings = [ln for ln in out.splitlines() if 'watchdog: no command for' in ln]
     assert len(warnings) == 1, out
     assert 'holding delta_f=0.0 rad, delta_c=0.0 rad' in warnings[0]
     s = _summary(out)
-    assert s['samples_paced'] == 1001 and s['t'] == pytest.approx(1.0)
+    assert s['samples_paced'] == 501 and s['t'] == pytest.approx(0.5)
     assert 0.0 <= s['deadline_miss_rate'] <= 1.0
+
+
+def test_lowering_a_deflection_limit_clamps_the_held_command():
+    """Issue 12, defect 6: the probe answers every state with delta_c = -0.11 rad; once
+    max_cavitator_deflection is lowered to 0.001 rad those commands are rejected, and the
+    command the plant holds must be the clamped -0.001 rad, not the old -0.11 rad."""
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    probe = Probe(domain, answer=lambda t, x: [t, 0.0, -0.11])
+    # open loop at a fixed deflection the vehicle leaves |w| <= V after about 0.24 s
+    plant = _plant({'model': 'delay-free', 'duration': 0.1}, env)
+    try:
+        rosproc.wait_for(probe.params.services_are_ready, 30, what='the plant services')
+        probe.wait(lambda: len(probe.states) > 20, 30, 'the run to start')
+        result, = probe.set_plant_parameters(max_cavitator_deflection=0.001)
+        code, out = finish(plant, 60)
+        assert code == 0, out
+    finally:
+        stop_all(plant)
+        probe.close()
+    assert result.successful
+    changed = [ln for ln in out.splitlines() if 'deflection limits now' in ln]
+    assert len(changed) == 1, out
+    assert ("max_cavitator_deflection=0.001 rad at t=" in changed[0] and
+            'the held command delta_f=0.0, delta_c=-0.11 rad is beyond them; holding the '
+            'clamped command delta_f=0.0, delta_c=-0.001 rad' in changed[0]), changed
+    rejected = [ln for ln in out.splitlines() if 'rejected command' in ln]
+    assert rejected and all('delta_c=-0.11 rad exceeds max_cavitator_deflection=0.001 rad'
+                            in ln and 'keeping the last good command delta_f=0.0, '
+                            'delta_c=-0.001 rad' in ln for ln in rejected), rejected
+
+
+def test_state_beyond_physical_bounds_stops_the_run_with_exit_1():
+    """Issue 12, defect 7: the largest allowed step (0.01 s) is unstable for RK4 on eq. 17;
+    the run used to end at duration with exit 0 and w in the millions."""
+    env = rosproc.ros_env()
+    plant = _plant({'model': 'delay-free', 'step': 0.01, 'control_period': 0.01,
+                    'mode': 'realtime', 'real_time_factor': 100.0, 'duration': 5.0,
+                    'initial_state': [0.0, 1.0, 0.0, 0.0], **ALONE}, env)
+    code, out = finish(plant, 60)
+    assert code == 1, out
+    assert re.search(r'simulation failed: state beyond physical bounds at t=\S+ s: '
+                     r'\[z, w, theta, q\] = \[.*\] \(\|w\| must stay <= V = 75 m/s', out), out
+    assert 'stopping cleanly' not in out
+
+
+def test_realtime_rejects_commands_from_the_future_and_stale_ones():
+    """Issue 12, defect 14: answers at samples 3, 4, 5 claim t + 1 s (the future), t - 1 s
+    and -1e300 s (older than max_command_age); each is rejected, counted and logged, and the
+    largest command lag stays that of the good answers."""
+    bad = {3: lambda t: t + 1.0, 4: lambda t: t - 1.0, 5: lambda t: -1e300}
+
+    law = StateFeedback()     # eq. 31: open loop the vehicle leaves |w| <= V within 0.3 s
+
+    def answer(t, x):
+        k = round(t / 1e-3)
+        return [bad[k](t) if k in bad else t, *law.command(t, x)]
+
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    probe = Probe(domain, answer=answer)
+    plant = _plant({'model': 'delay-free', 'mode': 'realtime', 'control_period': 1e-3,
+                    'duration': 0.3, 'max_command_age': 0.5}, env)
+    try:
+        code, out = finish(plant, 60)
+        assert code == 0, out
+    finally:
+        stop_all(plant)
+        probe.close()
+    s = _summary(out)
+    rejected = [ln for ln in out.splitlines() if 'rejected command' in ln]
+    assert s['stale_commands'] == 3 and s['rejected_commands'] == 3, out
+    assert len(rejected) == 3, out
+    assert ("stale command: it answers t=1.00" in rejected[0]
+            and "after the plant's current sample" in rejected[0]), rejected
+    assert 'older than max_command_age=0.5 s' in rejected[1]
+    assert 'it answers t=-1e+300 s' in rejected[2]
+    assert 0.0 <= s['max_command_lag'] <= 0.5

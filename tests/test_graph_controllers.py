@@ -152,5 +152,32 @@ def test_controller_rejects_min_command_subscribers_below_one():
                          env=rosproc.ros_env())
     code, out = finish(proc, 30)
     assert code == 2, out
-    assert 'min_command_subscribers=0 must be an integer >= 1 (subscriptions)' in out
+    assert ('min_command_subscribers=0 is outside the allowed range [1, 1000] (matched '
+            'subscriptions of command') in out
     assert 'Traceback' not in out
+
+
+def test_controller_sends_no_command_for_a_non_finite_law_output():
+    """Issue 12, defect 5: with gains of 1e308 the law overflows to NaN for the state at
+    t = 0.1; clamped it used to go out as a full +0.5 rad deflection. No command may be sent
+    for it; the node says why and answers the next state as usual."""
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    probe = Probe(domain)
+    ctl = rosproc.start('fohssv_controller', 'state_feedback',
+                        ['--ros-args', '-p', 'depth_gain:=1e308', '-p', 'pitch_gain:=-1e308'],
+                        env=env)
+    try:
+        _first_state_to_controller(probe)
+        probe.publish_state([0.1, 10.0, 0.0, 10.0, 0.0])
+        probe.publish_state([0.2, 0.0, 0.0, 0.0, 0.0])
+        probe.wait(lambda: any(c[0] == 0.2 for c in probe.commands), 20, 'the last answer')
+    finally:
+        out = stop_all(ctl)
+        probe.close()
+    answered = {c[0]: c for c in probe.commands}
+    assert 0.1 not in answered and answered[0.2] == (0.2, 0.0, 0.0)
+    assert ('state_feedback: non-finite output at t=0.1 s: delta_f=0.0, delta_c=nan rad from '
+            '[z, w, theta, q] = [10.0, 0.0, 10.0, 0.0]; no command sent for this state '
+            '(1 withheld)') in out, out
+    assert 'withheld 1 (non-finite law output)' in out

@@ -124,3 +124,40 @@ def test_fractional_pid_node_equals_the_batch_run():
     ref, _ = batch_samples('fractional', FractionalPID(**gains), duration)
     assert states.shape == ref.shape
     assert np.max(np.abs(states - ref)) <= TOL
+
+
+def test_sigint_during_a_lockstep_run_stops_cleanly(tmp_path):
+    """Issue 12, defect 12: SIGINT used to reach the plant while a command callback was
+    publishing the next sample: rclpy shut the context down under it and the executor logged
+    ``[FATAL] Exception in 'subscriptions' callback`` with a stack (in every run here, with the
+    interpreted ABM solver keeping the plant in its callback most of the time). Three runs at
+    once, each interrupted while it steps: exit 0, the summary, no FATAL and no traceback."""
+    import signal
+    import time
+
+    runs = []
+    for i in range(3):
+        env = rosproc.ros_env()
+        logs = (tmp_path / f'plant{i}.log', tmp_path / f'ctl{i}.log')
+        ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env, log=logs[1])
+        plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+            model='fractional', solver='abm'), env=env, log=logs[0])
+        runs.append((plant, ctl, logs))
+    try:
+        for _, _, logs in runs:
+            rosproc.wait_for(lambda logs=logs: 'peers matched' in logs[0].read_text(), 60,
+                             what='the run to start')
+        time.sleep(1.0)
+        for plant, _, _ in runs:
+            plant.send_signal(signal.SIGINT)
+        codes = [rosproc.wait_exit(plant, 30) for plant, _, _ in runs]
+        for _, ctl, _ in runs:
+            codes.append(rosproc.stop(ctl))
+    finally:
+        stop_all(*[p for run in runs for p in run[:2]])
+    texts = [log.read_text() for _, _, logs in runs for log in logs]
+    assert codes == [0] * 6, texts
+    for text in texts:
+        assert 'FATAL' not in text and 'Traceback' not in text, text
+    for _, _, logs in runs:
+        assert 'interrupted; stopping cleanly. summary:' in logs[0].read_text()

@@ -123,6 +123,7 @@ def test_commands_replay_reproduces_the_lockstep_run(tmp_path):
 
     b, text_b = _lockstep_run(tmp_path, 'B', player)
     assert 'every recorded command was replayed' in text_b or 'commands end' in text_b, text_b
+    assert 'the plant /plant matches the recording' in text_b, text_b
     assert b.state.shape == a.state.shape, text_b
     assert np.array_equal(b.t, a.t)
     assert np.max(np.abs(b.state - a.state)) <= TOL
@@ -273,3 +274,54 @@ def test_bad_paths_give_one_line_and_exit_1(tmp_path):
         assert code == 1, (path, out)
         assert len(lines) == 1 and lines[0].startswith('player: error: '), out
         assert str(path) in lines[0] and cases[path] in lines[0], out
+
+
+def _commands_bag(path, control_period: float, n: int) -> None:
+    """A bag as a lockstep delay-free run at ``control_period`` records it: zero commands at
+    every sample time t = k h (h = 1e-5 s, the times the plant computes), and the plant's
+    parameters in the run metadata."""
+    from fohssv_sim import contract
+    from fohssv_sim.bag.synthetic import float64_array
+    from fohssv_sim.bag.writer import RunWriter
+    from fohssv_sim.params import ModelParameters
+
+    w = RunWriter(path).open()
+    w.add_topic('/command', contract.COMMAND.type)
+    w.add_metadata({'fohssv.plant_parameters': {
+        **ModelParameters(model='delay-free').to_dict(), 'step': 'auto',
+        'control_period': control_period, 'initial_state': [0.0, 0.0, 0.0, 0.0],
+        'mode': 'lockstep'}})
+    hold = round(control_period / 1e-5)
+    for k in range(n):
+        t = k * hold * 1e-5
+        w.write('/command', round(t * 1e9), float64_array(contract.COMMAND, [t, 0.0, 0.0]))
+    w.close()
+
+
+def test_commands_mode_refuses_a_plant_that_does_not_match_the_recording(tmp_path):
+    """Issue 12, defect 8: a plant at control period 2e-4 s used to replay a 1e-4 s
+    recording silently (both exit 0). The player compares and refuses, naming the
+    difference; with force:=true it replays with a warning."""
+    bag = tmp_path / 'rec'
+    _commands_bag(bag, 1e-4, 201)
+    env = rosproc.ros_env()
+    player = _player(env, f'bag_path:={bag}', 'mode:=commands')
+    plant = _plant(env, tmp_path / 'plant.log', model='delay-free', control_period=2e-4,
+                   duration=0.01, command_timeout=30.0, start_timeout=60.0)
+    code = rosproc.wait_exit(player, 60)
+    out = rosproc.output(player)
+    rosproc.stop(plant)
+    assert code == 1, out
+    assert ('the plant /plant does not match the recording: control_period: recorded '
+            '0.0001, plant 0.0002') in out and 'force:=true' in out, out
+
+    env = rosproc.ros_env()
+    player = _player(env, f'bag_path:={bag}', 'mode:=commands', 'force:=true')
+    plant = _plant(env, tmp_path / 'plant2.log', model='delay-free', control_period=2e-4,
+                   duration=0.01, command_timeout=30.0, start_timeout=60.0)
+    assert rosproc.wait_exit(plant, 60) == 0, (tmp_path / 'plant2.log').read_text()
+    code = rosproc.wait_exit(player, 60)
+    out = rosproc.output(player)
+    assert code == 0, out
+    assert 'does not match the recording: control_period' in out and 'replaying anyway' in out
+

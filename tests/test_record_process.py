@@ -255,6 +255,6 @@ def test_default_path_and_bad_parameters(tmp_path, domain):
                        ([f'bag_path:={bags[0]}'], 'exists already'),
                        (['flush_period:=0.0'], 'flush_period')):
         proc = start('fohssv_sim', 'recorder', ['--ros-args', '-p', *bad], env=env)
-        assert wait_exit(proc, 30) == 1
+        assert wait_exit(proc, 30) == 2     # invalid parameters, as in every node
         out = proc.stdout.read()
         assert words in out and 'Traceback' not in out, out

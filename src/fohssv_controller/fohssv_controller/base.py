@@ -24,6 +24,9 @@ Rules for implementers:
   :class:`fohssv_sim.params.ParameterError`.
 * The outputs are clamped to the deflection limits the parameters give, if they have
   ``max_fin_deflection`` / ``max_cavitator_deflection`` fields (done by :meth:`command`).
+  A non-finite output is never clamped (``clamp(nan)`` would give the full limit):
+  :meth:`command` raises :class:`NonFiniteCommand` (a ``FloatingPointError``), so the batch
+  runner stops with it and the controller node sends no command for that state.
 
 Nothing here imports rclpy: controllers are usable in notebooks, sweeps and the batch runner.
 """
@@ -38,7 +41,8 @@ from typing import Any, ClassVar
 
 from fohssv_sim.params import ParameterError, ParameterSpec
 
-__all__ = ['Controller', 'ParameterError', 'clamp', 'DEFLECTION_LIMIT', 'deflection_limit']
+__all__ = ['Controller', 'ParameterError', 'NonFiniteCommand', 'clamp', 'DEFLECTION_LIMIT',
+           'deflection_limit']
 
 #: Default deflection limit (rad): generous, so clamping does not bind in the reference loops
 #: (test_models.test_deflection_limit_default_does_not_bind_in_the_reference_loops).
@@ -50,6 +54,11 @@ def deflection_limit(name: str, text: str) -> ParameterSpec:
     :meth:`Controller.command` clamps to."""
     return ParameterSpec(name, '-', DEFLECTION_LIMIT, 'rad', text, low=0.0, high=1.5708,
                          high_open=False, needs_reset=False)
+
+
+class NonFiniteCommand(FloatingPointError):
+    """A control law returned a non-finite deflection; nothing may be commanded from it.
+    The message names the controller, the time, the outputs and the state."""
 
 
 def clamp(value: float, limit: float) -> float:
@@ -95,12 +104,24 @@ class Controller(ABC):
         return None
 
     def command(self, t: float, state: Sequence[float]) -> tuple[float, float]:
-        """:meth:`update`, clamped to the parameters' deflection limits."""
+        """:meth:`update`, clamped to the parameters' deflection limits.
+
+        Raises:
+            NonFiniteCommand: the law's output is NaN or infinite (e.g. gains so large that
+                a product overflows); clamping it would command a full deflection.
+        """
         df, dc = self.update(t, state)
+        df = float(df)
+        dc = float(dc)
+        if not (df - df == 0.0 and dc - dc == 0.0):   # False for NaN and +-inf
+            raise NonFiniteCommand(
+                f'{self.name or type(self).__name__}: non-finite output at t={t!r} s: '
+                f'delta_f={df!r}, delta_c={dc!r} rad from [z, w, theta, q] = '
+                f'{[float(v) for v in state]}')
         p = self.params
         lf = getattr(p, 'max_fin_deflection', math.inf)
         lc = getattr(p, 'max_cavitator_deflection', math.inf)
-        return clamp(float(df), lf), clamp(float(dc), lc)
+        return clamp(df, lf), clamp(dc, lc)
 
     __call__ = command
 

@@ -1,15 +1,16 @@
 """``fohssv``: the analysis command line (pure Python, no ROS needed).
 
     fohssv stability [--alpha A] [--speed V] [--speeds 75:90:0.5] [--out DIR]
-    fohssv plot BAG... [--out DIR]
+    fohssv plot BAG... [--out DIR] [--namespace NS]
     fohssv sweep alpha|V|alpha-V [...]
     fohssv report [--out DIR]
     fohssv repair BAG
 
 Model parameters are set with ``--set name=value`` (repeatable; names as in the README's
 parameter table) and ``--preset paper-literal``; the controller with ``--controller NAME``
-(a plugin of group ``fohssv.controllers``) and ``--gain name=value``. Errors print one line and
-exit with status 2; nothing prints a traceback for bad input.
+(a plugin of group ``fohssv.controllers``) and ``--gain name=value``. Errors print one line;
+nothing prints a traceback for bad input. Exit status: 0 done, 1 a bag that is missing,
+unreadable or not sound (every bag command alike), 2 any other bad input, 130 interrupted.
 """
 
 from __future__ import annotations
@@ -29,8 +30,40 @@ from .params import ModelParameters, ParameterError
 __all__ = ['main', 'load_controller', 'parse_range']
 
 
+#: Exit codes of every subcommand: 0 done; 1 a bag that is missing, unreadable or not sound
+#: (``plot``, ``check``, ``repair``, ``info`` alike); 2 any other bad input (options, values,
+#: an ``--out`` that is not a folder); 130 interrupted.
+EXIT_OK, EXIT_BAD_BAG, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+
 class CliError(ValueError):
-    """A user error: printed as one line, exit status 2."""
+    """A user error: printed as one line, exit status ``exit_code`` (2)."""
+
+    exit_code = EXIT_USAGE
+
+
+class BagInputError(CliError):
+    """A bag given on the command line is missing, unreadable or not a bag: exit status 1,
+    as ``fohssv check`` gives for it."""
+
+    exit_code = EXIT_BAD_BAG
+
+
+def output_dir(path: Path, option: str = '--out') -> Path:
+    """Create the output folder ``path`` (and its parents) if needed.
+
+    Raises:
+        CliError: ``path`` (or a parent) exists and is not a folder, or cannot be created.
+    """
+    if path.exists() and not path.is_dir():
+        raise CliError(f'{option} {path}: exists and is not a folder; give a folder (the '
+                       'figures and results are written into it)')
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise CliError(f'{option} {path}: cannot create the folder ({exc.strerror or exc})'
+                       ) from None
+    return path
 
 
 def load_controller(name: str, gains: dict[str, Any] | None = None) -> Any:
@@ -118,7 +151,7 @@ def cmd_stability(args: argparse.Namespace) -> int:
     alpha = args.alpha if args.alpha is not None else params.fractional_order
     if not 0 < alpha <= 1:
         raise CliError(f'--alpha={alpha} is outside (0, 1]')
-    args.out.mkdir(parents=True, exist_ok=True)
+    output_dir(args.out)
     eqs = find_equilibria(params, controller)
     result: dict[str, Any] = {'speed': params.speed, 'alpha': alpha,
                               'planing_form': params.planing_form,
@@ -189,10 +222,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except CliError as e:
         print(f'fohssv {args.command}: error: {e}', file=sys.stderr)
-        return 2
+        return e.exit_code
     except KeyboardInterrupt:
         print(f'fohssv {args.command}: interrupted', file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
 
 
 def _load_extra_commands() -> None:

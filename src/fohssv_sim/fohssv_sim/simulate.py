@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from .models import AffineLaw, Plant, make_plant
+from .models import AffineLaw, Plant, check_state, make_plant
 from .params import ModelParameters
 
 __all__ = ['SimulationResult', 'simulate', 'steps_per_period']
@@ -84,7 +84,11 @@ def simulate(plant: Plant | ModelParameters, controller: Any, duration: float, *
     Raises:
         ValueError: a bad duration, control period or sample interval; a stateful controller
             in continuous mode.
-        FloatingPointError: the state turned non-finite (names the time and state).
+        FloatingPointError: the state turned non-finite (names the time and state); its
+            subclass :class:`~fohssv_sim.models.StateOutOfBounds` when a finite state left
+            the physical bounds |w| <= V, |theta| <= pi/2 (checked after every advance: each
+            sample or control instant); :class:`fohssv_controller.base.NonFiniteCommand`
+            when the controller's output is not finite.
     """
     if not (math.isfinite(duration) and duration > 0):
         raise ValueError(f'duration={duration!r} s must be a positive number of seconds')
@@ -140,6 +144,7 @@ def simulate(plant: Plant | ModelParameters, controller: Any, duration: float, *
         if hold:
             nxt = min(nxt, (n // hold + 1) * hold)
         plant.advance(drive, nxt - n)
+        check_state(plant)     # StateOutOfBounds: |w| > V or |theta| > pi/2 (a few compares)
         if progress is not None and nxt // report_every != n // report_every:
             progress(nxt / n_steps)
         n = nxt

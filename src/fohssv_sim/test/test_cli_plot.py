@@ -57,11 +57,62 @@ def test_plot_overlays_bags_and_summarises_them(tmp_path):
     assert abs(s['w_dominant_frequency_hz'] - f_peaks) <= s['frequency_resolution_hz']
 
 
-def test_plot_bad_paths_exit_2_without_traceback(tmp_path):
+def test_plot_bad_bags_exit_1_like_check_without_traceback(tmp_path):
+    """A missing or unreadable bag: one line and exit 1 from plot, check and repair alike
+    (2 is for bad options)."""
     (tmp_path / 'empty').mkdir()
     (tmp_path / 'junk.mcap').write_bytes(b'not an mcap file at all')
     for bad in ('missing', 'empty', 'junk.mcap'):
-        out = subprocess.run([str(FOHSSV), 'plot', str(tmp_path / bad), '--out',
-                              str(tmp_path)], capture_output=True, text=True, timeout=60)
-        assert out.returncode == 2, bad
-        assert 'Traceback' not in out.stderr and str(tmp_path / bad) in out.stderr
+        for command in (['plot', str(tmp_path / bad), '--out', str(tmp_path)],
+                        ['check', str(tmp_path / bad)], ['repair', str(tmp_path / bad)]):
+            out = subprocess.run([str(FOHSSV), *command], capture_output=True, text=True,
+                                 timeout=60)
+            assert out.returncode == 1, (command, out.stderr)
+            assert 'Traceback' not in out.stderr and str(tmp_path / bad) in out.stderr
+            assert len(out.stderr.strip().splitlines()) == 1, out.stderr
+
+
+def test_plot_out_an_existing_file_is_one_line_and_exit_2(tmp_path):
+    p = ModelParameters(model='delay-free')
+    record(tmp_path / 'a', simulate(p, StateFeedback(), 0.05, sample_every=10), p)
+    (tmp_path / 'taken.png').write_bytes(b'mine')
+    out = subprocess.run([str(FOHSSV), 'plot', str(tmp_path / 'a'), '--out',
+                          str(tmp_path / 'taken.png')], capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 2, out.stderr
+    assert 'exists and is not a folder' in out.stderr and 'Traceback' not in out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1
+    assert (tmp_path / 'taken.png').read_bytes() == b'mine'
+
+
+def test_plot_a_bag_with_two_namespaces_by_namespace(tmp_path):
+    """Two vehicles in one bag: without --namespace the error names both namespaces; with it
+    the one named plots, and its summary is that vehicle's run (not the first one's)."""
+    runs = {}
+    w = RunWriter(tmp_path / 'two').open()
+    for ns, model in (('/v1', 'delay-free'), ('/v2', 'delayed')):
+        runs[ns] = simulate(ModelParameters(model=model), StateFeedback(), 0.3,
+                            sample_every=10)
+        for topic in (contract.STATE, contract.PLANING_FORCE, contract.COMMAND):
+            w.add_topic(f'{ns}/{topic.name}', topic.type)
+    for ns, run in runs.items():
+        for i, t in enumerate(run.t):
+            ns_t = round(t * 1e9)
+            w.write(f'{ns}/state', ns_t, float64_array(contract.STATE, [t, *run.state[i]]))
+            w.write(f'{ns}/planing_force', ns_t, float64_array(
+                contract.PLANING_FORCE, [t, run.planing_force[i]]))
+            w.write(f'{ns}/command', ns_t, float64_array(contract.COMMAND,
+                                                         [t, *run.inputs[i]]))
+    w.close()
+    out = subprocess.run([str(FOHSSV), 'plot', str(tmp_path / 'two'), '--out',
+                          str(tmp_path / 'fig')], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 1 and 'one of /v1, /v2' in out.stderr and '--namespace' in (
+        out.stderr), out.stderr
+    for ns, run in list(runs.items())[1:]:      # the second vehicle (the first is the default)
+        fig = tmp_path / f'fig{ns.strip("/")}'
+        out = subprocess.run([str(FOHSSV), 'plot', str(tmp_path / 'two'), '--namespace', ns,
+                              '--out', str(fig)], capture_output=True, text=True,
+                             timeout=120)
+        assert out.returncode == 0, out.stderr
+        s = json.loads((fig / 'run_summary.json').read_text())[str(tmp_path / 'two')]
+        assert s['samples'] == run.t.size

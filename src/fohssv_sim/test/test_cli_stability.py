@@ -54,3 +54,14 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
         assert out.returncode == 2, args
         assert text in out.stderr and 'Traceback' not in out.stderr
         assert len(out.stderr.strip().splitlines()) == 1
+
+
+def test_out_an_existing_file_is_one_line_and_exit_2(tmp_path):
+    (tmp_path / 'taken').write_text('mine\n')
+    for args, text in [(('--out', str(tmp_path / 'taken')), 'exists and is not a folder'),
+                       (('--out', str(tmp_path / 'taken' / 'sub')), 'cannot create the folder')]:
+        out = run('stability', *args)
+        assert out.returncode == 2, args
+        assert text in out.stderr and 'Traceback' not in out.stderr
+        assert len(out.stderr.strip().splitlines()) == 1
+    assert (tmp_path / 'taken').read_text() == 'mine\n'

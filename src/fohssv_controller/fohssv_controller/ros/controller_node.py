@@ -7,7 +7,11 @@ lockstep and real time alike. The controller's parameters are declared from its
 ``Parameters`` table (descriptions, ranges); a change is validated by rebuilding the
 controller and applied only when that succeeds. A state message that does not fit the
 contract is dropped and logged; a state whose time goes backwards (the plant was reset) resets
-the controller.
+the controller. A control law whose output is not finite (NaN or infinite: clamping it would
+command a full deflection) gets no command sent for that state: the node logs it (the first 20
+one by one, then at most one line a second) and counts it; the plant keeps its last good
+command (in lockstep it waits for an answer and ends with exit 3 after ``command_timeout``,
+naming the stalled controller).
 
 The per-sample path (10k states/s at the default control period) skips rclpy's message
 conversion: the state arrives serialized (a raw subscription) and its doubles are unpacked at
@@ -26,25 +30,41 @@ from typing import Any
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import Float64MultiArray
 
 from fohssv_sim.contract import COMMAND, STATE, ContractError, decode
-from fohssv_sim.params import ParameterError, field_specs
+from fohssv_sim.params import ParameterSpec, field_specs
 from fohssv_sim.ros.matching import HoldReporter, SubscriptionGate
 from fohssv_sim.ros.qos import profile
 from fohssv_sim.ros.ros_params import declare, install_validation
-from fohssv_sim.ros.spin import final_log, make_executor, spin_until
+from fohssv_sim.ros.spin import STOP, final_log, make_executor, spin_until
+from fohssv_sim.ros.startup import (
+    BadParameters,
+    declare_rows,
+    destroy_on_error,
+    init,
+    refuse_unknown,
+    report,
+)
 from fohssv_sim.ros.wire import ArrayReader, ArrayWriter
 
 from .. import registry
-from ..base import Controller
+from ..base import Controller, NonFiniteCommand
 
 __all__ = ['ControllerNode', 'main', 'main_state_feedback', 'main_lqr']
 
 EXIT_OK, EXIT_BAD_CONFIG = 0, 2
 _LOG_EACH = 20
+
+#: The node's own parameter (besides the controller's table and ``controller``).
+MIN_COMMAND_SUBSCRIBERS = ParameterSpec(
+    'min_command_subscribers', '-', 1, '-', 'matched subscriptions of command (the plant, '
+    'recorders) to wait for before the first command; 2 with a recorder, so it hears every '
+    'command', low=1.0, low_open=False, high=1000.0, high_open=False)
 
 
 class ControllerNode(Node):
@@ -55,6 +75,7 @@ class ControllerNode(Node):
         ParameterError: invalid controller parameters.
     """
 
+    @destroy_on_error
     def __init__(self, default_controller: str | type[Controller] = 'state_feedback',
                  **kwargs: Any) -> None:
         super().__init__('controller', **kwargs)
@@ -65,6 +86,9 @@ class ControllerNode(Node):
         specs = field_specs(self.cls.Parameters)
         names = tuple(s.name for s in specs)
         values = declare(self, specs)
+        # until the plant's (and a recorder's) subscription is matched a publish is lost
+        minimum = declare(self, (MIN_COMMAND_SUBSCRIBERS,))['min_command_subscribers']
+        refuse_unknown(self)
         self.controller = self._build(values)
         install_validation(self, names, self._build, self._apply)
 
@@ -77,32 +101,23 @@ class ControllerNode(Node):
                                                   self._on_state, profile(STATE), raw=True)
         self._pending: list[tuple[float, ...]] = []
         self._retry = None
-        # until the plant's (and a recorder's) subscription is matched a publish is lost
-        minimum = self.declare_parameter(
-            'min_command_subscribers', 1, ParameterDescriptor(
-                description='matched subscriptions of command (the plant, recorders) to wait '
-                            'for before the first command; 2 with a recorder, so it hears '
-                            'every command', read_only=True,
-                additional_constraints='>= 1')).value
-        if not (isinstance(minimum, int) and minimum >= 1):
-            raise ValueError(f'min_command_subscribers={minimum!r} must be an integer >= 1 '
-                             '(subscriptions)')
         self._matched = SubscriptionGate(self, self.command_pub, minimum=minimum)
         self._open = False   # True once the gate settled open: no per-sample graph queries
         self._held = HoldReporter(self, self._matched)
         self._last_t: float | None = None
         self.answered = 0
         self.dropped = 0
+        self.withheld = 0     # states whose law output was not finite: no command sent
         self.get_logger().info(f'controller {self.controller.describe()}')
 
     def _plugin(self, default_controller: str) -> type[Controller]:
-        name = self.declare_parameter(
+        declare_rows(self, [(
             'controller', default_controller,
             ParameterDescriptor(description='name of the controller plugin (entry point in '
                                 f'group {registry.GROUP})', read_only=True,
                                 additional_constraints='one of: '
-                                + ', '.join(registry.available()))).value
-        return registry.load(name)
+                                + ', '.join(registry.available())))])
+        return registry.load(self.get_parameter('controller').value)
 
     def _build(self, values: Mapping[str, Any]) -> Controller:
         return self.cls(self.cls.Parameters(**values))
@@ -137,6 +152,14 @@ class ControllerNode(Node):
         self._last_t = t
         try:
             df, dc = self.controller.command(t, x)
+        except NonFiniteCommand as exc:
+            # never sent (clamped it would be a full deflection): the plant keeps its last
+            # good command; in lockstep it waits, and its command_timeout names this node
+            self.withheld += 1
+            self.get_logger().error(
+                f'{exc}; no command sent for this state ({self.withheld} withheld)',
+                throttle_duration_sec=0.0 if self.withheld <= _LOG_EACH else 1.0)
+            return
         except Exception as exc:  # a plugin's bug must not kill the node silently
             self.get_logger().error(f'{self.controller.name}.command(t={t!r}) raised '
                                     f'{type(exc).__name__}: {exc}; no command sent')
@@ -180,15 +203,24 @@ def main(args: list[str] | None = None,
     """Entry point of ``ros2 run fohssv_controller controller``; also hosts a controller class
     given directly (``main(default_controller=MyController)``, no plugin registration needed).
     """
-    rclpy.init(args=args)
+    try:
+        # SIGINT/SIGTERM only set STOP: the loop ends between callbacks (see StopSignal)
+        init(args, signal_handler_options=SignalHandlerOptions.NO)
+    except BadParameters as exc:
+        sys.exit(report('controller', exc))
+    STOP.install()
     code = EXIT_OK
     node = None
     try:
         try:
             node = ControllerNode(default_controller)
-        except (registry.UnknownController, ParameterError, ValueError) as exc:
+        except registry.UnknownController as exc:
             rclpy.logging.get_logger('controller').error(str(exc))
             code = EXIT_BAD_CONFIG
+        except (ValueError, ParameterException) as exc:  # ParameterError, BadParameters
+            specs = () if isinstance(default_controller, str) else field_specs(
+                default_controller.Parameters)
+            code = report('controller', exc, (*specs, MIN_COMMAND_SUBSCRIBERS))
         else:
             executor = make_executor()
             executor.add_node(node)
@@ -198,7 +230,7 @@ def main(args: list[str] | None = None,
     finally:
         if node is not None:
             final_log(node.get_name(), f'answered {node.answered} state(s), dropped '
-                      f'{node.dropped}')
+                      f'{node.dropped}, withheld {node.withheld} (non-finite law output)')
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()

@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from ..cli import CliError, _figure_paths
+from ..cli import BagInputError, _figure_paths, output_dir
 
 
 def register(sub) -> None:
@@ -18,6 +18,8 @@ def register(sub) -> None:
     p.add_argument('--out', type=Path, default=Path('reports'), help='output folder')
     p.add_argument('--skip', type=float, default=0.0, help='phase portrait from t >= SKIP s')
     p.add_argument('--name', default='run', help='figure file stem')
+    p.add_argument('--namespace', help="the vehicle's namespace (e.g. /vehicle1) when a bag "
+                   'holds several; default: the only state topic, wherever it is')
     p.set_defaults(func=cmd_plot)
 
     r = sub.add_parser('repair', help='rebuild the index, summary and metadata.yaml of a bag '
@@ -42,15 +44,17 @@ def cmd_plot(args: argparse.Namespace) -> int:
     runs = []
     for bag in args.bags:
         try:
-            runs.append(load_run(bag))
+            runs.append(load_run(bag, namespace=args.namespace))
         except BagError as e:
-            raise CliError(str(e)) from None
+            raise BagInputError(str(e)) from None
     for run in runs:
         if run.t.size == 0:
-            raise CliError(f'{run.path}: no state messages to plot')
+            where = f' in namespace {args.namespace}' if args.namespace else ''
+            raise BagInputError(f'{run.path}: no state messages{where} to plot (topics: '
+                                f"{', '.join(sorted(run.topics)) or 'none'})")
         if run.recovery:
             print(f'{run.path}: {run.recovery}')
-    args.out.mkdir(parents=True, exist_ok=True)
+    output_dir(args.out)
     stem = args.out / args.name
     plot_time_responses(runs, _figure_paths(stem.parent / f'{stem.name}_time'))
     plot_phase_portrait(runs, _figure_paths(stem.parent / f'{stem.name}_phase'), args.skip)

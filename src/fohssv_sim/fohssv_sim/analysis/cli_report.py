@@ -25,7 +25,10 @@ def register(sub) -> None:
 def cmd_report(args: argparse.Namespace) -> int:
     import dataclasses
 
+    from ..cli import output_dir
     from .report import ReportSettings, make_report
+
+    output_dir(args.out)
 
     s = ReportSettings.quick() if args.quick else ReportSettings()
     s = dataclasses.replace(s, workers=args.workers, scheduler=args.scheduler)

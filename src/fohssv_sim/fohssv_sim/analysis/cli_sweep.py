@@ -6,7 +6,15 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..cli import CliError, _assignments, _common, _figure_paths, model_params, parse_range
+from ..cli import (
+    CliError,
+    _assignments,
+    _common,
+    _figure_paths,
+    model_params,
+    output_dir,
+    parse_range,
+)
 from ..params import ParameterError
 
 DEFAULT_ALPHAS = '0.6:1.0:0.02'
@@ -115,7 +123,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from .sweep import run_sweep
 
     spec = build_spec(args)
-    out: Path = args.out
+    out: Path = output_dir(args.out)
     n = len(spec.points())
     print(f'sweep {args.kind}: {n} points, {len(spec.alphas)} alpha x {len(spec.speeds)} V, '
           f'transient {spec.transient:g} s, window {spec.window:g} s -> {out}', flush=True)

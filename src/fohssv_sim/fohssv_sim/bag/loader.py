@@ -156,7 +156,50 @@ def _read_metadata_yaml(path: Path) -> dict[str, Any]:
     info = data.get('rosbag2_bagfile_information') if isinstance(data, dict) else None
     if not isinstance(info, dict):
         raise BagError(f'{path}: not a rosbag2 metadata.yaml (no rosbag2_bagfile_information)')
+    _check_shape(path, info)
     return info
+
+
+#: The shape of the metadata.yaml fields fohssv reads (a missing or null field is allowed:
+#: ``check`` reports missing ones): field -> (accepted types, what it must be, item type).
+_SHAPES: dict[str, tuple[tuple[type, ...], str, type | None]] = {
+    'version': ((int,), 'an integer', None),
+    'storage_identifier': ((str,), 'a string', None),
+    'message_count': ((int,), 'an integer', None),
+    'duration': ((dict,), 'a mapping (nanoseconds)', None),
+    'starting_time': ((dict,), 'a mapping (nanoseconds_since_epoch)', None),
+    'relative_file_paths': ((list,), 'a list of file names', str),
+    'files': ((list,), 'a list of mappings', dict),
+    'topics_with_message_count': ((list,), 'a list of mappings', dict),
+    'custom_data': ((dict,), 'a mapping of names to strings', None),
+}
+
+
+def _check_shape(path: Path, info: dict[str, Any]) -> None:
+    """Raise BagError naming the first field of the wrong shape (valid YAML is not yet a
+    valid rosbag2 metadata.yaml: ``custom_data: [1, 2]``, ``relative_file_paths: 5``)."""
+    for name, (types, what, item) in _SHAPES.items():
+        value = info.get(name)
+        if value is None:
+            continue
+        ok = isinstance(value, types) and not isinstance(value, bool)
+        if ok and item is not None:
+            ok = all(isinstance(v, item) for v in value)
+        if ok and name == 'topics_with_message_count':
+            ok = all(isinstance(e.get('topic_metadata', {}), dict) for e in value)
+        if not ok:
+            raise BagError(f'{path}: malformed metadata.yaml: {name} is {value!r}, it must be '
+                           f'{what}; fix or remove the file (python -m fohssv_sim.bag repair '
+                           f'then rebuilds it from the MCAP data)')
+
+
+def _inside(directory: Path, path: Path) -> bool:
+    """True when ``path`` (symbolic links resolved) lies in ``directory``."""
+    try:
+        path.resolve().relative_to(directory.resolve())
+    except (ValueError, OSError, RuntimeError):
+        return False
+    return True
 
 
 def _check_mcap_file(path: Path) -> None:
@@ -198,13 +241,20 @@ def locate(path: str | Path) -> BagFiles:
     if not entries:
         raise BagError(f'{p}: empty directory, not a bag (no metadata.yaml, no .mcap file)')
     meta = p / 'metadata.yaml'
+    if meta.exists() and not meta.is_file():
+        raise BagError(f'{meta}: not a file; a bag folder holds metadata.yaml as a file '
+                       '(move the directory away)')
     info = _read_metadata_yaml(meta) if meta.is_file() else None
     if info is not None:
         storage = str(info.get('storage_identifier', ''))
         if storage != 'mcap':
             raise BagError(f'{meta}: storage {storage!r} is not supported (only mcap)')
         rel = info.get('relative_file_paths') or []
-        files = tuple(p / str(r) for r in rel)
+        outside = [r for r in rel if not _inside(p, p / r)]
+        if outside:
+            raise BagError(f'{meta}: relative_file_paths {outside} lie outside the bag folder '
+                           f'{p}; every file of a bag must be inside it')
+        files = tuple(p / r for r in rel)
         missing = [f.name for f in files if not f.is_file()]
         if missing or not files:
             found = [e.name for e in entries if e.suffix == '.mcap']
@@ -216,6 +266,10 @@ def locate(path: str | Path) -> BagFiles:
         files = tuple(e for e in entries if e.suffix == '.mcap' and e.is_file())
         if not files:
             raise BagError(f'{p}: not a bag (no metadata.yaml and no .mcap file in it)')
+    outside = [str(f) for f in files if not _inside(p, f)]
+    if outside:
+        raise BagError(f'{p}: {outside} lead outside the bag folder (symbolic links); every '
+                       'file of a bag must be inside it')
     for f in files:
         _check_mcap_file(f)
     return BagFiles(p, meta if info is not None else None, files, info)
@@ -307,8 +361,10 @@ def _pick_channels(sc: Scan, name: str, namespace: str | None) -> list[int]:
     ids = [c.id for c in sc.channels.values() if _basename(c.topic) == name]
     topics = sorted({sc.channels[i].topic for i in ids})
     if len(topics) > 1:
-        raise BagError(f'{sc.files.directory}: several {name!r} topics {topics}; '
-                       'give the namespace')
+        spaces = sorted({t.rsplit('/', 1)[0] or '/' for t in topics})
+        raise BagError(f'{sc.files.directory}: several {name!r} topics {topics}; give the '
+                       f"namespace: one of {', '.join(spaces)} (fohssv plot --namespace NS, "
+                       "load_run(path, namespace='NS'))")
     return ids
 
 

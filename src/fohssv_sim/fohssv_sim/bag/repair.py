@@ -6,6 +6,10 @@ fully indexed MCAP with the same channels, schemas, messages, log times and run 
 (plus ``fohssv.repaired``, saying what was recovered), and a version 9 ``metadata.yaml``
 (custom_data from the run metadata). The original MCAP file is kept as ``<name>.orig``
 unless ``backup=False``. A bag that is already complete is left alone unless ``force``.
+All or nothing: every check comes first, the new files are written beside the bag, and if
+putting them in place fails the original is restored (``BagError`` says the bag is unchanged).
+Every file the bag names must lie inside its folder (:func:`.loader.locate` refuses
+``relative_file_paths`` such as ``../other/x.mcap``).
 
 CLI: ``python -m fohssv_sim.bag repair BAG`` (:func:`main_repair`). Pure: no rclpy.
 """
@@ -106,16 +110,34 @@ def repair(path: str | Path, *, backup: bool = True, force: bool = False) -> Rep
             while saved.exists():
                 saved = mcap_path.with_name(f'{mcap_path.name}.orig{n}')
                 n += 1
-            mcap_path.replace(saved)
-        new_mcap.replace(mcap_path)
-        new_yaml.replace(files.directory / 'metadata.yaml')
+        _install(mcap_path, new_mcap, new_yaml, files.directory / 'metadata.yaml',
+                 saved or tmp_parent / 'original.mcap')
+        if not backup:
+            saved = None
     except OSError as exc:
-        raise BagError(f'{files.directory}: repair failed ({exc})') from None
+        raise BagError(f'{files.directory}: repair failed, the bag is unchanged ({exc})'
+                       ) from None
     finally:
         shutil.rmtree(tmp_parent, ignore_errors=True)
     return RepairReport(files.directory, True, len(sc.messages),
                         f'{files.directory}: rebuilt index, summary and metadata.yaml; {what}',
                         saved)
+
+
+def _install(mcap_path: Path, new_mcap: Path, new_yaml: Path, yaml_path: Path,
+             keep: Path) -> None:
+    """Put the rebuilt MCAP and metadata.yaml in place, all or nothing: the original MCAP
+    moves to ``keep`` first; if a later step fails, it moves back and the error is raised
+    with the bag as it was (the old metadata.yaml is replaced last, atomically)."""
+    if yaml_path.exists() and not yaml_path.is_file():
+        raise IsADirectoryError(f'{yaml_path} is not a file')
+    mcap_path.replace(keep)
+    try:
+        new_mcap.replace(mcap_path)
+        new_yaml.replace(yaml_path)
+    except OSError:
+        keep.replace(mcap_path)
+        raise
 
 
 def _rename_in_metadata(meta: Path, old: str, new: str) -> None:

@@ -21,7 +21,7 @@ from collections.abc import MutableSequence, Sequence
 from dataclasses import dataclass, field
 
 from ..contract import COMMAND, ContractError, decode
-from ..models import Plant, make_plant
+from ..models import MAX_PITCH, Plant, check_state, make_plant
 from ..params import ModelParameters
 from ..simulate import steps_per_period
 
@@ -82,6 +82,7 @@ class SampledPlant:
         # duration (s, None or 0 = open-ended) sizes the FOM's 'soe' history as simulate() does
         # for the same run, so lockstep and the batch runner give the same numbers
         self.plant: Plant = make_plant(params, initial_state, duration=duration or None)
+        self._w_max = params.speed      # physical bounds of the state (models.check_state)
         self.compile_seconds = self.plant.compile()   # before the first sample, not during it
         self.command: tuple[float, float] = (0.0, 0.0)
         self.samples = 0
@@ -120,10 +121,17 @@ class SampledPlant:
         """One control period with the held command.
 
         Raises:
-            FloatingPointError: the state turned non-finite (names the time and state).
+            FloatingPointError: the state turned non-finite, or
+                :class:`~fohssv_sim.models.StateOutOfBounds` (a FloatingPointError): it left
+                |w| <= V, |theta| <= pi/2 (both name the time and state).
         """
-        self.plant.advance(self.command, self.hold)   # one compiled call (held input)
+        plant = self.plant
+        plant.advance(self.command, self.hold)   # one compiled call (held input)
         self.samples += 1
+        x = plant.x
+        w_max = self._w_max
+        if not (-w_max <= x[1] <= w_max and -MAX_PITCH <= x[2] <= MAX_PITCH):
+            check_state(plant)                  # raises StateOutOfBounds
 
     def reached(self, duration: float) -> bool:
         """True when ``duration`` > 0 and the current sample is at or past it."""

@@ -91,6 +91,13 @@ NODE_PARAMETERS: tuple[ParameterSpec, ...] = (
     _P('watchdog_timeout', '-', 0.1, 's', 'realtime mode: wall time without a command after '
        'which the plant warns (once per outage) and keeps holding the last good command; '
        '0 = off', low=0.0, low_open=False, high=3600.0, high_open=False, needs_reset=False),
+    _P('max_command_age', '-', 1.0, 's', 'realtime mode: a command answering a state more '
+       "than this much simulated time before the plant's current sample is rejected as stale, "
+       'and one answering a time after the current sample is rejected as from the future '
+       '(both counted with the rejected commands; the last good command is kept). Rejecting a '
+       'late command keeps an even older one held, so this catches commands that cannot '
+       'answer the run (a reset, a stale replay, a corrupt time), not mere latency',
+       low=0.0, high=3600.0, high_open=False, needs_reset=False),
     _P('max_fin_deflection', '-', 0.5, 'rad', 'a command with |delta_f| above this is '
        'rejected (the last good command is kept)', low=0.0, high=math.pi / 2, high_open=False,
        needs_reset=False),
@@ -148,6 +155,7 @@ class PlantOptions:
     profile: int = _f('profile')
     command_timeout: float = _f('command_timeout')
     watchdog_timeout: float = _f('watchdog_timeout')
+    max_command_age: float = _f('max_command_age')
     max_fin_deflection: float = _f('max_fin_deflection')
     max_cavitator_deflection: float = _f('max_cavitator_deflection')
     min_state_subscribers: int = _f('min_state_subscribers')

@@ -41,13 +41,14 @@ from rclpy.duration import Duration
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from std_srvs.srv import Trigger
 
 from ..contract import CLOCK, COMMAND, PLANING_FORCE, STATE, Topic
-from ..params import PARAMETERS, ModelParameters, ParameterError
+from ..params import PARAMETERS, ModelParameters
 from .loop import (
     CommandRejected,
     Pacer,
@@ -61,12 +62,20 @@ from .options import NODE_PARAMETERS, PlantOptions, check_options, clock_samples
 from .qos import profile
 from .ros_params import declare, install_validation
 from .spin import (
+    STOP,
     PausedCollector,
     final_log,
     make_executor,
     set_realtime_priority,
     spin_until,
     tighten_timer_slack,
+)
+from .startup import (
+    BadParameters,
+    destroy_on_error,
+    init,
+    refuse_unknown,
+    report,
 )
 from .views import ViewPublisher
 from .wire import ArrayReader, ArrayWriter, ClockWriter
@@ -115,9 +124,11 @@ def build_config(values: Mapping[str, Any]) -> tuple[ModelParameters, PlantOptio
 class PlantNode(Node):
     """See the module docstring. Raises ParameterError from the constructor on bad values."""
 
+    @destroy_on_error
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('plant', **kwargs)
         values = declare(self, PARAMETERS + NODE_PARAMETERS)
+        refuse_unknown(self)
         self.model, self.options, hold = build_config(values)
         self.sim = SampledPlant(self.model, self.options.control_period,
                                 self.options.initial_state, self.options.duration)
@@ -156,6 +167,7 @@ class PlantNode(Node):
 
         self.running = False
         self.rejected = 0
+        self.stale = 0                            # realtime: of those, stale or future
         self.ignored = 0
         self._awaiting: float | None = None       # lockstep: t of the state awaiting a command
         self._published_wall = 0.0                # lockstep: when that state went out
@@ -181,6 +193,18 @@ class PlantNode(Node):
     def _apply(self, config: tuple[ModelParameters, PlantOptions, int]) -> None:
         _, options, _ = config
         self.options = options
+        # a lowered deflection limit applies to the command held now, not only to the next
+        # ones: a held command beyond it is replaced by the command clamped to the limit
+        df, dc = self.sim.command
+        lf, lc = options.max_fin_deflection, options.max_cavitator_deflection
+        if abs(df) > lf or abs(dc) > lc:
+            held = (max(-lf, min(lf, df)), max(-lc, min(lc, dc)))
+            self.sim.command = held
+            self.get_logger().warning(
+                f'deflection limits now max_fin_deflection={lf:g} rad, '
+                f'max_cavitator_deflection={lc:g} rad at t={self.sim.t!r} s: the held command '
+                f'delta_f={df!r}, delta_c={dc!r} rad is beyond them; holding the clamped '
+                f'command delta_f={held[0]!r}, delta_c={held[1]!r} rad')
 
     # -- start -------------------------------------------------------------------------------
     def _peers(self) -> tuple[int, int]:
@@ -426,10 +450,28 @@ class PlantNode(Node):
             self.get_logger().info('watchdog: commands are arriving again')
         if self._lockstep:
             self._lockstep_command(data, t)
-        elif self._take(data) and t is not None:
-            lag = self.sim.t - t
-            if lag > self._max_lag:
+            return
+        if t is not None:
+            now = self.sim.t
+            lag = now - t
+            if not (0.0 <= lag <= self.options.max_command_age):
+                self._stale(t, now)
+                return
+            if self._take(data) and lag > self._max_lag:
                 self._max_lag = lag
+        else:
+            self._take(data)    # rejected: no finite t
+
+    def _stale(self, t: float, now: float) -> None:
+        """Reject a real-time command answering a time after the current sample or older
+        than ``max_command_age``."""
+        self.stale += 1
+        if t > now:
+            why = f"it answers t={t!r} s, after the plant's current sample t={now!r} s"
+        else:
+            why = (f'it answers t={t!r} s, {now - t:g} s of simulated time before the current '
+                   f'sample: older than max_command_age={self.options.max_command_age:g} s')
+        self._reject(f'stale command: {why}')
 
     def _take(self, data: Any) -> bool:
         """Hold the command in ``data`` if it is valid; else log and keep the last good one."""
@@ -437,17 +479,22 @@ class PlantNode(Node):
         try:
             _, df, dc = check_command(data, o.max_fin_deflection, o.max_cavitator_deflection)
         except CommandRejected as exc:
-            self.rejected += 1
-            df, dc = self.sim.command
-            text = (f'rejected command at t={self.sim.t!r} s: {exc}; keeping the last good '
-                    f'command delta_f={df!r}, delta_c={dc!r} rad ({self.rejected} rejected)')
-            if self.rejected <= _LOG_EACH:
-                self.get_logger().error(text)
-            else:
-                self.get_logger().error(text, throttle_duration_sec=1.0)
+            self._reject(str(exc))
             return False
         self.sim.command = (df, dc)
         return True
+
+    def _reject(self, reason: str) -> None:
+        """Count and log a rejected command (the first 20 one by one, then at most one line a
+        second); the last good command stays held."""
+        self.rejected += 1
+        df, dc = self.sim.command
+        text = (f'rejected command at t={self.sim.t!r} s: {reason}; keeping the last good '
+                f'command delta_f={df!r}, delta_c={dc!r} rad ({self.rejected} rejected)')
+        if self.rejected <= _LOG_EACH:
+            self.get_logger().error(text)
+        else:
+            self.get_logger().error(text, throttle_duration_sec=1.0)
 
     # -- reset -------------------------------------------------------------------------------
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response
@@ -498,7 +545,7 @@ class PlantNode(Node):
                      late_samples=p.late,
                      mean_lateness=p.lateness_sum / p.produced if p.produced else 0.0,
                      slips=p.slips, worst_lateness=p.worst_lateness,
-                     max_command_lag=self._max_lag)
+                     max_command_lag=self._max_lag, stale_commands=self.stale)
         elif wall > 0:
             s.update(samples_per_second=self.sim.samples / wall,
                      steps_per_second=self.sim.plant.n / wall)
@@ -536,35 +583,32 @@ class PlantNode(Node):
         would lose its tail when the plant exits."""
         deadline = time.monotonic() + self.options.end_linger
         samples = self._sample_pubs
-        while (rclpy.ok() and time.monotonic() < deadline
+        while (rclpy.ok() and STOP.received is None and time.monotonic() < deadline
                and any(p.get_subscription_count() > 0 for p in samples)):
             executor.spin_once(timeout_sec=0.05)
 
 
-def _explain(exc: ParameterException) -> str:
-    """rclpy's text (it names the parameter and the value) plus the table's range and unit."""
-    name = str(exc).rsplit(': ', 1)[-1]
-    spec = next((p for p in PARAMETERS + NODE_PARAMETERS if p.name == name), None)
-    if spec is None:
-        return str(exc)
-    unit = f' {spec.unit}' if spec.unit and spec.unit != '-' else ''
-    return f'{exc}; allowed: {spec.range_text()}{unit} ({spec.description})'
+def _interrupted(node: PlantNode) -> None:
+    final_log(node.get_name(), 'interrupted; stopping cleanly. summary: '
+              + json.dumps(node.summary()))
 
 
 def main(args: list[str] | None = None) -> None:
     """Entry point of ``ros2 run fohssv_sim plant``; exits with the node's exit code."""
-    rclpy.init(args=args)
+    try:
+        # SIGINT/SIGTERM only set STOP; the loop ends between callbacks (see StopSignal):
+        # rclpy's handler would shut the context down under a callback publishing a sample
+        init(args, signal_handler_options=SignalHandlerOptions.NO)
+    except BadParameters as exc:
+        sys.exit(report('plant', exc))
+    STOP.install()
     code = EXIT_OK
     node = None
     try:
         try:
             node = PlantNode()
-        except (ParameterError, ValueError) as exc:
-            rclpy.logging.get_logger('plant').error(f'invalid parameters: {exc}')
-            code = EXIT_BAD_PARAMETERS
-        except ParameterException as exc:   # rclpy's own range/type check at declaration
-            rclpy.logging.get_logger('plant').error(f'invalid parameters: {_explain(exc)}')
-            code = EXIT_BAD_PARAMETERS
+        except (ValueError, ParameterException) as exc:   # ParameterError, BadParameters
+            code = report('plant', exc, PARAMETERS + NODE_PARAMETERS)
         else:
             executor = make_executor()
             executor.add_node(node)
@@ -578,14 +622,16 @@ def main(args: list[str] | None = None) -> None:
             else:
                 spin_until(executor, node.finished, paced=node)
             code = node.exit_code
-            node.flush()
-            node.linger(executor)
+            if STOP.received is not None and not node.finished.done():
+                _interrupted(node)
+            else:
+                node.flush()
+                node.linger(executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         if node is not None:
             code = node.exit_code
             if not node.finished.done():
-                final_log(node.get_name(), 'interrupted; stopping cleanly. summary: '
-                          + json.dumps(node.summary()))
+                _interrupted(node)
     finally:
         if node is not None:
             node.destroy_node()

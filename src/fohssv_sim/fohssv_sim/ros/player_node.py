@@ -13,14 +13,20 @@ Two modes (parameter ``mode``):
 * ``commands`` (open loop): act as the controller of a fresh plant. For each ``state`` at time
   t it publishes the recorded ``command`` whose ``data[0]`` is exactly t (the same double, as
   recorded bytes). A lockstep plant with the recorded parameters then reproduces the recorded
-  trajectory bit for bit. A state with no recorded command is an error naming t.
+  trajectory bit for bit. A state with no recorded command is an error naming t. Before the
+  first command the player reads the plant's model parameters, ``control_period`` and
+  ``initial_state`` through its parameter services (node ``plant_node``) and compares them
+  with the bag's ``fohssv.plant_parameters``: a mismatch is refused (exit 1, naming each
+  difference) unless ``force`` is true (a warning). A bag without recorded parameters is
+  replayed with a warning.
 
 Bags are read with the pure loader (:func:`fohssv_sim.bag.scan`): a cut bag (killed recorder)
 plays everything recoverable, with a warning.
 
 Exit codes: 0 played to the end (republish), or the plant's run ended / the bag's commands
 were used up (commands); 1 bad bag (missing, empty, truncated before any message, not a bag:
-one ``player: error: ...`` line, no traceback) or a state without a recorded command;
+one ``player: error: ...`` line, no traceback), a state without a recorded command, or a
+plant that does not match the recording (commands, without ``force``);
 2 invalid parameters; 4 no subscriber (rate 0) or no plant (commands) within
 ``start_timeout``. SIGINT/SIGTERM stop cleanly with the code so far (0).
 """
@@ -35,10 +41,12 @@ from typing import Any
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType
+from rcl_interfaces.srv import GetParameters
 from rclpy.duration import Duration
-from rclpy.exceptions import InvalidParameterTypeException, ParameterException
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.parameter import parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
@@ -49,11 +57,21 @@ from std_msgs.msg import Float64MultiArray
 from .. import contract
 from ..bag import BagError, scan
 from ..bag.writer import typestore
+from ..params import PARAMETERS, ModelParameters, ParameterError
 from .matching import HoldReporter, SubscriptionGate
 from .qos import profile
 from .spin import final_log, make_executor, spin_until
+from .startup import (
+    BadParameters,
+    declare_rows,
+    destroy_on_error,
+    init,
+    refuse_unknown,
+    report,
+)
 
 __all__ = ['Player', 'PlayerError', 'Track', 'select_tracks', 'command_table', 'main',
+           'compare_plant', 'COMPARED',
            'EXIT_OK', 'EXIT_ERROR', 'EXIT_BAD_PARAMETERS', 'EXIT_NO_PEERS']
 
 EXIT_OK, EXIT_ERROR, EXIT_BAD_PARAMETERS, EXIT_NO_PEERS = 0, 1, 2, 4
@@ -159,6 +177,37 @@ def command_table(sc: Any, wanted: list[str]) -> tuple[str, dict[float, list[byt
     return tracks[0].name, table, bad
 
 
+#: Plant parameters the commands mode compares with the bag's: the model table, the control
+#: period and the initial state (what decides the trajectory the recorded commands answer).
+COMPARED = (*(p.name for p in PARAMETERS), 'control_period', 'initial_state')
+
+
+def compare_plant(recorded: dict[str, Any], live: dict[str, Any]) -> list[str]:
+    """Differences between the plant parameters recorded in a bag and a live plant's, as
+    ``'name: recorded X, plant Y'``. Model parameters are compared after resolution (``step:
+    auto`` equals the model's default step); names the bag lacks are not compared."""
+    names = [p.name for p in PARAMETERS if p.name in recorded]
+    try:
+        a = ModelParameters.from_dict({n: recorded[n] for n in names}).to_dict()
+        b = ModelParameters.from_dict({n: live[n] for n in names if n in live}).to_dict()
+        names = [n for n in a if n in recorded]
+    except (ParameterError, TypeError, ValueError):
+        a, b = recorded, live
+    diffs = [f'{n}: recorded {a.get(n)!r}, plant {b.get(n)!r}' for n in names
+             if a.get(n) != b.get(n)]
+    for n in ('control_period', 'initial_state'):
+        if n not in recorded:
+            continue
+        r, v = recorded[n], live.get(n)
+        if isinstance(r, (list, tuple)) or hasattr(r, 'tolist'):
+            r = [float(x) for x in r]
+        if isinstance(v, (list, tuple)) or hasattr(v, 'tolist'):
+            v = [float(x) for x in v]
+        if r != v:
+            diffs.append(f'{n}: recorded {r!r}, plant {v!r}')
+    return diffs
+
+
 def _paced_qos(topic: contract.Topic) -> QoSProfile:
     # the contract's profile, offered transient-local so that transient-local subscribers
     # match too (volatile ones ignore the history)
@@ -178,42 +227,58 @@ class Player(Node):
     """See the module docstring. Raises ValueError (bad parameters) or PlayerError/BagError
     (bad bag) from the constructor."""
 
+    @destroy_on_error
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('player', **kwargs)
-        d = self.declare_parameter
-        d('bag_path', '', ParameterDescriptor(
-            description='bag to play: directory, its metadata.yaml or the .mcap file '
-                        '(required)', read_only=True))
-        d('mode', 'republish', ParameterDescriptor(
-            description="'republish': the bag's topics with /clock at rate; 'commands': answer "
-                        "a fresh plant's states with the recorded commands (open loop)",
-            read_only=True, additional_constraints='one of: ' + ', '.join(MODES)))
-        d('rate', 1.0, ParameterDescriptor(
-            description='republish: simulated seconds per wall second (1 = real time); '
-                        '0 = as fast as the subscribers allow', read_only=True,
-            additional_constraints='>= 0'))
-        d('topics', [''], ParameterDescriptor(
-            type=ParameterType.PARAMETER_STRING_ARRAY, read_only=True,
-            description="topics to play: recorded names ('/state') or contract names "
-                        "('state', any namespace); [''] = every contract topic in the bag "
-                        '(commands mode: the command topic)'))
-        d('clock', True, ParameterDescriptor(
-            description='republish: publish /clock at every new log time (the recorded '
-                        '/clock is then not replayed)', read_only=True))
-        d('min_subscribers', 1, ParameterDescriptor(
-            description='republish: matched subscribers per topic to wait for before playing',
-            read_only=True, additional_constraints='>= 0'))
-        d('min_command_subscribers', 1, ParameterDescriptor(
-            description='commands: matched subscriptions of command (the plant, recorders) to '
-                        'wait for before the first command; 2 with a recorder, so it hears '
-                        'every command', read_only=True, additional_constraints='>= 1'))
-        d('start_timeout', 30.0, ParameterDescriptor(
-            description='s to wait for subscribers (republish; rate 0 fails without them, '
-                        'rate > 0 starts anyway) or for the plant (commands)', read_only=True,
-            additional_constraints='>= 0'))
-        d('end_timeout', 5.0, ParameterDescriptor(
-            description='s to wait for subscribers to acknowledge the last messages',
-            read_only=True, additional_constraints='>= 0'))
+        D = ParameterDescriptor
+        declare_rows(self, [
+            ('bag_path', '', D(
+                description='bag to play: directory, its metadata.yaml or the .mcap file '
+                            '(required)', read_only=True)),
+            ('mode', 'republish', D(
+                description="'republish': the bag's topics with /clock at rate; 'commands': "
+                            "answer a fresh plant's states with the recorded commands (open "
+                            'loop)', read_only=True,
+                additional_constraints='allowed: ' + ' | '.join(repr(m) for m in MODES))),
+            ('rate', 1.0, D(
+                description='republish: simulated seconds per wall second (1 = real time); '
+                            '0 = as fast as the subscribers allow', read_only=True,
+                additional_constraints='allowed: [0, inf)')),
+            ('topics', [''], D(
+                type=ParameterType.PARAMETER_STRING_ARRAY, read_only=True,
+                description="topics to play: recorded names ('/state') or contract names "
+                            "('state', any namespace); [''] = every contract topic in the "
+                            'bag (commands mode: the command topic)')),
+            ('clock', True, D(
+                description='republish: publish /clock at every new log time (the recorded '
+                            '/clock is then not replayed)', read_only=True,
+                additional_constraints='allowed: true | false')),
+            ('min_subscribers', 1, D(
+                description='republish: matched subscribers per topic to wait for before '
+                            'playing', read_only=True, additional_constraints='allowed: [0, inf)')),
+            ('min_command_subscribers', 1, D(
+                description='commands: matched subscriptions of command (the plant, '
+                            'recorders) to wait for before the first command; 2 with a '
+                            'recorder, so it hears every command', read_only=True,
+                additional_constraints='allowed: [1, inf)')),
+            ('start_timeout', 30.0, D(
+                description='s to wait for subscribers (republish; rate 0 fails without them, '
+                            'rate > 0 starts anyway) or for the plant (commands)',
+                read_only=True, additional_constraints='allowed: [0, inf) s')),
+            ('end_timeout', 5.0, D(
+                description='s to wait for subscribers to acknowledge the last messages',
+                read_only=True, additional_constraints='allowed: [0, inf) s')),
+            ('plant_node', 'plant', D(
+                description="commands: the plant node whose model, parameters, "
+                            "control_period and initial_state are compared with the bag's "
+                            '(through its parameter services) before the first command',
+                read_only=True)),
+            ('force', False, D(
+                description='commands: replay even when the plant does not match the '
+                            "recording (a warning instead of exit 1)", read_only=True,
+                additional_constraints='allowed: true | false')),
+        ])
+        refuse_unknown(self)
         gp = self.get_parameter
         self.bag_path = str(gp('bag_path').value)
         self.mode = str(gp('mode').value)
@@ -224,19 +289,24 @@ class Player(Node):
         self.min_command_subscribers = int(gp('min_command_subscribers').value)
         self.start_timeout = float(gp('start_timeout').value)
         self.end_timeout = float(gp('end_timeout').value)
+        self.plant_node = str(gp('plant_node').value).strip('/')
+        self.force = bool(gp('force').value)
         if not self.bag_path:
             raise ValueError('bag_path is required: -p bag_path:=runs/<run>')
         if self.mode not in MODES:
-            raise ValueError(f'mode={self.mode!r}; valid: {", ".join(MODES)}')
-        for name, v in (('rate', self.rate), ('start_timeout', self.start_timeout),
-                        ('end_timeout', self.end_timeout)):
+            raise ValueError(f'mode={self.mode!r} is not valid; choose one of '
+                             + ' | '.join(repr(m) for m in MODES))
+        for name, v, unit in (('rate', self.rate, ''), ('start_timeout', self.start_timeout,
+                                                         ' s'),
+                              ('end_timeout', self.end_timeout, ' s')):
             if not (math.isfinite(v) and v >= 0):
-                raise ValueError(f'{name}={v!r} must be a finite number >= 0')
+                raise ValueError(f'{name}={v!r} is outside the allowed range [0, inf){unit}')
         if self.min_subscribers < 0:
-            raise ValueError(f'min_subscribers={self.min_subscribers} must be >= 0')
+            raise ValueError(f'min_subscribers={self.min_subscribers} is outside the allowed '
+                             'range [0, inf) (subscribers)')
         if self.min_command_subscribers < 1:
-            raise ValueError(f'min_command_subscribers={self.min_command_subscribers} must be '
-                             '>= 1 (subscriptions)')
+            raise ValueError(f'min_command_subscribers={self.min_command_subscribers} is '
+                             'outside the allowed range [1, inf) (subscriptions)')
 
         self.scan = scan(self.bag_path)          # BagError: one line from main
         if not self.scan.complete:
@@ -376,14 +446,70 @@ class Player(Node):
         self._matched = SubscriptionGate(self, self.command_pub,
                                          minimum=self.min_command_subscribers)
         self._held = HoldReporter(self, self._matched)
+        self._setup_verification()
         self._timer = self.create_timer(0.005, self._tick)
         self.get_logger().info(
             f'replaying {self.remaining} commands of {self.bag_path} ({name}, t in '
             f'[{self.t_first!r}, {self.t_last!r}] s) in answer to {self.state_sub.topic_name}')
 
+    # -- commands: is the plant the recorded one? ---------------------------------------------
+    def _setup_verification(self) -> None:
+        """Nothing is sent until the plant's model, parameters, control period and initial
+        state are known to equal the bag's (``fohssv.plant_parameters``); a bag without them
+        is replayed with a warning."""
+        recorded = self.scan.run_metadata().get('fohssv.plant_parameters')
+        self._recorded = recorded if isinstance(recorded, dict) else None
+        self._verified = self._recorded is None
+        self._asked = False
+        if self._recorded is None:
+            self.get_logger().warning(
+                'the bag holds no plant parameters: the plant cannot be checked against the '
+                'recording (replaying anyway)')
+            return
+        self._get_params = self.create_client(GetParameters,
+                                              f'/{self.plant_node}/get_parameters')
+
+    def _verify(self) -> None:
+        if self._asked:
+            return
+        if not self._get_params.service_is_ready():
+            if time.monotonic() - self._wall0 > self.start_timeout:
+                self._fail(EXIT_NO_PEERS, f'start timeout: no parameter services of the '
+                           f'plant node /{self.plant_node} after {self.start_timeout:g} s, so '
+                           'it cannot be checked against the recording; name it with '
+                           '-p plant_node:=NAME (or skip the check with -p force:=true)')
+            return
+        self._asked = True
+        names = list(COMPARED)
+        self._get_params.call_async(GetParameters.Request(names=names)).add_done_callback(
+            lambda f: self._on_plant_parameters(names, f))
+
+    def _on_plant_parameters(self, names: list[str], future: Any) -> None:
+        if self.finished.done():
+            return
+        result = future.result()
+        if result is None or len(result.values) != len(names):
+            self._fail(EXIT_ERROR, f'could not read the parameters of /{self.plant_node}')
+            return
+        live = {n: parameter_value_to_python(v) for n, v in zip(names, result.values,
+                                                                 strict=True)}
+        diffs = compare_plant(self._recorded, live)
+        if diffs:
+            text = (f'the plant /{self.plant_node} does not match the recording: '
+                    + '; '.join(diffs))
+            if not self.force:
+                self._fail(EXIT_ERROR, f'{text}; start the plant with the recorded values '
+                           '(or replay anyway with -p force:=true)')
+                return
+            self.get_logger().warning(f'{text}; replaying anyway (force)')
+        else:
+            self.get_logger().info(f'the plant /{self.plant_node} matches the recording '
+                                   '(model, parameters, control_period, initial_state)')
+        self._verified = True
+
     def _send(self, raw: bytes) -> None:
-        if self._pending or not self._matched():
-            self._pending.append(raw)      # published by _tick once matched
+        if self._pending or not self._verified or not self._matched():
+            self._pending.append(raw)      # published by _tick once verified and matched
             return
         self.command_pub.publish(raw)
         self.published += 1
@@ -423,7 +549,9 @@ class Player(Node):
     def _tick(self) -> None:
         if self.finished.done():
             return
-        if self._pending:
+        if not self._verified:
+            self._verify()
+        if self._pending and self._verified:
             if self._matched():
                 pending, self._pending = self._pending, []
                 for raw in pending:
@@ -464,10 +592,9 @@ class Player(Node):
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run fohssv_sim player``; returns the exit code."""
     try:
-        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.ALL)
-    except Exception as exc:  # noqa: BLE001 - rcl's argument errors: one line, no traceback
-        print(f'player: error: {exc}', file=sys.stderr, flush=True)
-        return EXIT_BAD_PARAMETERS
+        init(args, signal_handler_options=SignalHandlerOptions.ALL)
+    except BadParameters as exc:
+        return report('player', exc)
     node = None
     code = EXIT_OK
     try:
@@ -485,9 +612,8 @@ def main(args: list[str] | None = None) -> int:
         if node is not None:
             code = node.exit_code
             final_log('player', f'interrupted after {node.published} message(s)')
-    except (ValueError, InvalidParameterTypeException, ParameterException) as exc:
-        print(f'player: error: invalid parameters: {exc}', file=sys.stderr, flush=True)
-        code = EXIT_BAD_PARAMETERS
+    except (ValueError, ParameterException) as exc:   # BadParameters too
+        code = report('player', exc)
     except (BagError, PlayerError, OSError) as exc:
         print(f'player: error: {exc}', file=sys.stderr, flush=True)
         code = EXIT_ERROR

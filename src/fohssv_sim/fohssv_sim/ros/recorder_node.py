@@ -24,8 +24,9 @@
   bag completely (summary, index, metadata.yaml). ``python -m fohssv_sim.bag repair`` rebuilds
   a killed recorder's bag.
 
-Exit codes: 0 after SIGINT/SIGTERM with the bag closed, 1 bad parameters or the bag cannot be
-created.
+Exit codes: 0 after SIGINT/SIGTERM with the bag closed, 1 the bag cannot be created (an OS
+error), 2 invalid arguments or parameters (one line: a wrong type, a value out of range, an
+unknown parameter name, ``bag_path`` that exists already; see :mod:`.startup`).
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 from rcl_interfaces.srv import GetParameters, ListParameters
 from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
@@ -58,6 +60,14 @@ from visualization_msgs.msg import Marker
 from .. import contract
 from ..bag.writer import DEFAULT_CHUNK_SIZE, RunWriter, typestore
 from .qos import offered_qos, profile
+from .startup import (
+    BadParameters,
+    declare_rows,
+    destroy_on_error,
+    init,
+    refuse_unknown,
+    report,
+)
 
 __all__ = ['Recorder', 'main', 'default_bag_path', 'source_info']
 
@@ -109,38 +119,56 @@ def _contract_topic(name: str) -> contract.Topic:
 class Recorder(Node):
     """Subscribes to the run's topics and writes them to a bag; see the module docstring."""
 
+    @destroy_on_error
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('recorder', **kwargs)
-        d = self.declare_parameter
-        d('bag_path', '', ParameterDescriptor(
-            description='bag directory to create; empty = runs/<UTC timestamp>', read_only=True))
-        d('topics', [t.name for t in RECORDED], ParameterDescriptor(
-            type=ParameterType.PARAMETER_STRING_ARRAY, read_only=True,
-            description='topics to record (contract topics and typed views, relative names '
-                        "resolved in the recorder's namespace)"))
-        d('plant_node', 'plant', ParameterDescriptor(
-            description="node whose parameters are stored with the run; '' or 'none' = no node",
-            read_only=True))
-        d('plant_timeout', 10.0, ParameterDescriptor(
-            description='s to wait for the plant parameter services', read_only=True))
-        d('flush_period', 0.1, ParameterDescriptor(
-            description='s of wall time between flushes: the most a SIGKILL can lose',
-            read_only=True))
-        d('command_publishers', 0, ParameterDescriptor(
-            description='subscribe to state only once the command subscription has matched '
-                        'this many publishers (a plant waiting for its state subscribers then '
-                        'cannot start before the recorder hears the controller); 0 = at once',
-            read_only=True))
-        d('chunk_size', DEFAULT_CHUNK_SIZE, ParameterDescriptor(
-            description='bytes after which a chunk is written even between flushes',
-            read_only=True))
+        D = ParameterDescriptor
+        declare_rows(self, [
+            ('bag_path', '', D(description='bag directory to create; empty = runs/<UTC '
+                               'timestamp>', read_only=True,
+                               additional_constraints='allowed: a path that does not exist')),
+            ('topics', [t.name for t in RECORDED], D(
+                type=ParameterType.PARAMETER_STRING_ARRAY, read_only=True,
+                description='topics to record (contract topics and typed views, relative names '
+                            "resolved in the recorder's namespace)",
+                additional_constraints='allowed: '
+                + ', '.join(t.name for t in RECORDED))),
+            ('plant_node', 'plant', D(
+                description="node whose parameters are stored with the run; '' or 'none' = "
+                            'no node', read_only=True)),
+            ('plant_timeout', 10.0, D(
+                description='s to wait for the plant parameter services', read_only=True,
+                additional_constraints='allowed: [0, inf) s')),
+            ('flush_period', 0.1, D(
+                description='s of wall time between flushes: the most a SIGKILL can lose',
+                read_only=True, additional_constraints='allowed: (0, 60] s')),
+            ('command_publishers', 0, D(
+                description='subscribe to state only once the command subscription has '
+                            'matched this many publishers (a plant waiting for its state '
+                            'subscribers then cannot start before the recorder hears the '
+                            'controller); 0 = at once', read_only=True,
+                additional_constraints='allowed: [0, inf) publishers')),
+            ('chunk_size', DEFAULT_CHUNK_SIZE, D(
+                description='bytes after which a chunk is written even between flushes',
+                read_only=True, additional_constraints='allowed: [1024, inf) bytes')),
+        ])
+        refuse_unknown(self)
         gp = self.get_parameter
         flush_period = float(gp('flush_period').value)
         if not (math.isfinite(flush_period) and 0 < flush_period <= 60):
-            raise ValueError(f'flush_period={flush_period!r} s must be in (0, 60] s')
+            raise ValueError(f'flush_period={flush_period!r} is outside the allowed range '
+                             '(0, 60] s (s of wall time between flushes)')
+        plant_timeout = float(gp('plant_timeout').value)
+        if not (math.isfinite(plant_timeout) and plant_timeout >= 0):
+            raise ValueError(f'plant_timeout={plant_timeout!r} is outside the allowed range '
+                             '[0, inf) s (s to wait for the plant parameter services)')
         chunk_size = int(gp('chunk_size').value)
         if chunk_size < 1024:
-            raise ValueError(f'chunk_size={chunk_size!r} bytes must be >= 1024 bytes')
+            raise ValueError(f'chunk_size={chunk_size!r} is outside the allowed range '
+                             '[1024, inf) bytes')
+        if int(gp('command_publishers').value) < 0:
+            raise ValueError(f"command_publishers={gp('command_publishers').value!r} is "
+                             'outside the allowed range [0, inf) publishers')
         names = list(gp('topics').value)
         if not names:
             raise ValueError('topics: empty list; give at least one contract topic')
@@ -168,8 +196,6 @@ class Recorder(Node):
         self.subscriptions_ = []
         self._deferred = None
         wait_commands = int(gp('command_publishers').value)
-        if wait_commands < 0:
-            raise ValueError(f'command_publishers={wait_commands!r} must be >= 0')
         for name, topic in topics:
             base = profile(topic)
             # same reliability/durability as the plant's; keep-all: when the recorder falls
@@ -315,14 +341,16 @@ def main(args: list[str] | None = None) -> int:
     # SIGINT and SIGTERM both shut the context down; spin then raises
     # ExternalShutdownException and the bag is closed below.
     try:
-        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.ALL)
-    except Exception as exc:  # noqa: BLE001 - rcl's argument errors: one line, no traceback
-        print(f'recorder: error: {exc}', file=sys.stderr, flush=True)
-        return 2
+        init(args, signal_handler_options=SignalHandlerOptions.ALL)
+    except BadParameters as exc:
+        return report('recorder', exc)
     node = None
     code = 0
     try:
-        node = Recorder()
+        try:
+            node = Recorder()
+        except (ValueError, ParameterException) as exc:   # BadParameters too
+            return report('recorder', exc)
         # SingleThreadedExecutor: rclpy's EventsExecutor (faster) did not run this node's
         # steady-clock timers and service clients in a first try; see docs/recording.md
         executor = SingleThreadedExecutor()
@@ -330,7 +358,7 @@ def main(args: list[str] | None = None) -> int:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except (ValueError, OSError) as exc:
+    except OSError as exc:
         print(f'recorder: error: {exc}', file=sys.stderr, flush=True)
         code = 1
     except Exception as exc:  # noqa: BLE001

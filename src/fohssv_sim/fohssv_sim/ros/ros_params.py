@@ -41,6 +41,7 @@ from rclpy.parameter import Parameter
 
 from ..params import ParameterSpec
 from .options import StateSpec
+from .startup import precheck
 
 __all__ = ['ros_type', 'descriptor', 'declare', 'values_of', 'install_validation',
            'python_value']
@@ -108,10 +109,12 @@ def declare(node: Node, specs: Iterable[ParameterSpec]) -> dict[str, Any]:
     values as plain Python (tuples for arrays).
 
     Raises:
-        rclpy.exceptions.InvalidParameterTypeException: an override of the wrong type.
+        ParameterError: an override of the wrong type or out of range, in the table's words
+            (checked before rclpy declares it: see :func:`.startup.precheck`).
     """
     specs = tuple(specs)
     kinds = {s.name: ros_type(s) for s in specs}
+    precheck(node, specs, kinds)
     # Integers given where doubles are declared: convert them before rclpy's type check.
     overrides = getattr(node, '_parameter_overrides', None)
     if isinstance(overrides, dict):

@@ -12,6 +12,7 @@ between (see :class:`Paced`).
 from __future__ import annotations
 
 import os
+import signal
 import sys
 from typing import Protocol
 
@@ -19,9 +20,43 @@ import rclpy
 from rclpy.executors import Executor
 from rclpy.task import Future
 
-__all__ = ['Paced', 'make_executor', 'spin_until', 'tighten_timer_slack', 'final_log']
+__all__ = ['Paced', 'make_executor', 'spin_until', 'tighten_timer_slack', 'final_log',
+           'StopSignal', 'STOP']
 
 _PR_SET_TIMERSLACK = 29
+
+
+class StopSignal:
+    """SIGINT and SIGTERM as a request that :func:`spin_until` honours between callbacks.
+
+    rclpy's own handling (``SignalHandlerOptions.ALL``) chains to Python's SIGINT handler, which
+    raises KeyboardInterrupt in whatever Python code runs at that moment: often a subscription
+    callback in the middle of a lockstep sample. The EventsExecutor then logs ``[FATAL]
+    Exception in 'subscriptions' callback`` with the stack before re-raising (issue 12,
+    defect 12: about half the interrupted lockstep runs); rclpy also shuts the context down
+    from its signal thread, so a callback still running may fail to publish. A node that
+    calls ``rclpy.init(..., signal_handler_options=SignalHandlerOptions.NO)`` and
+    :meth:`install` instead only records the signal: the loop stops after the callback in
+    progress, and the node shuts down in order. Further signals change nothing (a test
+    harness or a terminal often signals twice; raising then would break the orderly end).
+    Every wait outside the loop is bounded (the plant's flush and linger check STOP too).
+    """
+
+    def __init__(self) -> None:
+        self.received: int | None = None
+
+    def install(self) -> StopSignal:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum: int, frame: object) -> None:
+        if self.received is None:
+            self.received = signum
+
+
+#: The process's stop request (set by SIGINT/SIGTERM once :meth:`StopSignal.install` ran).
+STOP = StopSignal()
 
 
 def make_executor() -> Executor:
@@ -49,8 +84,10 @@ class Paced(Protocol):
 
 def spin_until(executor: Executor, future: Future | None = None, poll: float = 0.1,
                paced: Paced | None = None) -> None:
-    """Process callbacks until ``future`` is done (or forever when ``None``) or the context
-    shuts down. Raises KeyboardInterrupt / ExternalShutdownException on SIGINT.
+    """Process callbacks until ``future`` is done (or forever when ``None``), the context
+    shuts down, or :data:`STOP` records a signal (then it returns after the callback in
+    progress). Without :data:`STOP` installed, rclpy's signal handling raises
+    KeyboardInterrupt / ExternalShutdownException on SIGINT.
 
     With ``paced``, the loop also runs ``paced.publish_due()`` whenever
     ``paced.pacing_wait()`` says it is due, and otherwise waits in ``spin_once`` for at most
@@ -58,13 +95,14 @@ def spin_until(executor: Executor, future: Future | None = None, poll: float = 0
     schedule, once with a zero timeout after each sample, so commands are never starved).
     """
     spin_once = executor.spin_once
+    stop = STOP
     if paced is None:
-        while rclpy.ok() and (future is None or not future.done()):
+        while stop.received is None and rclpy.ok() and (future is None or not future.done()):
             spin_once(timeout_sec=poll)
         return
     wait_for = paced.pacing_wait
     publish_due = paced.publish_due
-    while rclpy.ok() and (future is None or not future.done()):
+    while stop.received is None and rclpy.ok() and (future is None or not future.done()):
         wait = wait_for()
         if wait is None:
             spin_once(timeout_sec=poll)

@@ -1,0 +1,96 @@
+"""Issue 12, defects 2, 3 and 4, for every node (plant, controller, recorder, player): a
+wrong type, a value out of range, an unknown parameter name (on the command line or in a
+params file), a missing or malformed params file and bad ``--ros-args`` each give one line
+naming what is wrong and exit code 2, never a traceback. Real processes (the installed
+executables); every case fails before any DDS traffic, so they all run at once."""
+
+from __future__ import annotations
+
+import pytest
+
+import rosproc
+
+NODES = {'plant': ('fohssv_sim', 'plant'), 'controller': ('fohssv_controller', 'state_feedback'),
+         'recorder': ('fohssv_sim', 'recorder'), 'player': ('fohssv_sim', 'player')}
+
+
+def _cases(tmp):
+    misspelt = tmp / 'misspelt.yaml'
+    misspelt.write_text('plant:\n  ros__parameters:\n    model: delay-free\n    sped: 80.0\n')
+    wildcard = tmp / 'wildcard.yaml'
+    wildcard.write_text('/**:\n  ros__parameters:\n    depth_gian: 12.0\n')
+    broken = tmp / 'broken.yaml'
+    broken.write_text('plant:\n  ros__parameters: [speed: 80\n')
+    missing = str(tmp / 'no_such_params.yaml')
+    bag = str(tmp / 'bag')
+    return [
+        # defect 2: out of range, wrong type; one line with name, value, range and unit
+        ('plant', ['-p', 'fractional_order:=1.5'],
+         'fractional_order=1.5 is outside the allowed range (0, 1] (commensurate Caputo'),
+        ('plant', ['-p', 'speed:=abc'],
+         "speed='abc' is a string, not a number; allowed: (0, inf) m/s (forward speed)"),
+        ('plant', ['-p', 'min_state_subscribers:=1.5'],
+         'min_state_subscribers=1.5 is not a whole number; allowed: [0, 1000]'),
+        ('plant', ['-p', 'clock_period:=2.0'],
+         'clock_period=2.0 is outside the allowed range [0, 1] s (realtime mode'),
+        ('plant', ['-p', 'mode:=3'], "mode=3 is an integer, not a name; allowed: 'lockstep'"),
+        ('controller', ['-p', 'max_cavitator_deflection:=3.0'],
+         'max_cavitator_deflection=3.0 is outside the allowed range (0, 1.5708] rad'),
+        ('controller', ['-p', 'depth_gain:=high'],
+         "depth_gain='high' is a string, not a number; allowed: (-inf, inf) rad/m"),
+        ('controller', ['-p', 'min_command_subscribers:=0'],
+         'min_command_subscribers=0 is outside the allowed range [1, 1000]'),
+        ('recorder', ['-p', 'flush_period:=abc', '-p', f'bag_path:={bag}'],
+         "flush_period='abc' is a string, expected a double; allowed: (0, 60] s"),
+        ('recorder', ['-p', 'flush_period:=0.0', '-p', f'bag_path:={bag}'],
+         'flush_period=0.0 is outside the allowed range (0, 60] s'),
+        ('player', ['-p', f'bag_path:={bag}', '-p', 'rate:=fast'],
+         "rate='fast' is a string, expected a double; allowed: [0, inf)"),
+        ('player', ['-p', f'bag_path:={bag}', '-p', 'rate:=-1.0'],
+         'rate=-1.0 is outside the allowed range [0, inf)'),
+        # defect 3: unknown names, with the close matches
+        ('plant', ['-p', 'sped:=80.0'], "unknown parameter 'sped' (did you mean 'speed'?)"),
+        ('plant', ['--params-file', str(misspelt)],
+         "unknown parameter 'sped' (did you mean 'speed'?)"),
+        ('controller', ['--params-file', str(wildcard)],
+         "unknown parameter 'depth_gian' (did you mean 'depth_gain'"),
+        ('controller', ['-p', 'pich_gain:=1.0', '-p', 'depth_gian:=2.0'],
+         "unknown parameters 'depth_gian' (did you mean 'depth_gain' or 'pitch_gain'?), "
+         "'pich_gain' (did you mean 'pitch_gain'"),
+        ('recorder', ['-p', 'flush_periode:=0.2', '-p', f'bag_path:={bag}'],
+         "unknown parameter 'flush_periode' (did you mean 'flush_period'?)"),
+        ('player', ['-p', f'bag_path:={bag}', '-p', 'rat:=0.0'],
+         "unknown parameter 'rat' (did you mean 'rate'?)"),
+        # defect 4: a missing or malformed params file, bad --ros-args
+        *[(node, ['--params-file', missing], 'invalid arguments: ') for node in NODES],
+        *[(node, ['--params-file', str(broken)], 'invalid arguments: ') for node in NODES],
+        *[(node, ['-p', 'speed'], 'invalid arguments: ') for node in NODES],
+    ]
+
+
+def test_bad_parameters_and_arguments_give_one_line_and_exit_2(tmp_path):
+    cases = _cases(tmp_path)
+    env = rosproc.ros_env()
+    procs = [rosproc.start(*NODES[node], ['--ros-args', *args], env=env)
+             for node, args, _ in cases]
+    failures = []
+    for (node, args, words), proc in zip(cases, procs, strict=True):
+        code = rosproc.wait_exit(proc, 60)
+        out = rosproc.output(proc)
+        lines = [ln for ln in out.splitlines() if ln.strip()]
+        if not (code == 2 and len(lines) == 1 and words in lines[0]
+                and 'Traceback' not in out and f'[{node}]' in lines[0]):
+            failures.append(f'{node} {args}: exit {code}, output:\n{out}')
+    assert not failures, '\n\n'.join(failures)
+    assert not (tmp_path / 'bag').exists()     # the recorder refused before creating it
+
+
+@pytest.mark.parametrize('node', ['player'])
+def test_standard_rclpy_parameters_stay_allowed(tmp_path, node):
+    """use_sim_time is rclpy's own parameter: not refused as unknown (the player then fails
+    on the missing bag, exit 1)."""
+    proc = rosproc.start(*NODES[node], ['--ros-args', '-p', 'use_sim_time:=true', '-p',
+                                        f'bag_path:={tmp_path / "none"}'], env=rosproc.ros_env())
+    code = rosproc.wait_exit(proc, 60)
+    out = rosproc.output(proc)
+    assert code == 1 and 'no such file or directory' in out and 'unknown' not in out, out

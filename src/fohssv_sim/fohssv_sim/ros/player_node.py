@@ -268,6 +268,11 @@ class Player(Node):
             ('end_timeout', 5.0, D(
                 description='s to wait for subscribers to acknowledge the last messages',
                 read_only=True, additional_constraints='allowed: [0, inf) s')),
+            ('end_linger', 1.0, D(
+                description='s the player keeps its publishers after the last message while '
+                            'anything subscribes: a reader drops what it has not taken yet '
+                            'when the writer goes away', read_only=True,
+                additional_constraints='allowed: [0, inf) s')),
             ('plant_node', 'plant', D(
                 description="commands: the plant node whose model, parameters, "
                             "control_period and initial_state are compared with the bag's "
@@ -289,6 +294,7 @@ class Player(Node):
         self.min_command_subscribers = int(gp('min_command_subscribers').value)
         self.start_timeout = float(gp('start_timeout').value)
         self.end_timeout = float(gp('end_timeout').value)
+        self.end_linger = float(gp('end_linger').value)
         self.plant_node = str(gp('plant_node').value).strip('/')
         self.force = bool(gp('force').value)
         if not self.bag_path:
@@ -298,7 +304,8 @@ class Player(Node):
                              + ' | '.join(repr(m) for m in MODES))
         for name, v, unit in (('rate', self.rate, ''), ('start_timeout', self.start_timeout,
                                                          ' s'),
-                              ('end_timeout', self.end_timeout, ' s')):
+                              ('end_timeout', self.end_timeout, ' s'),
+                              ('end_linger', self.end_linger, ' s')):
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f'{name}={v!r} is outside the allowed range [0, inf){unit}')
         if self.min_subscribers < 0:
@@ -421,9 +428,16 @@ class Player(Node):
         return self.exit_code
 
     def _flush_all(self, pubs: list) -> None:
+        """Wait for the acknowledgements of the last messages, then keep the publishers for
+        ``end_linger`` s while anything subscribes (a subscriber acknowledges on receipt but
+        loses what it has not taken yet when the writer goes away)."""
         for pub in pubs:
             if pub.get_subscription_count() > 0 and rclpy.ok():
                 pub.wait_for_all_acked(Duration(seconds=self.end_timeout))
+        deadline = time.monotonic() + self.end_linger
+        while (rclpy.ok() and time.monotonic() < deadline
+               and any(pub.get_subscription_count() > 0 for pub in pubs)):
+            time.sleep(0.05)
 
     # -- commands --------------------------------------------------------------------------
     def _setup_commands(self) -> None:

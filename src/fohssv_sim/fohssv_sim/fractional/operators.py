@@ -39,7 +39,20 @@ def _history(order: float, step: float, channels: int, tolerance: float,
     return SOEHistory(np.array([order]), [modes], channels, np.array([cp]), np.array([cc]))
 
 
-class OnlineIntegral:
+class _Online:
+    """Shared by the two operators: checked order, step and channel count."""
+
+    def __init__(self, order: float, step: float, channels: int) -> None:
+        self.order = check_alpha(order)
+        self.step = check_step(step)
+        self.channels = check_positive_int(channels, 'channels', low=1)
+        self.n = 0
+
+    def _sample(self, values) -> np.ndarray:
+        return np.asarray(values, dtype=float).reshape(self.channels)
+
+
+class OnlineIntegral(_Online):
     """I^order of ``channels`` signals sampled every ``step`` s (see the module docstring).
 
     ``update(f_n)`` takes the samples at t_n (n = 0, 1, ...) and returns I^order f(t_n) (0 at
@@ -53,9 +66,7 @@ class OnlineIntegral:
 
     def __init__(self, order: float, step: float, channels: int = 1, *,
                  tolerance: float = 1e-10, horizon_steps: int = 10**12) -> None:
-        self.order = check_alpha(order)
-        self.step = check_step(step)
-        self.channels = check_positive_int(channels, 'channels', low=1)
+        super().__init__(order, step, channels)
         self._hist = _history(self.order, self.step, self.channels, tolerance, horizon_steps)
         self._cc = self._hist.cc[0]
         self.reset()
@@ -66,7 +77,7 @@ class OnlineIntegral:
         self.n = 0
 
     def update(self, values) -> np.ndarray:
-        f = np.asarray(values, dtype=float).reshape(self.channels)
+        f = self._sample(values)
         n = self.n
         if n == 0:
             out = np.zeros(self.channels)
@@ -77,7 +88,7 @@ class OnlineIntegral:
         return out
 
 
-class OnlineCaputoDerivative:
+class OnlineCaputoDerivative(_Online):
     """D^order (Caputo, L1 scheme) of ``channels`` signals sampled every ``step`` s.
 
     ``update(f_n)`` returns D^order f(t_n) (0 at n = 0). Accuracy: exact for piecewise-linear
@@ -90,9 +101,7 @@ class OnlineCaputoDerivative:
 
     def __init__(self, order: float, step: float, channels: int = 1, *,
                  tolerance: float = 1e-10, horizon_steps: int = 10**12) -> None:
-        self.order = check_alpha(order)
-        self.step = check_step(step)
-        self.channels = check_positive_int(channels, 'channels', low=1)
+        super().__init__(order, step, channels)
         beta = 1.0 - self.order
         self._hist = (None if beta == 0.0 else
                       _history(beta, self.step, self.channels, tolerance, horizon_steps))
@@ -106,7 +115,7 @@ class OnlineCaputoDerivative:
         self._last: np.ndarray | None = None
 
     def update(self, values) -> np.ndarray:
-        f = np.asarray(values, dtype=float).reshape(self.channels)
+        f = self._sample(values)
         n = self.n
         self.n = n + 1
         last, self._last = self._last, f.copy()

@@ -15,7 +15,7 @@ MODEL = ROOT / 'docs' / 'model.md'
 # '§9.1', '§ 5' ... after 'docs/model.md ' or 'model ' (or anywhere in docs/model.md itself)
 CITE = re.compile(r'(?:docs/model\.md|\bmodel),? ?((?:§ ?\d+(?:\.\d+)?(?:(?:,| and|–|-) ?)?)+)')
 SECTION = re.compile(r'§ ?(\d+(?:\.\d+)?)')
-OLD = re.compile(r"\bspec(?:'s)? (?:section |§ ?)?\d|\bspec §|shared/spec")
+OLD = re.compile(r"\bspec(?:'s)? (?:section |§ ?)?\d|\bspec §|shared[/]spec")
 
 
 def _sections() -> set[str]:

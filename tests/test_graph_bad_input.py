@@ -275,3 +275,25 @@ def test_realtime_rejects_commands_from_the_future_and_stale_ones():
     assert 'older than max_command_age=0.5 s' in rejected[1]
     assert 'it answers t=-1e+300 s' in rejected[2]
     assert 0.0 <= s['max_command_lag'] <= 0.5
+
+
+def test_a_second_plant_on_the_same_domain_is_refused():
+    """Issue 12, defect 1: two plants on one domain took each other's commands silently. The
+    first plant to see the other's ``state`` publisher stops with exit 5 naming them (both may);
+    a survivor is then alone on the domain."""
+    import time
+
+    env = rosproc.ros_env()
+    plants = [_plant({'model': 'delay-free'}, env) for _ in range(2)]   # wait for controllers
+    try:
+        rosproc.wait_for(lambda: any(p.poll() is not None for p in plants), 30,
+                         what='a plant to refuse')
+        time.sleep(1.0)                          # the other plant's next look at the graph
+        stopped = [p for p in plants if p.poll() is not None]
+        outs = [rosproc.output(p) for p in stopped]
+    finally:
+        stop_all(*plants)
+    assert [p.returncode for p in stopped] == [5] * len(stopped), outs
+    for out in outs:
+        assert '2 publishers of /state (nodes: /plant, /plant): another plant' in out, out
+        assert 'Traceback' not in out

@@ -23,7 +23,8 @@ positive ``start_timeout`` is for scripts: exit 4 when it expires, in both modes
 
 Exit codes: 0 clean stop (signal or ``duration`` reached), 1 state turned non-finite,
 2 invalid parameters at start, 3 lockstep timeout or plant overrun, 4 peers missing when a
-positive ``start_timeout`` expired.
+positive ``start_timeout`` expired, 5 another publisher of ``state`` (a second plant) on the
+same ROS_DOMAIN_ID and namespace.
 """
 
 from __future__ import annotations
@@ -81,9 +82,14 @@ from .views import ViewPublisher
 from .wire import ArrayReader, ArrayWriter, ClockWriter
 
 __all__ = ['PlantNode', 'main', 'EXIT_OK', 'EXIT_DIVERGED', 'EXIT_BAD_PARAMETERS',
-           'EXIT_TIMEOUT', 'EXIT_NO_PEERS']
+           'EXIT_TIMEOUT', 'EXIT_NO_PEERS', 'EXIT_SECOND_PLANT']
 
 EXIT_OK, EXIT_DIVERGED, EXIT_BAD_PARAMETERS, EXIT_TIMEOUT, EXIT_NO_PEERS = 0, 1, 2, 3, 4
+#: Another publisher of ``state`` on the plant's domain and namespace (a second plant).
+EXIT_SECOND_PLANT = 5
+#: Wall seconds between two looks at the graph for a second plant (a graph query, off the
+#: per-sample path).
+_RIVAL_CHECK_PERIOD = 0.5
 
 _MODEL_NAMES = tuple(p.name for p in PARAMETERS)
 _NODE_NAMES = tuple(p.name for p in NODE_PARAMETERS)
@@ -183,6 +189,7 @@ class PlantNode(Node):
         self._peers_logged: tuple[int, int] | None = None
         self._next_wait_log = 0.0
         self._peer_timer = self.create_timer(0.01, self._wait_for_peers)
+        self._rival_timer = self.create_timer(_RIVAL_CHECK_PERIOD, self._check_rivals)
         self.get_logger().info(
             f'{self.sim.plant.describe()} (ready in {self.sim.compile_seconds:.2f} s); mode '
             f'{self.options.mode}, control period '
@@ -237,6 +244,21 @@ class PlantNode(Node):
         return (f'waiting for {what}: command has {pubs}/{o.min_command_publishers} '
                 f'publisher(s), {self.state_pub.topic_name} has {subs}/'
                 f'{o.min_state_subscribers} subscriber(s)')
+
+    def _check_rivals(self) -> None:
+        """Refuse to run beside another publisher of ``state`` (a second plant, a republishing
+        player): the two would take each other's commands and publish interleaved samples."""
+        if self.finished.done():
+            return
+        infos = self.get_publishers_info_by_topic(self.state_pub.topic_name)
+        if len(infos) <= 1:                       # only this plant's own publisher
+            return
+        nodes = sorted(f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos)
+        self._fail(EXIT_SECOND_PLANT,
+                   f'{len(infos)} publishers of {self.state_pub.topic_name} (nodes: '
+                   f"{', '.join(nodes)}): another plant (or a republishing player) runs on this "
+                   'ROS_DOMAIN_ID and namespace, and the two would take each other\'s commands; '
+                   'stopping. Give each its own ROS_DOMAIN_ID or namespace.')
 
     def _wait_for_peers(self) -> None:
         subs, pubs = self._peers()

@@ -85,7 +85,8 @@ def test_reset_service_returns_to_t0_and_replays_the_run():
     ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
     # duration 0: the run cannot end before the reset arrives, however fast lockstep goes
     plant = rosproc.start('fohssv_sim', 'plant', plant_args(
-        model='delay-free', duration=0.0, min_state_subscribers=2), env=env)
+        model='delay-free', duration=0.0, min_state_subscribers=2, pace_to_subscribers=512),
+        env=env)
     try:
         probe.wait(lambda: len(probe.states) > 100, 30, 'the run to pass t = 0.01 s')
         response = probe.reset_plant()

@@ -18,6 +18,7 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
+from rclpy.qos import HistoryPolicy, QoSProfile
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
@@ -33,6 +34,12 @@ import rosproc
 __test__ = False  # nothing to collect
 
 Answer = Callable[[float, tuple], Sequence[float] | None]
+
+
+def _keep_all(topic) -> QoSProfile:
+    base = profile(topic)
+    return QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=base.depth,
+                      reliability=base.reliability, durability=base.durability)
 
 
 class Probe:
@@ -54,10 +61,12 @@ class Probe:
         self._pending: list[Sequence[float]] = []
         self._msg = array_message(COMMAND)
         n = self.node
-        n.create_subscription(Float64MultiArray, STATE.name, self._on_state, profile(STATE))
+        # keep-all, as the recorder: a probe slower than a fast lockstep run stops acknowledging
+        # instead of overwriting what it has not taken (a plant with pace_to_subscribers waits)
+        n.create_subscription(Float64MultiArray, STATE.name, self._on_state, _keep_all(STATE))
         n.create_subscription(Float64MultiArray, PLANING_FORCE.name,
                               lambda m: self.forces.append(tuple(m.data)),
-                              profile(PLANING_FORCE))
+                              _keep_all(PLANING_FORCE))
         n.create_subscription(Float64MultiArray, COMMAND.name,
                               lambda m: self.commands.append(tuple(m.data)), profile(COMMAND))
         self.clocks: list[int] = []

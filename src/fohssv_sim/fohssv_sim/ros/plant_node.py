@@ -248,11 +248,9 @@ class PlantNode(Node):
     def _check_rivals(self) -> None:
         """Refuse to run beside another publisher of ``state`` (a second plant, a republishing
         player): the two would take each other's commands and publish interleaved samples."""
-        if self.finished.done():
-            return
+        if self.finished.done() or self.count_publishers(self.state_pub.topic_name) <= 1:
+            return                                # only this plant's own publisher
         infos = self.get_publishers_info_by_topic(self.state_pub.topic_name)
-        if len(infos) <= 1:                       # only this plant's own publisher
-            return
         nodes = sorted(f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos)
         self._fail(EXIT_SECOND_PLANT,
                    f'{len(infos)} publishers of {self.state_pub.topic_name} (nodes: '
@@ -261,6 +259,8 @@ class PlantNode(Node):
                    'stopping. Give each its own ROS_DOMAIN_ID or namespace.')
 
     def _wait_for_peers(self) -> None:
+        if self.running or self.finished.done():
+            return    # a timer event queued before _start destroyed the timer: start once
         subs, pubs = self._peers()
         o = self.options
         if subs >= o.min_state_subscribers and pubs >= o.min_command_publishers:

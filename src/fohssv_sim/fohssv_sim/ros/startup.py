@@ -31,6 +31,7 @@ from __future__ import annotations
 import difflib
 import functools
 import math
+import os
 import re
 import sys
 import time
@@ -243,10 +244,13 @@ def explain(exc: BaseException, specs: Iterable[ParameterSpec] = ()) -> str:
 
 def report(name: str, exc: BaseException, specs: Iterable[ParameterSpec] = ()) -> int:
     """Print the one line for a start-up error (console format, to stderr: rclpy's logging
-    may not be initialised when ``rclpy.init`` itself failed) and return
-    :data:`EXIT_BAD_PARAMETERS`."""
+    may not be initialised when ``rclpy.init`` itself failed) and end the process at once with
+    :data:`EXIT_BAD_PARAMETERS`. Nothing ran, so nothing needs tearing down, and tearing down
+    a half-built node's DDS participant hung or crashed the process now and then when many
+    started at once (seen in a clean-clone test run: a refused node still alive after 60 s)."""
     text = explain(exc, specs)
     if not text.startswith('invalid '):
         text = f'invalid parameters: {text}'
     print(f'[ERROR] [{time.time():.9f}] [{name}]: {text}', file=sys.stderr, flush=True)
-    return EXIT_BAD_PARAMETERS
+    sys.stdout.flush()
+    os._exit(EXIT_BAD_PARAMETERS)

@@ -130,17 +130,22 @@ def main() -> int:
     finally:
         wall = time.monotonic() - wall0
         reader.join(timeout=5)
+        try:
+            # the recorder closes the bag by itself once it holds everything the plant's
+            # run_end lists (exit 6 naming any loss); SIGINT only if it does not
+            rec_code = recorder.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            recorder.send_signal(signal.SIGINT)   # drains, then closes the bag properly
+            try:
+                rec_code = recorder.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                recorder.kill()
+                rec_code = -9
         ctl.send_signal(signal.SIGINT)
         try:
             ctl.wait(timeout=10)
         except subprocess.TimeoutExpired:
             ctl.kill()
-        recorder.send_signal(signal.SIGINT)   # closes the bag properly
-        try:
-            rec_code = recorder.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            recorder.kill()
-            rec_code = -9
     if code != 0:
         print(f'demo: plant exited with code {code}', file=sys.stderr)
         print(ctl.stdout.read(), file=sys.stderr)

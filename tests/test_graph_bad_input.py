@@ -297,3 +297,43 @@ def test_a_second_plant_on_the_same_domain_is_refused():
     for out in outs:
         assert '2 publishers of /state (nodes: /plant, /plant): another plant' in out, out
         assert 'Traceback' not in out
+
+
+def test_controllers_and_the_recorder_warn_about_two_publishers_of_state(tmp_path):
+    """Defect 1, the other side: two publishers of ``state`` (here two nodes in the test
+    process, which stay up; two plants would stop each other) make a controller and a recorder
+    say so once, naming the nodes, and keep running."""
+    import rclpy
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Float64MultiArray
+
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    nodes = [rclpy.create_node(name, context=ctx) for name in ('plant_a', 'plant_b')]
+    qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    pubs = [n.create_publisher(Float64MultiArray, 'state', qos) for n in nodes]
+    logs = {k: tmp_path / f'{k}.log' for k in ('controller', 'recorder')}
+    procs = [rosproc.start('fohssv_controller', 'state_feedback', [], env=env,
+                           log=logs['controller']),
+             rosproc.start('fohssv_sim', 'recorder', [
+                 '--ros-args', '-p', f'bag_path:={tmp_path / "bag"}', '-p', 'plant_node:=none'],
+                 env=env, log=logs['recorder'])]
+    try:
+        for log in logs.values():
+            rosproc.wait_for(lambda log=log: 'publishers of /state' in log.read_text(), 60,
+                             what=f'the warning in {log.name}')
+        assert all(p.poll() is None for p in procs)          # a warning, not a stop
+        assert all(p.get_subscription_count() >= 1 for p in pubs)
+    finally:
+        codes = [rosproc.stop(p) for p in procs]
+        for n in nodes:
+            n.destroy_node()
+        rclpy.shutdown(context=ctx)
+    for log in logs.values():
+        text = log.read_text()
+        assert text.count('2 publishers of /state (nodes: /plant_a, /plant_b)') == 1, text
+        assert 'Traceback' not in text
+    assert codes == [0, 0]

@@ -118,16 +118,22 @@ def test_the_node_list_runs_to_a_complete_bag_with_its_parameters(tmp_path):
     specs = cl.closed_loop(duration=0.05, bag_path=str(bag))
     domain = rosproc.unique_domain_id()
     env = rosproc.ros_env(domain)
-    procs = [rosproc.start(s.package, s.executable, cl.ros_args(s), env=env,
-                           log=tmp_path / f'{s.name}.log') for s in reversed(specs)]
-    rec, ctl, plant = procs
-    probe = None
+    rec, ctl = (rosproc.start(s.package, s.executable, cl.ros_args(s), env=env,
+                              log=tmp_path / f'{s.name}.log') for s in reversed(specs[1:]))
+    plant = probe = None
     try:
-        assert rosproc.wait_exit(plant, 120) == 0, (tmp_path / 'plant.log').read_text()
+        # the controller's and recorder's parameters while they wait for the plant (the
+        # recorder ends by itself with the run)
         probe = Probe(domain, command_publisher=False)
         for spec in specs[1:]:
             got = _parameters(probe, spec.name, list(spec.parameters))
             assert got == spec.parameters, (spec.name, got)
+        probe.close()
+        probe = None
+        plant = rosproc.start(specs[0].package, specs[0].executable, cl.ros_args(specs[0]),
+                              env=env, log=tmp_path / f'{specs[0].name}.log')
+        assert rosproc.wait_exit(plant, 120) == 0, (tmp_path / 'plant.log').read_text()
+        assert rosproc.wait_exit(rec, 60) == 0, (tmp_path / 'recorder.log').read_text()
     finally:
         if probe is not None:
             probe.close()

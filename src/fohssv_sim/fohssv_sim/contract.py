@@ -30,13 +30,14 @@ time is used for latency statistics and the latest command is held (zero-order h
 
 from __future__ import annotations
 
+import json
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 __all__ = ['Topic', 'STATE', 'PLANING_FORCE', 'COMMAND', 'CLOCK', 'TOPICS', 'decode',
            'ContractError', 'POSE', 'TWIST', 'WRENCH', 'MARKER', 'VIEW_TOPICS',
-           'VIEW_WORLD_FRAME', 'VIEW_BODY_FRAME']
+           'VIEW_WORLD_FRAME', 'VIEW_BODY_FRAME', 'RUN_END', 'run_end_text', 'parse_run_end']
 
 
 class ContractError(ValueError):
@@ -131,3 +132,42 @@ def decode(topic: Topic, data: Sequence[float]) -> tuple[float, ...]:
     if bad:
         raise ContractError(f"{topic.name}: non-finite {', '.join(bad)}")
     return vals
+
+
+# -- end of run ------------------------------------------------------------------------------
+# Published once by whatever produced a run's messages (the plant when its run ends, the player
+# after a replay), reliable and transient-local: a recorder compares what it wrote with what
+# was published, drains what is still in flight, and reports anything lost. Not a sample topic
+# (not in TOPICS): a std_msgs/String holding one JSON object.
+RUN_END = Topic('run_end', 'std_msgs/msg/String', ('data',), ('-',),
+                "end of run, once: JSON {source, reason, exit_code, t, published: {topic: "
+                "messages}} (published = every message the source sent on each topic whose "
+                "delivery is complete: reliable, deeper than 1; the plant adds the commands it "
+                "received)", 'run_end')
+
+
+def run_end_text(source: str, reason: str, exit_code: int, t: float,
+                 published: Mapping[str, int]) -> str:
+    """The JSON of a :data:`RUN_END` message (``published``: resolved topic name -> count)."""
+    return json.dumps({'source': source, 'reason': reason, 'exit_code': int(exit_code),
+                       't': float(t), 'published': {str(k): int(v) for k, v in
+                                                    published.items()}})
+
+
+def parse_run_end(text: str) -> dict:
+    """Check and decode a :data:`RUN_END` message's JSON.
+
+    Raises:
+        ContractError: not a JSON object with a ``published`` map of topic names to counts >= 0.
+    """
+    try:
+        info = json.loads(text)
+    except ValueError as exc:
+        raise ContractError(f'run_end: not JSON ({exc})') from None
+    published = info.get('published') if isinstance(info, dict) else None
+    if not isinstance(published, dict) or not all(
+            isinstance(k, str) and isinstance(v, int) and not isinstance(v, bool) and v >= 0
+            for k, v in published.items()):
+        raise ContractError('run_end: expected a JSON object with "published": {topic: count '
+                            f'>= 0}}, got {text[:200]!r}')
+    return info

@@ -18,6 +18,8 @@ conversion: the state arrives serialized (a raw subscription) and its doubles ar
 their known offset, the answer is written in place into one serialized ``command`` (see
 :mod:`fohssv_sim.ros.wire`), and once the command subscriptions are settled (see
 :class:`~fohssv_sim.ros.matching.SubscriptionGate`) no graph query is made per sample.
+A second publisher of ``state`` (two plants on one domain and namespace, whose samples the
+controller would answer interleaved) is logged once as a warning naming the nodes.
 
 Exit codes: 0 on a clean stop, 2 for an unknown controller or invalid parameters.
 """
@@ -38,7 +40,7 @@ from std_msgs.msg import Float64MultiArray
 
 from fohssv_sim.contract import COMMAND, STATE, ContractError, decode
 from fohssv_sim.params import ParameterSpec, field_specs
-from fohssv_sim.ros.matching import HoldReporter, SubscriptionGate
+from fohssv_sim.ros.matching import HoldReporter, SecondPublisherWarning, SubscriptionGate
 from fohssv_sim.ros.qos import profile
 from fohssv_sim.ros.ros_params import declare, install_validation
 from fohssv_sim.ros.spin import STOP, final_log, make_executor, spin_until
@@ -104,6 +106,7 @@ class ControllerNode(Node):
         self._matched = SubscriptionGate(self, self.command_pub, minimum=minimum)
         self._open = False   # True once the gate settled open: no per-sample graph queries
         self._held = HoldReporter(self, self._matched)
+        self._rivals = SecondPublisherWarning(self, self.state_sub.topic_name)
         self._last_t: float | None = None
         self.answered = 0
         self.dropped = 0

@@ -1,4 +1,5 @@
-"""When a publisher may send its first message without losing it to a known subscriber."""
+"""When a publisher may send its first message without losing it to a known subscriber; and a
+warning when a topic that should have one publisher (``state``: one plant) has more."""
 
 from __future__ import annotations
 
@@ -7,7 +8,35 @@ import time
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 
-__all__ = ['HoldReporter', 'SubscriptionGate']
+__all__ = ['HoldReporter', 'SubscriptionGate', 'SecondPublisherWarning']
+
+
+class SecondPublisherWarning:
+    """Checks every ``period`` s (a steady-clock timer of ``node``) whether ``topic`` has more
+    than one publisher, and warns once, naming their nodes: two plants on one ROS_DOMAIN_ID and
+    namespace (each plant refuses to run beside another; a controller or recorder started
+    with them says what it saw). Graph queries only, never on the per-sample path."""
+
+    def __init__(self, node: Node, topic: str, period: float = 0.5) -> None:
+        from rclpy.clock import Clock, ClockType
+
+        self.node = node
+        self.topic = topic
+        self.warned = False
+        self.timer = node.create_timer(period, self._check,
+                                       clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def _check(self) -> None:
+        if self.warned or self.node.count_publishers(self.topic) <= 1:
+            return
+        self.warned = True
+        self.timer.cancel()
+        infos = self.node.get_publishers_info_by_topic(self.topic)
+        nodes = sorted(f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos)
+        self.node.get_logger().warning(
+            f"{len(infos)} publishers of {self.topic} (nodes: {', '.join(nodes)}): two plants "
+            '(or a plant and a republishing player) on one ROS_DOMAIN_ID and namespace; their '
+            'samples interleave. Give each its own ROS_DOMAIN_ID or namespace.')
 
 
 class SubscriptionGate:

@@ -3,8 +3,10 @@
 A thin wrapper around :class:`fohssv_sim.ros.loop.SampledPlant` (the model the parameters name,
 sampled every ``control_period`` with the command held). Topics (relative names, see
 :mod:`fohssv_sim.contract` and ``docs/ros.md``): publishes ``state``, ``planing_force`` and
-``/clock`` at every sample, the typed views (:mod:`.views`) every ``view_period``, subscribes
-``command``; service ``reset`` (std_srvs/Trigger).
+``/clock`` at every sample, the typed views (:mod:`.views`) every ``view_period``, and once,
+when the run ends (also after a signal), ``run_end``: the messages it published on each topic,
+which a recorder checks its bag against; subscribes ``command``; service ``reset``
+(std_srvs/Trigger).
 
 Modes:
 
@@ -45,10 +47,10 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
-from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String
 from std_srvs.srv import Trigger
 
-from ..contract import CLOCK, COMMAND, PLANING_FORCE, STATE, Topic
+from ..contract import CLOCK, COMMAND, PLANING_FORCE, RUN_END, STATE, Topic, run_end_text
 from ..params import PARAMETERS, ModelParameters
 from .loop import (
     CommandRejected,
@@ -170,6 +172,10 @@ class PlantNode(Node):
             self._publish = self._publish_profiled   # type: ignore[method-assign]
             self._step = self._step_profiled         # type: ignore[method-assign]
         self.reset_srv = self.create_service(Trigger, 'reset', self._on_reset)
+        # once, when the run ends: what was published, for recorders to check (contract.py)
+        self.end_pub = self.create_publisher(String, RUN_END.name, profile(RUN_END))
+        self.sent = 0                             # samples published (state, planing_force)
+        self.received = 0                         # commands received while running
 
         self.running = False
         self.rejected = 0
@@ -318,6 +324,7 @@ class PlantNode(Node):
 
     # -- publishing (every sample: preallocated messages written in place) --------------------
     def _publish(self) -> None:
+        self.sent += 1
         self.sim.write_sample(self._state_data, self._force_data)
         self.state_pub.publish(self._state_out.payload())
         self.force_pub.publish(self._force_out.payload())
@@ -328,6 +335,7 @@ class PlantNode(Node):
 
     def _publish_profiled(self) -> None:
         add = self.profile.add
+        self.sent += 1
         t0 = perf_counter_ns()
         self.sim.write_sample(self._state_data, self._force_data)
         t1 = perf_counter_ns()
@@ -464,6 +472,7 @@ class PlantNode(Node):
         """A serialized ``command`` (the subscription is raw: see wire.py)."""
         if not self.running:
             return
+        self.received += 1
         data = self._command_in.read(raw)
         self._last_command_t = t = answered_time(data)
         self._last_command_wall = monotonic()
@@ -583,6 +592,27 @@ class PlantNode(Node):
             self.destroy_timer(self._timer)
             self._timer = None
         self.finished.set_result(code)
+        self.announce_end(f'exit code {code}', code)
+
+    def announce_end(self, reason: str, code: int) -> None:
+        """Publish :data:`~fohssv_sim.contract.RUN_END` once: the messages sent on each
+        sample and view topic (not ``/clock``: keep-last 1 by design, a slow reader keeps the
+        newest) and the commands received while running (a recorder hears the same
+        controllers), so that a recorder can wait for them and report any it lost."""
+        if getattr(self, '_announced', False):
+            return
+        self._announced = True
+        published = {self.state_pub.topic_name: self.sent, self.force_pub.topic_name: self.sent,
+                     self.command_sub.topic_name: self.received}
+        if self.views is not None:
+            n = self.views.published
+            for pub in self.views.publishers:
+                published[pub.topic_name] = 2 * n if pub is self.views.marker_pub else n
+        try:
+            self.end_pub.publish(String(data=run_end_text(
+                'plant', reason, code, self.sim.t, published)))
+        except Exception as exc:  # noqa: BLE001 - the context is going down (a signal)
+            final_log(self.get_name(), f'run_end not published: {exc}')
 
     def _finish(self, why: str) -> None:
         self.get_logger().info(f'stopping cleanly at t={self.sim.t!r} s: {why}')
@@ -605,7 +635,7 @@ class PlantNode(Node):
         would lose its tail when the plant exits."""
         deadline = time.monotonic() + self.options.end_linger
         samples = self._sample_pubs
-        while (rclpy.ok() and STOP.received is None and time.monotonic() < deadline
+        while (rclpy.ok() and time.monotonic() < deadline
                and any(p.get_subscription_count() > 0 for p in samples)):
             executor.spin_once(timeout_sec=0.05)
 
@@ -613,6 +643,7 @@ class PlantNode(Node):
 def _interrupted(node: PlantNode) -> None:
     final_log(node.get_name(), 'interrupted; stopping cleanly. summary: '
               + json.dumps(node.summary()))
+    node.announce_end('interrupted', node.exit_code)
 
 
 def main(args: list[str] | None = None) -> None:
@@ -646,9 +677,10 @@ def main(args: list[str] | None = None) -> None:
             code = node.exit_code
             if STOP.received is not None and not node.finished.done():
                 _interrupted(node)
-            else:
-                node.flush()
-                node.linger(executor)
+            # a reader loses what it has not taken when the writer goes away: after a signal
+            # too, the recorder gets the time to drain what was published (bounded waits)
+            node.flush()
+            node.linger(executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         if node is not None:
             code = node.exit_code

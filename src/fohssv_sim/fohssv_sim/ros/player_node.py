@@ -9,7 +9,10 @@ Two modes (parameter ``mode``):
   reliable keep-all, transient-local history (a publish blocks while a keep-all subscriber's
   queue is full and is retried, never dropped; a transient-local subscriber gets every
   message even when its side of the match completes late) and waits for the last messages
-  to be acknowledged.
+  to be acknowledged. After the last message the player publishes ``run_end`` (see
+  :mod:`fohssv_sim.contract`) with the messages it sent on each topic, so a recorder can check
+  its bag; a subscriber that has not acknowledged every message within ``end_timeout`` is an
+  error (exit 6, naming the topics).
 * ``commands`` (open loop): act as the controller of a fresh plant. For each ``state`` at time
   t it publishes the recorded ``command`` whose ``data[0]`` is exactly t (the same double, as
   recorded bytes). A lockstep plant with the recorded parameters then reproduces the recorded
@@ -28,7 +31,9 @@ were used up (commands); 1 bad bag (missing, empty, truncated before any message
 one ``player: error: ...`` line, no traceback), a state without a recorded command, or a
 plant that does not match the recording (commands, without ``force``);
 2 invalid parameters; 4 no subscriber (rate 0) or no plant (commands) within
-``start_timeout``. SIGINT/SIGTERM stop cleanly with the code so far (0).
+``start_timeout``; 6 messages lost: a subscriber did not acknowledge every message of a
+reliable topic within ``end_timeout`` (republish). SIGINT/SIGTERM stop cleanly with the code
+so far (0).
 """
 
 from __future__ import annotations
@@ -52,7 +57,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
-from std_msgs.msg import Float64MultiArray
+from std_msgs.msg import Float64MultiArray, String
 
 from .. import contract
 from ..bag import BagError, scan
@@ -72,9 +77,9 @@ from .startup import (
 
 __all__ = ['Player', 'PlayerError', 'Track', 'select_tracks', 'command_table', 'main',
            'compare_plant', 'COMPARED',
-           'EXIT_OK', 'EXIT_ERROR', 'EXIT_BAD_PARAMETERS', 'EXIT_NO_PEERS']
+           'EXIT_OK', 'EXIT_ERROR', 'EXIT_BAD_PARAMETERS', 'EXIT_NO_PEERS', 'EXIT_LOST']
 
-EXIT_OK, EXIT_ERROR, EXIT_BAD_PARAMETERS, EXIT_NO_PEERS = 0, 1, 2, 4
+EXIT_OK, EXIT_ERROR, EXIT_BAD_PARAMETERS, EXIT_NO_PEERS, EXIT_LOST = 0, 1, 2, 4, 6
 MODES = ('republish', 'commands')
 _MSG_CLASSES = {contract.FLOAT64_ARRAY: Float64MultiArray, contract.CLOCK.type: Clock}
 #: Longest sleep between checks for a signal while pacing (s).
@@ -352,6 +357,9 @@ class Player(Node):
                 Clock, contract.CLOCK.name, _deep_qos() if self.rate == 0 else
                 _paced_qos(contract.CLOCK))
         counts = {tr.name: len(tr.messages) for tr in tracks}
+        self.sent = dict.fromkeys(self.pubs, 0)
+        self.end_pub = self.create_publisher(String, contract.RUN_END.name,
+                                             profile(contract.RUN_END))
         span = (order[-1][1] - order[0][1]) * 1e-9
         self.get_logger().info(
             f'republishing {self.bag_path}: {counts}, {span:.6g} s simulated, rate '
@@ -398,6 +406,7 @@ class Player(Node):
             return self.exit_code
         wall0 = time.monotonic()
         due = wall0
+        self.clock_sent = 0
         last_log: int | None = None    # log time of the previous message
         for name, log, raw in self.order:
             # pace by the log time's forward steps (a reset in the run jumps back at once)
@@ -412,32 +421,55 @@ class Player(Node):
             if self.clock_pub is not None and (last_log is None or log != last_log):
                 self._publish_blocking(self.clock_pub, Clock(clock=Time(nanoseconds=log)
                                                              .to_msg()))
+                self.clock_sent += 1
             last_log = log
             self._publish_blocking(self.pubs[name], raw)
             self.published += 1
+            self.sent[name] += 1
         wall = time.monotonic() - wall0
         if not rclpy.ok():
             final_log('player', f'interrupted after {self.published} of {len(self.order)} '
                       'messages')
             return self.exit_code
-        self._flush_all(list(self.pubs.values()) + [p for p in (self.clock_pub,) if p])
+        self._announce_end()
+        pubs = list(self.pubs.values()) + [p for p in (self.clock_pub,) if p]
+        unacked = self._flush_all(pubs)
         span = (self.order[-1][1] - self.order[0][1]) * 1e-9
         self.get_logger().info(
             f'played {self.published} messages, {span:.6g} s simulated in {wall:.3f} s wall '
             f'(x{span / wall if wall > 0 else math.inf:.3g})')
+        if unacked:
+            self._fail(EXIT_LOST, f"messages lost: {', '.join(unacked)} not acknowledged by "
+                       f'every subscriber within end_timeout = {self.end_timeout:g} s')
         return self.exit_code
 
-    def _flush_all(self, pubs: list) -> None:
+    def _announce_end(self) -> None:
+        """``run_end``: the messages sent on each topic whose delivery is complete (reliable,
+        deeper than 1: /clock only at rate 0, where it is keep-all)."""
+        published = {self.pubs[n].topic_name: k for n, k in self.sent.items()
+                     if self.pubs[n].qos_profile.history == HistoryPolicy.KEEP_ALL
+                     or self.pubs[n].qos_profile.depth > 1}
+        if self.clock_pub is not None and self.rate == 0:
+            published[self.clock_pub.topic_name] = self.clock_sent
+        self.end_pub.publish(String(data=contract.run_end_text(
+            'player', f'played {self.published} of {len(self.order)} messages', EXIT_OK,
+            self.order[-1][1] * 1e-9, published)))
+
+    def _flush_all(self, pubs: list) -> list[str]:
         """Wait for the acknowledgements of the last messages, then keep the publishers for
         ``end_linger`` s while anything subscribes (a subscriber acknowledges on receipt but
-        loses what it has not taken yet when the writer goes away)."""
+        loses what it has not taken yet when the writer goes away). Returns the reliable
+        topics whose subscribers did not acknowledge everything in ``end_timeout``."""
+        unacked = []
         for pub in pubs:
             if pub.get_subscription_count() > 0 and rclpy.ok():
-                pub.wait_for_all_acked(Duration(seconds=self.end_timeout))
+                if not pub.wait_for_all_acked(Duration(seconds=self.end_timeout)):
+                    unacked.append(pub.topic_name)
         deadline = time.monotonic() + self.end_linger
         while (rclpy.ok() and time.monotonic() < deadline
                and any(pub.get_subscription_count() > 0 for pub in pubs)):
             time.sleep(0.05)
+        return unacked
 
     # -- commands --------------------------------------------------------------------------
     def _setup_commands(self) -> None:

@@ -17,6 +17,8 @@
   reliable, keep-last :data:`VIEW_DEPTH`, transient-local (a viewer or recorder that matches
   late still gets the last second of views at the default ``view_period``); volatile readers
   match too.
+* ``run_end`` (``run_end``, once per run): reliable, keep-last 1, transient-local (a recorder
+  that matches after the run ended still gets it).
 
 Publishers and subscribers must take their profile from :func:`profile` with the topic's
 ``qos`` field, never build one inline.
@@ -73,6 +75,8 @@ PROFILES: dict[str, QoSProfile] = {
     'reliable_commands': _reliable(COMMAND_DEPTH),
     'clock': _reliable(1),
     'views': _reliable(VIEW_DEPTH, DurabilityPolicy.TRANSIENT_LOCAL),
+    # once per run; transient-local so that a recorder that matches late still gets it
+    'run_end': _reliable(1, DurabilityPolicy.TRANSIENT_LOCAL),
 }
 
 

@@ -21,12 +21,24 @@
 * Durability: the chunk in progress is flushed to the OS every ``flush_period`` seconds of
   wall time (and whenever it exceeds ``chunk_size`` bytes). SIGKILL loses at most the
   messages received in the last ``flush_period`` (plus one callback); SIGINT/SIGTERM close the
-  bag completely (summary, index, metadata.yaml). ``python -m fohssv_sim.bag repair`` rebuilds
-  a killed recorder's bag.
+  bag completely (summary, index, metadata.yaml) after draining what the readers already
+  hold (until nothing arrived for 0.2 s, at most ``end_timeout``). ``python -m fohssv_sim.bag
+  repair`` rebuilds a killed recorder's bag.
+* End of run (``stop_at_run_end``, default true): the plant (and the player after a replay)
+  publishes ``run_end`` once, with the number of messages it sent on each topic. The recorder
+  stores it in the run metadata (``fohssv.run_end``), waits until its bag holds that many
+  messages on every recorded topic listed (at most ``end_timeout`` s), closes the bag and
+  exits: 0 when nothing is missing, 6 naming each topic's shortfall otherwise. After
+  SIGINT/SIGTERM the same comparison is made once the delivered messages are drained.
+  (The plant lists the commands it received; ``/clock`` is keep-last 1 and not listed.)
+* A second publisher of ``state`` (two plants on one domain and namespace) is reported once as
+  a warning naming the nodes (the plants themselves refuse to run beside each other).
 
-Exit codes: 0 after SIGINT/SIGTERM with the bag closed, 1 the bag cannot be created (an OS
-error), 2 invalid arguments or parameters (one line: a wrong type, a value out of range, an
-unknown parameter name, ``bag_path`` that exists already; see :mod:`.startup`).
+Exit codes: 0 bag closed (end of run with nothing lost, or SIGINT/SIGTERM), 1 the bag cannot
+be created (an OS error), 2 invalid arguments or parameters (one line: a wrong type, a value
+out of range, an unknown parameter name, ``bag_path`` that exists already; see
+:mod:`.startup`), 6 messages lost: the bag misses messages the run's ``run_end`` says were
+published (the bag is closed and readable; the line names the topics and counts).
 """
 
 from __future__ import annotations
@@ -53,13 +65,16 @@ from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
 from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.signals import SignalHandlerOptions
+from rclpy.task import Future
 from rosgraph_msgs.msg import Clock as ClockMsg
-from std_msgs.msg import Float64MultiArray
+from std_msgs.msg import Float64MultiArray, String
 from visualization_msgs.msg import Marker
 
 from .. import contract
 from ..bag.writer import DEFAULT_CHUNK_SIZE, RunWriter, typestore
+from .matching import SecondPublisherWarning
 from .qos import offered_qos, profile
+from .spin import STOP, final_log, spin_until
 from .startup import (
     BadParameters,
     declare_rows,
@@ -69,7 +84,12 @@ from .startup import (
     report,
 )
 
-__all__ = ['Recorder', 'main', 'default_bag_path', 'source_info']
+__all__ = ['Recorder', 'main', 'default_bag_path', 'source_info', 'EXIT_LOST']
+
+#: Exit code when the bag misses messages that the run's ``run_end`` says were published.
+EXIT_LOST = 6
+#: After a signal: stop draining once nothing arrived for this long (s).
+_DRAIN_QUIET = 0.2
 
 _MSG_CLASSES = {contract.FLOAT64_ARRAY: Float64MultiArray, contract.CLOCK.type: ClockMsg,
                 contract.POSE.type: PoseStamped, contract.TWIST.type: TwistStamped,
@@ -151,6 +171,15 @@ class Recorder(Node):
             ('chunk_size', DEFAULT_CHUNK_SIZE, D(
                 description='bytes after which a chunk is written even between flushes',
                 read_only=True, additional_constraints='allowed: [1024, inf) bytes')),
+            ('stop_at_run_end', True, D(
+                description='close the bag and exit once the run_end of the run (plant or '
+                            'player) arrived and every message it lists is in the bag '
+                            '(exit 6 naming what is missing after end_timeout)',
+                read_only=True)),
+            ('end_timeout', 10.0, D(
+                description='s of wall time to wait for the messages a run_end lists, and '
+                            'the most a signal waits for delivered messages to drain',
+                read_only=True, additional_constraints='allowed: (0, 3600] s')),
         ])
         refuse_unknown(self)
         gp = self.get_parameter
@@ -166,6 +195,11 @@ class Recorder(Node):
         if chunk_size < 1024:
             raise ValueError(f'chunk_size={chunk_size!r} is outside the allowed range '
                              '[1024, inf) bytes')
+        self.end_timeout = float(gp('end_timeout').value)
+        if not (math.isfinite(self.end_timeout) and 0 < self.end_timeout <= 3600):
+            raise ValueError(f'end_timeout={self.end_timeout!r} is outside the allowed range '
+                             '(0, 3600] s (s of wall time to wait for the messages a run_end '
+                             'lists)')
         if int(gp('command_publishers').value) < 0:
             raise ValueError(f"command_publishers={gp('command_publishers').value!r} is "
                              'outside the allowed range [0, inf) publishers')
@@ -181,6 +215,10 @@ class Recorder(Node):
 
         self._ts = typestore()
         self.closed = False
+        self.done = Future()          # set when the run ended and the bag holds it (or not)
+        self.exit_code = 0
+        self._expected: dict[str, int] | None = None   # from run_end: topic -> messages
+        self._end_deadline = 0.0
         self.writer = RunWriter(self.bag_path, chunk_size=chunk_size).open()
         print(f'recording to {self.bag_path}', flush=True)
         try:
@@ -234,6 +272,14 @@ class Recorder(Node):
         })
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._flush_timer = self.create_timer(flush_period, self.writer.flush, clock=steady)
+        self._end_timer = None
+        if gp('stop_at_run_end').value:
+            self._end_sub = self.create_subscription(String, contract.RUN_END.name,
+                                                     self._on_run_end,
+                                                     profile(contract.RUN_END))
+        state = self.resolve_topic_name(contract.STATE.name)
+        self._rivals = (SecondPublisherWarning(self, state) if state in self.topic_names
+                        else None)
         self._plant = str(gp('plant_node').value)
         self._plant = '' if self._plant.lower() == 'none' else self._plant
         self._plant_deadline = time.monotonic() + float(gp('plant_timeout').value)
@@ -283,6 +329,70 @@ class Recorder(Node):
             self._last_log = log
             write(name, log, raw)
         return on_array
+
+    # -- end of run -------------------------------------------------------------------------
+    def _on_run_end(self, msg: String) -> None:
+        try:
+            info = contract.parse_run_end(msg.data)
+        except contract.ContractError as exc:
+            self.get_logger().warning(f'dropped a bad run_end message: {exc}')
+            return
+        if self._expected is not None or self.closed:
+            return                                # the first run_end ends the recording
+        self._expected = {k: v for k, v in info['published'].items() if k in self.writer.counts}
+        self._end_deadline = time.monotonic() + self.end_timeout
+        self.writer.add_metadata({'fohssv.run_end': info})
+        self.get_logger().info(
+            f"run_end from the {info.get('source', '?')} ({info.get('reason', '')}): waiting "
+            f'for {sum(self._expected.values())} messages on {len(self._expected)} topics')
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._end_timer = self.create_timer(0.01, self._check_end, clock=steady)
+
+    def missing(self) -> dict[str, tuple[int, int]]:
+        """Topics whose recorded count is below the run_end's: topic -> (recorded, published)."""
+        counts = self.writer.counts
+        return {k: (counts.get(k, 0), v) for k, v in (self._expected or {}).items()
+                if counts.get(k, 0) < v}
+
+    def _check_end(self) -> None:
+        if self.done.done():
+            return
+        missing = self.missing()
+        if missing and time.monotonic() < self._end_deadline:
+            return
+        self._end_timer.cancel()
+        self.exit_code = EXIT_LOST if missing else 0
+        if not missing:
+            self.get_logger().info('every message of the run is in the bag; closing')
+        self.done.set_result(self.exit_code)
+
+    def drain(self, executor: Any) -> None:
+        """After a signal: take what the readers already hold, until nothing arrived for
+        0.2 s (at most ``end_timeout`` s, and at once when a run_end's counts are met)."""
+        deadline = time.monotonic() + self.end_timeout
+        total = sum(self.writer.counts.values())
+        quiet_since = time.monotonic()
+        while rclpy.ok() and (now := time.monotonic()) < deadline:
+            if self._expected is not None and not self.missing():
+                break
+            executor.spin_once(timeout_sec=0.02)
+            n = sum(self.writer.counts.values())
+            if n != total:
+                total, quiet_since = n, now
+            elif now - quiet_since >= _DRAIN_QUIET:
+                break
+        if self.missing():
+            self.exit_code = EXIT_LOST
+
+    def report_loss(self) -> None:
+        """One line naming each topic the run_end lists with fewer messages in the bag."""
+        missing = self.missing()
+        if missing:
+            lost = sum(p - r for r, p in missing.values())
+            detail = ', '.join(f'{k} {r} of {p}' for k, (r, p) in missing.items())
+            print(f'recorder: error: {lost} message(s) lost: the bag holds {detail} published '
+                  f'(run_end); {self.bag_path} is closed and readable', file=sys.stderr,
+                  flush=True)
 
     # -- plant parameters -------------------------------------------------------------------
     def _poll_plant(self) -> None:
@@ -338,12 +448,13 @@ class Recorder(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    # SIGINT and SIGTERM both shut the context down; spin then raises
-    # ExternalShutdownException and the bag is closed below.
+    # SIGINT and SIGTERM only set STOP (spin.StopSignal): the loop ends between callbacks, the
+    # readers are drained and the bag is closed below, in order.
     try:
-        init(args, signal_handler_options=SignalHandlerOptions.ALL)
+        init(args, signal_handler_options=SignalHandlerOptions.NO)
     except BadParameters as exc:
         return report('recorder', exc)
+    STOP.install()
     node = None
     code = 0
     try:
@@ -355,7 +466,11 @@ def main(args: list[str] | None = None) -> int:
         # steady-clock timers and service clients in a first try; see docs/recording.md
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        executor.spin()
+        spin_until(executor, node.done)
+        if STOP.received is not None:
+            final_log('recorder', 'stopping: draining the delivered messages')
+            node.drain(executor)
+        code = node.exit_code
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except OSError as exc:
@@ -368,6 +483,7 @@ def main(args: list[str] | None = None) -> int:
     finally:
         if node is not None:
             node.close()
+            node.report_loss()
             node.destroy_node()
         rclpy.try_shutdown()
     return code

@@ -4,7 +4,11 @@ Shared by the plant, the controller node, the recorder and the player (one imple
 
 * :func:`init`: ``rclpy.init``; a missing or malformed ``--params-file`` or bad ``--ros-args``
   (rcl's ``RCLError``, a multi-line text with C source locations) becomes
-  :class:`BadParameters` with one line.
+  :class:`BadParameters` with one line. Discovery stays on this machine unless asked
+  otherwise: when neither ``ROS_AUTOMATIC_DISCOVERY_RANGE`` nor the older
+  ``ROS_LOCALHOST_ONLY`` is set, :func:`init` sets ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``
+  (ROS's own default is ``SUBNET``: every host on the network) and logs one line saying so;
+  ``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET`` opens it on purpose.
 * :func:`precheck`: checks the overrides of a node's table rows (``--ros-args -p`` and params
   files) against the table *before* rclpy declares them, so a wrong type or a value out of
   range is reported by the table's own text (name, value, allowed range, unit, meaning)
@@ -46,11 +50,26 @@ from rclpy.node import Node
 
 from ..params import ParameterError, ParameterSpec
 
-__all__ = ['EXIT_BAD_PARAMETERS', 'BadParameters', 'init', 'precheck', 'declare_rows',
+__all__ = ['EXIT_BAD_PARAMETERS', 'DEFAULT_DISCOVERY_RANGE', 'default_discovery',
+           'BadParameters', 'init', 'precheck', 'declare_rows',
            'refuse_unknown', 'explain', 'one_line', 'report', 'destroy_on_error']
 
 #: Exit code of every node for invalid arguments or parameters at start.
 EXIT_BAD_PARAMETERS = 2
+#: Discovery range of the nodes when the environment does not choose one.
+DEFAULT_DISCOVERY_RANGE = 'LOCALHOST'
+_DISCOVERY_VARS = ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_LOCALHOST_ONLY')
+
+
+def default_discovery(environ: dict[str, str] | None = None) -> bool:
+    """Set ``ROS_AUTOMATIC_DISCOVERY_RANGE`` to :data:`DEFAULT_DISCOVERY_RANGE` in
+    ``environ`` (``os.environ``, read by rcl at init) when the environment leaves discovery
+    unset; True when it did."""
+    env = os.environ if environ is None else environ
+    if any(env.get(name, '').strip() for name in _DISCOVERY_VARS):
+        return False
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = DEFAULT_DISCOVERY_RANGE
+    return True
 
 
 class BadParameters(ValueError):
@@ -94,6 +113,7 @@ def init(args: Sequence[str] | None = None, **kwargs: Any) -> None:
     """
     # rcl logs its own 'Failed to parse global arguments' line before raising: silenced, the
     # one line below carries rcl's reason
+    defaulted = default_discovery()
     rclpy.logging.set_logger_level('rcl', rclpy.logging.LoggingSeverity.FATAL)
     try:
         rclpy.init(args=args, **kwargs)
@@ -101,6 +121,11 @@ def init(args: Sequence[str] | None = None, **kwargs: Any) -> None:
         raise BadParameters(f'invalid arguments: {one_line(str(exc))}') from None
     finally:
         rclpy.logging.set_logger_level('rcl', rclpy.logging.LoggingSeverity.UNSET)
+    if defaulted:
+        rclpy.logging.get_logger('fohssv').info(
+            f'discovery: this machine only (ROS_AUTOMATIC_DISCOVERY_RANGE='
+            f'{DEFAULT_DISCOVERY_RANGE}, the fohssv default); set '
+            'ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET to reach nodes on other hosts')
 
 
 def _overrides(node: Node) -> dict[str, Any]:

@@ -1,0 +1,208 @@
+"""Nothing lost between the run and its bag (issue 12, defect 9), with real processes over DDS
+while two busy processes (``yes``) keep both cores of a small machine loaded.
+
+* A recorded lockstep run: the plant announces its end (``run_end``, the messages it
+  published per topic); the recorder waits for them, closes the bag and exits 0 by itself.
+  The counts asserted come from the batch runner (the number of samples of the run), not from
+  the nodes.
+* A rate-0 replay of that bag into a second recorder: the player's ``run_end`` lists what it
+  sent; the second bag holds every message of the first, byte for byte, and both exit 0.
+* A recorder stopped by SIGINT at the moment the plant's run ends (before run_end is waited
+  for): it drains what was delivered; the bag is complete.
+* A run_end that lists more messages than arrived: the recorder names the shortfall and exits
+  6 (the accounting can fail).
+* Discovery: a node started without ROS_AUTOMATIC_DISCOVERY_RANGE stays on this machine and
+  says so (defect 13); an explicit choice is kept.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64MultiArray, String
+from test_graph_support import batch_samples, finish, plant_args, stop_all
+
+from fohssv_controller.state_feedback import StateFeedback
+from fohssv_sim import contract
+from fohssv_sim.bag import load_run, scan
+
+import rosproc
+
+pytestmark = pytest.mark.graph
+
+DURATION = 0.3
+
+
+@pytest.fixture
+def busy():
+    """Two CPU-bound processes for the test's duration (this machine has two cores)."""
+    procs = [subprocess.Popen(['yes'], stdout=subprocess.DEVNULL) for _ in range(2)]
+    yield
+    for p in procs:
+        p.kill()
+        p.wait()
+
+
+def _recorder(env, bag, log, *params: str):
+    args = ['--ros-args', '-p', f'bag_path:={bag}', '-p', 'plant_timeout:=30.0']
+    for p in params:
+        args += ['-p', p]
+    return rosproc.start('fohssv_sim', 'recorder', args, env=env, log=log)
+
+
+def _messages(bag) -> dict[str, list[bytes]]:
+    sc = scan(bag)
+    out: dict[str, list[bytes]] = {}
+    for cid, _, raw in sc.messages:
+        out.setdefault(sc.channels[cid].topic, []).append(bytes(raw))
+    return out
+
+
+def test_recorded_run_and_its_replay_lose_nothing_under_load(tmp_path, busy):
+    ref, _ = batch_samples('delay-free', StateFeedback(), DURATION)
+    n = len(ref)                                  # 3001 samples: t = 0 .. 0.3 s
+    views = len(ref[::100])                       # view_period 0.01 s
+    env = rosproc.ros_env()
+    bag = tmp_path / 'run'
+    log = tmp_path / 'recorder.log'
+    rec = _recorder(env, bag, log, 'command_publishers:=1')
+    ctl = plant = None
+    try:
+        rosproc.wait_for(lambda: 'recording to' in log.read_text(), 90, what='the recorder')
+        ctl = rosproc.start('fohssv_controller', 'state_feedback',
+                            ['--ros-args', '-p', 'min_command_subscribers:=2'], env=env)
+        plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+            model='delay-free', duration=DURATION, min_state_subscribers=2,
+            pace_to_subscribers=512), env=env)
+        code, out = finish(plant, 180)
+        assert code == 0, out
+        # no signal: the recorder ends by itself once the bag holds the run
+        assert rosproc.wait_exit(rec, 60) == 0, log.read_text()
+    finally:
+        stop_all(*(p for p in (plant, ctl, rec) if p is not None))
+    text = log.read_text()
+    assert 'run_end from the plant' in text and 'every message of the run is in the bag' in text
+    run = load_run(bag)
+    assert not run.truncated
+    assert run.topics['/state'] == run.topics['/planing_force'] == n, run.topics
+    assert run.topics['/pose'] == run.topics['/twist'] == run.topics['/planing_wrench'] == views
+    assert run.topics['/vehicle_marker'] == 2 * views
+    end = run.metadata['fohssv.run_end']
+    assert end['source'] == 'plant' and end['published']['/state'] == n
+    # a command answers every state but the last (the run ends on that state)
+    assert end['published']['/command'] == n - 1 and run.topics['/command'] >= n - 1
+
+    # the bag replayed as fast as the recorder takes it, into a second recorder
+    copy = tmp_path / 'copy'
+    log2 = tmp_path / 'recorder2.log'
+    rec2 = _recorder(env, copy, log2, 'plant_node:=none')
+    player = None
+    try:
+        rosproc.wait_for(lambda: 'recording to' in log2.read_text(), 90, what='recorder 2')
+        player = rosproc.start('fohssv_sim', 'player', [
+            '--ros-args', '-p', f'bag_path:={bag}', '-p', 'rate:=0.0',
+            '-p', 'start_timeout:=60.0'], env=env)
+        code, out = finish(player, 180)
+        assert code == 0, out
+        assert rosproc.wait_exit(rec2, 60) == 0, log2.read_text()
+    finally:
+        stop_all(*(p for p in (player, rec2) if p is not None))
+    assert 'run_end from the player' in log2.read_text()
+    original, replayed = _messages(bag), _messages(copy)
+    for topic in ('/state', '/planing_force', '/command'):   # the player's contract topics
+        assert replayed[topic] == original[topic], topic          # every message, in order
+
+
+def test_sigint_at_the_end_of_the_run_drains_what_was_delivered(tmp_path, busy):
+    """The recorder is told to stop (SIGINT) the moment the plant logs the end of its run,
+    with run_end ignored: what the plant published is in the bag all the same."""
+    ref, _ = batch_samples('delay-free', StateFeedback(), DURATION)
+    env = rosproc.ros_env()
+    bag = tmp_path / 'run'
+    log = tmp_path / 'recorder.log'
+    rec = _recorder(env, bag, log, 'command_publishers:=1', 'stop_at_run_end:=false')
+    ctl = plant = None
+    try:
+        rosproc.wait_for(lambda: 'recording to' in log.read_text(), 90, what='the recorder')
+        ctl = rosproc.start('fohssv_controller', 'state_feedback',
+                            ['--ros-args', '-p', 'min_command_subscribers:=2'], env=env)
+        plog = tmp_path / 'plant.log'
+        # unpaced: the recorder lags the plant (by less than the 2000-sample queue)
+        plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+            model='delay-free', duration=DURATION, min_state_subscribers=2), env=env, log=plog)
+        rosproc.wait_for(lambda: 'stopping cleanly' in plog.read_text(), 180,
+                         interval=0.005, what='the end of the run')
+        rec.send_signal(signal.SIGINT)
+        assert rosproc.wait_exit(rec, 60) == 0, log.read_text()
+        assert rosproc.wait_exit(plant, 60) == 0, plog.read_text()
+    finally:
+        stop_all(*(p for p in (plant, ctl, rec) if p is not None))
+    assert 'draining' in log.read_text()
+    run = load_run(bag)
+    assert run.topics['/state'] == run.topics['/planing_force'] == len(ref), run.topics
+
+
+def test_a_shortfall_against_run_end_is_named_and_exits_6(tmp_path):
+    """A source in the test process publishes 20 states and a run_end claiming 25."""
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    bag = tmp_path / 'short'
+    log = tmp_path / 'recorder.log'
+    rec = _recorder(env, bag, log, 'plant_node:=none', 'end_timeout:=1.0',
+                    'topics:=[state]')
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    node = rclpy.create_node('source', context=ctx)
+    try:
+        deep = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                          reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        state = node.create_publisher(Float64MultiArray, 'state', deep)
+        end = node.create_publisher(String, 'run_end', QoSProfile(
+            depth=1, reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
+        rosproc.wait_for(lambda: (ex.spin_once(timeout_sec=0.01), state.get_subscription_count()
+                                  >= 1 and end.get_subscription_count() >= 1)[1], 60,
+                         what='the recorder to match')
+        for k in range(20):
+            state.publish(Float64MultiArray(data=[k * 1e-4, 0.0, 0.0, 0.0, 0.0]))
+        end.publish(String(data=contract.run_end_text('plant', 'test', 0, 19e-4,
+                                                      {'/state': 25, '/elsewhere': 3})))
+        code = rosproc.wait_exit(rec, 60)
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+        stop_all(rec)
+    text = log.read_text()
+    assert code == 6, text
+    assert 'recorder: error: 5 message(s) lost: the bag holds /state 20 of 25' in text, text
+    assert load_run(bag).topics['/state'] == 20         # closed and readable
+
+
+_PROBE = ('import os; from fohssv_sim.ros.startup import init; import rclpy; init([]); '
+          "print('RANGE=' + os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'], flush=True); "
+          'rclpy.shutdown()')
+
+
+@pytest.mark.parametrize('given', [None, 'SUBNET', 'LOCALHOST'])
+def test_discovery_stays_on_this_machine_unless_opened(given):
+    env = {k: v for k, v in os.environ.items()
+           if k not in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_LOCALHOST_ONLY')}
+    if given is not None:
+        env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = given
+    env['ROS_DOMAIN_ID'] = str(rosproc.unique_domain_id())
+    out = subprocess.run([sys.executable, '-c', _PROBE], env=env, capture_output=True,
+                         text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert f'RANGE={given or "LOCALHOST"}' in out.stdout
+    said = 'discovery: this machine only (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST' in out.stderr
+    assert said == (given is None), out.stderr

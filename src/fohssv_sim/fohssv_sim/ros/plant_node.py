@@ -622,20 +622,27 @@ class PlantNode(Node):
         self.get_logger().error(message)
         self._end(code)
 
-    def flush(self, timeout: float = 2.0) -> None:
-        """Wait until subscribers acknowledged what was published (reliable topics)."""
+    def flush(self, signals: int, timeout: float = 2.0) -> None:
+        """Wait until subscribers acknowledged what was published (reliable topics): at most
+        ``timeout`` s in all, and not after a signal beyond ``signals``."""
+        deadline = time.monotonic() + timeout
         for pub in self._sample_pubs:
+            left = deadline - time.monotonic()
+            if left <= 0 or STOP.count != signals:
+                return
             if pub.get_subscription_count() > 0:
-                pub.wait_for_all_acked(Duration(seconds=timeout))
+                pub.wait_for_all_acked(Duration(seconds=left))
 
-    def linger(self, executor: Any) -> None:
+    def linger(self, executor: Any, signals: int) -> None:
         """Keep the publishers (and services) up for ``end_linger`` s after the run ended, or
         until nothing subscribes to the samples (or views) any more: a reader drops what it has not
         taken yet from a writer that goes away, so a subscriber lagging behind a fast run
-        would lose its tail when the plant exits."""
+        would lose its tail when the plant exits. A signal after the run ended ends it
+        (``STOP.count`` beyond ``signals``, the count when the run ended: a signal that
+        interrupted the run does not, so a recorder still drains)."""
         deadline = time.monotonic() + self.options.end_linger
         samples = self._sample_pubs
-        while (rclpy.ok() and time.monotonic() < deadline
+        while (rclpy.ok() and STOP.count == signals and time.monotonic() < deadline
                and any(p.get_subscription_count() > 0 for p in samples)):
             executor.spin_once(timeout_sec=0.05)
 
@@ -675,12 +682,13 @@ def main(args: list[str] | None = None) -> None:
             else:
                 spin_until(executor, node.finished, paced=node)
             code = node.exit_code
+            signals = STOP.count          # a further signal ends the linger
             if STOP.received is not None and not node.finished.done():
                 _interrupted(node)
             # a reader loses what it has not taken when the writer goes away: after a signal
             # too, the recorder gets the time to drain what was published (bounded waits)
-            node.flush()
-            node.linger(executor)
+            node.flush(signals)
+            node.linger(executor, signals)
     except (KeyboardInterrupt, ExternalShutdownException):
         if node is not None:
             code = node.exit_code

@@ -37,13 +37,15 @@ class StopSignal:
     from its signal thread, so a callback still running may fail to publish. A node that
     calls ``rclpy.init(..., signal_handler_options=SignalHandlerOptions.NO)`` and
     :meth:`install` instead only records the signal: the loop stops after the callback in
-    progress, and the node shuts down in order. Further signals change nothing (a test
-    harness or a terminal often signals twice; raising then would break the orderly end).
-    Every wait outside the loop is bounded (the plant's flush and linger check STOP too).
+    progress, and the node shuts down in order. Further signals raise nothing (a test
+    harness or a terminal often signals twice; raising then would break the orderly end);
+    they are counted, and a wait after the loop ends at the next one (the plant's linger).
+    Every wait outside the loop is bounded.
     """
 
     def __init__(self) -> None:
         self.received: int | None = None
+        self.count = 0
 
     def install(self) -> StopSignal:
         for sig in (signal.SIGINT, signal.SIGTERM):
@@ -51,6 +53,7 @@ class StopSignal:
         return self
 
     def _handle(self, signum: int, frame: object) -> None:
+        self.count += 1
         if self.received is None:
             self.received = signum
 

@@ -23,15 +23,19 @@ class SecondPublisherWarning:
         self.node = node
         self.topic = topic
         self.warned = False
+        self._unnamed = 0
         self.timer = node.create_timer(period, self._check,
                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def _check(self) -> None:
         if self.warned or self.node.count_publishers(self.topic) <= 1:
             return
+        infos = self.node.get_publishers_info_by_topic(self.topic)
+        if any(i.node_name == '_NODE_NAME_UNKNOWN_' for i in infos) and self._unnamed < 10:
+            self._unnamed += 1          # the endpoints are discovered before their nodes' names
+            return
         self.warned = True
         self.timer.cancel()
-        infos = self.node.get_publishers_info_by_topic(self.topic)
         nodes = sorted(f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos)
         self.node.get_logger().warning(
             f"{len(infos)} publishers of {self.topic} (nodes: {', '.join(nodes)}): two plants "

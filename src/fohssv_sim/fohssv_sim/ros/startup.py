@@ -109,8 +109,18 @@ def init(args: Sequence[str] | None = None, **kwargs: Any) -> None:
 
     Raises:
         BadParameters: rcl refused the arguments (a missing or malformed ``--params-file``,
-            an unparsable ``-p``, an unknown ``--ros-args`` flag).
+            an unparsable ``-p``, an unknown ``--ros-args`` flag), or an argument outside
+            ``--ros-args`` (``plant --speed 80``: rcl would ignore it and the node would run
+            with the default).
     """
+    from rclpy.utilities import remove_ros_args
+
+    argv = list(sys.argv if args is None else args)
+    stray = remove_ros_args(argv)[1:]
+    if stray:
+        raise BadParameters(f"unexpected argument(s) {' '.join(stray)!r}: the nodes take only "
+                            "ROS arguments, e.g. --ros-args -p speed:=80.0 (parameters) or "
+                            '--params-file FILE after --ros-args')
     # rcl logs its own 'Failed to parse global arguments' line before raising: silenced, the
     # one line below carries rcl's reason
     defaulted = default_discovery()

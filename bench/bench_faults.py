@@ -666,7 +666,8 @@ def _lockstep_loss(duration: float, tmp: Path) -> Outcome:
     finally:
         procs.close()
     s = summary(procs.log('plant'))
-    samples = s.get('samples', 0)
+    # states at t = 0, T, ..., t_end (the summary's samples counts the periods advanced)
+    samples = round(s['t'] / s['control_period']) + 1 if s else 0
     try:
         run = load_run(bag)
     except BagError as e:
@@ -676,8 +677,9 @@ def _lockstep_loss(duration: float, tmp: Path) -> Outcome:
     lost = max(0, samples - states) + max(0, samples - forces) + max(0, samples - 1 - answered)
     ok = (code == 0 and rec_code == 0 and ctl_code == 0 and samples > 0 and lost == 0
           and not crashed(procs.outputs()))
-    return Outcome('lost', ok, f'plant exit {code}, {samples} samples; bag: {states} states, '
-                   f'{forces} forces, {answered} commands of {samples - 1} answered states; '
+    return Outcome('lost', ok, f'plant exit {code}, {samples} states published; bag: {states} '
+                   f'states, {forces} forces, {answered}/{samples - 1} commands (the last '
+                   'state needs none); '
                    f'recorder {how}, exit {rec_code}', lost=lost,
                    output='' if ok else procs.outputs())
 

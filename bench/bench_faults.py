@@ -68,11 +68,12 @@ CRASH = ('Traceback', 'Exception in', '[FATAL]', 'Segmentation fault')
 #: Wall seconds the recorder gets after the run to stop by itself before SIGINT.
 STOP_GRACE = 5.0
 ALONE = {'min_state_subscribers': 0, 'min_command_publishers': 0}
-#: A real-time closed loop that stays in bounds on a busy machine: at 0.2 x real time a
-#: command 10 ms late in wall time is 2 ms late in simulated time (at 1 x the delay-free
-#: loop left |w| <= V within a second when cases ran side by side).
+#: A real-time closed loop that stays in bounds on a busy machine: at 0.1 x real time a
+#: command 10 ms late in wall time is 1 ms late in simulated time (at 1 x the delay-free
+#: loop left |w| <= V within a second when cases ran side by side; open loop it stays in
+#: for 0.25 s of simulated time, 2.5 s of wall time).
 REALTIME = {'model': 'delay-free', 'mode': 'realtime', 'control_period': 1e-3,
-            'real_time_factor': 0.2}
+            'real_time_factor': 0.1}
 CATEGORIES = ('parameters', 'commands', 'bags', 'faults', 'loss')
 #: Probe nodes live in this process: one at a time.
 _PROBE_LOCK = threading.Lock()
@@ -490,35 +491,39 @@ def _second_plant(tmp: Path) -> Outcome:
                    output='' if ok else procs.outputs())
 
 
-def _closed_loop_procs(procs: Procs, plant: dict, recorder_bag: Path | None = None,
-                       controller: str = 'state_feedback') -> dict[str, subprocess.Popen]:
-    """Plant + controller (+ recorder): started as scripts/demo.py starts them."""
+def _closed_loop_procs(procs: Procs, plant: dict) -> dict[str, subprocess.Popen]:
+    """Plant + eq. 31 controller, no recorder."""
+    return {'controller': procs.start('controller', 'fohssv_controller', 'state_feedback', [
+                '--ros-args', *params(min_command_subscribers=1)]),
+            'plant': procs.start('plant', 'fohssv_sim', 'plant', plant_args(**plant))}
+
+
+def _demo_loop(procs: Procs, bag: Path, duration: float,
+               plant: dict | None = None) -> dict[str, subprocess.Popen]:
+    """The recorded closed loop of ``make demo`` (fohssv_sim.closed_loop: lockstep, the
+    recorder pacing the plant), started in the demo's order: recorder, controller, plant."""
     out = {}
-    if recorder_bag is not None:
-        out['recorder'] = procs.start('recorder', 'fohssv_sim', 'recorder', [
-            '--ros-args', *params(bag_path=recorder_bag)])
-        procs.wait_line('recorder', 'recording to', 60)
-    out['controller'] = procs.start('controller', 'fohssv_controller', controller,
-                                    ['--ros-args', *params(
-                                        min_command_subscribers=1 + (recorder_bag is not None))])
-    out['plant'] = procs.start('plant', 'fohssv_sim', 'plant', plant_args(**plant))
+    for spec in closed_loop(duration=duration, bag_path=str(bag), plant=plant):
+        out[spec.name] = procs.start(spec.name, spec.package, spec.executable,
+                                     ros_args(spec))
+        if spec.name == 'recorder':
+            procs.wait_line('recorder', 'recording to', 60)
     return out
 
 
 def _kill_recorder(tmp: Path) -> Outcome:
-    """A real-time closed loop recorded; the recorder SIGKILLed after 300 states reached the
-    file: the plant finishes; the bag loads, repair completes it, check passes."""
+    """The demo's recorded loop (delay-free model); the recorder SIGKILLed once 2000 states
+    reached the file: the plant finishes; the bag loads, repair completes it, check passes."""
     procs = Procs(tmp)
     bag = tmp / 'bag'
     try:
-        p = _closed_loop_procs(procs, {**REALTIME, 'duration': 1.0,
-                                       'min_state_subscribers': 2}, bag)
-        rosproc.wait_for(lambda: _states(bag) >= 300 or p['plant'].poll() is not None,
-                         90, interval=0.1, what='300 states in the bag')
+        p = _demo_loop(procs, bag, 3.0, {'model': 'delay-free'})
+        rosproc.wait_for(lambda: _states(bag) >= 2000 or p['plant'].poll() is not None,
+                         120, interval=0.1, what='2000 states in the bag')
         ok_fill = p['plant'].poll() is None
         p['recorder'].send_signal(signal.SIGKILL)
         p['recorder'].wait(timeout=10)
-        code = wait(p['plant'], 60)
+        code = wait(p['plant'], 300)
     finally:
         procs.close()
     n_before = _states(bag)
@@ -526,7 +531,7 @@ def _kill_recorder(tmp: Path) -> Outcome:
     n_after = _states(bag)
     text = '\n'.join(o for _, o in steps)
     codes = [c for c, _ in steps]
-    ok = (ok_fill and code == 0 and codes == [0, 0] and n_after >= 300
+    ok = (ok_fill and code == 0 and codes == [0, 0] and n_after >= 2000
           and n_after >= n_before and not crashed(text + procs.log('plant')))
     return Outcome('survived', ok, f'plant exit {code}; {n_before} states readable after the '
                    f'kill; repair/check exits {codes}; {n_after} states after repair',
@@ -581,22 +586,27 @@ def _sigint_plant(mode: str, tmp: Path) -> Outcome:
                    output='' if ok else procs.outputs())
 
 
-def _sigint_recorder(tmp: Path) -> Outcome:
+def _sigint_recorder(after: float, tmp: Path) -> Outcome:
+    """The demo's recorded loop; SIGINT to the recorder ``after`` s into the run: exit 0, a
+    sound bag, and the plant (no longer paced) finishes its run."""
     procs = Procs(tmp)
     bag = tmp / 'bag'
     try:
-        p = _closed_loop_procs(procs, {**REALTIME, 'duration': 600.0,
-                                       'min_state_subscribers': 2}, bag)
+        p = _demo_loop(procs, bag, 8.0, {'model': 'delay-free'})
         started = procs.wait_line('plant', 'peers matched', 60)
-        time.sleep(1.5)
+        time.sleep(after)
+        running = p['plant'].poll() is None
         code = rosproc.stop(p['recorder'])
+        plant = wait(p['plant'], 300)
     finally:
         procs.close()
     check, out = cli(['check', str(bag)], tmp)
     text = procs.log('recorder') + out
-    ok = started and code == 0 and check == 0 and _states(bag) > 0 and not crashed(text)
+    ok = (started and running and code == 0 and plant == 0 and check == 0
+          and _states(bag) > 0 and not crashed(text))
     return Outcome('survived', ok, f'recorder exit {code}, fohssv check exit {check}, '
-                   f'{_states(bag)} states', output='' if ok else procs.outputs() + out)
+                   f'{_states(bag)} states; plant exit {plant}',
+                   output='' if ok else procs.outputs() + out)
 
 
 def _sigint_player(tmp: Path) -> Outcome:
@@ -629,7 +639,11 @@ def fault_cases() -> list[Case]:
              lambda tmp: _sigint_plant('lockstep', tmp), quick=True),
         Case('faults', 'SIGINT to the plant in real time',
              lambda tmp: _sigint_plant('realtime', tmp)),
-        Case('faults', 'SIGINT to the recorder mid-run', _sigint_recorder),
+        # 1 s: inside the controller's 2 s grace of min_command_subscribers (matching.py)
+        Case('faults', 'SIGINT to the recorder 1 s into a recorded loop',
+             lambda tmp: _sigint_recorder(1.0, tmp)),
+        Case('faults', 'SIGINT to the recorder 3 s into a recorded loop',
+             lambda tmp: _sigint_recorder(3.0, tmp)),
         Case('faults', 'SIGINT to the player mid-replay', _sigint_player),
     ]
 
@@ -650,19 +664,12 @@ def _lockstep_loss(duration: float, tmp: Path) -> Outcome:
     recorded; states and forces in the bag against the plant's samples, commands against
     the states answered (every one but possibly the last)."""
     bag = tmp / 'bag'
-    plant_spec, ctl_spec, rec_spec = closed_loop(duration=duration, bag_path=str(bag))
     procs = Procs(tmp)
     try:
-        rec = procs.start('recorder', rec_spec.package, rec_spec.executable,
-                          ros_args(rec_spec))
-        procs.wait_line('recorder', 'recording to', 60)
-        ctl = procs.start('controller', ctl_spec.package, ctl_spec.executable,
-                          ros_args(ctl_spec))
-        plant = procs.start('plant', plant_spec.package, plant_spec.executable,
-                            ros_args(plant_spec))
-        code = wait(plant, 600)
-        rec_code, how = _stop_recorder(rec)
-        ctl_code = rosproc.stop(ctl)
+        p = _demo_loop(procs, bag, duration)
+        code = wait(p['plant'], 600)
+        rec_code, how = _stop_recorder(p['recorder'])
+        ctl_code = rosproc.stop(p['controller'])
     finally:
         procs.close()
     s = summary(procs.log('plant'))

@@ -53,12 +53,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'tests'))
 
-from ruamel.yaml import YAML  # noqa: E402
 from test_graph_startup import NODES, bad_parameter_cases  # noqa: E402
 from test_graph_support import Probe, plant_args  # noqa: E402
 
 from fohssv_sim.bag import BagError, load_run  # noqa: E402
-from fohssv_sim.bag.synthetic import write_bag  # noqa: E402
+from fohssv_sim.bag.synthetic import edit_metadata, write_bag  # noqa: E402
 from fohssv_sim.closed_loop import closed_loop, ros_args  # noqa: E402
 
 import rosproc  # noqa: E402
@@ -339,15 +338,6 @@ def command_cases() -> list[Case]:
 
 # -- bad bags ------------------------------------------------------------------------------
 
-def _edit_metadata(bag: Path, **fields) -> None:
-    yaml = YAML(typ='safe', pure=True)
-    meta = bag / 'metadata.yaml'
-    data = yaml.load(meta.read_text())
-    data['rosbag2_bagfile_information'].update(fields)
-    with meta.open('w') as f:
-        yaml.dump(data, f)
-
-
 def _bad_bag(kind: str, root: Path) -> Path:
     """Make the bad input ``kind`` under ``root``; returns the path given to the command."""
     if kind == 'missing path':
@@ -369,15 +359,15 @@ def _bad_bag(kind: str, root: Path) -> Path:
     elif kind == 'metadata.yaml not YAML':
         (bag / 'metadata.yaml').write_text('rosbag2_bagfile_information: [\n')
     elif kind == 'metadata.yaml custom_data: [1, 2]':
-        _edit_metadata(bag, custom_data=[1, 2])
+        edit_metadata(bag, custom_data=[1, 2])
     elif kind == 'metadata.yaml relative_file_paths: 5':
-        _edit_metadata(bag, relative_file_paths=5)
+        edit_metadata(bag, relative_file_paths=5)
     elif kind == 'metadata.yaml a folder':
         (bag / 'metadata.yaml').unlink()
         (bag / 'metadata.yaml').mkdir()
     elif kind == 'file path escaping the bag folder':
         write_bag(root / 'victim', 40, close=False)
-        _edit_metadata(bag, relative_file_paths=['../victim/victim.mcap'])
+        edit_metadata(bag, relative_file_paths=['../victim/victim.mcap'])
         (bag / 'bag.mcap').unlink()
     return bag
 

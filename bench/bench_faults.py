@@ -9,7 +9,8 @@ Categories (each case on a ROS_DOMAIN_ID of its own, from ``tests/rosproc.py``):
   with one line naming what is wrong;
 * commands: non-finite, out-of-range, wrong-length and wrong-time commands to a lockstep
   plant, commands from the future and stale ones to a real-time plant (an in-process probe
-  is the controller): each rejected and logged, the plant finishes its run (exit 0);
+  is the controller): each rejected and logged, the plant finishes its run (exit 0); bad
+  states to a controller node (the probe is the plant): dropped, the good ones answered;
 * bags: ``fohssv check|plot|repair`` and the player on a missing path, a file that is not a
   bag, a folder without one, a truncated MCAP, invalid or wrong-shaped ``metadata.yaml``, a
   file path escaping the bag folder, ``--out`` an existing file: the documented exit code,
@@ -294,6 +295,39 @@ def _command_case(plant: dict, answer_for: Callable, expect: dict) -> Callable[[
     return run
 
 
+def _bad_states_to_a_controller(tmp: Path) -> Outcome:
+    """A probe plays the plant for the eq. 31 controller node: good states, then a NaN, an
+    infinite and a wrong-length one (dropped and logged), a good one, one whose time goes
+    back (a reset: answered), a good one. The controller answers exactly the good ones and
+    stops cleanly on SIGINT."""
+    nan, inf = math.nan, math.inf
+    states = [(0.0, 0, 0, 0, 0), (1e-4, nan, 0, 0, 0), (1e-4, 0, inf, 0, 0), (1e-4, 1.0, 2.0),
+              (2e-4, 0, 0.1, 0, 0), (1e-4, 0, 0, 0, 0), (3e-4, 0, 0.1, 0.01, 0)]
+    good = [0.0, 2e-4, 1e-4, 3e-4]
+    with _PROBE_LOCK:
+        procs = Procs(tmp)
+        probe = Probe(procs.domain, command_publisher=False)
+        try:
+            ctl = procs.start('controller', 'fohssv_controller', 'state_feedback', [])
+            for data in states:         # state is transient-local: kept for a late reader
+                probe.publish_state(data)
+            deadline = time.monotonic() + 30
+            while len(probe.commands) < len(good) and time.monotonic() < deadline:
+                time.sleep(0.05)
+            time.sleep(0.3)             # nothing more may come
+            running = ctl.poll() is None
+            code = rosproc.stop(ctl)
+        finally:
+            procs.close()
+            probe.close()
+    out = procs.log('controller')
+    got = [c[0] for c in probe.commands]
+    ok = (running and code == 0 and got == good and not crashed(out)
+          and out.count('dropped a state message') == 3)
+    return Outcome('survived', ok, f'answered t={got}, {out.count("dropped a state")} '
+                   f'dropped, exit {code}', output='' if ok else out)
+
+
 def command_cases() -> list[Case]:
     T = 1e-4
 
@@ -338,6 +372,8 @@ def command_cases() -> list[Case]:
         Case('commands', 'realtime: future, stale and t=-1e300 commands', _command_case(
             rt, realtime({3: lambda t: t + 1.0, 4: lambda t: t - 1.0, 5: lambda t: -1e300}),
             {'stale_commands': 3, 'rejected_commands': 3}), quick=True),
+        Case('commands', 'controller: NaN, infinite, wrong-length states, time going back',
+             _bad_states_to_a_controller),
     ]
 
 

@@ -21,8 +21,9 @@ Categories (each case on a ROS_DOMAIN_ID of its own, from ``tests/rosproc.py``):
 * loss: a lockstep closed loop recorded with the demo's settings, and a rate-0 ``player``
   replay into a recorder, each also with two busy processes (``yes > /dev/null``) on the
   machine. After the plant (player) has finished, the recorder gets ``STOP_GRACE`` s to stop
-  by itself, then SIGINT; the bag's messages are counted against what was published (the
-  plant's summary, the source bag): messages lost.
+  by itself at the run's ``run_end`` (exit 0; 6 names a shortfall), then SIGINT; the bag's
+  messages are counted against what was published (the plant's summary, the source bag):
+  messages lost.
 
 A case's outcome is classified automatically: *handled* (the exit code the node's or the
 CLI's docstring documents, taken from their ``EXIT_*`` constants; one clear line; no
@@ -71,7 +72,7 @@ import rosproc  # noqa: E402
 #: Words that must never appear in a node's or the CLI's output.
 CRASH = ('Traceback', 'Exception in', '[FATAL]', 'Segmentation fault')
 #: Wall seconds the recorder gets after the run to stop by itself before SIGINT.
-STOP_GRACE = 5.0
+STOP_GRACE = 15.0
 ALONE = {'min_state_subscribers': 0, 'min_command_publishers': 0}
 #: A real-time closed loop that stays in bounds on a busy machine: at 0.1 x real time a
 #: command 10 ms late in wall time is 1 ms late in simulated time (at 1 x the delay-free
@@ -684,8 +685,9 @@ def fault_cases() -> list[Case]:
 # -- loss ----------------------------------------------------------------------------------
 
 def _stop_recorder(recorder: subprocess.Popen) -> tuple[int | None, str]:
-    """Give the recorder STOP_GRACE s to stop by itself (at the end-of-run marker), then
-    SIGINT (it must drain what was delivered); returns its exit code and how it stopped."""
+    """Give the recorder STOP_GRACE s (more than its end_timeout, 10 s) to stop by itself at
+    the run's ``run_end``, then SIGINT (it must drain what was delivered); returns its exit
+    code and how it stopped."""
     try:
         return recorder.wait(timeout=STOP_GRACE), 'stopped by itself'
     except subprocess.TimeoutExpired:

@@ -14,7 +14,9 @@ NODES = {'plant': ('fohssv_sim', 'plant'), 'controller': ('fohssv_controller', '
          'recorder': ('fohssv_sim', 'recorder'), 'player': ('fohssv_sim', 'player')}
 
 
-def _cases(tmp):
+def bad_parameter_cases(tmp):
+    """(node, arguments after --ros-args, words the one line must hold); also the
+    catalogue of bench/bench_faults.py."""
     misspelt = tmp / 'misspelt.yaml'
     misspelt.write_text('plant:\n  ros__parameters:\n    model: delay-free\n    sped: 80.0\n')
     wildcard = tmp / 'wildcard.yaml'
@@ -69,7 +71,7 @@ def _cases(tmp):
 
 
 def test_bad_parameters_and_arguments_give_one_line_and_exit_2(tmp_path):
-    cases = _cases(tmp_path)
+    cases = bad_parameter_cases(tmp_path)
     env = rosproc.ros_env()
     failures = []
     for start in range(0, len(cases), 10):        # ten at a time: 30 processes importing

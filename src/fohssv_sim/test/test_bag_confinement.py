@@ -8,21 +8,11 @@ import sys
 from pathlib import Path
 
 import pytest
-from ruamel.yaml import YAML
 
 from fohssv_sim.bag import BagError, load_run
 from fohssv_sim.bag.check import check
 from fohssv_sim.bag.repair import repair
-from fohssv_sim.bag.synthetic import write_bag
-
-
-def _edit_metadata(bag: Path, **fields) -> None:
-    yaml = YAML(typ='safe', pure=True)
-    meta = bag / 'metadata.yaml'
-    data = yaml.load(meta.read_text())
-    data['rosbag2_bagfile_information'].update(fields)
-    with meta.open('w') as f:
-        yaml.dump(data, f)
+from fohssv_sim.bag.synthetic import edit_metadata, write_bag
 
 
 def _snapshot(root: Path) -> dict[str, bytes]:
@@ -39,7 +29,7 @@ def test_repair_never_follows_file_paths_outside_the_bag(tmp_path):
     """``relative_file_paths: [../victim/victim.mcap]``: repair used to rewrite the victim."""
     write_bag(tmp_path / 'victim', 40, close=False)          # a cut bag: repair would act
     write_bag(tmp_path / 'bag', 40)
-    _edit_metadata(tmp_path / 'bag', relative_file_paths=['../victim/victim.mcap'])
+    edit_metadata(tmp_path / 'bag', relative_file_paths=['../victim/victim.mcap'])
     (tmp_path / 'bag' / 'bag.mcap').unlink()
     before = _snapshot(tmp_path)
     for call in (lambda p: repair(p, force=True), load_run, check):
@@ -72,7 +62,7 @@ def test_a_symbolic_link_out_of_the_bag_is_refused(tmp_path):
 def test_wrong_shaped_metadata_yaml_is_one_bag_error_everywhere(tmp_path, fields, words):
     bag = tmp_path / 'bag'
     write_bag(bag, 30)
-    _edit_metadata(bag, **fields)
+    edit_metadata(bag, **fields)
     before = _snapshot(tmp_path)
     for call in (load_run, check, lambda p: repair(p, force=True)):
         with pytest.raises(BagError, match='malformed metadata.yaml') as info:

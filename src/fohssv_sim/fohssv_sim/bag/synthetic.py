@@ -14,7 +14,7 @@ import numpy as np
 from .. import contract
 from .writer import RunWriter, typestore
 
-__all__ = ['METADATA', 'float64_array', 'clock', 'trajectory', 'write_bag']
+__all__ = ['METADATA', 'float64_array', 'clock', 'trajectory', 'write_bag', 'edit_metadata']
 
 METADATA = {'fohssv.version': '0.1.0', 'fohssv.plant_parameters': {'V': 75.0, 'model':
                                                                     'delay-free'}}
@@ -69,3 +69,16 @@ def write_bag(path: Path, n: int = 500, *, flush_every: int = 50, close: bool = 
     if close:
         w.close()
     return t, x, w
+
+
+def edit_metadata(bag: Path, **fields) -> None:
+    """Overwrite ``fields`` of a closed bag's ``metadata.yaml`` (rosbag2_bagfile_information),
+    e.g. with wrong shapes, for tests of bad input."""
+    from ruamel.yaml import YAML
+
+    yaml = YAML(typ='safe', pure=True)
+    meta = Path(bag) / 'metadata.yaml'
+    data = yaml.load(meta.read_text())
+    data['rosbag2_bagfile_information'].update(fields)
+    with meta.open('w') as f:
+        yaml.dump(data, f)

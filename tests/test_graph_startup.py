@@ -67,6 +67,9 @@ def bad_parameter_cases(tmp):
         *[(node, ['--params-file', missing], 'invalid arguments: ') for node in NODES],
         *[(node, ['--params-file', str(broken)], 'invalid arguments: ') for node in NODES],
         *[(node, ['-p', 'speed'], 'invalid arguments: ') for node in NODES],
+        # an argument outside --ros-args (after '--' here): rcl ignores it, the node refuses
+        *[(node, ['--', '--speed', '80'], "unexpected argument(s) '--speed 80': the nodes "
+           'take only ROS arguments') for node in NODES],
     ]
 
 

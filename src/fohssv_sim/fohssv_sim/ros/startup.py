@@ -113,14 +113,7 @@ def init(args: Sequence[str] | None = None, **kwargs: Any) -> None:
             ``--ros-args`` (``plant --speed 80``: rcl would ignore it and the node would run
             with the default).
     """
-    from rclpy.utilities import remove_ros_args
 
-    argv = list(sys.argv if args is None else args)
-    stray = remove_ros_args(argv)[1:]
-    if stray:
-        raise BadParameters(f"unexpected argument(s) {' '.join(stray)!r}: the nodes take only "
-                            "ROS arguments, e.g. --ros-args -p speed:=80.0 (parameters) or "
-                            '--params-file FILE after --ros-args')
     # rcl logs its own 'Failed to parse global arguments' line before raising: silenced, the
     # one line below carries rcl's reason
     defaulted = default_discovery()
@@ -131,6 +124,14 @@ def init(args: Sequence[str] | None = None, **kwargs: Any) -> None:
         raise BadParameters(f'invalid arguments: {one_line(str(exc))}') from None
     finally:
         rclpy.logging.set_logger_level('rcl', rclpy.logging.LoggingSeverity.UNSET)
+    from rclpy.utilities import remove_ros_args
+
+    stray = remove_ros_args(list(sys.argv if args is None else args))[1:]
+    if stray:
+        rclpy.try_shutdown()
+        raise BadParameters(f"unexpected argument(s) {' '.join(stray)!r}: the nodes take only "
+                            "ROS arguments, e.g. --ros-args -p speed:=80.0 (parameters) or "
+                            '--params-file FILE after --ros-args')
     if defaulted:
         rclpy.logging.get_logger('fohssv').info(
             f'discovery: this machine only (ROS_AUTOMATIC_DISCOVERY_RANGE='

@@ -659,7 +659,8 @@ def plot_gain_map(result: GainMapResult, stem: Path, *, worst: bool = False,
         ax.set_ylabel(s.gain_y)
         ax.set_title(titled(f'{title}, {head}\n{_caption(result)}' + (
             f'\n{note}' if note else ''), label), fontsize=7)
-        ax.legend(fontsize=7, loc='upper left', bbox_to_anchor=(1.02, 1.0))
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7, loc='upper left', bbox_to_anchor=(1.02, 1.0))
         fig.tight_layout()
         paths = [stem.parent / f'{stem.name}_{name}.png', stem.parent / f'{stem.name}_{name}.svg']
         save(fig, paths, dpi=120)

@@ -660,7 +660,7 @@ def plot_gain_map(result: GainMapResult, stem: Path, *, worst: bool = False,
         ax.set_title(titled(f'{title}, {head}\n{_caption(result)}' + (
             f'\n{note}' if note else ''), label), fontsize=7)
         if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=7, loc='upper left', bbox_to_anchor=(1.02, 1.0))
+            ax.legend(fontsize=7, loc='upper center', bbox_to_anchor=(0.5, -0.12), ncol=3)
         fig.tight_layout()
         paths = [stem.parent / f'{stem.name}_{name}.png', stem.parent / f'{stem.name}_{name}.svg']
         save(fig, paths, dpi=120)
@@ -670,7 +670,7 @@ def plot_gain_map(result: GainMapResult, stem: Path, *, worst: bool = False,
     classes = result.grid(rows, 'outcome')
     codes = np.vectorize(lambda o: OUTCOME_RANK.get(o, np.nan) if isinstance(o, str)
                          else np.nan, otypes=[float])(classes)
-    fig, ax = plt.subplots(figsize=(8.5, 5.5))
+    fig, ax = plt.subplots(figsize=(7.5, 6.5))
     cmap = ListedColormap([OUTCOME_COLORS[o] for o in OUTCOMES])
     ax.pcolormesh(xe, ye, np.ma.masked_invalid(codes), cmap=cmap,
                   norm=BoundaryNorm(np.arange(len(OUTCOMES) + 1) - 0.5, len(OUTCOMES)))
@@ -682,11 +682,11 @@ def plot_gain_map(result: GainMapResult, stem: Path, *, worst: bool = False,
 
     for m, axis_label in METRICS.items():
         g = result.grid(rows, m)
-        fig, ax = plt.subplots(figsize=(8.5, 5.5))
+        fig, ax = plt.subplots(figsize=(7.5, 6.5))
         finite = np.isfinite(g)
         if finite.any():
             mesh = ax.pcolormesh(xe, ye, np.ma.masked_where(~finite, g), cmap='viridis')
-            fig.colorbar(mesh, ax=ax, label=axis_label, pad=0.25)
+            fig.colorbar(mesh, ax=ax, label=axis_label)
         inf = np.isinf(g)
         if inf.any():
             ax.pcolormesh(xe, ye, np.ma.masked_where(~inf, np.ones_like(g)), cmap=ListedColormap(

@@ -58,7 +58,8 @@ def _axis(text: str, option: str) -> tuple[str, tuple[float, ...]]:
         raise CliError(f'{option} {text!r} must look like NAME=VALUES, e.g. '
                        'pitch_rate_gain=-1:0:0.1')
     name, values = text.split('=', 1)
-    return name.strip(), tuple(float(v) for v in parse_range(values, f'{option} {name}'))
+    return name.strip(), tuple(round(float(v), 12) for v in parse_range(values,
+                                                                   f'{option} {name}'))
 
 
 def build_spec(args: argparse.Namespace):

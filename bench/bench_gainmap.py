@@ -34,6 +34,7 @@ for _var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
     os.environ.setdefault(_var, '1')
 
 import argparse  # noqa: E402
+import importlib.util  # noqa: E402
 import math  # noqa: E402
 import platform  # noqa: E402
 import shutil  # noqa: E402
@@ -43,21 +44,14 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-try:
-    import fohssv_sim  # noqa: F401
-except ImportError:
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'src' / 'fohssv_sim'))
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))                      # benchutil
+if importlib.util.find_spec('fohssv_sim') is None:   # not in the environment: the source tree
+    sys.path.insert(0, str(HERE.parent / 'src' / 'fohssv_sim'))
 
 from benchutil import finish, target  # noqa: E402
 
-from fohssv_sim.analysis.gainmap import (  # noqa: E402
-    GainMapSpec,
-    plot_gain_map,
-    run_gain_map,
-    run_points,
-    summary_lines,
-)
+from fohssv_sim.analysis import gainmap as gm  # noqa: E402
 
 
 def settings(quick: bool) -> dict:
@@ -75,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg = settings(args.quick)
     n = cfg['n']
     workers = max(1, args.workers)
-    spec = GainMapSpec(
+    spec = gm.GainMapSpec(
         controller='state_feedback', gain_x='pitch_rate_gain',
         x_values=tuple(np.linspace(-1.2, 0.0, n).round(12).tolist()),
         gain_y='vertical_velocity_gain',
@@ -92,11 +86,11 @@ def main(argv: list[str] | None = None) -> int:
 
     subset = sorted({round(k * (n_pts - 1) / (cfg['subset'] - 1)) for k in range(cfg['subset'])})
     print(f'per-point: timing {len(subset)} of {n_pts} pairs ...', flush=True)
-    run_points(spec.to_dict(), [0], batched=False)     # compile/warm up, not timed
+    gm.run_points(spec.to_dict(), [0], batched=False)     # compile/warm up, not timed
     times, ref = [], {}
     for i in subset:
         t0 = time.perf_counter()
-        (row,) = run_points(spec.to_dict(), [i], batched=False)
+        (row,) = gm.run_points(spec.to_dict(), [i], batched=False)
         times.append(time.perf_counter() - t0)
         ref[i] = row
         print(f"  pair {i} ({row['x']:g}, {row['y']:g}): {times[-1]:.2f} s, {row['label']}",
@@ -115,12 +109,12 @@ def main(argv: list[str] | None = None) -> int:
             print(f'  {done}/{total} pairs, {elapsed:.0f} s', flush=True)
 
     t0 = time.perf_counter()
-    res = run_gain_map(spec, out_dir, workers=workers, progress=progress)
+    res = gm.run_gain_map(spec, out_dir, workers=workers, progress=progress)
     wall = time.perf_counter() - t0
     print(f'  {wall:.1f} s', flush=True)
-    for line in summary_lines(res):
+    for line in gm.summary_lines(res):
         print(line)
-    figures = plot_gain_map(res, out_dir / 'gainmap')
+    figures = gm.plot_gain_map(res, out_dir / 'gainmap')
     print(f"figures: {', '.join(str(p) for p in figures if p.suffix == '.png')}")
 
     mismatch, dev = [], 0.0
@@ -157,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
                   'note': 'measured'}],
         'per_point_times_s': dict(zip(map(str, subset), times)),
         'speedup_wall': speedup, 'speedup_per_core': per_core,
-        'summary': summary_lines(res),
+        'summary': gm.summary_lines(res),
         'check': {'mismatches': mismatch, 'max_rel_metric_deviation': dev},
         'machine': {'python': sys.version.split()[0], 'numpy': np.__version__,
                     'platform': platform.platform(), 'cpus': os.cpu_count(),

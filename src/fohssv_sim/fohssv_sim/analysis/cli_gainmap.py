@@ -10,7 +10,7 @@ import argparse
 from pathlib import Path
 
 from ..cli import CliError, _assignments, _common, model_params, output_dir, parse_range
-from .cli_sweep import ProgressPrinter
+from .cli_sweep import ProgressPrinter, dask_options
 
 
 def register(sub) -> None:
@@ -45,11 +45,7 @@ def register(sub) -> None:
                    help='worst case over these V (m/s), e.g. 60:120:20')
     p.add_argument('--envelope-alphas', metavar='VALUES',
                    help='worst case over these alpha, e.g. 0.7:1:0.1')
-    p.add_argument('--chunk-size', type=int, default=128, help='points per Dask task (one '
-                   'batched solver call; larger batches cost less per point)')
-    p.add_argument('--scheduler', help='address of an existing Dask scheduler '
-                   '(default: a local cluster)')
-    p.add_argument('--workers', type=int, default=0, help='local workers (default: cores)')
+    dask_options(p, 128, 'one batched solver call; larger batches cost less per point')
     p.set_defaults(func=cmd_gainmap, out=None)
 
 

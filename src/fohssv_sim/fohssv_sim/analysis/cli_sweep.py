@@ -49,6 +49,15 @@ class ProgressPrinter:
             self.open = False
 
 
+def dask_options(p: argparse.ArgumentParser, chunk_size: int, chunk_text: str) -> None:
+    """--chunk-size, --scheduler and --workers of the commands that run on Dask."""
+    p.add_argument('--chunk-size', type=int, default=chunk_size,
+                   help=f'points per Dask task ({chunk_text})')
+    p.add_argument('--scheduler', help='address of an existing Dask scheduler '
+                   '(default: a local cluster)')
+    p.add_argument('--workers', type=int, default=0, help='local workers (default: cores)')
+
+
 def register(sub) -> None:
     p = sub.add_parser('sweep', help='orbit diagrams over alpha, V or the alpha-V grid',
                        description='Local maxima of a state after a transient, per parameter '
@@ -68,11 +77,8 @@ def register(sub) -> None:
     p.add_argument('--state', default='w', choices=('z', 'w', 'theta', 'q'))
     p.add_argument('--control-period', type=float, default=None,
                    help='zero-order hold period in s (default: continuous feedback)')
-    p.add_argument('--chunk-size', type=int, default=64, help='points per Dask task (a batch '
-                   'step costs about the same for 50 or 100 points: prefer large chunks)')
-    p.add_argument('--scheduler', help='address of an existing Dask scheduler '
-                   '(default: a local cluster)')
-    p.add_argument('--workers', type=int, default=0, help='local workers (default: cores)')
+    dask_options(p, 64, 'a batch step costs about the same for 50 or 100 points: prefer '
+                 'large chunks')
     p.add_argument('--check-step', type=int, default=0, metavar='K',
                    help='re-run every K-th point at half the step; flag changed classes')
     p.set_defaults(func=cmd_sweep)

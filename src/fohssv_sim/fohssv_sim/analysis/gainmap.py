@@ -60,7 +60,7 @@ import numpy as np
 
 from ..params import ModelParameters, ParameterError
 from .orbits import METHOD, classify
-from .sweep import read_chunk_rows, run_chunks
+from .sweep import ChunkedResult, read_chunk_rows, run_chunks
 
 __all__ = ['GainMapSpec', 'GainMapResult', 'GainMapError', 'OUTCOMES', 'OUTCOME_RANK',
            'outcome', 'controller_parameters', 'run_gain_map', 'summary_lines', 'run_points',
@@ -431,14 +431,8 @@ def _decode(r: dict[str, str]) -> dict[str, Any]:
 
 
 # -- the map -----------------------------------------------------------------------------
-@dataclass
-class GainMapResult:
+class GainMapResult(ChunkedResult):
     """All rows of a gain map (sorted by point) and its sidecar."""
-
-    rows: list[dict[str, Any]]
-    sidecar: dict[str, Any]
-    computed_chunks: int = 0
-    reused_chunks: int = 0
 
     @property
     def spec(self) -> GainMapSpec:

@@ -46,7 +46,8 @@ import numpy as np
 from ..params import ModelParameters
 from .orbits import METHOD, classify
 
-__all__ = ['SweepSpec', 'SweepResult', 'run_sweep', 'run_chunk', 'load_sweep', 'STATE_INDEX']
+__all__ = ['SweepSpec', 'SweepResult', 'ChunkedResult', 'run_chunks', 'run_sweep', 'run_chunk',
+           'load_sweep', 'STATE_INDEX']
 
 STATE_INDEX = {'z': 0, 'w': 1, 'theta': 2, 'q': 3}
 ROW_FIELDS = ('point', 'alpha', 'speed', 'label', 'kind', 'period', 'k01', 'amplitude',
@@ -256,8 +257,9 @@ def _decode_sweep_row(r: dict[str, str]) -> dict[str, Any]:
 
 
 @dataclass
-class SweepResult:
-    """All rows of a sweep (sorted by point index) and its sidecar."""
+class ChunkedResult:
+    """All rows of a chunked job (sorted by point index), its sidecar, and how many chunks
+    this run computed and reused (:func:`run_chunks`)."""
 
     rows: list[dict[str, Any]]
     sidecar: dict[str, Any]
@@ -266,6 +268,10 @@ class SweepResult:
 
     def column(self, name: str) -> np.ndarray:
         return np.array([r[name] for r in self.rows])
+
+
+class SweepResult(ChunkedResult):
+    """All rows of a sweep (sorted by point index) and its sidecar."""
 
 
 def _sidecar(spec: SweepSpec, chunks: list[list[int]]) -> dict[str, Any]:

@@ -128,8 +128,11 @@ def test_cli_draws_valid_figures_and_rejects_bad_input(tmp_path):
     out = tmp_path / 'map'
     r = run('--x', 'pitch_rate_gain=-0.6,-0.1', '--y', 'vertical_velocity_gain=0:0.2:0.2',
             '--duration', '0.1', '--transient', '0.05', '--envelope-speeds', '75,90',
-            '--envelope-alphas', '0.85', '--workers', '1', '--out', str(out))
+            '--envelope-alphas', '0.85', '--workers', '1', '--check-step', '3', '--out', str(out))
     assert r.returncode == 0, r.stderr
+    assert 'step check: 3 points re-run at half step' in r.stdout
+    checks = json.loads((out / 'step_check.json').read_text())
+    assert sorted(checks) == ['0', '3', '6']           # every 3rd of the 8 points
     assert 'worst case over 2 scenarios' in r.stdout and 'alpha = 0.85, V = 75 m/s' in r.stdout
     side = json.loads((out / 'gainmap.json').read_text())
     assert side['step'] == 2e-5 and side['spec']['control_period'] == 1e-4

@@ -10,7 +10,7 @@ import argparse
 from pathlib import Path
 
 from ..cli import CliError, _assignments, _common, model_params, output_dir, parse_range
-from .cli_sweep import ProgressPrinter, dask_options
+from .cli_sweep import dask_options, run_on_dask
 
 
 def register(sub) -> None:
@@ -46,6 +46,8 @@ def register(sub) -> None:
     p.add_argument('--envelope-alphas', metavar='VALUES',
                    help='worst case over these alpha, e.g. 0.7:1:0.1')
     dask_options(p, 128, 'one batched solver call; larger batches cost less per point')
+    p.add_argument('--check-step', type=int, default=0, metavar='K',
+                   help='re-run every K-th point at half the step; flag changed outcomes')
     p.set_defaults(func=cmd_gainmap, out=None)
 
 
@@ -84,7 +86,7 @@ def build_spec(args: argparse.Namespace):
         speed=float(speed), envelope_speeds=env_v, envelope_alphas=env_a,
         duration=args.duration, transient=args.transient,
         control_period=args.control_period or None, settle_band=args.settle_band,
-        chunk_size=args.chunk_size)
+        chunk_size=args.chunk_size, check_step=max(0, args.check_step))
     try:
         spec.validate()
     except GainMapError as e:
@@ -93,20 +95,14 @@ def build_spec(args: argparse.Namespace):
 
 
 def cmd_gainmap(args: argparse.Namespace) -> int:
-    from .gainmap import GainMapError, plot_gain_map, run_gain_map, summary_lines
+    from .gainmap import plot_gain_map, run_gain_map, summary_lines
 
     spec = build_spec(args)
     out: Path = output_dir(args.out or Path('reports') / 'gainmap')
     print(f'gainmap {spec.controller}: {spec.gain_x} ({len(spec.x_values)}) x {spec.gain_y} '
           f'({len(spec.y_values)}), {len(spec.scenarios())} scenario(s), {spec.n_points} '
           f'points, {spec.duration:g} s each -> {out}', flush=True)
-    progress = ProgressPrinter('points')
-    try:
-        result = run_gain_map(spec, out, scheduler=args.scheduler, workers=args.workers,
-                              progress=progress)
-    except GainMapError as e:
-        raise CliError(str(e)) from None
-    progress.end()
+    result = run_on_dask(run_gain_map, spec, out, args)
     for line in summary_lines(result):
         print(line)
     written = []

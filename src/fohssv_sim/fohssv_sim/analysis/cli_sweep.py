@@ -49,6 +49,22 @@ class ProgressPrinter:
             self.open = False
 
 
+def run_on_dask(run, spec, out: Path, args: argparse.Namespace):
+    """``run(spec, out, ...)`` (:func:`.sweep.run_sweep` or :func:`.gainmap.run_gain_map`) on
+    the scheduler / workers of ``args``, with progress lines for the points and for the
+    half-step check; a ValueError (a bad spec, a folder holding another job) is a CliError."""
+    progress = ProgressPrinter('points')
+    check = ProgressPrinter('step check: points at half step')
+    try:
+        result = run(spec, out, scheduler=args.scheduler, workers=args.workers,
+                     progress=progress, check_progress=check)
+    except ValueError as e:
+        raise CliError(str(e)) from None
+    progress.end()
+    check.end()
+    return result
+
+
 def dask_options(p: argparse.ArgumentParser, chunk_size: int, chunk_text: str) -> None:
     """--chunk-size, --scheduler and --workers of the commands that run on Dask."""
     p.add_argument('--chunk-size', type=int, default=chunk_size,
@@ -134,15 +150,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     print(f'sweep {args.kind}: {n} points, {len(spec.alphas)} alpha x {len(spec.speeds)} V, '
           f'transient {spec.transient:g} s, window {spec.window:g} s -> {out}', flush=True)
 
-    progress = ProgressPrinter('points')
-    check = ProgressPrinter('step check: points at half step')
-    try:
-        result = run_sweep(spec, out, scheduler=args.scheduler, workers=args.workers,
-                           progress=progress, check_progress=check)
-    except ValueError as e:
-        raise CliError(str(e)) from None
-    progress.end()
-    check.end()
+    result = run_on_dask(run_sweep, spec, out, args)
     side = result.sidecar
     print(f"step {side['step']:g} s, solver {side['solver']}, model {side['model']}; "
           f'{result.computed_chunks} chunks computed, {result.reused_chunks} reused')

@@ -49,6 +49,7 @@ Pure: numpy, scipy, dask, matplotlib (Agg); never imports rclpy or the CLI.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import sys
 from collections.abc import Callable, Sequence
@@ -60,7 +61,7 @@ import numpy as np
 
 from ..params import ModelParameters, ParameterError
 from .orbits import METHOD, classify
-from .sweep import ChunkedResult, read_chunk_rows, run_chunks
+from .sweep import ChunkedResult, check_half_step, read_chunk_rows, run_chunks
 
 __all__ = ['GainMapSpec', 'GainMapResult', 'GainMapError', 'OUTCOMES', 'OUTCOME_RANK',
            'outcome', 'controller_parameters', 'run_gain_map', 'summary_lines', 'run_points',
@@ -163,6 +164,7 @@ class GainMapSpec:
     sample_every: int = 0
     settle_band: float = 0.02
     chunk_size: int = 128
+    check_step: int = 0           # re-run every k-th point at half step (0 = off)
     eq_tol: float = 1e-6
     rel_tol: float = 1e-3
 
@@ -199,9 +201,11 @@ class GainMapSpec:
     def n_points(self) -> int:
         return len(self.pairs()) * len(self.scenarios())
 
-    def params_for(self, alpha: float, speed: float) -> ModelParameters:
-        return ModelParameters.from_dict({**self.base, 'fractional_order': alpha,
-                                          'speed': speed})
+    def params_for(self, alpha: float, speed: float, step_factor: float = 1.0
+                   ) -> ModelParameters:
+        p = ModelParameters.from_dict({**self.base, 'fractional_order': alpha,
+                                       'speed': speed})
+        return p if step_factor == 1.0 else p.replace(step=p.step * step_factor)
 
     def gains_for(self, ix: int, iy: int) -> dict[str, Any]:
         return {**self.gains, self.gain_x: self.x_values[ix], self.gain_y: self.y_values[iy]}
@@ -362,20 +366,21 @@ def _settle_time(t: np.ndarray, w: np.ndarray, w_eq: float, band: float,
 
 
 def run_points(spec_dict: dict[str, Any], indices: Sequence[int], *,
-               batched: bool | None = None,
+               batched: bool | None = None, step_factor: float = 1.0,
                progress: Callable[[float], None] | None = None) -> list[dict[str, Any]]:
     """The rows of the points ``indices`` of the gain map ``spec_dict`` (one Dask task).
 
     ``batched``: None = batched when the controller is affine, else point by point; False
     forces the per-point :func:`~fohssv_sim.simulate.simulate` loop (the benchmark's and the
-    tests' reference). Deterministic: any scheduler gives the same rows.
+    tests' reference). ``step_factor``: the model's step times this (the half-step check).
+    Deterministic: any scheduler gives the same rows.
     """
     from ..coefficients import coefficients
     from ..planing import planing_exact_array, planing_smooth_array
 
     spec = GainMapSpec.from_dict(spec_dict)
     info = [spec.point(i) for i in indices]
-    params = [spec.params_for(a, v) for _, _, _, a, v in info]
+    params = [spec.params_for(a, v, step_factor) for _, _, _, a, v in info]
     ctls = [spec.controller_for(ix, iy) for _, ix, iy, _, _ in info]
     if batched is None:
         batched = all(c.affine() is not None for c in ctls)
@@ -490,6 +495,14 @@ def summary_lines(result: GainMapResult) -> list[str]:
         views.append((f'alpha = {s.alpha:g}, V = {s.speed:g} m/s', rows))
     if s.envelope:
         views.append((f'worst case over {len(s.scenarios())} scenarios', result.worst()))
+    checked = [r for r in result.rows if r.get('step_check')]
+    if checked:
+        changed = [r for r in checked if r['step_check'] != 'same']
+        lines.append(f'step check: {len(checked)} points re-run at half step, {len(changed)} '
+                     'changed outcome' + ''.join(
+                         f"\n  {s.gain_x}={r['x']:g}, {s.gain_y}={r['y']:g}, alpha={r['alpha']:g},"
+                         f" V={r['speed']:g}: {r['outcome']} {r['step_check']}"
+                         for r in changed[:10]))
     for title, rows in views:
         counts = {o: sum(r['outcome'] == o for r in rows) for o in OUTCOMES}
         lines.append(f'{title}: ' + ', '.join(f'{o} {n}' for o, n in counts.items() if n))
@@ -542,10 +555,14 @@ def load_gain_map(out: Path) -> GainMapResult:
 
 def run_gain_map(spec: GainMapSpec, out: Path, *, scheduler: str | None = None,
                  workers: int = 0, progress: Callable[[int, int, float], None] | None = None,
-                 client: Any = None) -> GainMapResult:
+                 client: Any = None,
+                 check_progress: Callable[[int, int, float], None] | None = None
+                 ) -> GainMapResult:
     """Run (or resume) the gain map ``spec`` into folder ``out`` on Dask (a local cluster
     with ``workers`` processes, default one per core, or the cluster at ``scheduler``, or
-    ``client``). ``progress(done, total, elapsed)`` counts points.
+    ``client``). ``progress(done, total, elapsed)`` counts points. With ``spec.check_step``
+    = k, every k-th point is re-run at half the step in this process (``check_progress``
+    counts those) and its row's ``step_check`` says whether the outcome changed.
 
     Raises:
         GainMapError: an invalid spec (see :meth:`GainMapSpec.validate`), or ``out`` holds
@@ -564,6 +581,11 @@ def run_gain_map(spec: GainMapSpec, out: Path, *, scheduler: str | None = None,
         raise GainMapError(str(e)) from None
     result = load_gain_map(out)
     result.computed_chunks, result.reused_chunks = computed, reused
+    if spec.check_step:
+        check_half_step(out, result.rows, spec.check_step,
+                        lambda i: spec.params_for(*spec.point(i)[3:]),
+                        functools.partial(run_points, spec.to_dict()), 'outcome',
+                        check_progress)
     return result
 
 
@@ -647,8 +669,17 @@ def plot_gain_map(result: GainMapResult, stem: Path, *, worst: bool = False,
     xe, ye = _edges(s.x_values), _edges(s.y_values)
     written: list[Path] = []
 
+    shown = {r['pair'] for r in rows}
+    changed = {r['pair'] for r in result.rows if r['pair'] in shown and r.get(
+        'step_check', 'same') not in ('same', '')}
+    pairs = s.pairs()
+
     def finish(fig: Any, ax: Any, name: str, title: str) -> None:
         note = _boundary(ax, result, margin, what)
+        if changed:
+            ax.plot([s.x_values[pairs[k][0]] for k in sorted(changed)],
+                    [s.y_values[pairs[k][1]] for k in sorted(changed)], 'o', mfc='none',
+                    mec='orange', ms=9, label='outcome changes at half step')
         ax.set_xlabel(s.gain_x)
         ax.set_ylabel(s.gain_y)
         ax.set_title(titled(f'{title}, {head}\n{_caption(result)}' + (

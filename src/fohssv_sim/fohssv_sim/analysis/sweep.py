@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import functools
 import json
 import math
 import os
@@ -46,8 +47,8 @@ import numpy as np
 from ..params import ModelParameters
 from .orbits import METHOD, classify
 
-__all__ = ['SweepSpec', 'SweepResult', 'ChunkedResult', 'run_chunks', 'run_sweep', 'run_chunk',
-           'load_sweep', 'STATE_INDEX']
+__all__ = ['SweepSpec', 'SweepResult', 'ChunkedResult', 'run_chunks', 'check_half_step',
+           'run_sweep', 'run_chunk', 'load_sweep', 'STATE_INDEX']
 
 STATE_INDEX = {'z': 0, 'w': 1, 'theta': 2, 'q': 3}
 ROW_FIELDS = ('point', 'alpha', 'speed', 'label', 'kind', 'period', 'k01', 'amplitude',
@@ -394,33 +395,46 @@ def run_sweep(spec: SweepSpec, out: Path, *, scheduler: str | None = None, worke
     return result
 
 
-def _check_step(spec: SweepSpec, out: Path, result: SweepResult,
-                progress: Callable[[int, int, float], None] | None = None) -> None:
-    """Re-run every ``check_step``-th point at half the step; mark changed classifications.
-    ``progress(done, total, elapsed)`` counts the re-run points as they complete."""
+def check_half_step(out: Path, rows: list[dict[str, Any]], every: int,
+                    params: Callable[[int], ModelParameters],
+                    run: Callable[..., list[dict[str, Any]]], key: str,
+                    progress: Callable[[int, int, float], None] | None = None) -> None:
+    """Re-run every ``every``-th row's point at half the step; set the re-run rows'
+    ``step_check`` to 'same' or 'changed to X at half step' (X: column ``key`` at half step).
+
+    ``run(indices, step_factor=0.5, progress=...)`` computes the rows of points (one batch per
+    group of batchable points, ``params(point)`` giving each point's parameters). The results
+    are kept in ``out/step_check.json``: a resumed job reads them back.
+    ``progress(done, total, elapsed)`` counts the re-run points as they complete.
+    """
     path = out / 'step_check.json'
     if path.exists():
         checks = {int(k): v for k, v in json.loads(path.read_text()).items()}
     else:
         from ..batch import group_points
 
-        pts = spec.points()
-        sample = [result.rows[i]['point'] for i in range(0, len(result.rows), spec.check_step)]
-        params = [spec.params_for(*pts[i]) for i in sample]
+        sample = [rows[i]['point'] for i in range(0, len(rows), every)]
         checks = {}
-        groups = list(group_points(params).values())
+        groups = list(group_points([params(i) for i in sample]).values())
         points = _PointProgress([len(g) for g in groups], 0, len(sample), progress,
                                 time.monotonic())
         for k, idx in enumerate(groups):
             def report(fraction: float, k: int = k) -> None:
                 points.update(k, fraction)
 
-            for r in run_chunk(spec.to_dict(), [sample[i] for i in idx], step_factor=0.5,
-                               progress=report):
-                checks[r['point']] = r['label']
+            for r in run([sample[i] for i in idx], step_factor=0.5, progress=report):
+                checks[r['point']] = r[key]
             points.update(k, 1.0)
         path.write_text(json.dumps({str(k): v for k, v in checks.items()}, indent=2) + '\n')
-    for r in result.rows:
+    for r in rows:
         if r['point'] in checks:
-            r['step_check'] = 'same' if checks[r['point']] == r['label'] else (
+            r['step_check'] = 'same' if checks[r['point']] == r[key] else (
                 f"changed to {checks[r['point']]} at half step")
+
+
+def _check_step(spec: SweepSpec, out: Path, result: SweepResult,
+                progress: Callable[[int, int, float], None] | None = None) -> None:
+    """Re-run every ``check_step``-th point at half the step; mark changed classifications."""
+    pts = spec.points()
+    check_half_step(out, result.rows, spec.check_step, lambda i: spec.params_for(*pts[i]),
+                    functools.partial(run_chunk, spec.to_dict()), 'label', progress)

@@ -20,7 +20,9 @@ Rows (wall-clock seconds, side by side in one run):
               start-up, equilibria and alpha_c of every pair, CSV chunks.
 
 Speed-ups: wall per-point (1 process) / wall gainmap; and per core (per-point seconds per
-pair / (gainmap wall x workers / pairs)), the batching alone. Check: the subset's per-point
+pair / (gainmap wall x workers / pairs)). The solver alone: ``simulate()`` per pair on the
+subset against one ``simulate_batch`` of the first 256 pairs, in this process (no equilibria,
+no metrics). Check: the subset's per-point
 rows equal the map's rows (outcome, label, settle time, alpha_c exactly; metrics to 1e-9
 relative). The map's figures go to ``<out>`` without suffix + ``_map/`` (the README's worked
 result). Exit 1 if the check fails.
@@ -56,8 +58,8 @@ from fohssv_sim.analysis import gainmap as gm  # noqa: E402
 
 def settings(quick: bool) -> dict:
     if quick:
-        return {'n': 8, 'duration': 0.2, 'transient': 0.15, 'subset': 3}
-    return {'n': 32, 'duration': 2.0, 'transient': 1.5, 'subset': 6}
+        return {'n': 8, 'duration': 0.2, 'transient': 0.15, 'subset': 3, 'solver_batch': 16}
+    return {'n': 32, 'duration': 2.0, 'transient': 1.5, 'subset': 6, 'solver_batch': 256}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -97,6 +99,25 @@ def main(argv: list[str] | None = None) -> int:
               flush=True)
     per_point_total = float(np.mean(times)) * n_pts
 
+    # the solver alone (no equilibria, no metrics): simulate() per pair vs one simulate_batch
+    from fohssv_sim.batch import simulate_batch
+    from fohssv_sim.simulate import simulate
+
+    every = spec.every(p0.step)
+    ctl = [spec.controller_for(*spec.point(i)[1:3]) for i in range(n_pts)]
+    t0 = time.perf_counter()
+    for i in subset:
+        simulate(p0, ctl[i], spec.duration, control_period=1e-4, sample_every=every)
+    solo = (time.perf_counter() - t0) / len(subset)
+    n_b = min(n_pts, cfg['solver_batch'])
+    print(f'solver only: simulate() {solo:.3f} s per pair; simulate_batch of {n_b} pairs ...',
+          flush=True)
+    t0 = time.perf_counter()
+    simulate_batch([p0] * n_b, ctl[:n_b], spec.duration, control_period=1e-4,
+                   sample_every=every)
+    batch = (time.perf_counter() - t0) / n_b
+    print(f'  {batch:.3f} s per pair: batching alone {solo / batch:.2f}x per core', flush=True)
+
     out_dir = args.out.parent / (args.out.stem + '_map')
     shutil.rmtree(out_dir, ignore_errors=True)
     print(f'gainmap: run_gain_map, {workers} worker(s), chunks of {spec.chunk_size} ...',
@@ -135,7 +156,8 @@ def main(argv: list[str] | None = None) -> int:
           f'(mean {np.mean(times):.2f} s)')
     print(f'{"gainmap (batched, Dask)":40s} {workers:4d} {wall:9.1f} {wall / n_pts:8.3f}  '
           f'measured, incl. cluster start-up and alpha_c')
-    print(f'speed-up batched vs per-point: {speedup:.1f}x wall, {per_core:.1f}x per core')
+    print(f'speed-up batched vs per-point: {speedup:.1f}x wall, {per_core:.1f}x per core; '
+          f'solver alone (batch of {n_b}): {solo / batch:.2f}x per core')
     print(f'check: {len(mismatch)} mismatches, max relative metric deviation {dev:.1e}')
     print(f'load average before/after: {load0[0]:.2f} / {load1[0]:.2f}')
 
@@ -151,6 +173,8 @@ def main(argv: list[str] | None = None) -> int:
                   'note': 'measured'}],
         'per_point_times_s': dict(zip(map(str, subset), times)),
         'speedup_wall': speedup, 'speedup_per_core': per_core,
+        'solver_only_s_per_pair': {'simulate': solo, f'simulate_batch_{n_b}': batch,
+                                   'ratio': solo / batch},
         'summary': gm.summary_lines(res),
         'check': {'mismatches': mismatch, 'max_rel_metric_deviation': dev},
         'machine': {'python': sys.version.split()[0], 'numpy': np.__version__,

@@ -3,6 +3,7 @@
     fohssv stability [--alpha A] [--speed V] [--speeds 75:90:0.5] [--out DIR]
     fohssv plot BAG... [--out DIR] [--namespace NS]
     fohssv sweep alpha|V|alpha-V [...]
+    fohssv gainmap --x NAME=VALUES --y NAME=VALUES [...]
     fohssv report [--out DIR]
     fohssv repair BAG
 
@@ -234,7 +235,7 @@ def _load_extra_commands() -> None:
     import importlib
 
     for mod in ('fohssv_sim.analysis.cli_plot', 'fohssv_sim.analysis.cli_sweep',
-                'fohssv_sim.analysis.cli_report'):
+                'fohssv_sim.analysis.cli_report', 'fohssv_sim.analysis.cli_gainmap'):
         try:
             m = importlib.import_module(mod)
         except ModuleNotFoundError as e:

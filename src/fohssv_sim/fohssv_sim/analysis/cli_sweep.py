@@ -49,6 +49,31 @@ class ProgressPrinter:
             self.open = False
 
 
+def run_on_dask(run, spec, out: Path, args: argparse.Namespace):
+    """``run(spec, out, ...)`` (:func:`.sweep.run_sweep` or :func:`.gainmap.run_gain_map`) on
+    the scheduler / workers of ``args``, with progress lines for the points and for the
+    half-step check; a ValueError (a bad spec, a folder holding another job) is a CliError."""
+    progress = ProgressPrinter('points')
+    check = ProgressPrinter('step check: points at half step')
+    try:
+        result = run(spec, out, scheduler=args.scheduler, workers=args.workers,
+                     progress=progress, check_progress=check)
+    except ValueError as e:
+        raise CliError(str(e)) from None
+    progress.end()
+    check.end()
+    return result
+
+
+def dask_options(p: argparse.ArgumentParser, chunk_size: int, chunk_text: str) -> None:
+    """--chunk-size, --scheduler and --workers of the commands that run on Dask."""
+    p.add_argument('--chunk-size', type=int, default=chunk_size,
+                   help=f'points per Dask task ({chunk_text})')
+    p.add_argument('--scheduler', help='address of an existing Dask scheduler '
+                   '(default: a local cluster)')
+    p.add_argument('--workers', type=int, default=0, help='local workers (default: cores)')
+
+
 def register(sub) -> None:
     p = sub.add_parser('sweep', help='orbit diagrams over alpha, V or the alpha-V grid',
                        description='Local maxima of a state after a transient, per parameter '
@@ -68,11 +93,8 @@ def register(sub) -> None:
     p.add_argument('--state', default='w', choices=('z', 'w', 'theta', 'q'))
     p.add_argument('--control-period', type=float, default=None,
                    help='zero-order hold period in s (default: continuous feedback)')
-    p.add_argument('--chunk-size', type=int, default=64, help='points per Dask task (a batch '
-                   'step costs about the same for 50 or 100 points: prefer large chunks)')
-    p.add_argument('--scheduler', help='address of an existing Dask scheduler '
-                   '(default: a local cluster)')
-    p.add_argument('--workers', type=int, default=0, help='local workers (default: cores)')
+    dask_options(p, 64, 'a batch step costs about the same for 50 or 100 points: prefer '
+                 'large chunks')
     p.add_argument('--check-step', type=int, default=0, metavar='K',
                    help='re-run every K-th point at half the step; flag changed classes')
     p.set_defaults(func=cmd_sweep)
@@ -128,15 +150,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     print(f'sweep {args.kind}: {n} points, {len(spec.alphas)} alpha x {len(spec.speeds)} V, '
           f'transient {spec.transient:g} s, window {spec.window:g} s -> {out}', flush=True)
 
-    progress = ProgressPrinter('points')
-    check = ProgressPrinter('step check: points at half step')
-    try:
-        result = run_sweep(spec, out, scheduler=args.scheduler, workers=args.workers,
-                           progress=progress, check_progress=check)
-    except ValueError as e:
-        raise CliError(str(e)) from None
-    progress.end()
-    check.end()
+    result = run_on_dask(run_sweep, spec, out, args)
     side = result.sidecar
     print(f"step {side['step']:g} s, solver {side['solver']}, model {side['model']}; "
           f'{result.computed_chunks} chunks computed, {result.reused_chunks} reused')

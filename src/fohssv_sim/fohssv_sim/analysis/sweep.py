@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import functools
 import json
 import math
 import os
@@ -46,7 +47,8 @@ import numpy as np
 from ..params import ModelParameters
 from .orbits import METHOD, classify
 
-__all__ = ['SweepSpec', 'SweepResult', 'run_sweep', 'run_chunk', 'load_sweep', 'STATE_INDEX']
+__all__ = ['SweepSpec', 'SweepResult', 'ChunkedResult', 'run_chunks', 'check_half_step',
+           'run_sweep', 'run_chunk', 'load_sweep', 'STATE_INDEX']
 
 STATE_INDEX = {'z': 0, 'w': 1, 'theta': 2, 'q': 3}
 ROW_FIELDS = ('point', 'alpha', 'speed', 'label', 'kind', 'period', 'k01', 'amplitude',
@@ -163,9 +165,11 @@ def run_chunk(spec_dict: dict[str, Any], indices: Sequence[int], step_factor: fl
     return rows
 
 
-def _run_chunk_reporting(spec_dict: dict[str, Any], indices: Sequence[int], topic: str,
-                         chunk: int) -> list[dict[str, Any]]:
-    """:func:`run_chunk` as a Dask task that reports its progress as events on ``topic``."""
+def _run_task_reporting(task: Callable[..., list[dict[str, Any]]], args: tuple,
+                        indices: Sequence[int], topic: str, chunk: int
+                        ) -> list[dict[str, Any]]:
+    """``task(*args, indices, progress=report)`` as a Dask task that reports its progress
+    as events on ``topic`` (the chunk's fraction done)."""
     from dask.distributed import get_worker
 
     worker = get_worker()
@@ -173,7 +177,7 @@ def _run_chunk_reporting(spec_dict: dict[str, Any], indices: Sequence[int], topi
     def report(fraction: float) -> None:
         worker.log_event(topic, {'chunk': chunk, 'fraction': float(fraction)})
 
-    return run_chunk(spec_dict, indices, progress=report)
+    return task(*args, indices, progress=report)
 
 
 class _PointProgress:
@@ -214,32 +218,49 @@ def _chunks(spec: SweepSpec) -> list[list[int]]:
     return sorted(chunks, key=lambda c: c[0])
 
 
-def _write_rows(path: Path, rows: list[dict[str, Any]]) -> None:
+def chunk_path(out: Path, k: int) -> Path:
+    """The CSV file of chunk ``k`` of the chunked job in folder ``out``."""
+    return out / 'chunks' / f'chunk_{k:05d}.csv'
+
+
+def write_rows(path: Path, rows: list[dict[str, Any]], fields: Sequence[str]) -> None:
+    """Write ``rows`` (the columns ``fields``; list values joined with ';') atomically."""
     tmp = path.with_suffix('.tmp')
     with open(tmp, 'w', newline='') as f:
-        w = csv.DictWriter(f, fieldnames=ROW_FIELDS, extrasaction='ignore')
+        w = csv.DictWriter(f, fieldnames=list(fields), extrasaction='ignore')
         w.writeheader()
         for r in rows:
-            w.writerow({**r, 'maxima': ';'.join(repr(v) for v in r['maxima'])})
+            w.writerow({k: ';'.join(repr(x) for x in v) if isinstance(v, list) else v
+                        for k, v in r.items()})
     os.replace(tmp, path)
 
 
-def _read_rows(path: Path) -> list[dict[str, Any]]:
-    with open(path, newline='') as f:
-        rows = []
-        for r in csv.DictReader(f):
-            rows.append({'point': int(r['point']), 'alpha': float(r['alpha']),
-                         'speed': float(r['speed']), 'label': r['label'], 'kind': r['kind'],
-                         'period': int(r['period']), 'k01': float(r['k01']),
-                         'amplitude': float(r['amplitude']), 'n_maxima': int(r['n_maxima']),
-                         'failed': r['failed'] == 'True', 'step_check': r['step_check'],
-                         'maxima': [float(v) for v in r['maxima'].split(';') if v]})
-        return rows
+def read_chunk_rows(out: Path, n_chunks: int, decode: Callable[[dict[str, str]], dict[str, Any]]
+                    ) -> list[dict[str, Any]]:
+    """The rows of every finished chunk of the job in ``out`` (decoded), sorted by point."""
+    rows = []
+    for k in range(n_chunks):
+        f = chunk_path(out, k)
+        if f.exists():
+            with open(f, newline='') as fh:
+                rows.extend(decode(r) for r in csv.DictReader(fh))
+    rows.sort(key=lambda r: r['point'])
+    return rows
+
+
+def _decode_sweep_row(r: dict[str, str]) -> dict[str, Any]:
+    return {'point': int(r['point']), 'alpha': float(r['alpha']),
+            'speed': float(r['speed']), 'label': r['label'], 'kind': r['kind'],
+            'period': int(r['period']), 'k01': float(r['k01']),
+            'amplitude': float(r['amplitude']), 'n_maxima': int(r['n_maxima']),
+            'failed': r['failed'] == 'True', 'step_check': r['step_check'],
+            'maxima': [float(v) for v in r['maxima'].split(';') if v]}
 
 
 @dataclass
-class SweepResult:
-    """All rows of a sweep (sorted by point index) and its sidecar."""
+class ChunkedResult:
+    """All rows of a chunked job (sorted by point index), its sidecar, and how many chunks
+    this run computed and reused (:func:`run_chunks`)."""
 
     rows: list[dict[str, Any]]
     sidecar: dict[str, Any]
@@ -248,6 +269,10 @@ class SweepResult:
 
     def column(self, name: str) -> np.ndarray:
         return np.array([r[name] for r in self.rows])
+
+
+class SweepResult(ChunkedResult):
+    """All rows of a sweep (sorted by point index) and its sidecar."""
 
 
 def _sidecar(spec: SweepSpec, chunks: list[list[int]]) -> dict[str, Any]:
@@ -263,13 +288,84 @@ def _sidecar(spec: SweepSpec, chunks: list[list[int]]) -> dict[str, Any]:
 def load_sweep(out: Path) -> SweepResult:
     """Read a (finished or partial) sweep folder."""
     side = json.loads((out / 'sweep.json').read_text())
-    rows = []
-    for k in range(len(side['chunks'])):
-        f = out / 'chunks' / f'chunk_{k:05d}.csv'
-        if f.exists():
-            rows.extend(_read_rows(f))
-    rows.sort(key=lambda r: r['point'])
-    return SweepResult(rows, side)
+    return SweepResult(read_chunk_rows(out, len(side['chunks']), _decode_sweep_row), side)
+
+
+def run_chunks(out: Path, sidecar_name: str, sidecar: dict[str, Any],
+               chunks: list[list[int]], task: Callable[..., list[dict[str, Any]]],
+               args: tuple, fields: Sequence[str], *, scheduler: str | None = None,
+               workers: int = 0, progress: Callable[[int, int, float], None] | None = None,
+               client: Any = None) -> tuple[int, int]:
+    """Run (or resume) a chunked job on Dask into folder ``out``: the machinery shared by the
+    sweeps and the gain maps (:mod:`.gainmap`).
+
+    ``sidecar`` (written to ``out/sidecar_name`` the first time) must have the keys 'spec'
+    and 'chunks'; a folder holding another job (different spec or chunks) is refused. Each
+    chunk ``k`` not yet in ``out/chunks`` runs as one task ``task(*args, chunks[k],
+    progress=...)`` (a picklable module-level function returning the chunk's rows, each with
+    a 'point' key), and its rows are written to :func:`chunk_path` (columns ``fields``) as
+    soon as it finishes. ``progress(done, total, elapsed)`` counts points (see the module
+    docstring). ``client``: an existing ``dask.distributed.Client`` (then ``scheduler`` and
+    ``workers`` are ignored and the client is left open).
+
+    Returns:
+        (chunks computed, chunks reused).
+
+    Raises:
+        ValueError: ``out`` holds a different job (the message says how to proceed).
+    """
+    out.mkdir(parents=True, exist_ok=True)
+    (out / 'chunks').mkdir(exist_ok=True)
+    side_path = out / sidecar_name
+    if side_path.exists():
+        old = json.loads(side_path.read_text())
+        if old.get('spec') != sidecar['spec'] or old.get('chunks') != chunks:
+            raise ValueError(f'{out} holds a different job (see {side_path}); choose another '
+                             '--out or delete that folder')
+    else:
+        side_path.write_text(json.dumps(sidecar, indent=2) + '\n')
+
+    todo = [k for k in range(len(chunks)) if not chunk_path(out, k).exists()]
+    reused = len(chunks) - len(todo)
+    start = time.monotonic()
+    n_points = sum(len(c) for c in chunks)
+    points = _PointProgress([len(chunks[k]) for k in todo], n_points - sum(
+        len(chunks[k]) for k in todo), n_points, progress, start)
+    if todo:
+        from dask.distributed import Client, LocalCluster, as_completed
+
+        cluster = None
+        own = client is None
+        if not own:
+            pass
+        elif scheduler:
+            client = Client(scheduler, timeout='20s')
+        else:
+            n = workers or os.cpu_count() or 1
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                   dashboard_address=None)
+            client = Client(cluster)
+        topic = f'fohssv-chunks-{uuid.uuid4().hex}'
+        slot = {k: i for i, k in enumerate(todo)}
+        if progress is not None:
+            client.subscribe_topic(
+                topic, lambda event: points.update(slot[event[1]['chunk']],
+                                                   event[1]['fraction']))
+        try:
+            futures = {client.submit(_run_task_reporting, task, args, chunks[k], topic, k,
+                                     pure=False): k for k in todo}
+            for fut in as_completed(futures):
+                k = futures[fut]
+                write_rows(chunk_path(out, k), fut.result(), fields)
+                points.update(slot[k], 1.0)
+        finally:
+            if progress is not None:
+                client.unsubscribe_topic(topic)
+            if own:
+                client.close()
+            if cluster is not None:
+                cluster.close()
+    return len(todo), reused
 
 
 def run_sweep(spec: SweepSpec, out: Path, *, scheduler: str | None = None, workers: int = 0,
@@ -288,95 +384,57 @@ def run_sweep(spec: SweepSpec, out: Path, *, scheduler: str | None = None, worke
     Raises:
         ValueError: ``out`` holds a different sweep (the message says how to proceed).
     """
-    out.mkdir(parents=True, exist_ok=True)
-    (out / 'chunks').mkdir(exist_ok=True)
     chunks = _chunks(spec)
-    side = _sidecar(spec, chunks)
-    side_path = out / 'sweep.json'
-    if side_path.exists():
-        old = json.loads(side_path.read_text())
-        if old.get('spec') != side['spec'] or old.get('chunks') != chunks:
-            raise ValueError(f'{out} holds a different sweep (see {side_path}); choose another '
-                             '--out or delete that folder')
-    else:
-        side_path.write_text(json.dumps(side, indent=2) + '\n')
-
-    todo = [k for k in range(len(chunks))
-            if not (out / 'chunks' / f'chunk_{k:05d}.csv').exists()]
-    reused = len(chunks) - len(todo)
-    spec_dict = spec.to_dict()
-    start = time.monotonic()
-    n_points = len(spec.points())
-    points = _PointProgress([len(chunks[k]) for k in todo], n_points - sum(
-        len(chunks[k]) for k in todo), n_points, progress, start)
-    if todo:
-        from dask.distributed import Client, LocalCluster, as_completed
-
-        cluster = None
-        own = client is None
-        if not own:
-            pass
-        elif scheduler:
-            client = Client(scheduler, timeout='20s')
-        else:
-            n = workers or os.cpu_count() or 1
-            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                   dashboard_address=None)
-            client = Client(cluster)
-        topic = f'fohssv-sweep-{uuid.uuid4().hex}'
-        slot = {k: i for i, k in enumerate(todo)}
-        if progress is not None:
-            client.subscribe_topic(
-                topic, lambda event: points.update(slot[event[1]['chunk']],
-                                                   event[1]['fraction']))
-        try:
-            futures = {client.submit(_run_chunk_reporting, spec_dict, chunks[k], topic, k,
-                                     pure=False): k for k in todo}
-            for fut in as_completed(futures):
-                k = futures[fut]
-                _write_rows(out / 'chunks' / f'chunk_{k:05d}.csv', fut.result())
-                points.update(slot[k], 1.0)
-        finally:
-            if progress is not None:
-                client.unsubscribe_topic(topic)
-            if own:
-                client.close()
-            if cluster is not None:
-                cluster.close()
+    computed, reused = run_chunks(out, 'sweep.json', _sidecar(spec, chunks), chunks, run_chunk,
+                                  (spec.to_dict(),), ROW_FIELDS, scheduler=scheduler,
+                                  workers=workers, progress=progress, client=client)
     result = load_sweep(out)
-    result.computed_chunks, result.reused_chunks = len(todo), reused
+    result.computed_chunks, result.reused_chunks = computed, reused
     if spec.check_step:
         _check_step(spec, out, result, check_progress)
     return result
 
 
-def _check_step(spec: SweepSpec, out: Path, result: SweepResult,
-                progress: Callable[[int, int, float], None] | None = None) -> None:
-    """Re-run every ``check_step``-th point at half the step; mark changed classifications.
-    ``progress(done, total, elapsed)`` counts the re-run points as they complete."""
+def check_half_step(out: Path, rows: list[dict[str, Any]], every: int,
+                    params: Callable[[int], ModelParameters],
+                    run: Callable[..., list[dict[str, Any]]], key: str,
+                    progress: Callable[[int, int, float], None] | None = None) -> None:
+    """Re-run every ``every``-th row's point at half the step; set the re-run rows'
+    ``step_check`` to 'same' or 'changed to X at half step' (X: column ``key`` at half step).
+
+    ``run(indices, step_factor=0.5, progress=...)`` computes the rows of points (one batch per
+    group of batchable points, ``params(point)`` giving each point's parameters). The results
+    are kept in ``out/step_check.json``: a resumed job reads them back.
+    ``progress(done, total, elapsed)`` counts the re-run points as they complete.
+    """
     path = out / 'step_check.json'
     if path.exists():
         checks = {int(k): v for k, v in json.loads(path.read_text()).items()}
     else:
         from ..batch import group_points
 
-        pts = spec.points()
-        sample = [result.rows[i]['point'] for i in range(0, len(result.rows), spec.check_step)]
-        params = [spec.params_for(*pts[i]) for i in sample]
+        sample = [rows[i]['point'] for i in range(0, len(rows), every)]
         checks = {}
-        groups = list(group_points(params).values())
+        groups = list(group_points([params(i) for i in sample]).values())
         points = _PointProgress([len(g) for g in groups], 0, len(sample), progress,
                                 time.monotonic())
         for k, idx in enumerate(groups):
             def report(fraction: float, k: int = k) -> None:
                 points.update(k, fraction)
 
-            for r in run_chunk(spec.to_dict(), [sample[i] for i in idx], step_factor=0.5,
-                               progress=report):
-                checks[r['point']] = r['label']
+            for r in run([sample[i] for i in idx], step_factor=0.5, progress=report):
+                checks[r['point']] = r[key]
             points.update(k, 1.0)
         path.write_text(json.dumps({str(k): v for k, v in checks.items()}, indent=2) + '\n')
-    for r in result.rows:
+    for r in rows:
         if r['point'] in checks:
-            r['step_check'] = 'same' if checks[r['point']] == r['label'] else (
+            r['step_check'] = 'same' if checks[r['point']] == r[key] else (
                 f"changed to {checks[r['point']]} at half step")
+
+
+def _check_step(spec: SweepSpec, out: Path, result: SweepResult,
+                progress: Callable[[int, int, float], None] | None = None) -> None:
+    """Re-run every ``check_step``-th point at half the step; mark changed classifications."""
+    pts = spec.points()
+    check_half_step(out, result.rows, spec.check_step, lambda i: spec.params_for(*pts[i]),
+                    functools.partial(run_chunk, spec.to_dict()), 'label', progress)

@@ -206,3 +206,30 @@ def test_discovery_stays_on_this_machine_unless_opened(given):
     assert f'RANGE={given or "LOCALHOST"}' in out.stdout
     said = 'discovery: this machine only (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST' in out.stderr
     assert said == (given is None), out.stderr
+
+
+def test_a_recorder_stopped_early_does_not_stall_the_loop(tmp_path):
+    """Found by the fault suite: the controller required two command subscribers (plant and
+    recorder) during its start-up grace, so a recorder stopped in the first 2 s held the
+    commands and the lockstep plant timed out (exit 3). The minimum is a start condition."""
+    env = rosproc.ros_env()
+    bag = tmp_path / 'run'
+    log = tmp_path / 'recorder.log'
+    rec = _recorder(env, bag, log, 'command_publishers:=1')
+    ctl = plant = None
+    try:
+        rosproc.wait_for(lambda: 'recording to' in log.read_text(), 90, what='the recorder')
+        ctl = rosproc.start('fohssv_controller', 'state_feedback',
+                            ['--ros-args', '-p', 'min_command_subscribers:=2'], env=env)
+        plog = tmp_path / 'plant.log'
+        plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+            model='delay-free', duration=2.0, min_state_subscribers=2, command_timeout=5.0,
+            pace_to_subscribers=512), env=env, log=plog)
+        rosproc.wait_for(lambda: 'peers matched' in plog.read_text(), 90, interval=0.005,
+                         what='the start of the run')
+        rec.send_signal(signal.SIGINT)
+        assert rosproc.wait_exit(rec, 60) == 0, log.read_text()
+        assert rosproc.wait_exit(plant, 120) == 0, plog.read_text()
+    finally:
+        stop_all(*(p for p in (plant, ctl, rec) if p is not None))
+    assert load_run(bag).topics['/state'] >= 1         # the partial bag is readable

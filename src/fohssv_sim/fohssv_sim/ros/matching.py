@@ -51,6 +51,8 @@ class SubscriptionGate:
     message during the grace period (a subscription the graph lists but the writer has not
     matched yet pauses sending: latching at the first success let a recorder miss commands),
     and stays open after it, so a subscriber joining a running loop later does not hold it.
+    ``minimum`` is a start condition: once it was met, a subscriber that leaves (a recorder
+    stopped during the grace period) does not shut the gate again (it stalled a lockstep run).
 
     The graph lists a remote subscription only once discovery has reached this process, which
     can be after the plant's first sample: ``minimum`` is the guarantee (``minimum=2`` for a
@@ -67,10 +69,10 @@ class SubscriptionGate:
 
     def __call__(self) -> bool:
         matched = self._pub.get_subscription_count()
-        if matched < self._minimum:
-            return False
         now = time.monotonic()
         if self._deadline is None:
+            if matched < self._minimum:
+                return False
             self._deadline = now + self._grace
         if now >= self._deadline:
             return True
@@ -78,8 +80,8 @@ class SubscriptionGate:
 
     @property
     def settled(self) -> bool:
-        """True once the grace period has passed: from then on the gate is open whenever
-        ``minimum`` subscriptions are matched, and a caller that found it open may stop asking
+        """True once the grace period has passed: from then on the gate is open, and a
+        caller that found it open may stop asking
         (the controller node does, so that it makes no graph query per sample)."""
         return self._deadline is not None and time.monotonic() >= self._deadline
 

@@ -11,8 +11,9 @@ Two modes (parameter ``mode``):
   message even when its side of the match completes late) and waits for the last messages
   to be acknowledged. After the last message the player publishes ``run_end`` (see
   :mod:`fohssv_sim.contract`) with the messages it sent on each topic, so a recorder can check
-  its bag; a subscriber that has not acknowledged every message within ``end_timeout`` is an
-  error (exit 6, naming the topics).
+  its bag; a subscriber that has not acknowledged every message within ``end_timeout`` is
+  named in a warning (DDS acknowledgements can lag under load: the recorder's comparison with
+  ``run_end`` is what decides a loss).
 * ``commands`` (open loop): act as the controller of a fresh plant. For each ``state`` at time
   t it publishes the recorded ``command`` whose ``data[0]`` is exactly t (the same double, as
   recorded bytes). A lockstep plant with the recorded parameters then reproduces the recorded
@@ -31,9 +32,7 @@ were used up (commands); 1 bad bag (missing, empty, truncated before any message
 one ``player: error: ...`` line, no traceback), a state without a recorded command, or a
 plant that does not match the recording (commands, without ``force``);
 2 invalid parameters; 4 no subscriber (rate 0) or no plant (commands) within
-``start_timeout``; 6 messages lost: a subscriber did not acknowledge every message of a
-reliable topic within ``end_timeout`` (republish). SIGINT/SIGTERM stop cleanly with the code
-so far (0).
+``start_timeout``. SIGINT/SIGTERM stop cleanly with the code so far (0).
 """
 
 from __future__ import annotations
@@ -77,9 +76,9 @@ from .startup import (
 
 __all__ = ['Player', 'PlayerError', 'Track', 'select_tracks', 'command_table', 'main',
            'compare_plant', 'COMPARED',
-           'EXIT_OK', 'EXIT_ERROR', 'EXIT_BAD_PARAMETERS', 'EXIT_NO_PEERS', 'EXIT_LOST']
+           'EXIT_OK', 'EXIT_ERROR', 'EXIT_BAD_PARAMETERS', 'EXIT_NO_PEERS']
 
-EXIT_OK, EXIT_ERROR, EXIT_BAD_PARAMETERS, EXIT_NO_PEERS, EXIT_LOST = 0, 1, 2, 4, 6
+EXIT_OK, EXIT_ERROR, EXIT_BAD_PARAMETERS, EXIT_NO_PEERS = 0, 1, 2, 4
 MODES = ('republish', 'commands')
 _MSG_CLASSES = {contract.FLOAT64_ARRAY: Float64MultiArray, contract.CLOCK.type: Clock}
 #: Longest sleep between checks for a signal while pacing (s).
@@ -439,8 +438,13 @@ class Player(Node):
             f'played {self.published} messages, {span:.6g} s simulated in {wall:.3f} s wall '
             f'(x{span / wall if wall > 0 else math.inf:.3g})')
         if unacked:
-            self._fail(EXIT_LOST, f"messages lost: {', '.join(unacked)} not acknowledged by "
-                       f'every subscriber within end_timeout = {self.end_timeout:g} s')
+            # not proof of a loss: under load Fast DDS acknowledged 500 messages a keep-all
+            # subscriber had all taken more than 5 s late. The subscriber that must keep
+            # everything (a recorder) checks its bag against run_end and exits 6 on a loss.
+            self.get_logger().warning(
+                f"{', '.join(unacked)}: not acknowledged by every subscriber within "
+                f'end_timeout = {self.end_timeout:g} s; a subscriber may have lost messages (a '
+                'recorder checks its bag against this replay\'s run_end)')
         return self.exit_code
 
     def _announce_end(self) -> None:

@@ -4,8 +4,10 @@ A node module (``*_node.py``, here or in another package such as ``fohssv_contro
 imports its ROS helpers from here and never from another node's module:
 
 * start and end: :func:`run_node` owns ``rclpy.init``, building the node, spinning it, the
-  exit code and the tear-down, for every node alike (bad arguments or parameters: one line and
-  exit 2, see :mod:`.startup`);
+  exit code and the tear-down (bad arguments or parameters: one line and exit 2, see
+  :mod:`.startup`); the plant and the controller use it. The recorder and the player keep
+  rclpy's own signal handling (a signal shuts the context down and their drain on SIGINT
+  relies on it), so they call :func:`init` and :func:`report` themselves;
 * messages: :func:`array_message`, :class:`ArrayWriter` / :class:`ArrayReader` (serialized
   messages, :mod:`.wire`), :func:`message_class` (the Python class of a contract type);
 * QoS: :func:`profile`, :func:`offered_qos` (:mod:`.qos`);
@@ -60,7 +62,7 @@ __all__ = ['run_node', 'spin_node', 'EXIT_OK', 'EXIT_BAD_PARAMETERS',
            'refuse_unknown', 'destroy_on_error', 'BadParameters', 'make_executor',
            'spin_until', 'STOP', 'final_log', 'SubscriptionGate', 'HoldReporter',
            'SecondPublisherWarning',
-           'PausedCollector', 'set_realtime_priority', 'tighten_timer_slack']
+           'PausedCollector', 'set_realtime_priority', 'tighten_timer_slack', 'init', 'report']
 
 EXIT_OK = 0
 
@@ -79,6 +81,7 @@ def run_node(name: str, args: list[str] | None, build: Callable[[], Node],
              specs: Iterable[ParameterSpec] = (),
              refused: tuple[type[BaseException], ...] = (),
              on_interrupt: Callable[[Any], int] | None = None,
+             on_error: Callable[[Exception], int] | None = None,
              on_exit: Callable[[Any], None] | None = None) -> int:
     """Run one node process from start to exit code; every node's ``main`` is this call.
 
@@ -90,7 +93,8 @@ def run_node(name: str, args: list[str] | None, build: Callable[[], Node],
        of ``refused`` (e.g. an unknown plugin) is logged under ``name`` and gives exit 2.
     3. ``run(node)`` spins it (default :func:`spin_node`) and returns the exit code. A
        ``KeyboardInterrupt`` or ``ExternalShutdownException`` ends it; ``on_interrupt(node)``
-       then gives the code (default: 0).
+       then gives the code (default: 0). Any other exception (in ``build`` or ``run``) goes to
+       ``on_error(exc)``, which reports it and gives the code (default: it propagates).
     4. ``on_exit(node)`` (e.g. a final log line), ``node.destroy_node()``, ``rclpy.shutdown``.
 
     Returns:
@@ -116,6 +120,10 @@ def run_node(name: str, args: list[str] | None, build: Callable[[], Node],
     except (KeyboardInterrupt, ExternalShutdownException):
         if node is not None and on_interrupt is not None:
             code = on_interrupt(node)
+    except Exception as exc:
+        if on_error is None:
+            raise
+        code = on_error(exc)
     finally:
         if node is not None:
             if on_exit is not None:

@@ -612,14 +612,18 @@ class PlantNode(Node):
             if pub.get_subscription_count() > 0:
                 pub.wait_for_all_acked(Duration(seconds=timeout))
 
-    def linger(self, executor: Any) -> None:
+    def linger(self, executor: Any, interrupted: bool = False) -> None:
         """Keep the publishers (and services) up for ``end_linger`` s after the run ended, or
         until nothing subscribes to the samples (or views) any more: a reader drops what it has not
         taken yet from a writer that goes away, so a subscriber lagging behind a fast run
-        would lose its tail when the plant exits."""
+        would lose its tail when the plant exits. ``interrupted`` (a signal ended the run): it
+        still lingers, so a recorder drains what was published; after a run that ended by
+        itself a signal ends the linger (a long ``end_linger`` must not outlive a stop request:
+        tests/test_graph_lockstep.py)."""
         deadline = time.monotonic() + self.options.end_linger
         samples = self._sample_pubs
         while (rclpy.ok() and time.monotonic() < deadline
+               and (interrupted or STOP.received is None)
                and any(p.get_subscription_count() > 0 for p in samples)):
             executor.spin_once(timeout_sec=0.05)
 
@@ -645,12 +649,13 @@ def _run(node: PlantNode) -> int:
     else:
         spin_until(executor, node.finished, paced=node)
     code = node.exit_code
-    if STOP.received is not None and not node.finished.done():
+    interrupted = STOP.received is not None and not node.finished.done()
+    if interrupted:
         _interrupted(node)
     # a reader loses what it has not taken when the writer goes away: after a signal
     # too, the recorder gets the time to drain what was published (bounded waits)
     node.flush()
-    node.linger(executor)
+    node.linger(executor, interrupted)
     return code
 
 

@@ -89,8 +89,9 @@ def exact_solution(t: np.ndarray, alpha: float) -> np.ndarray:
 def make_abm_at(n: int, spare: int) -> ABMStepper:
     st = ABMStepper(rhs, ALPHA, 1e-4, X4, capacity=n + spare + 16)
     rng = np.random.default_rng(0)
-    st._hist.fill(rng.normal(size=(n, 4)) * 1e-3)     # arbitrary history f_0..f_{n-1}
-    st._n = n
+    F = rng.normal(size=(n, 4)) * 1e-3
+    st.history.fill(F)                                 # arbitrary history f_0..f_{n-1}
+    st.advanced(n, F[-1])                              # as if n steps had been taken
     st.step()                                          # warm-up (not timed)
     return st
 

@@ -25,7 +25,7 @@ from std_srvs.srv import Trigger
 
 from fohssv_sim.contract import CLOCK, COMMAND, PLANING_FORCE, STATE
 from fohssv_sim.params import ModelParameters
-from fohssv_sim.ros.plant_node import array_message
+from fohssv_sim.ros.nodekit import array_message
 from fohssv_sim.ros.qos import profile
 from fohssv_sim.simulate import simulate
 

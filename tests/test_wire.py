@@ -13,7 +13,7 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
 
 from fohssv_sim.contract import COMMAND, PLANING_FORCE, STATE
-from fohssv_sim.ros.plant_node import array_message
+from fohssv_sim.ros.nodekit import array_message
 from fohssv_sim.ros.wire import ArrayReader, ArrayWriter, ClockWriter
 
 TOPICS = [STATE, PLANING_FORCE, COMMAND]

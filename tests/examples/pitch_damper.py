@@ -15,7 +15,7 @@ or register it as a plugin in your package's setup.py and host it by name::
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from fohssv_controller.base import Controller
+from fohssv_sim.control import Controller
 from fohssv_sim.params import ParameterSpec, spec_field, validate_fields
 
 

@@ -22,10 +22,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from fohssv_sim.control import Controller, deflection_limit
 from fohssv_sim.fractional import OnlineCaputoDerivative, OnlineIntegral
 from fohssv_sim.params import ParameterSpec, spec_field, validate_fields
-
-from .base import Controller, deflection_limit
 
 __all__ = ['FractionalPID', 'FractionalPIDParameters']
 

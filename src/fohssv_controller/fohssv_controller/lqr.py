@@ -27,9 +27,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fohssv_sim.control import Controller, deflection_limit
 from fohssv_sim.params import ParameterSpec, spec_field, validate_fields
 
-from .base import Controller, deflection_limit
 from .state_feedback import StateFeedback
 
 __all__ = ['LQR', 'LQRParameters', 'LQRDesign', 'design']

@@ -8,9 +8,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from fohssv_sim.control import Controller, deflection_limit
 from fohssv_sim.params import ParameterSpec, spec_field, validate_fields
-
-from .base import Controller, deflection_limit
 
 __all__ = ['StateFeedback', 'StateFeedbackParameters']
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from fohssv_controller.fractional_pid import FractionalPID
-from fohssv_controller.registry import load
+from fohssv_sim.control import load
 from fohssv_sim.fractional import OnlineCaputoDerivative, OnlineIntegral, weight_table
 from fohssv_sim.params import ModelParameters
 from fohssv_sim.simulate import simulate

@@ -7,8 +7,8 @@ import math
 
 import pytest
 
-from fohssv_controller.base import NonFiniteCommand, clamp
 from fohssv_controller.state_feedback import StateFeedback
+from fohssv_sim.control import NonFiniteCommand, clamp
 from fohssv_sim.params import ModelParameters
 from fohssv_sim.simulate import simulate
 

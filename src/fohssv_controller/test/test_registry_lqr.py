@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fohssv_controller import registry
 from fohssv_controller.lqr import LQR, LQRParameters, design
 from fohssv_controller.state_feedback import StateFeedback
+from fohssv_sim import control as registry
 from fohssv_sim.equilibria import find_equilibria
 from fohssv_sim.params import ModelParameters, ParameterError
 from fohssv_sim.simulate import simulate

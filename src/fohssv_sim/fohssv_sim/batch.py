@@ -10,7 +10,7 @@ delayed model is not batched (its history ring buffer is per point): :func:`simu
 runs it point by point.
 
 Controllers must be affine state feedback, ``u = K x + u0`` clamped to deflection limits
-(:meth:`fohssv_controller.base.Controller.affine`); the eq. 31 law and the LQR are.
+(:meth:`fohssv_sim.control.Controller.affine`); the eq. 31 law and the LQR are.
 Every point's trajectory equals the per-point :func:`fohssv_sim.simulate.simulate` run to
 rounding (tested).
 """

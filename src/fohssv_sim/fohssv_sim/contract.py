@@ -37,7 +37,8 @@ from dataclasses import dataclass
 
 __all__ = ['Topic', 'STATE', 'PLANING_FORCE', 'COMMAND', 'CLOCK', 'TOPICS', 'decode',
            'ContractError', 'POSE', 'TWIST', 'WRENCH', 'MARKER', 'VIEW_TOPICS',
-           'VIEW_WORLD_FRAME', 'VIEW_BODY_FRAME', 'RUN_END', 'run_end_text', 'parse_run_end']
+           'VIEW_WORLD_FRAME', 'VIEW_BODY_FRAME', 'RUN_END', 'run_end_text', 'parse_run_end',
+           'find_topic']
 
 
 class ContractError(ValueError):
@@ -116,6 +117,13 @@ MARKER = Topic('vehicle_marker', 'visualization_msgs/msg/Marker',
 
 #: The typed views (not the control contract): see above.
 VIEW_TOPICS = (POSE, TWIST, WRENCH, MARKER)
+
+
+def find_topic(name: str, topics: Sequence[Topic] = TOPICS) -> Topic | None:
+    """The topic of ``topics`` whose name is the last part of ``name`` (``/vehicle1/state``
+    -> :data:`STATE`: contract topics are found in any namespace), or None."""
+    base = name.rstrip('/').rsplit('/', 1)[-1]
+    return next((t for t in topics if t.name.lstrip('/') == base), None)
 
 
 def decode(topic: Topic, data: Sequence[float]) -> tuple[float, ...]:

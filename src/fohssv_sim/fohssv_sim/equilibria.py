@@ -21,6 +21,7 @@ import numpy as np
 from scipy.optimize import root
 
 from .coefficients import coefficients
+from .control import as_law
 from .kernels import eq17
 from .params import ModelParameters
 from .planing import planing_exact, planing_smooth
@@ -55,7 +56,7 @@ def closed_loop_rhs(params: ModelParameters, controller: Any = None
     callable ``(t, x)``, or ``None`` for open loop); the planing form of ``params``."""
     c = coefficients(params)
     fp = planing_smooth if params.planing_form == 'smooth' else planing_exact
-    law = _law(controller)
+    law = as_law(controller)[0]
 
     def f(x: np.ndarray) -> np.ndarray:
         z, w, th, q = (float(v) for v in x)
@@ -63,14 +64,6 @@ def closed_loop_rhs(params: ModelParameters, controller: Any = None
         return np.array(eq17(c, w, th, q, uf, uc, fp(w, c)))
 
     return f
-
-
-def _law(controller: Any) -> Callable[[float, Sequence[float]], Sequence[float]]:
-    if controller is None:
-        return lambda t, x: (0.0, 0.0)
-    if hasattr(controller, 'command'):
-        return controller.command
-    return controller
 
 
 def jacobian(f: Callable[[np.ndarray], np.ndarray], x: Sequence[float],
@@ -110,7 +103,7 @@ def find_equilibria(params: ModelParameters, controller: Any = None,
     Each is a root of f to ``tol`` (max-norm residual), with its Jacobian and eigenvalues.
     """
     f = closed_loop_rhs(params, controller)
-    law = _law(controller)
+    law = as_law(controller)[0]
     c = coefficients(params)
     if guesses is None:
         wc = c.contact_velocity

@@ -325,6 +325,50 @@ def delayed_run(x, n, nsteps, h, cv, hx, hf, lag, tau, x_init, paper, law, conti
 # -- fractional model: ABM predictor-corrector with the SOE history -----------------------------
 
 @_njit
+def _soe_push(H, fill, f, m, n0, K, L, eps_k, ET):
+    """Push f_m into the one-group SOE history ``H`` (``fill`` values in its exact window):
+    at m = 0 into the f_0 slot; when the window is full its K oldest values are folded into
+    the L modes first."""
+    base = 1 + L
+    if m == 0:
+        for k in range(4):
+            H[0, k, 0] = f[k]
+        return
+    fw = fill[0]
+    if fw == n0 + K:                     # fold the K oldest values into the modes
+        for k in range(4):
+            for j in range(L):
+                mj = H[0, k, 1 + j]
+                mj -= mj * eps_k[0, 0, j]
+                acc = 0.0
+                for r in range(K):
+                    acc += H[0, k, base + r] * ET[0, r, j]
+                H[0, k, 1 + j] = mj + acc
+            for r in range(n0):
+                H[0, k, base + r] = H[0, k, base + K + r]
+        fw = n0
+    for k in range(4):
+        H[0, k, base + fw] = f[k]
+    fill[0] = fw + 1
+
+
+@_njit
+def _f0_weights(m, alpha, a0_coef, a0_small):
+    """The weights b(m) and a0(m) of f_0 in the predictor and the corrector at step m."""
+    if m == 0:
+        return 1.0, a0_small[0, 0]
+    bm = m ** alpha * math.expm1(alpha * math.log1p(1.0 / m))
+    if m < 64:
+        return bm, a0_small[0, m]
+    ncoef = a0_coef.shape[1]
+    y = 1.0 / m
+    acc = a0_coef[0, ncoef - 1]
+    for r in range(ncoef - 2, -1, -1):
+        acc = acc * y + a0_coef[0, r]
+    return bm, m ** (alpha - 1.0) * acc
+
+
+@_njit
 def fom_soe_run(x, x0, n, nsteps, cv, smooth, law, continuous, H, W, fill, eps_k, ET,
                 a0_coef, a0_small, alpha, cp, cc, last_f, bad):
     """``nsteps`` ABM steps of eq. 26 from step ``n`` at ``x`` with the SOE history arrays of a
@@ -336,7 +380,6 @@ def fom_soe_run(x, x0, n, nsteps, cv, smooth, law, continuous, H, W, fill, eps_k
     K = ET.shape[1]
     n0 = W.shape[0] - 1 - K
     base = 1 + L
-    ncoef = a0_coef.shape[1]
     xp = np.empty(4)
     xc = np.empty(4)
     for i in range(nsteps):
@@ -345,42 +388,9 @@ def fom_soe_run(x, x0, n, nsteps, cv, smooth, law, continuous, H, W, fill, eps_k
         uf, uc = _input(law, continuous, z, w, th, q)
         f = _rhs_free(c, smooth, w, th, q, uf, uc)
         last_f[0], last_f[1], last_f[2], last_f[3] = f[0], f[1], f[2], f[3]
-        # push f_m
-        if m == 0:
-            for k in range(4):
-                H[0, k, 0] = f[k]
-        else:
-            fw = fill[0]
-            if fw == n0 + K:                     # fold the K oldest values into the modes
-                for k in range(4):
-                    for j in range(L):
-                        mj = H[0, k, 1 + j]
-                        mj -= mj * eps_k[0, 0, j]
-                        acc = 0.0
-                        for r in range(K):
-                            acc += H[0, k, base + r] * ET[0, r, j]
-                        H[0, k, 1 + j] = mj + acc
-                    for r in range(n0):
-                        H[0, k, base + r] = H[0, k, base + K + r]
-                fw = n0
-            for k in range(4):
-                H[0, k, base + fw] = f[k]
-            fill[0] = fw + 1
-        # f_0 weights b(m), a0(m)
+        _soe_push(H, fill, f, m, n0, K, L, eps_k, ET)
         fw = fill[0]
-        if m == 0:
-            bm = 1.0
-            a0m = a0_small[0, 0]
-        else:
-            bm = m ** alpha * math.expm1(alpha * math.log1p(1.0 / m))
-            if m < 64:
-                a0m = a0_small[0, m]
-            else:
-                y = 1.0 / m
-                acc = a0_coef[0, ncoef - 1]
-                for r in range(ncoef - 2, -1, -1):
-                    acc = acc * y + a0_coef[0, r]
-                a0m = m ** (alpha - 1.0) * acc
+        bm, a0m = _f0_weights(m, alpha, a0_coef, a0_small)
         rows = base + fw
         for k in range(4):
             sp = cp * bm * H[0, k, 0]

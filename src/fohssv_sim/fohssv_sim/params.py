@@ -44,8 +44,8 @@ MODELS = ('fractional', 'delay-free', 'delayed')
 SOLVERS_BY_MODEL = _SOLVERS_BY_MODEL
 
 #: Default integration steps (s), chosen by the step-halving study in
-#: ``test/test_convergence.py``: halving them changes the last 0.5 s of the V = 75 closed loop
-#: by less than the tolerance stated there.
+#: ``bench/bench_convergence.py`` (``make bench``): halving them changes the last 0.5 s of the
+#: V = 75 closed loop by less than the tolerance stated there.
 DEFAULT_STEPS = {
     'fractional': 2e-5,
     'delay-free': 1e-5,

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from .control import as_law
 from .models import AffineLaw, Plant, check_state, make_plant
 from .params import ModelParameters
 
@@ -74,7 +75,7 @@ def simulate(plant: Plant | ModelParameters, controller: Any, duration: float, *
 
     Args:
         controller: an object with ``command(t, state)`` (a
-            :class:`fohssv_controller.base.Controller`), or a callable ``(t, state) ->
+            :class:`fohssv_sim.control.Controller`), or a callable ``(t, state) ->
             (delta_f, delta_c)``, or ``None`` for zero input.
         control_period: ``None`` = continuous feedback (evaluated at every solver stage); a
             whole multiple of the step = zero-order hold over that period.
@@ -87,7 +88,7 @@ def simulate(plant: Plant | ModelParameters, controller: Any, duration: float, *
         FloatingPointError: the state turned non-finite (names the time and state); its
             subclass :class:`~fohssv_sim.models.StateOutOfBounds` when a finite state left
             the physical bounds |w| <= V, |theta| <= pi/2 (checked after every advance: each
-            sample or control instant); :class:`fohssv_controller.base.NonFiniteCommand`
+            sample or control instant); :class:`fohssv_sim.control.NonFiniteCommand`
             when the controller's output is not finite.
     """
     if not (math.isfinite(duration) and duration > 0):
@@ -102,7 +103,7 @@ def simulate(plant: Plant | ModelParameters, controller: Any, duration: float, *
         raise ValueError(f'sample_every={sample_every!r} must be a whole number >= 1')
     sample_every = int(sample_every)
 
-    law, name = _law(controller)
+    law, name = as_law(controller)
     if control_period is None:
         if controller is not None and not getattr(controller, 'stateless', True):
             raise ValueError(f'{name} keeps memory between calls; continuous mode evaluates '
@@ -154,14 +155,3 @@ def simulate(plant: Plant | ModelParameters, controller: Any, duration: float, *
                             controller=name, wall_time=wall,
                             metadata={'steps': n_steps, 'sample_every': sample_every,
                                       'initial_state': list(plant.initial_state)})
-
-
-def _law(controller: Any) -> tuple[ControllerLike, str]:
-    if controller is None:
-        return (lambda t, x: (0.0, 0.0)), 'none'
-    if hasattr(controller, 'command'):
-        describe = getattr(controller, 'describe', None)
-        return controller.command, describe() if describe else type(controller).__name__
-    if callable(controller):
-        return controller, getattr(controller, '__name__', 'callable')
-    raise ValueError(f'controller={controller!r} is neither a Controller nor a callable')

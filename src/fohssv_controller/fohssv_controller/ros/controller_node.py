@@ -30,32 +30,29 @@ import sys
 from collections.abc import Mapping
 from typing import Any
 
-import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import Float64MultiArray
 
+from fohssv_sim import control
 from fohssv_sim.contract import COMMAND, STATE, ContractError, decode
+from fohssv_sim.control import Controller, NonFiniteCommand
 from fohssv_sim.params import ParameterSpec, field_specs
-from fohssv_sim.ros.matching import HoldReporter, SecondPublisherWarning, SubscriptionGate
-from fohssv_sim.ros.qos import profile
-from fohssv_sim.ros.ros_params import declare, install_validation
-from fohssv_sim.ros.spin import STOP, final_log, make_executor, spin_until
-from fohssv_sim.ros.startup import (
-    BadParameters,
+from fohssv_sim.ros.nodekit import (
+    ArrayReader,
+    ArrayWriter,
+    HoldReporter,
+    SecondPublisherWarning,
+    SubscriptionGate,
+    declare,
     declare_rows,
     destroy_on_error,
-    init,
+    final_log,
+    install_validation,
+    profile,
     refuse_unknown,
-    report,
+    run_node,
 )
-from fohssv_sim.ros.wire import ArrayReader, ArrayWriter
-
-from .. import registry
-from ..base import Controller, NonFiniteCommand
 
 __all__ = ['ControllerNode', 'main', 'main_state_feedback', 'main_lqr']
 
@@ -73,7 +70,7 @@ class ControllerNode(Node):
     """See the module docstring.
 
     Raises:
-        registry.UnknownController: the ``controller`` parameter names no plugin.
+        control.UnknownController: the ``controller`` parameter names no plugin.
         ParameterError: invalid controller parameters.
     """
 
@@ -117,10 +114,10 @@ class ControllerNode(Node):
         declare_rows(self, [(
             'controller', default_controller,
             ParameterDescriptor(description='name of the controller plugin (entry point in '
-                                f'group {registry.GROUP})', read_only=True,
+                                f'group {control.GROUP})', read_only=True,
                                 additional_constraints='one of: '
-                                + ', '.join(registry.available())))])
-        return registry.load(self.get_parameter('controller').value)
+                                + ', '.join(control.available())))])
+        return control.load(self.get_parameter('controller').value)
 
     def _build(self, values: Mapping[str, Any]) -> Controller:
         return self.cls(self.cls.Parameters(**values))
@@ -206,38 +203,16 @@ def main(args: list[str] | None = None,
     """Entry point of ``ros2 run fohssv_controller controller``; also hosts a controller class
     given directly (``main(default_controller=MyController)``, no plugin registration needed).
     """
-    try:
-        # SIGINT/SIGTERM only set STOP: the loop ends between callbacks (see StopSignal)
-        init(args, signal_handler_options=SignalHandlerOptions.NO)
-    except BadParameters as exc:
-        sys.exit(report('controller', exc))
-    STOP.install()
-    code = EXIT_OK
-    node = None
-    try:
-        try:
-            node = ControllerNode(default_controller)
-        except registry.UnknownController as exc:
-            rclpy.logging.get_logger('controller').error(str(exc))
-            code = EXIT_BAD_CONFIG
-        except (ValueError, ParameterException) as exc:  # ParameterError, BadParameters
-            specs = () if isinstance(default_controller, str) else field_specs(
-                default_controller.Parameters)
-            code = report('controller', exc, (*specs, MIN_COMMAND_SUBSCRIBERS))
-        else:
-            executor = make_executor()
-            executor.add_node(node)
-            spin_until(executor)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            final_log(node.get_name(), f'answered {node.answered} state(s), dropped '
-                      f'{node.dropped}, withheld {node.withheld} (non-finite law output)')
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
-    sys.exit(code)
+    specs = () if isinstance(default_controller, str) else field_specs(
+        default_controller.Parameters)
+
+    def on_exit(node: ControllerNode) -> None:
+        final_log(node.get_name(), f'answered {node.answered} state(s), dropped '
+                  f'{node.dropped}, withheld {node.withheld} (non-finite law output)')
+
+    sys.exit(run_node('controller', args, lambda: ControllerNode(default_controller),
+                      specs=(*specs, MIN_COMMAND_SUBSCRIBERS),
+                      refused=(control.UnknownController,), on_exit=on_exit))
 
 
 def main_state_feedback(args: list[str] | None = None) -> None:

@@ -111,13 +111,9 @@ def controller_parameters(name: str) -> dict[str, Any]:
     Raises:
         GainMapError: unknown controller (lists the valid ones) or fohssv_controller missing.
     """
+    from ..control import UnknownController, load
     from ..params import field_specs
 
-    try:
-        from fohssv_controller.registry import UnknownController, load
-    except ModuleNotFoundError:
-        raise GainMapError('gain maps need the fohssv_controller package (make setup)'
-                           ) from None
     try:
         cls = load(name)
     except UnknownController as e:
@@ -126,7 +122,7 @@ def controller_parameters(name: str) -> dict[str, Any]:
 
 
 def _controller(name: str, gains: dict[str, Any]) -> Any:
-    from fohssv_controller.registry import load
+    from ..control import load
 
     try:
         return load(name)(**gains)
@@ -243,6 +239,12 @@ class GainMapSpec:
                 that is not strictly increasing, bad scenario values.
         """
         specs = controller_parameters(self.controller)
+        self._validate_names(specs)
+        self._validate_grids(specs)
+        _controller(self.controller, self.gains_for(0, 0))   # the fixed gains as a whole
+        self._validate_scenario()
+
+    def _validate_names(self, specs: dict[str, Any]) -> None:
         names = ', '.join(sorted(specs))
         for opt, name in (('gain_x', self.gain_x), ('gain_y', self.gain_y)):
             if name not in specs:
@@ -258,6 +260,8 @@ class GainMapSpec:
                                    f'parameters: {names}')
             if name in (self.gain_x, self.gain_y):
                 raise GainMapError(f'{name!r} is swept; do not also fix it')
+
+    def _validate_grids(self, specs: dict[str, Any]) -> None:
         for name, values in ((self.gain_x, self.x_values), (self.gain_y, self.y_values)):
             if len(values) < 1:
                 raise GainMapError(f'{name}: no values')
@@ -271,7 +275,8 @@ class GainMapSpec:
                     raise GainMapError(
                         f'{self.controller} parameter {name}={v:g} is outside its allowed '
                         f'range {s.range_text()} {s.unit}'.rstrip()) from None
-        _controller(self.controller, self.gains_for(0, 0))   # the fixed gains as a whole
+
+    def _validate_scenario(self) -> None:
         for a in (self.alpha, *self.envelope_alphas):
             if not 0 < a <= 1:
                 raise GainMapError(f'alpha={a:g} is outside (0, 1]')

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from ..control import make
 from ..equilibria import find_equilibria
 from ..params import ModelParameters
 from ..simulate import simulate
@@ -29,7 +30,7 @@ from .diagrams import alpha_star, plot_alpha_v, plot_orbit_diagram
 from .figures import QUICK_LABEL, pyplot, save, titled
 from .orbits import classify
 from .stability import critical_order_curve, plot_critical_order, plot_wedge
-from .sweep import SweepSpec, run_sweep
+from .sweep import ProgressPrinter, SweepSpec, run_sweep
 
 __all__ = ['ReportSettings', 'make_report']
 
@@ -75,8 +76,6 @@ def _dominant(t: np.ndarray, y: np.ndarray) -> float:
 
 def _time_responses(s: ReportSettings, out: Path, log: Callable[[str], None]) -> list[Row]:
     """Figs. 3-4: V = 75, x(0) = 0, eq. 31 (continuous), three models."""
-    from fohssv_controller.state_feedback import StateFeedback
-
     models = {'delay-free': ModelParameters(model='delay-free'),
               'delayed': ModelParameters(model='delayed'),
               'FOM alpha=0.85': ModelParameters(solver=s.fom_solver)}
@@ -86,7 +85,7 @@ def _time_responses(s: ReportSettings, out: Path, log: Callable[[str], None]) ->
         freqs, classes = [], []
         for factor in (1.0, 0.5):
             q = p.replace(step=p.step * factor)
-            r = simulate(q, StateFeedback(), s.duration, sample_every=round(1e-4 / q.step)
+            r = simulate(q, make('state_feedback'), s.duration, sample_every=round(1e-4 / q.step)
                          if q.step <= 1e-4 else 1)
             last = r.t >= s.duration * 0.75
             freqs.append(_dominant(r.t[last], r.state[last, 1]))
@@ -137,12 +136,10 @@ def _plot_three(res: dict[str, dict[str, Any]], out: Path, label: str = '') -> N
 
 
 def _stability(s: ReportSettings, out: Path, log: Callable[[str], None]) -> list[Row]:
-    from fohssv_controller.state_feedback import StateFeedback
-
     log('  stability (Figs. 5, 7)')
     rows = []
     p75 = ModelParameters()
-    (e75,) = find_equilibria(p75, StateFeedback())
+    (e75,) = find_equilibria(p75, make('state_feedback'))
     plot_wedge(e75, 0.85, [out / 'fig5_wedge_V75.png', out / 'fig5_wedge_V75.svg'],
                speed=p75.speed, label=s.label)
     rows.append({'claim': 'Fig. 5: Matignon stability of the closed loop at alpha = 0.85',
@@ -152,7 +149,7 @@ def _stability(s: ReportSettings, out: Path, log: Callable[[str], None]) -> list
                              f'(residual {e75.residual:.1e})',
                  'verdict': 'holds' if e75.stable(0.85) else 'does not hold'})
     p84 = ModelParameters(speed=84.5)
-    (e84,) = find_equilibria(p84, StateFeedback())
+    (e84,) = find_equilibria(p84, make('state_feedback'))
     z, w, th, q = e84.state
     rows.append({'claim': 'Fig. 7: equilibrium (0.04, 1.803, 0.02, 0.001) at V = 84.5',
                  'model': f'({z:.4f}, {w:.4f}, {th:.4f}, {q:.1g})',
@@ -169,7 +166,7 @@ def _stability(s: ReportSettings, out: Path, log: Callable[[str], None]) -> list
                  'verdict': 'holds' if (verdicts[0.85] and not verdicts[0.78]) else
                             'does not hold'})
     speeds = np.linspace(75, 90, 31)
-    curve = critical_order_curve(p75, StateFeedback(), speeds)
+    curve = critical_order_curve(p75, make('state_feedback'), speeds)
     plot_critical_order(curve, [out / 'alpha_c_of_V.png', out / 'alpha_c_of_V.svg'], 0.85,
                         caption=f'{p75.model} model, planing {p75.planing_form}, eq. 31',
                         label=s.label)
@@ -185,8 +182,6 @@ def _sweep(s: ReportSettings, name: str, base: ModelParameters, alphas, speeds,
                      transient=s.transient, window=s.window, check_step=s.check_step,
                      sample_every=max(1, round(4e-5 / base.step)), eq_tol=1e-5)
     log(f'  sweep {name}: {len(spec.points())} points')
-    from .cli_sweep import ProgressPrinter
-
     progress, check = ProgressPrinter(f'{name}: points'), ProgressPrinter(
         f'{name}: step check points')
     try:
@@ -214,8 +209,6 @@ def _step_evidence(result) -> str:
 
 def _sweeps(s: ReportSettings, out: Path, log: Callable[[str], None], client: Any
             ) -> list[Row]:
-    from fohssv_controller.state_feedback import StateFeedback
-
     rows = []
     fom = ModelParameters(solver=s.fom_solver)
     # Fig. 6: alpha sweep at V = 84.5
@@ -251,7 +244,7 @@ def _sweeps(s: ReportSettings, out: Path, log: Callable[[str], None], client: An
                  'verdict': 'holds' if steady9 and min(steady9) > 83.3 else 'does not hold'})
     # Fig. 10: alpha-V grid
     r10 = _sweep(s, 'fig10_alpha_V', fom, s.grid_alphas, s.grid_speeds, out, log, client)
-    crit = critical_order_curve(fom, StateFeedback(), s.grid_speeds)
+    crit = critical_order_curve(fom, make('state_feedback'), s.grid_speeds)
     plot_alpha_v(r10, [out / 'fig10_alpha_V.png', out / 'fig10_alpha_V.svg'],
                  [(p.speed, p.critical_order) for p in crit], s.label)
     star = alpha_star(r10)

@@ -44,11 +44,12 @@ from typing import Any
 
 import numpy as np
 
+from ..control import make
 from ..params import ModelParameters
 from .orbits import METHOD, classify
 
 __all__ = ['SweepSpec', 'SweepResult', 'ChunkedResult', 'run_chunks', 'check_half_step',
-           'run_sweep', 'run_chunk', 'load_sweep', 'STATE_INDEX']
+           'run_sweep', 'run_chunk', 'load_sweep', 'STATE_INDEX', 'ProgressPrinter']
 
 STATE_INDEX = {'z': 0, 'w': 1, 'theta': 2, 'q': 3}
 ROW_FIELDS = ('point', 'alpha', 'speed', 'label', 'kind', 'period', 'k01', 'amplitude',
@@ -137,9 +138,7 @@ def run_chunk(spec_dict: dict[str, Any], indices: Sequence[int], step_factor: fl
                         'speeds': tuple(spec_dict['speeds'])})
     pts = spec.points()
     params = [spec.params_for(*pts[i], step_factor=step_factor) for i in indices]
-    from ..cli import load_controller
-
-    ctl = load_controller(spec.controller, spec.gains)
+    ctl = make(spec.controller, spec.gains)
     h = params[0].step
     every = max(1, round(spec.sample_every / step_factor))
     res = _simulate(params, ctl, spec, every, progress)
@@ -366,6 +365,34 @@ def run_chunks(out: Path, sidecar_name: str, sidecar: dict[str, Any],
             if cluster is not None:
                 cluster.close()
     return len(todo), reused
+
+
+class ProgressPrinter:
+    """``progress(done, total, elapsed)`` for :func:`.sweep.run_sweep`, on stderr: one line
+    rewritten in place (``\\r``) on a terminal, one line per update otherwise (log files get
+    no carriage returns)."""
+
+    def __init__(self, what: str, stream=None) -> None:
+        self.what = what
+        self.stream = stream if stream is not None else sys.stderr
+        self.tty = bool(getattr(self.stream, 'isatty', lambda: False)())
+        self.open = False
+
+    def __call__(self, done: int, total: int, elapsed: float) -> None:
+        eta = elapsed / max(done, 1) * (total - done)
+        text = (f'  {self.what} {done}/{total}  {elapsed:6.1f} s elapsed  '
+                f'~{eta:6.1f} s left')
+        if self.tty:
+            print('\r' + text, end='', file=self.stream, flush=True)
+            self.open = True
+        else:
+            print(text, file=self.stream, flush=True)
+
+    def end(self) -> None:
+        """End the in-place line (terminal only)."""
+        if self.open:
+            print(file=self.stream, flush=True)
+            self.open = False
 
 
 def run_sweep(spec: SweepSpec, out: Path, *, scheduler: str | None = None, workers: int = 0,

@@ -66,18 +66,14 @@ def _record_at(data: bytes, offset: int, opcode: int):
     return next(iter(reader.records)), 9 + length
 
 
-def _check_mcap(path: Path, report: CheckReport) -> tuple[Counter, int, int] | None:
-    p = report.problems
-    data = path.read_bytes()
-    name = path.name
-    counts: Counter = Counter()
-    t_min, t_max = None, None
+def _read_records(data: bytes, name: str, p: list[str]) -> int | None:
+    """Read every record in order with CRC checks: the number of messages, or None (a
+    problem recorded) when the file is unreadable, truncated or has no footer."""
     stream_msgs = 0
     try:
-        records = StreamReader(io.BytesIO(data), validate_crcs=True).records
         first = True
         saw_footer = False
-        for rec in records:
+        for rec in StreamReader(io.BytesIO(data), validate_crcs=True).records:
             if first:
                 first = False
                 if not isinstance(rec, Header):
@@ -88,12 +84,127 @@ def _check_mcap(path: Path, report: CheckReport) -> tuple[Counter, int, int] | N
                 stream_msgs += 1
             elif isinstance(rec, Footer):
                 saw_footer = True
-        if not saw_footer:
-            p.append(f'{name}: no footer')
-            return None
     except (McapError, ValueError, struct.error) as exc:
         p.append(f'{name}: unreadable or truncated ({type(exc).__name__}: {exc}); '
                  'run: python -m fohssv_sim.bag repair')
+        return None
+    if not saw_footer:
+        p.append(f'{name}: no footer')
+        return None
+    return stream_msgs
+
+
+def _check_channels(summary, name: str, p: list[str]) -> None:
+    for chan in summary.channels.values():
+        if chan.schema_id not in summary.schemas:
+            p.append(f'{name}: channel {chan.topic} names missing schema {chan.schema_id}')
+        elif summary.schemas[chan.schema_id].encoding not in ('ros2msg', 'ros2idl'):
+            p.append(f'{name}: schema of {chan.topic} has encoding '
+                     f'{summary.schemas[chan.schema_id].encoding!r}')
+        if chan.message_encoding != 'cdr':
+            p.append(f'{name}: channel {chan.topic} encoding {chan.message_encoding!r} != cdr')
+
+
+def _check_message_index(data: bytes, raw: bytes, cid: int, off: int, count: int, where: str,
+                         p: list[str]) -> None:
+    """The message index of channel ``cid`` at ``off`` lists the ``count`` messages of the
+    chunk (uncompressed records ``raw``), each at its offset with its log time."""
+    try:
+        mi, _ = _record_at(data, off, Opcode.MESSAGE_INDEX)
+    except ValueError as exc:
+        p.append(f'{where}: {exc}')
+        return
+    assert isinstance(mi, MessageIndex)
+    if mi.channel_id != cid or len(mi.records) != count:
+        p.append(f'{where}: message index of channel {cid} lists {len(mi.records)} '
+                 f'messages, the chunk holds {count}')
+    for log_time, moff in mi.records:
+        try:
+            stream = ReadDataStream(io.BytesIO(raw[moff:]))
+            if stream.read1() != Opcode.MESSAGE:
+                raise ValueError('not a message')
+            msg = Message.read(stream, stream.read8())
+        except (McapError, ValueError, struct.error):
+            p.append(f'{where}: message index entry at {moff} is not a message')
+            return
+        if msg.channel_id != cid or msg.log_time != log_time:
+            p.append(f'{where}: message index entry at {moff} does not match its message')
+            return
+
+
+def _check_chunk(data: bytes, i: int, ci, name: str, p: list[str]
+                 ) -> tuple[Counter, list[Message]]:
+    """Chunk ``i`` matches its chunk index ``ci`` (length, times, message indexes): the
+    per-channel counts and the messages of the chunk (none if it could not be read)."""
+    where = f'{name}: chunk {i} at byte {ci.chunk_start_offset}'
+    try:
+        chunk, length = _record_at(data, ci.chunk_start_offset, Opcode.CHUNK)
+    except ValueError as exc:
+        p.append(f'{where}: {exc}')
+        return Counter(), []
+    assert isinstance(chunk, Chunk)
+    if length != ci.chunk_length:
+        p.append(f'{where}: length {length} != index {ci.chunk_length}')
+    inner = [r for r in breakup_chunk(chunk, validate_crc=True) if isinstance(r, Message)]
+    if inner:
+        lo = min(m.log_time for m in inner)
+        hi = max(m.log_time for m in inner)
+        if (lo, hi) != (ci.message_start_time, ci.message_end_time):
+            p.append(f'{where}: message times [{lo}, {hi}] != index '
+                     f'[{ci.message_start_time}, {ci.message_end_time}]')
+    per_chan = Counter(m.channel_id for m in inner)
+    if set(ci.message_index_offsets) != set(per_chan):
+        p.append(f'{where}: message indexes for channels {sorted(ci.message_index_offsets)}'
+                 f' but messages on {sorted(per_chan)}')
+    for cid, off in ci.message_index_offsets.items():
+        _check_message_index(data, chunk.data, cid, off, per_chan.get(cid, 0), where, p)
+    return per_chan, inner
+
+
+def _check_statistics(stats, summary, counts: Counter, indexed: int, stream_msgs: int,
+                      times: tuple[int | None, int | None], name: str, p: list[str]) -> None:
+    if indexed != stream_msgs:
+        p.append(f'{name}: {stream_msgs} messages in the file, {indexed} in indexed chunks')
+    if stats.message_count != indexed or dict(stats.channel_message_counts) != dict(counts):
+        p.append(f'{name}: statistics say {stats.message_count} messages '
+                 f'{dict(stats.channel_message_counts)}, found {indexed} {dict(counts)}')
+    if stats.chunk_count != len(summary.chunk_indexes):
+        p.append(f'{name}: statistics say {stats.chunk_count} chunks, index has '
+                 f'{len(summary.chunk_indexes)}')
+    if indexed and (stats.message_start_time, stats.message_end_time) != times:
+        p.append(f'{name}: statistics times differ from the messages\'')
+
+
+def _check_metadata_indexes(data: bytes, summary, stats, name: str, p: list[str]) -> None:
+    for mi in summary.metadata_indexes:
+        try:
+            rec, length = _record_at(data, mi.offset, Opcode.METADATA)
+        except ValueError as exc:
+            p.append(f'{name}: metadata index: {exc}')
+            continue
+        if not isinstance(rec, Metadata) or rec.name != mi.name or length != mi.length:
+            p.append(f'{name}: metadata index entry {mi.name!r} does not match its record')
+    if stats.metadata_count != len(summary.metadata_indexes):
+        p.append(f'{name}: statistics say {stats.metadata_count} metadata records, index has '
+                 f'{len(summary.metadata_indexes)}')
+
+
+def _check_decodes(reader, name: str, p: list[str]) -> None:
+    topic = '?'
+    try:
+        for _schema, chan, _msg, _decoded in reader.iter_decoded_messages(log_time_order=False):
+            topic = chan.topic
+    except Exception as exc:  # noqa: BLE001 - any decoder failure is a finding
+        p.append(f'{name}: a message after one on {topic} does not decode with mcap_ros2 '
+                 f'({type(exc).__name__}: {exc})')
+
+
+def _check_mcap(path: Path, report: CheckReport) -> tuple[Counter, int, int] | None:
+    p = report.problems
+    data = path.read_bytes()
+    name = path.name
+    stream_msgs = _read_records(data, name, p)
+    if stream_msgs is None:
         return None
     report.facts.append(f'{name}: {len(data)} bytes, every record read, chunk and data CRCs '
                         'valid')
@@ -107,92 +218,20 @@ def _check_mcap(path: Path, report: CheckReport) -> tuple[Counter, int, int] | N
         p.append(f'{name}: no summary or no statistics record')
         return None
     stats = summary.statistics
-    for chan in summary.channels.values():
-        if chan.schema_id not in summary.schemas:
-            p.append(f'{name}: channel {chan.topic} names missing schema {chan.schema_id}')
-        elif summary.schemas[chan.schema_id].encoding not in ('ros2msg', 'ros2idl'):
-            p.append(f'{name}: schema of {chan.topic} has encoding '
-                     f'{summary.schemas[chan.schema_id].encoding!r}')
-        if chan.message_encoding != 'cdr':
-            p.append(f'{name}: channel {chan.topic} encoding {chan.message_encoding!r} != cdr')
+    _check_channels(summary, name, p)
+    counts: Counter = Counter()
+    times: list[int] = []
     indexed = 0
     for i, ci in enumerate(summary.chunk_indexes):
-        where = f'{name}: chunk {i} at byte {ci.chunk_start_offset}'
-        try:
-            chunk, length = _record_at(data, ci.chunk_start_offset, Opcode.CHUNK)
-        except ValueError as exc:
-            p.append(f'{where}: {exc}')
-            continue
-        assert isinstance(chunk, Chunk)
-        if length != ci.chunk_length:
-            p.append(f'{where}: length {length} != index {ci.chunk_length}')
-        inner = [r for r in breakup_chunk(chunk, validate_crc=True) if isinstance(r, Message)]
-        if inner:
-            lo = min(m.log_time for m in inner)
-            hi = max(m.log_time for m in inner)
-            if (lo, hi) != (ci.message_start_time, ci.message_end_time):
-                p.append(f'{where}: message times [{lo}, {hi}] != index '
-                         f'[{ci.message_start_time}, {ci.message_end_time}]')
-            t_min = lo if t_min is None else min(t_min, lo)
-            t_max = hi if t_max is None else max(t_max, hi)
-        per_chan = Counter(m.channel_id for m in inner)
+        per_chan, inner = _check_chunk(data, i, ci, name, p)
         counts.update(per_chan)
         indexed += len(inner)
-        if set(ci.message_index_offsets) != set(per_chan):
-            p.append(f'{where}: message indexes for channels {sorted(ci.message_index_offsets)}'
-                     f' but messages on {sorted(per_chan)}')
-        raw = chunk.data
-        for cid, off in ci.message_index_offsets.items():
-            try:
-                mi, _ = _record_at(data, off, Opcode.MESSAGE_INDEX)
-            except ValueError as exc:
-                p.append(f'{where}: {exc}')
-                continue
-            assert isinstance(mi, MessageIndex)
-            if mi.channel_id != cid or len(mi.records) != per_chan.get(cid, 0):
-                p.append(f'{where}: message index of channel {cid} lists {len(mi.records)} '
-                         f'messages, the chunk holds {per_chan.get(cid, 0)}')
-            for log_time, moff in mi.records:
-                try:
-                    stream = ReadDataStream(io.BytesIO(raw[moff:]))
-                    if stream.read1() != Opcode.MESSAGE:
-                        raise ValueError('not a message')
-                    msg = Message.read(stream, stream.read8())
-                except (McapError, ValueError, struct.error):
-                    p.append(f'{where}: message index entry at {moff} is not a message')
-                    break
-                if msg.channel_id != cid or msg.log_time != log_time:
-                    p.append(f'{where}: message index entry at {moff} does not match its '
-                             'message')
-                    break
-    if indexed != stream_msgs:
-        p.append(f'{name}: {stream_msgs} messages in the file, {indexed} in indexed chunks')
-    if stats.message_count != indexed or dict(stats.channel_message_counts) != dict(counts):
-        p.append(f'{name}: statistics say {stats.message_count} messages '
-                 f'{dict(stats.channel_message_counts)}, found {indexed} {dict(counts)}')
-    if stats.chunk_count != len(summary.chunk_indexes):
-        p.append(f'{name}: statistics say {stats.chunk_count} chunks, index has '
-                 f'{len(summary.chunk_indexes)}')
-    if indexed and (stats.message_start_time, stats.message_end_time) != (t_min, t_max):
-        p.append(f'{name}: statistics times differ from the messages\'')
-    for mi in summary.metadata_indexes:
-        try:
-            rec, length = _record_at(data, mi.offset, Opcode.METADATA)
-        except ValueError as exc:
-            p.append(f'{name}: metadata index: {exc}')
-            continue
-        if not isinstance(rec, Metadata) or rec.name != mi.name or length != mi.length:
-            p.append(f'{name}: metadata index entry {mi.name!r} does not match its record')
-    if stats.metadata_count != len(summary.metadata_indexes):
-        p.append(f'{name}: statistics say {stats.metadata_count} metadata records, index has '
-                 f'{len(summary.metadata_indexes)}')
-    topic = '?'
-    try:
-        for _schema, chan, _msg, _decoded in reader.iter_decoded_messages(log_time_order=False):
-            topic = chan.topic
-    except Exception as exc:  # noqa: BLE001 - any decoder failure is a finding
-        p.append(f'{name}: a message after one on {topic} does not decode with mcap_ros2 '
-                 f'({type(exc).__name__}: {exc})')
+        if inner:
+            times += [min(m.log_time for m in inner), max(m.log_time for m in inner)]
+    t_min, t_max = (min(times), max(times)) if times else (None, None)
+    _check_statistics(stats, summary, counts, indexed, stream_msgs, (t_min, t_max), name, p)
+    _check_metadata_indexes(data, summary, stats, name, p)
+    _check_decodes(reader, name, p)
     report.facts.append(f'{name}: {indexed} messages in {len(summary.chunk_indexes)} indexed '
                         f'chunks, {len(summary.channels)} channels, '
                         f'{len(summary.metadata_indexes)} metadata records, all decode')

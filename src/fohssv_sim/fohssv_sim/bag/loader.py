@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 from mcap.exceptions import McapError
-from mcap.records import Channel, DataEnd, Footer, Header, Message, Metadata, Schema
+from mcap.records import Channel, Footer, Header, Message, Metadata, Schema
 from mcap.stream_reader import CRCValidationError, StreamReader
 from ruamel.yaml import YAML
 from ruamel.yaml.error import YAMLError
@@ -218,6 +218,32 @@ def _check_mcap_file(path: Path) -> None:
         raise BagError(f'{path}: not an MCAP file (it does not start with the MCAP magic)')
 
 
+def _listed_files(p: Path, meta: Path, info: dict, entries: list[Path]) -> tuple[Path, ...]:
+    """The MCAP files ``metadata.yaml`` lists (or, when it lists none that exist, the folder's
+    ``.mcap`` files).
+
+    Raises:
+        BagError: non-MCAP storage, listed files outside the folder, no MCAP file at all.
+    """
+    storage = str(info.get('storage_identifier', ''))
+    if storage != 'mcap':
+        raise BagError(f'{meta}: storage {storage!r} is not supported (only mcap)')
+    rel = info.get('relative_file_paths') or []
+    outside = [r for r in rel if not _inside(p, p / r)]
+    if outside:
+        raise BagError(f'{meta}: relative_file_paths {outside} lie outside the bag folder '
+                       f'{p}; every file of a bag must be inside it')
+    files = tuple(p / r for r in rel)
+    missing = [f.name for f in files if not f.is_file()]
+    if missing or not files:
+        found = [e.name for e in entries if e.suffix == '.mcap']
+        if not found:
+            raise BagError(f'{p}: metadata.yaml lists {missing or "no files"} but the '
+                           'directory holds no .mcap file')
+        files = tuple(p / n for n in found)
+    return files
+
+
 def locate(path: str | Path) -> BagFiles:
     """Find a bag's ``metadata.yaml`` and MCAP files.
 
@@ -246,22 +272,7 @@ def locate(path: str | Path) -> BagFiles:
                        '(move the directory away)')
     info = _read_metadata_yaml(meta) if meta.is_file() else None
     if info is not None:
-        storage = str(info.get('storage_identifier', ''))
-        if storage != 'mcap':
-            raise BagError(f'{meta}: storage {storage!r} is not supported (only mcap)')
-        rel = info.get('relative_file_paths') or []
-        outside = [r for r in rel if not _inside(p, p / r)]
-        if outside:
-            raise BagError(f'{meta}: relative_file_paths {outside} lie outside the bag folder '
-                           f'{p}; every file of a bag must be inside it')
-        files = tuple(p / r for r in rel)
-        missing = [f.name for f in files if not f.is_file()]
-        if missing or not files:
-            found = [e.name for e in entries if e.suffix == '.mcap']
-            if not found:
-                raise BagError(f'{p}: metadata.yaml lists {missing or "no files"} but the '
-                               'directory holds no .mcap file')
-            files = tuple(p / n for n in found)
+        files = _listed_files(p, meta, info, entries)
     else:
         files = tuple(e for e in entries if e.suffix == '.mcap' and e.is_file())
         if not files:
@@ -287,58 +298,7 @@ def scan(path: str | Path) -> Scan:
     files = locate(path)
     result = Scan(files=files)
     for mcap_path in files.mcap_files:
-        schemas: dict[int, Schema] = {}
-        data = mcap_path.read_bytes()
-        result.bytes_total += len(data)
-        stream = io.BytesIO(data)
-        reader = StreamReader(stream, validate_crcs=True)
-        saw_footer = False
-        good = 0  # offset after the last complete top-level record
-        ids: dict[int, int] = {}  # channel id in this file -> id in result
-        try:
-            for record in reader.records:
-                if isinstance(record, Header):
-                    result.header_library = record.library
-                elif isinstance(record, Schema):
-                    schemas[record.id] = record
-                elif isinstance(record, Channel):
-                    schema = schemas.get(record.schema_id)
-                    msgtype = schema.name if schema else ''
-                    cid = next((c.id for c in result.channels.values()
-                                if (c.topic, c.msgtype) == (record.topic, msgtype)),
-                               len(result.channels) + 1)
-                    ids[record.id] = cid
-                    if cid not in result.channels:
-                        result.channels[cid] = ChannelInfo(
-                            cid, record.topic, msgtype,
-                            record.message_encoding, schema.encoding if schema else '',
-                            schema.data.decode('utf8', 'replace') if schema else '',
-                            dict(record.metadata))
-                elif isinstance(record, Message):
-                    if record.channel_id not in ids:
-                        raise _Corrupt(f'message on unknown channel {record.channel_id}')
-                    result.messages.append((ids[record.channel_id], record.log_time,
-                                            bytes(record.data)))
-                elif isinstance(record, Metadata):
-                    result.metadata_records.append((record.name, dict(record.metadata)))
-                elif isinstance(record, Footer):
-                    saw_footer = True
-                elif isinstance(record, DataEnd):
-                    pass
-                good = stream.tell()
-        except CRCValidationError as exc:
-            result.problem = f'{mcap_path}: corrupt data at byte {good} ({exc})'
-        except _Corrupt as exc:
-            result.problem = f'{mcap_path}: corrupt data at byte {good} ({exc})'
-        except (McapError, struct.error, EOFError, ValueError, UnicodeDecodeError) as exc:
-            kind = type(exc).__name__
-            result.problem = (f'{mcap_path}: truncated or corrupt after byte {good} of '
-                              f'{len(data)} ({kind}{": " + str(exc) if str(exc) else ""})')
-        result.bytes_read += good if not saw_footer else len(data)
-        if not saw_footer:
-            result.complete = False
-            if not result.problem:
-                result.problem = f'{mcap_path}: no footer after byte {good} of {len(data)}'
+        _scan_file(mcap_path, result)
     if not result.channels and not result.complete:
         raise BagError(f'{result.problem}; no channel could be read, nothing to recover')
     return result
@@ -346,6 +306,64 @@ def scan(path: str | Path) -> Scan:
 
 class _Corrupt(Exception):
     pass
+
+
+def _add_channel(record: Channel, schemas: dict[int, Schema], result: Scan) -> int:
+    """The id in ``result`` of a file's channel (one id per topic and type across files)."""
+    schema = schemas.get(record.schema_id)
+    msgtype = schema.name if schema else ''
+    cid = next((c.id for c in result.channels.values()
+                if (c.topic, c.msgtype) == (record.topic, msgtype)),
+               len(result.channels) + 1)
+    if cid not in result.channels:
+        result.channels[cid] = ChannelInfo(
+            cid, record.topic, msgtype,
+            record.message_encoding, schema.encoding if schema else '',
+            schema.data.decode('utf8', 'replace') if schema else '',
+            dict(record.metadata))
+    return cid
+
+
+def _scan_file(mcap_path: Path, result: Scan) -> None:
+    """Add every readable record of one MCAP file to ``result``; a truncated or corrupt file
+    sets ``complete`` False and ``problem``."""
+    schemas: dict[int, Schema] = {}
+    data = mcap_path.read_bytes()
+    result.bytes_total += len(data)
+    stream = io.BytesIO(data)
+    reader = StreamReader(stream, validate_crcs=True)
+    saw_footer = False
+    good = 0  # offset after the last complete top-level record
+    ids: dict[int, int] = {}  # channel id in this file -> id in result
+    try:
+        for record in reader.records:
+            if isinstance(record, Header):
+                result.header_library = record.library
+            elif isinstance(record, Schema):
+                schemas[record.id] = record
+            elif isinstance(record, Channel):
+                ids[record.id] = _add_channel(record, schemas, result)
+            elif isinstance(record, Message):
+                if record.channel_id not in ids:
+                    raise _Corrupt(f'message on unknown channel {record.channel_id}')
+                result.messages.append((ids[record.channel_id], record.log_time,
+                                        bytes(record.data)))
+            elif isinstance(record, Metadata):
+                result.metadata_records.append((record.name, dict(record.metadata)))
+            elif isinstance(record, Footer):
+                saw_footer = True
+            good = stream.tell()
+    except (CRCValidationError, _Corrupt) as exc:
+        result.problem = f'{mcap_path}: corrupt data at byte {good} ({exc})'
+    except (McapError, struct.error, EOFError, ValueError, UnicodeDecodeError) as exc:
+        kind = type(exc).__name__
+        result.problem = (f'{mcap_path}: truncated or corrupt after byte {good} of '
+                          f'{len(data)} ({kind}{": " + str(exc) if str(exc) else ""})')
+    result.bytes_read += good if not saw_footer else len(data)
+    if not saw_footer:
+        result.complete = False
+        if not result.problem:
+            result.problem = f'{mcap_path}: no footer after byte {good} of {len(data)}'
 
 
 def _basename(topic: str) -> str:

@@ -165,76 +165,89 @@ def solve_abm_fft(rhs, alpha: float, step: float, x0, n_steps: int, u=None,
     t0 = check_t0(t0)
     x0 = check_state(x0, 'x0')
     N = check_positive_int(n_steps, 'n_steps', low=0)
-    d = x0.size
     kind, uval = _input_getter(u, N)
     use_jit = _choose_engine(engine, rhs, kind)
-    B = _BASE_JIT if use_jit else _BASE
-    cp = h ** a / gamma(a + 1.0)
-    cc = h ** a / gamma(a + 2.0)
+    return _FFTSolve(rhs, a, h, t0, x0, N, kind, uval, use_jit).run()
 
-    tab = weight_table(a).ensure(N + 2)
-    b = np.ascontiguousarray(tab.b[:N + 2])
-    c = np.ascontiguousarray(tab.c[:N + 2])
-    a0 = tab.a0[:N + 1]
-    kern = _Kernels(b, c)
-    WR = _base_weights(a, cp, cc, B)
 
-    t = t0 + h * np.arange(N + 1, dtype=float)
-    X = np.empty((N + 1, d))
-    G = np.zeros((N + 1, d))          # G[j] = f_j for j >= 1; G[0] = 0 (f_0 handled apart)
-    X[0] = x0
+class _FFTSolve:
+    """One run of :func:`solve_abm_fft` (arguments checked): the arrays, the base blocks
+    (interpreted or compiled) and the FFT-blocked merges of the history sums."""
 
-    is_call = kind == 'call'
-    is_seq = kind == 'seq'
-    dshape = (d,)
-    ndarray = np.ndarray
+    def __init__(self, rhs, a: float, h: float, t0: float, x0: np.ndarray, N: int, kind: str,
+                 uval, use_jit: bool) -> None:
+        self.rhs, self.a, self.h, self.t0, self.x0, self.N = rhs, a, h, t0, x0, N
+        self.kind, self.uval, self.use_jit = kind, uval, use_jit
+        d = self.d = x0.size
+        B = self.B = _BASE_JIT if use_jit else _BASE
+        cp = self.cp = h ** a / gamma(a + 1.0)
+        cc = self.cc = h ** a / gamma(a + 2.0)
 
-    def u_at(n: int, x: np.ndarray):
-        if is_call:
-            return np.asarray(uval(t0 + n * h, x), dtype=float)
-        if is_seq:
-            return uval[min(n, uval.shape[0] - 1)]
-        return uval
+        tab = weight_table(a).ensure(N + 2)
+        b = np.ascontiguousarray(tab.b[:N + 2])
+        c = np.ascontiguousarray(tab.c[:N + 2])
+        a0 = tab.a0[:N + 1]
+        self.kern = _Kernels(b, c)
+        WR = self.WR = _base_weights(a, cp, cc, B)
 
-    def coerce(f) -> np.ndarray:
+        self.t = t0 + h * np.arange(N + 1, dtype=float)
+        self.X = np.empty((N + 1, d))
+        self.G = np.zeros((N + 1, d))   # G[j] = f_j for j >= 1; G[0] = 0 (f_0 handled apart)
+        self.X[0] = x0
+        self.dshape = (d,)
+
+        f0 = self.f0 = self.coerce(rhs(t0, x0, self.u_at(0, x0)))
+        # unscaled history sums per step n (0..N-1), [predictor, corrector]: j = 0 terms first
+        acc = self.acc = np.empty((N, 2, d))
+        acc[:, 0] = np.outer(b[:N], f0)
+        acc[:, 1] = np.outer(a0[:N], f0)
+        self.scale = np.array([[cp], [cc]])
+        self.wrt = [WR[B - 1 - i:].T for i in range(B)]      # (2, i+1) views, lags i..0
+        if use_jit:
+            self.U = np.ascontiguousarray(np.atleast_2d(uval), dtype=float)  # (1|N, du)
+        self.run_base = self.base_compiled if use_jit else self.base
+
+    def u_at(self, n: int, x: np.ndarray):
+        if self.kind == 'call':
+            return np.asarray(self.uval(self.t0 + n * self.h, x), dtype=float)
+        if self.kind == 'seq':
+            return self.uval[min(n, self.uval.shape[0] - 1)]
+        return self.uval
+
+    def coerce(self, f) -> np.ndarray:
         f = np.asarray(f, dtype=float)
-        if f.shape != dshape:
-            raise ValueError(f"rhs returned shape {f.shape}, expected {dshape} (state shape)")
+        if f.shape != self.dshape:
+            raise ValueError(f"rhs returned shape {f.shape}, expected {self.dshape} (state "
+                             "shape)")
         return f
 
-    f0 = coerce(rhs(t0, x0, u_at(0, x0)))
-    # unscaled history sums per step n (0..N-1), [predictor, corrector]: the j = 0 terms first
-    acc = np.empty((N, 2, d))
-    acc[:, 0] = np.outer(b[:N], f0)
-    acc[:, 1] = np.outer(a0[:N], f0)
-    scale = np.array([[cp], [cc]])
-    wrt = [WR[B - 1 - i:].T for i in range(B)]      # (2, i+1) views, lags i..0
-
-    def raise_nonfinite(k: int) -> None:
+    def raise_nonfinite(self, k: int) -> None:
+        X = self.X
         raise FloatingPointError(
-            f"non-finite state at t={float(t[k])!r} s (step {k}, h={h!r} s, alpha={a!r}): "
-            f"x={X[k]}; last finite state x={X[k - 1]}")
+            f"non-finite state at t={float(self.t[k])!r} s (step {k}, h={self.h!r} s, "
+            f"alpha={self.a!r}): x={X[k]}; last finite state x={X[k - 1]}")
 
-    def check_block(lo: int, hi: int) -> None:
-        seg = X[lo + 1:hi + 1]
+    def check_block(self, lo: int, hi: int) -> None:
+        seg = self.X[lo + 1:hi + 1]
         if not np.isfinite(seg).all():
-            raise_nonfinite(lo + 1 + int(np.flatnonzero(~np.isfinite(seg).all(axis=1))[0]))
+            self.raise_nonfinite(lo + 1 + int(np.flatnonzero(~np.isfinite(seg).all(axis=1))[0]))
 
-    if use_jit:
-        U = np.ascontiguousarray(np.atleast_2d(uval), dtype=float)   # (1, du) or (N, du)
-        useq = kind == 'seq'
-
-    def base_compiled(lo: int, hi: int) -> None:
-        status, k, length = _jit.base_block(rhs, lo, hi, t0, h, x0, acc, cp, cc, WR, G, X, U,
-                                            useq)
+    def base_compiled(self, lo: int, hi: int) -> None:
+        status, k, length = _jit.base_block(self.rhs, lo, hi, self.t0, self.h, self.x0,
+                                            self.acc, self.cp, self.cc, self.WR, self.G,
+                                            self.X, self.U, self.kind == 'seq')
         if status == _jit.SHAPE:
-            raise ValueError(f"rhs returned shape ({length},) at t={float(t[k])!r} s (step {k}), "
-                             f"expected {dshape} (state shape)")
+            raise ValueError(f"rhs returned shape ({length},) at t={float(self.t[k])!r} s "
+                             f"(step {k}), expected {self.dshape} (state shape)")
         if status == _jit.NONFINITE:
-            raise_nonfinite(k)
+            self.raise_nonfinite(k)
 
-    def base(lo: int, hi: int) -> None:
-        pbc = x0 + scale * acc[lo:hi]            # (L, 2, d): x0 + cp S^P, x0 + cc S^C
+    def base(self, lo: int, hi: int) -> None:
+        rhs, uval, G, X, wrt, coerce = self.rhs, self.uval, self.G, self.X, self.wrt, self.coerce
+        t0, h, cc, dshape, ndarray = self.t0, self.h, self.cc, self.dshape, np.ndarray
+        is_call = self.kind == 'call'
+        is_seq = self.kind == 'seq'
+        pbc = self.x0 + self.scale * self.acc[lo:hi]   # (L, 2, d): x0 + cp S^P, x0 + cc S^C
         un = uval
         xn = X[lo]
         tn = t0 + lo * h
@@ -258,44 +271,45 @@ def solve_abm_fft(rhs, alpha: float, step: float, x0, n_steps: int, u=None,
                 fp = coerce(fp)
             xn = s[1] + cc * fp
             X[n + 1] = xn
-        check_block(lo, hi)
+        self.check_block(lo, hi)
 
-    def merge(lo: int, mid: int, hi: int) -> None:
+    def merge(self, lo: int, mid: int, hi: int) -> None:
         l1, l2 = mid - lo, hi - mid
-        g = G[lo:mid]
+        g = self.G[lo:mid]
+        d = self.d
         if l1 <= _DIRECT_MAX:
-            acc[mid:hi] += (kern.toeplitz(l1, l2) @ g).reshape(l2, 2, d)
+            self.acc[mid:hi] += (self.kern.toeplitz(l1, l2) @ g).reshape(l2, 2, d)
         else:
-            khat, size = kern.spectrum(l1, l2)
+            khat, size = self.kern.spectrum(l1, l2)
             ghat = sfft.rfft(g, n=size, axis=0)
             conv = sfft.irfft(khat * ghat[None], n=size, axis=1)
-            acc[mid:hi] += conv[:, l1 - 1:l1 - 1 + l2].transpose(1, 0, 2)
+            self.acc[mid:hi] += conv[:, l1 - 1:l1 - 1 + l2].transpose(1, 0, 2)
 
-    def solve(lo: int, hi: int) -> None:
-        if hi > N:
-            hi = N
+    def solve(self, lo: int, hi: int) -> None:
+        hi = min(hi, self.N)
         if lo >= hi:
             return
-        if hi - lo <= B:
-            run_base(lo, hi)
+        if hi - lo <= self.B:
+            self.run_base(lo, hi)
             return
-        size = B
+        size = self.B
         while size < hi - lo:
             size *= 2
         mid = lo + size // 2
-        solve(lo, mid)
-        merge(lo, mid, hi)
-        solve(mid, hi)
+        self.solve(lo, mid)
+        self.merge(lo, mid, hi)
+        self.solve(mid, hi)
 
-    run_base = base_compiled if use_jit else base
-    total = B
-    while total < N:
-        total *= 2
-    if N > 0:
-        solve(0, total)
-
-    F = G
-    F[0] = f0
-    if N > 0:
-        F[N] = coerce(rhs(t[N], X[N], u_at(N, X[N])))
-    return ABMSolution(t, X, F)
+    def run(self) -> ABMSolution:
+        N = self.N
+        total = self.B
+        while total < N:
+            total *= 2
+        if N > 0:
+            self.solve(0, total)
+        F = self.G
+        F[0] = self.f0
+        X = self.X
+        if N > 0:
+            F[N] = self.coerce(self.rhs(self.t[N], X[N], self.u_at(N, X[N])))
+        return ABMSolution(self.t, X, F)

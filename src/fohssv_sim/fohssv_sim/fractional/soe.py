@@ -218,8 +218,8 @@ class SOEStepper(PECEStepperBase):
     def __init__(self, rhs: RhsFn, alpha: float, step: float, x0, t0: float = 0.0,
                  capacity: int | None = None, *, tolerance: float = 1e-10,
                  horizon_steps: int = 10**8, n_exact: int = 16) -> None:
-        self._modes = soe_modes(check_alpha(alpha), tolerance, horizon_steps, n_exact)
-        super().__init__(rhs, alpha, step, x0, t0, capacity)
+        self._soe_args = (tolerance, horizon_steps, n_exact)
+        super().__init__(rhs, alpha, step, x0, t0, capacity)   # checks alpha (_check_order)
 
     @property
     def modes(self) -> SOEModes:
@@ -227,7 +227,8 @@ class SOEStepper(PECEStepperBase):
         return self._modes
 
     def _make_history(self, m: int) -> SOEHistory:
-        """One group of m columns with this stepper's order."""
+        """One group of m columns with this stepper's (checked) order."""
+        self._modes = soe_modes(self._alpha, *self._soe_args)
         return SOEHistory(np.array([self._alpha]), [self._modes], m,
                           np.array([self._cp]), np.array([self._cc]))
 
@@ -279,7 +280,7 @@ class BatchSOE(BatchMixin, SOEStepper):
 
     def _check_order(self, alpha):
         if self._alphas is None:
-            return check_alpha(alpha)
+            return alpha                    # checked once, by _batch_orders
         return self._alphas[:, None]        # (P, 1): cp, cc broadcast over the state columns
 
     def _make_history(self, m: int):

@@ -44,7 +44,7 @@ import numpy as np
 from numpy.polynomial.legendre import leggauss
 from scipy.special import gamma, gammainccinv, roots_jacobi
 
-from ._validate import check_alpha, check_positive_int, check_tolerance
+from ._validate import check_positive_int, check_tolerance
 from .weights import corrector_weights, predictor_weights
 
 __all__ = ['SOEModes', 'soe_modes', 'soe_kernel_error', 'SOEErrorReport']
@@ -192,11 +192,14 @@ def soe_modes(alpha: float, tolerance: float = 1e-10, horizon_steps: int = 10**8
     n_exact <= k <= horizon_steps (see :func:`soe_kernel_error`). Cost: ~5-20 ms once per
     key; about 60-90 modes for tolerance 1e-10 and horizon 1e8.
 
+    ``alpha`` is trusted (a float in (0, 1], checked where it entered: the steppers'
+    constructors or :class:`~fohssv_sim.params.ModelParameters`).
+
     Raises:
-        ValueError: alpha outside (0, 1], tolerance outside [1e-13, 1e-2], horizon_steps or
-            n_exact not integers >= 1 (n_exact >= 2).
+        ValueError: tolerance outside [1e-13, 1e-2], horizon_steps or n_exact not integers
+            >= 1 (n_exact >= 2).
     """
-    a = check_alpha(alpha)
+    a = float(alpha)        # trusted: checked where it entered (steppers, ModelParameters)
     tol = check_tolerance(tolerance)
     hor = check_positive_int(horizon_steps, 'horizon_steps', low=1)
     n0 = check_positive_int(n_exact, 'n_exact', low=2)

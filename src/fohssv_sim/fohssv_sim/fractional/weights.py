@@ -224,12 +224,12 @@ class WeightTable:
     Accuracy: that of :func:`predictor_weights` etc. Cost: amortised O(1) per lag (each lag
     is computed once per process and order); memory 3 doubles per lag.
 
-    Raises:
-        ValueError: alpha outside (0, 1] (constructor).
+    ``alpha`` is trusted (a float in (0, 1], checked where it entered: the steppers'
+    constructors or :class:`~fohssv_sim.params.ModelParameters`).
     """
 
     def __init__(self, alpha: float, capacity: int = 1024) -> None:
-        self.alpha = check_alpha(alpha)
+        self.alpha = float(alpha)   # trusted: checked where it entered (steppers, ModelParameters)
         self._lock = threading.Lock()
         self._cap = 0
         self._bc_rev = np.empty((0, 2))
@@ -286,9 +286,6 @@ class WeightTable:
 @lru_cache(maxsize=8)
 def weight_table(alpha: float) -> WeightTable:
     """Shared :class:`WeightTable` for ``alpha`` (one per order, grown on demand; the 8 most
-    recently used orders are kept).
-
-    Raises:
-        ValueError: alpha outside (0, 1].
+    recently used orders are kept). ``alpha`` is trusted, as for :class:`WeightTable`.
     """
-    return WeightTable(check_alpha(alpha))
+    return WeightTable(alpha)

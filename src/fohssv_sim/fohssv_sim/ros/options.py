@@ -21,7 +21,7 @@ from ..params import ModelParameters, ParameterError, ParameterSpec, spec_field,
 from ..simulate import steps_per_period
 
 __all__ = ['MODES', 'NODE_PARAMETERS', 'NODE_PARAMETER_BY_NAME', 'StateSpec', 'PlantOptions',
-           'check_options', 'clock_samples', 'view_samples']
+           'check_options', 'clock_samples', 'view_samples', 'ros_type_name']
 
 #: The plant node's two modes.
 MODES = ('lockstep', 'realtime')
@@ -48,6 +48,21 @@ class StateSpec(ParameterSpec):
             raise ParameterError(f'{self.name}={value!r} is not valid; allowed: '
                                  f'{self.range_text()} ({self.description})')
         return vals
+
+
+def ros_type_name(spec: ParameterSpec) -> str:
+    """The ROS parameter type of a table row: ``double``, ``integer``, ``string``, ``string or
+    double`` (dynamically typed: a name or a number) or ``double[]`` (a state). The one rule;
+    :func:`fohssv_sim.ros.ros_params.ros_type` maps it to rclpy's ``ParameterType``."""
+    if isinstance(spec, StateSpec):
+        return 'double[]'
+    if spec.choices and spec.numeric:
+        return 'string or double'
+    if not spec.numeric:
+        return 'string'
+    if isinstance(spec.default, int) and not isinstance(spec.default, bool):
+        return 'integer'
+    return 'double'
 
 
 _P = ParameterSpec

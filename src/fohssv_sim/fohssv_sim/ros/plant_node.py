@@ -31,7 +31,6 @@ same ROS_DOMAIN_ID and namespace.
 
 from __future__ import annotations
 
-import array
 import json
 import sys
 import time
@@ -41,16 +40,13 @@ from typing import Any
 
 import rclpy
 from rclpy.duration import Duration
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
-from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String
+from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
-from ..contract import CLOCK, COMMAND, PLANING_FORCE, RUN_END, STATE, Topic, run_end_text
+from ..contract import CLOCK, COMMAND, PLANING_FORCE, RUN_END, STATE, run_end_text
 from ..params import PARAMETERS, ModelParameters
 from .loop import (
     CommandRejected,
@@ -61,27 +57,26 @@ from .loop import (
     check_command,
     cpu_seconds,
 )
-from .options import NODE_PARAMETERS, PlantOptions, check_options, clock_samples, view_samples
-from .qos import profile
-from .ros_params import declare, install_validation
-from .spin import (
+from .nodekit import (
     STOP,
+    ArrayReader,
+    ArrayWriter,
+    ClockWriter,
     PausedCollector,
+    declare,
+    destroy_on_error,
     final_log,
+    install_validation,
     make_executor,
+    profile,
+    refuse_unknown,
+    run_node,
     set_realtime_priority,
     spin_until,
     tighten_timer_slack,
 )
-from .startup import (
-    BadParameters,
-    destroy_on_error,
-    init,
-    refuse_unknown,
-    report,
-)
+from .options import NODE_PARAMETERS, PlantOptions, check_options, clock_samples, view_samples
 from .views import ViewPublisher
-from .wire import ArrayReader, ArrayWriter, ClockWriter
 
 __all__ = ['PlantNode', 'main', 'EXIT_OK', 'EXIT_DIVERGED', 'EXIT_BAD_PARAMETERS',
            'EXIT_TIMEOUT', 'EXIT_NO_PEERS', 'EXIT_SECOND_PLANT']
@@ -104,17 +99,6 @@ _WATCHDOG_CHECK = 0.01
 #: While waiting for its peers, the plant says what it waits for this often (s) and whenever
 #: the matched counts change.
 _WAIT_LOG_PERIOD = 5.0
-
-
-def array_message(topic: Topic) -> Float64MultiArray:
-    """A message of ``topic`` with its self-describing layout and ``data`` preallocated as an
-    ``array.array('d')`` of the layout's length (zeros): fill it in place, ``msg.data[i] = v``,
-    and publish the same message again (no allocation per sample)."""
-    msg = Float64MultiArray()
-    n = len(topic.fields)
-    msg.layout.dim = [MultiArrayDimension(label=topic.label, size=n, stride=n)]
-    msg.data = array.array('d', bytes(8 * n))
-    return msg
 
 
 def build_config(values: Mapping[str, Any]) -> tuple[ModelParameters, PlantOptions, int]:
@@ -653,53 +637,41 @@ def _interrupted(node: PlantNode) -> None:
     node.announce_end('interrupted', node.exit_code)
 
 
+def _run(node: PlantNode) -> int:
+    """Spin the plant until its run ends or a signal (logged as an interruption); then flush
+    and linger; the node's exit code."""
+    executor = make_executor()
+    executor.add_node(node)
+    if node.options.mode == 'realtime':
+        tighten_timer_slack()
+        refused = set_realtime_priority(node.options.realtime_priority)
+        if refused:
+            node.get_logger().warning(f'{refused}; running with the normal scheduler')
+        with PausedCollector():
+            spin_until(executor, node.finished, paced=node)
+    else:
+        spin_until(executor, node.finished, paced=node)
+    code = node.exit_code
+    signals = STOP.count          # a further signal ends the flush and the linger
+    if STOP.received is not None and not node.finished.done():
+        _interrupted(node)
+    # a reader loses what it has not taken when the writer goes away: after a signal
+    # too, the recorder gets the time to drain what was published (bounded waits)
+    node.flush(signals)
+    node.linger(executor, signals)
+    return code
+
+
+def _on_interrupt(node: PlantNode) -> int:
+    if not node.finished.done():
+        _interrupted(node)
+    return node.exit_code
+
+
 def main(args: list[str] | None = None) -> None:
     """Entry point of ``ros2 run fohssv_sim plant``; exits with the node's exit code."""
-    try:
-        # SIGINT/SIGTERM only set STOP; the loop ends between callbacks (see StopSignal):
-        # rclpy's handler would shut the context down under a callback publishing a sample
-        init(args, signal_handler_options=SignalHandlerOptions.NO)
-    except BadParameters as exc:
-        sys.exit(report('plant', exc))
-    STOP.install()
-    code = EXIT_OK
-    node = None
-    try:
-        try:
-            node = PlantNode()
-        except (ValueError, ParameterException) as exc:   # ParameterError, BadParameters
-            code = report('plant', exc, PARAMETERS + NODE_PARAMETERS)
-        else:
-            executor = make_executor()
-            executor.add_node(node)
-            if node.options.mode == 'realtime':
-                tighten_timer_slack()
-                refused = set_realtime_priority(node.options.realtime_priority)
-                if refused:
-                    node.get_logger().warning(f'{refused}; running with the normal scheduler')
-                with PausedCollector():
-                    spin_until(executor, node.finished, paced=node)
-            else:
-                spin_until(executor, node.finished, paced=node)
-            code = node.exit_code
-            signals = STOP.count          # a further signal ends the linger
-            if STOP.received is not None and not node.finished.done():
-                _interrupted(node)
-            # a reader loses what it has not taken when the writer goes away: after a signal
-            # too, the recorder gets the time to drain what was published (bounded waits)
-            node.flush(signals)
-            node.linger(executor, signals)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        if node is not None:
-            code = node.exit_code
-            if not node.finished.done():
-                _interrupted(node)
-    finally:
-        if node is not None:
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
-    sys.exit(code)
+    sys.exit(run_node('plant', args, PlantNode, _run, specs=PARAMETERS + NODE_PARAMETERS,
+                      on_interrupt=_on_interrupt))
 
 
 if __name__ == '__main__':

@@ -40,7 +40,6 @@ from __future__ import annotations
 import math
 import sys
 import time
-from dataclasses import dataclass, field
 from typing import Any
 
 import rclpy
@@ -60,18 +59,29 @@ from std_msgs.msg import Float64MultiArray, String
 
 from .. import contract
 from ..bag import BagError, scan
-from ..bag.writer import typestore
-from ..params import PARAMETERS, ModelParameters, ParameterError
-from .matching import HoldReporter, SubscriptionGate
-from .qos import profile
-from .spin import final_log, make_executor, spin_until
-from .startup import (
+from ..bag.replay import (
+    COMPARED,
+    PlayerError,
+    Track,
+    command_table,
+    compare_plant,
+    pacing_schedule,
+    select_tracks,
+)
+from .nodekit import (
     BadParameters,
+    HoldReporter,
+    SubscriptionGate,
     declare_rows,
     destroy_on_error,
+    final_log,
     init,
+    make_executor,
+    message_class,
+    profile,
     refuse_unknown,
     report,
+    spin_until,
 )
 
 __all__ = ['Player', 'PlayerError', 'Track', 'select_tracks', 'command_table', 'main',
@@ -80,136 +90,8 @@ __all__ = ['Player', 'PlayerError', 'Track', 'select_tracks', 'command_table', '
 
 EXIT_OK, EXIT_ERROR, EXIT_BAD_PARAMETERS, EXIT_NO_PEERS = 0, 1, 2, 4
 MODES = ('republish', 'commands')
-_MSG_CLASSES = {contract.FLOAT64_ARRAY: Float64MultiArray, contract.CLOCK.type: Clock}
-#: Longest sleep between checks for a signal while pacing (s).
-_SLICE = 0.05
-
-
-class PlayerError(Exception):
-    """A bag that cannot be played as asked (the message says why); exit code 1."""
-
-
-@dataclass
-class Track:
-    """One recorded topic to play: its name, contract topic and (log ns, CDR) messages."""
-
-    name: str
-    topic: contract.Topic
-    messages: list[tuple[int, bytes]] = field(default_factory=list)
-
-
-def _basename(name: str) -> str:
-    return name.rstrip('/').rsplit('/', 1)[-1]
-
-
-def _contract(name: str) -> contract.Topic | None:
-    base = _basename(name)
-    return next((t for t in contract.TOPICS if t.name.lstrip('/') == base), None)
-
-
-def select_tracks(sc: Any, wanted: list[str]) -> tuple[list[Track], list[tuple[str, int, bytes]]]:
-    """The bag's channels to play and its messages in recorded order.
-
-    ``wanted``: recorded names (``/state``) or contract names (``state``, matching the topic
-    in any namespace); empty = every contract topic in the bag.
-
-    Returns:
-        (tracks, [(track name, log ns, cdr)] in file order).
-
-    Raises:
-        PlayerError: a wanted topic is not in the bag or not a contract topic.
-    """
-    by_name: dict[str, Track] = {}
-    for chan in sc.channels.values():
-        topic = _contract(chan.topic)
-        if topic is None or chan.msgtype != topic.type:
-            continue
-        by_name.setdefault(chan.topic, Track(chan.topic, topic))
-    if wanted:
-        chosen: dict[str, Track] = {}
-        for w in wanted:
-            hits = [n for n in by_name if n == w or (not w.startswith('/')
-                                                     and _basename(n) == w)]
-            if not hits:
-                have = ', '.join(sorted(by_name)) or 'none'
-                raise PlayerError(f'{sc.files.directory}: topic {w!r} is not in the bag '
-                                  f'(contract topics recorded: {have})')
-            for n in hits:
-                chosen[n] = by_name[n]
-        by_name = chosen
-    names = {c.id: c.topic for c in sc.channels.values() if c.topic in by_name}
-    order: list[tuple[str, int, bytes]] = []
-    for cid, log, raw in sc.messages:
-        name = names.get(cid)
-        if name is not None:
-            by_name[name].messages.append((log, raw))
-            order.append((name, log, raw))
-    return list(by_name.values()), order
-
-
-def command_table(sc: Any, wanted: list[str]) -> tuple[str, dict[float, list[bytes]], int]:
-    """The recorded commands by their ``data[0]`` (the exact double of the state they answer).
-
-    Returns:
-        (recorded topic name, {t: CDR bytes in recorded order}, messages rejected).
-
-    Raises:
-        PlayerError: no command topic, several, or no valid command in it.
-    """
-    tracks, _ = select_tracks(sc, wanted or [contract.COMMAND.name])
-    tracks = [tr for tr in tracks if tr.topic is contract.COMMAND]
-    where = sc.files.directory
-    if not tracks:
-        raise PlayerError(f'{where}: no command topic in the bag; nothing to replay')
-    if len(tracks) > 1:
-        raise PlayerError(f'{where}: several command topics {[t.name for t in tracks]}; '
-                          'name one in the topics parameter')
-    ts = typestore()
-    table: dict[float, list[bytes]] = {}
-    bad = 0
-    for _, raw in tracks[0].messages:
-        try:
-            t = contract.decode(contract.COMMAND, ts.deserialize_cdr(raw, contract.FLOAT64_ARRAY)
-                                .data)[0]
-        except (contract.ContractError, ValueError, IndexError, TypeError):
-            bad += 1
-            continue
-        table.setdefault(t, []).append(raw)
-    if not table:
-        raise PlayerError(f'{where}: {tracks[0].name} holds no valid command '
-                          f'({len(tracks[0].messages)} messages, {bad} rejected)')
-    return tracks[0].name, table, bad
-
-
-#: Plant parameters the commands mode compares with the bag's: the model table, the control
-#: period and the initial state (what decides the trajectory the recorded commands answer).
-COMPARED = (*(p.name for p in PARAMETERS), 'control_period', 'initial_state')
-
-
-def compare_plant(recorded: dict[str, Any], live: dict[str, Any]) -> list[str]:
-    """Differences between the plant parameters recorded in a bag and a live plant's, as
-    ``'name: recorded X, plant Y'``. Model parameters are compared after resolution (``step:
-    auto`` equals the model's default step); names the bag lacks are not compared."""
-    names = [p.name for p in PARAMETERS if p.name in recorded]
-    try:
-        a = ModelParameters.from_dict({n: recorded[n] for n in names}).to_dict()
-        b = ModelParameters.from_dict({n: live[n] for n in names if n in live}).to_dict()
-        names = [n for n in a if n in recorded]
-    except (ParameterError, TypeError, ValueError):
-        a, b = recorded, live
-    diffs = [f'{n}: recorded {a.get(n)!r}, plant {b.get(n)!r}' for n in names
-             if a.get(n) != b.get(n)]
-    for n in ('control_period', 'initial_state'):
-        if n not in recorded:
-            continue
-        r, v = recorded[n], live.get(n)
-        if isinstance(r, (list, tuple)) or hasattr(r, 'tolist'):
-            r = [float(x) for x in r]
-        if isinstance(v, (list, tuple)) or hasattr(v, 'tolist'):
-            v = [float(x) for x in v]
-        if r != v:
-            diffs.append(f'{n}: recorded {r!r}, plant {v!r}')
-    return diffs
+#: Most messages published in one go before the executor runs again (rate 0: all are due).
+_BATCH = 256
 
 
 def _paced_qos(topic: contract.Topic) -> QoSProfile:
@@ -348,7 +230,7 @@ class Player(Node):
         self.pubs = {}
         for tr in tracks:
             qos = _deep_qos() if self.rate == 0 else _paced_qos(tr.topic)
-            self.pubs[tr.name] = self.create_publisher(_MSG_CLASSES[tr.topic.type], tr.name,
+            self.pubs[tr.name] = self.create_publisher(message_class(tr.topic), tr.name,
                                                        qos)
         self.clock_pub = None
         if self.clock and contract.CLOCK.name not in self.pubs:
@@ -365,27 +247,69 @@ class Player(Node):
             f'{self.rate:g}' + (' (as fast as the subscribers allow)' if self.rate == 0
                                 else '') + ('; /clock at every log time' if self.clock_pub
                                             else ''))
+        self._start_republish()
 
-    def _wait_subscribers(self) -> bool:
-        """Wait for ``min_subscribers`` on every topic. False when the start failed."""
-        pubs = list(self.pubs.items())
-        start = time.monotonic()
-        while rclpy.ok():
-            missing = [n for n, p in pubs if p.get_subscription_count() < self.min_subscribers]
-            if not missing:
-                return True
-            waited = time.monotonic() - start
-            if waited >= self.start_timeout:
-                what = (f'{", ".join(missing)} without {self.min_subscribers} subscriber(s) '
-                        f'after {waited:.1f} s')
-                if self.rate == 0:
-                    self._fail(EXIT_NO_PEERS, f'start timeout: {what}; nothing would receive '
-                               'the messages (same ROS_DOMAIN_ID and namespace?)')
-                    return False
-                self.get_logger().warning(f'starting without all subscribers: {what}')
-                return True
-            time.sleep(0.01)
-        return False
+    # Republishing runs from the executor: a timer waits for the subscribers, then
+    # spin_until paces the messages (Paced: pacing_wait / publish_due, as for the real-time
+    # plant), spinning in between; the node's future completes after the last message.
+    def _start_republish(self) -> None:
+        self._due = pacing_schedule([log for _, log, _ in self.order], self.rate)
+        self._next = 0
+        self._wall0: float | None = None     # wall time the first message was due
+        self.wall = 0.0                      # wall seconds from the first to the last message
+        self.clock_sent = 0
+        self._last_log: int | None = None    # log time of the previous message
+        self._wait_start = time.monotonic()
+        self._wait_timer = self.create_timer(0.01, self._check_subscribers)
+
+    def _check_subscribers(self) -> None:
+        """Start once every topic has ``min_subscribers`` (or at the start timeout: rate 0
+        fails then, a paced replay starts anyway)."""
+        if self._wall0 is not None or self.finished.done():
+            return
+        missing = [n for n, p in self.pubs.items()
+                   if p.get_subscription_count() < self.min_subscribers]
+        if missing:
+            waited = time.monotonic() - self._wait_start
+            if waited < self.start_timeout:
+                return
+            what = (f'{", ".join(missing)} without {self.min_subscribers} subscriber(s) '
+                    f'after {waited:.1f} s')
+            if self.rate == 0:
+                self._fail(EXIT_NO_PEERS, f'start timeout: {what}; nothing would receive '
+                           'the messages (same ROS_DOMAIN_ID and namespace?)')
+                return
+            self.get_logger().warning(f'starting without all subscribers: {what}')
+        self.destroy_timer(self._wait_timer)
+        self._wall0 = time.monotonic()
+
+    def pacing_wait(self) -> float | None:
+        """Seconds until the next message is due; None before the start and after the end."""
+        if self._wall0 is None or self.finished.done():
+            return None
+        return self._wall0 + self._due[self._next] - time.monotonic()
+
+    def publish_due(self) -> None:
+        """Publish the messages due by now (at most :data:`_BATCH`, then back to the
+        executor); after the last one the run is complete."""
+        order, due = self.order, self._due
+        now = time.monotonic() - self._wall0
+        for _ in range(_BATCH):
+            if self._next >= len(order) or due[self._next] > now or not rclpy.ok():
+                break
+            name, log, raw = order[self._next]
+            if self.clock_pub is not None and (self._last_log is None or log != self._last_log):
+                self._publish_blocking(self.clock_pub, Clock(clock=Time(nanoseconds=log)
+                                                             .to_msg()))
+                self.clock_sent += 1
+            self._last_log = log
+            self._publish_blocking(self.pubs[name], raw)
+            self._next += 1
+            self.published += 1
+            self.sent[name] += 1
+        if self._next >= len(order):
+            self.wall = time.monotonic() - self._wall0
+            self._end(EXIT_OK)
 
     def _publish_blocking(self, pub: Any, data: Any) -> None:
         """Publish; at rate 0 a keep-all subscriber's full queue makes DDS time out: retry
@@ -399,41 +323,14 @@ class Player(Node):
                     raise
                 time.sleep(0.001)
 
-    def play(self) -> int:
-        """Republish every message (blocking; returns the exit code)."""
-        if not self._wait_subscribers():
-            return self.exit_code
-        wall0 = time.monotonic()
-        due = wall0
-        self.clock_sent = 0
-        last_log: int | None = None    # log time of the previous message
-        for name, log, raw in self.order:
-            # pace by the log time's forward steps (a reset in the run jumps back at once)
-            if last_log is not None and log > last_log and self.rate > 0:
-                due += (log - last_log) * 1e-9 / self.rate
-                while (now := time.monotonic()) < due:
-                    if not rclpy.ok():
-                        break
-                    time.sleep(min(_SLICE, due - now))
-            if not rclpy.ok():
-                break
-            if self.clock_pub is not None and (last_log is None or log != last_log):
-                self._publish_blocking(self.clock_pub, Clock(clock=Time(nanoseconds=log)
-                                                             .to_msg()))
-                self.clock_sent += 1
-            last_log = log
-            self._publish_blocking(self.pubs[name], raw)
-            self.published += 1
-            self.sent[name] += 1
-        wall = time.monotonic() - wall0
-        if not rclpy.ok():
-            final_log('player', f'interrupted after {self.published} of {len(self.order)} '
-                      'messages')
-            return self.exit_code
+    def end_republish(self, executor: Any) -> int:
+        """After the last message: announce ``run_end``, wait for the acknowledgements and
+        linger (spinning ``executor``); the exit code."""
         self._announce_end()
         pubs = list(self.pubs.values()) + [p for p in (self.clock_pub,) if p]
-        unacked = self._flush_all(pubs)
+        unacked = self._flush_all(pubs, executor)
         span = (self.order[-1][1] - self.order[0][1]) * 1e-9
+        wall = self.wall
         self.get_logger().info(
             f'played {self.published} messages, {span:.6g} s simulated in {wall:.3f} s wall '
             f'(x{span / wall if wall > 0 else math.inf:.3g})')
@@ -459,7 +356,7 @@ class Player(Node):
             'player', f'played {self.published} of {len(self.order)} messages', EXIT_OK,
             self.order[-1][1] * 1e-9, published)))
 
-    def _flush_all(self, pubs: list) -> list[str]:
+    def _flush_all(self, pubs: list, executor: Any) -> list[str]:
         """Wait for the acknowledgements of the last messages, then keep the publishers for
         ``end_linger`` s while anything subscribes (a subscriber acknowledges on receipt but
         loses what it has not taken yet when the writer goes away). Returns the reliable
@@ -472,7 +369,7 @@ class Player(Node):
         deadline = time.monotonic() + self.end_linger
         while (rclpy.ok() and time.monotonic() < deadline
                and any(pub.get_subscription_count() > 0 for pub in pubs)):
-            time.sleep(0.05)
+            executor.spin_once(timeout_sec=0.05)
         return unacked
 
     # -- commands --------------------------------------------------------------------------
@@ -649,15 +546,23 @@ def main(args: list[str] | None = None) -> int:
     code = EXIT_OK
     try:
         node = Player()
+        executor = make_executor()
+        executor.add_node(node)
         if node.mode == 'republish':
-            code = node.play()
+            spin_until(executor, node.finished, paced=node)
+            if node.finished.done() and node.exit_code == EXIT_OK:
+                code = node.end_republish(executor)
+            elif node.finished.done():
+                code = node.exit_code
+            else:
+                code = node.exit_code
+                final_log('player', f'interrupted after {node.published} of '
+                          f'{len(node.order)} messages')
         else:
-            executor = make_executor()
-            executor.add_node(node)
             spin_until(executor, node.finished)
             code = node.exit_code
             if rclpy.ok():
-                node._flush_all([node.command_pub])
+                node._flush_all([node.command_pub], executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         if node is not None:
             code = node.exit_code

@@ -22,7 +22,8 @@
   wall time (and whenever it exceeds ``chunk_size`` bytes). SIGKILL loses at most the
   messages received in the last ``flush_period`` (plus one callback); SIGINT/SIGTERM close the
   bag completely (summary, index, metadata.yaml) after draining what the readers already
-  hold (until nothing arrived for 0.2 s, at most ``end_timeout``). ``python -m fohssv_sim.bag
+  hold (until the bag holds what a received ``run_end`` lists, else until nothing arrived
+  for 0.5 s; at most ``end_timeout``). ``python -m fohssv_sim.bag
   repair`` rebuilds a killed recorder's bag.
 * End of run (``stop_at_run_end``, default true): the plant (and the player after a replay)
   publishes ``run_end`` once, with the number of messages it sent on each topic. The recorder
@@ -55,33 +56,30 @@ from pathlib import Path
 from typing import Any
 
 import rclpy
-from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 from rcl_interfaces.srv import GetParameters, ListParameters
 from rclpy.clock import Clock, ClockType
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
 from rclpy.qos import HistoryPolicy, QoSProfile
-from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
-from rosgraph_msgs.msg import Clock as ClockMsg
-from std_msgs.msg import Float64MultiArray, String
-from visualization_msgs.msg import Marker
+from std_msgs.msg import String
 
 from .. import contract
 from ..bag.writer import DEFAULT_CHUNK_SIZE, RunWriter, typestore
-from .matching import SecondPublisherWarning
-from .qos import offered_qos, profile
-from .spin import STOP, final_log, spin_until
-from .startup import (
-    BadParameters,
+from .nodekit import (
+    STOP,
+    SecondPublisherWarning,
     declare_rows,
     destroy_on_error,
-    init,
+    final_log,
+    message_class,
+    offered_qos,
+    profile,
     refuse_unknown,
-    report,
+    run_node,
+    spin_until,
 )
 
 __all__ = ['Recorder', 'main', 'default_bag_path', 'source_info', 'EXIT_LOST']
@@ -89,11 +87,8 @@ __all__ = ['Recorder', 'main', 'default_bag_path', 'source_info', 'EXIT_LOST']
 #: Exit code when the bag misses messages that the run's ``run_end`` says were published.
 EXIT_LOST = 6
 #: After a signal: stop draining once nothing arrived for this long (s).
-_DRAIN_QUIET = 0.2
+_DRAIN_QUIET = 0.5
 
-_MSG_CLASSES = {contract.FLOAT64_ARRAY: Float64MultiArray, contract.CLOCK.type: ClockMsg,
-                contract.POSE.type: PoseStamped, contract.TWIST.type: TwistStamped,
-                contract.WRENCH.type: WrenchStamped, contract.MARKER.type: Marker}
 #: What the recorder records by default: the contract and the typed views.
 RECORDED = contract.TOPICS + contract.VIEW_TOPICS
 _CDR_LE = b'\x00\x01'
@@ -127,10 +122,9 @@ def source_info() -> dict[str, str]:
 
 
 def _contract_topic(name: str) -> contract.Topic:
-    base = name.rstrip('/').rsplit('/', 1)[-1]
-    for topic in RECORDED:
-        if topic.name.lstrip('/') == base:
-            return topic
+    topic = contract.find_topic(name, RECORDED)
+    if topic is not None:
+        return topic
     valid = ', '.join(t.name for t in RECORDED)
     raise ValueError(f'topics: {name!r} is not a contract topic; the recorder records: {valid} '
                      '(in any namespace)')
@@ -247,7 +241,7 @@ class Recorder(Node):
                 self.writer.add_topic(self.resolve_topic_name(name), topic.type,
                                       qos=[offered_qos(topic)])
                 continue
-            sub = self.create_subscription(_MSG_CLASSES[topic.type], name,
+            sub = self.create_subscription(message_class(topic), name,
                                            self._callback(topic), qos, raw=True)
             self.writer.add_topic(sub.topic_name, topic.type, qos=[offered_qos(topic)])
             self.subscriptions_.append(sub)
@@ -273,10 +267,11 @@ class Recorder(Node):
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._flush_timer = self.create_timer(flush_period, self.writer.flush, clock=steady)
         self._end_timer = None
-        if gp('stop_at_run_end').value:
-            self._end_sub = self.create_subscription(String, contract.RUN_END.name,
-                                                     self._on_run_end,
-                                                     profile(contract.RUN_END))
+        # always heard (a drain after a signal waits for what it lists); it ends the recording
+        # only with stop_at_run_end
+        self._stop_at_end = bool(gp('stop_at_run_end').value)
+        self._end_sub = self.create_subscription(String, contract.RUN_END.name,
+                                                 self._on_run_end, profile(contract.RUN_END))
         state = self.resolve_topic_name(contract.STATE.name)
         self._rivals = (SecondPublisherWarning(self, state) if state in self.topic_names
                         else None)
@@ -297,7 +292,7 @@ class Recorder(Node):
         self._deferred = None
         self.destroy_timer(self._defer_timer)
         self.subscriptions_.append(self.create_subscription(
-            _MSG_CLASSES[topic.type], name, self._callback(topic), qos, raw=True))
+            message_class(topic), name, self._callback(topic), qos, raw=True))
         print(f'command matched {command.get_publisher_count()} publisher(s); subscribed to '
               f'{self.resolve_topic_name(name)}', flush=True)
 
@@ -345,8 +340,9 @@ class Recorder(Node):
         self.get_logger().info(
             f"run_end from the {info.get('source', '?')} ({info.get('reason', '')}): waiting "
             f'for {sum(self._expected.values())} messages on {len(self._expected)} topics')
-        steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self._end_timer = self.create_timer(0.01, self._check_end, clock=steady)
+        if self._stop_at_end:
+            steady = Clock(clock_type=ClockType.STEADY_TIME)
+            self._end_timer = self.create_timer(0.01, self._check_end, clock=steady)
 
     def missing(self) -> dict[str, tuple[int, int]]:
         """Topics whose recorded count is below the run_end's: topic -> (recorded, published)."""
@@ -367,8 +363,9 @@ class Recorder(Node):
         self.done.set_result(self.exit_code)
 
     def drain(self, executor: Any) -> None:
-        """After a signal: take what the readers already hold, until nothing arrived for
-        0.2 s (at most ``end_timeout`` s, and at once when a run_end's counts are met)."""
+        """After a signal: take what the readers already hold. Once a run_end arrived, until
+        the bag holds what it lists; before, until nothing arrived for 0.5 s. At most
+        ``end_timeout`` s either way."""
         deadline = time.monotonic() + self.end_timeout
         total = sum(self.writer.counts.values())
         quiet_since = time.monotonic()
@@ -379,7 +376,7 @@ class Recorder(Node):
             n = sum(self.writer.counts.values())
             if n != total:
                 total, quiet_since = n, now
-            elif now - quiet_since >= _DRAIN_QUIET:
+            elif self._expected is None and now - quiet_since >= _DRAIN_QUIET:
                 break
         if self.missing():
             self.exit_code = EXIT_LOST
@@ -447,46 +444,38 @@ class Recorder(Node):
               flush=True)
 
 
-def main(args: list[str] | None = None) -> int:
-    # SIGINT and SIGTERM only set STOP (spin.StopSignal): the loop ends between callbacks, the
-    # readers are drained and the bag is closed below, in order.
-    try:
-        init(args, signal_handler_options=SignalHandlerOptions.NO)
-    except BadParameters as exc:
-        return report('recorder', exc)
-    STOP.install()
-    node = None
-    code = 0
-    try:
-        try:
-            node = Recorder()
-        except (ValueError, ParameterException) as exc:   # BadParameters too
-            return report('recorder', exc)
-        # SingleThreadedExecutor: rclpy's EventsExecutor (faster) did not run this node's
-        # steady-clock timers and service clients in a first try; see docs/recording.md
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        spin_until(executor, node.done)
-        if STOP.received is not None:
-            final_log('recorder', 'stopping: draining the delivered messages')
-            node.drain(executor)
-        code = node.exit_code
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except OSError as exc:
+def _run(node: Recorder) -> int:
+    # SingleThreadedExecutor: rclpy's EventsExecutor (faster) did not run this node's
+    # steady-clock timers and service clients in a first try; see docs/recording.md
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    spin_until(executor, node.done)
+    if STOP.received is not None:
+        final_log('recorder', 'stopping: draining the delivered messages')
+        node.drain(executor)
+    return node.exit_code
+
+
+def _error(exc: Exception) -> int:
+    if isinstance(exc, OSError):
         print(f'recorder: error: {exc}', file=sys.stderr, flush=True)
-        code = 1
-    except Exception as exc:  # noqa: BLE001
-        if rclpy.ok():        # not a signal arriving during start-up
-            print(f'recorder: error: {type(exc).__name__}: {exc}', file=sys.stderr, flush=True)
-            code = 1
-    finally:
-        if node is not None:
-            node.close()
-            node.report_loss()
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+        return 1
+    if rclpy.ok():        # not a signal arriving during start-up
+        print(f'recorder: error: {type(exc).__name__}: {exc}', file=sys.stderr, flush=True)
+        return 1
+    return 0
+
+
+def _close(node: Recorder) -> None:
+    node.close()
+    node.report_loss()
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``ros2 run fohssv_sim recorder``; returns the exit code. SIGINT and
+    SIGTERM only set STOP (spin.StopSignal): the loop ends between callbacks, the readers are
+    drained and the bag is closed, in order."""
+    return run_node('recorder', args, Recorder, _run, on_error=_error, on_exit=_close)
 
 
 if __name__ == '__main__':

@@ -40,24 +40,24 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from ..params import ParameterSpec
-from .options import StateSpec
+from .options import StateSpec, ros_type_name
 from .startup import precheck
 
 __all__ = ['ros_type', 'descriptor', 'declare', 'values_of', 'install_validation',
            'python_value']
 
 
+#: ROS parameter types by the names :func:`.options.ros_type_name` gives.
+_ROS_TYPES = {'double[]': ParameterType.PARAMETER_DOUBLE_ARRAY,
+              'string or double': ParameterType.PARAMETER_NOT_SET,
+              'string': ParameterType.PARAMETER_STRING,
+              'integer': ParameterType.PARAMETER_INTEGER,
+              'double': ParameterType.PARAMETER_DOUBLE}
+
+
 def ros_type(spec: ParameterSpec) -> int:
     """The ``ParameterType`` of a row (``PARAMETER_NOT_SET`` = dynamically typed)."""
-    if isinstance(spec, StateSpec):
-        return ParameterType.PARAMETER_DOUBLE_ARRAY
-    if spec.choices and spec.numeric:
-        return ParameterType.PARAMETER_NOT_SET
-    if not spec.numeric:
-        return ParameterType.PARAMETER_STRING
-    if isinstance(spec.default, int) and not isinstance(spec.default, bool):
-        return ParameterType.PARAMETER_INTEGER
-    return ParameterType.PARAMETER_DOUBLE
+    return _ROS_TYPES[ros_type_name(spec)]
 
 
 def descriptor(spec: ParameterSpec) -> ParameterDescriptor:

@@ -31,11 +31,12 @@ import struct
 from collections.abc import Sequence
 
 from rclpy.serialization import deserialize_message, serialize_message
-from std_msgs.msg import Float64MultiArray
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from ..contract import Topic
 
-__all__ = ['ArrayWriter', 'ArrayReader', 'ClockWriter', 'WireError']
+__all__ = ['ArrayWriter', 'ArrayReader', 'ClockWriter', 'WireError', 'array_message',
+           'message_class']
 
 _CDR_LE = b'\x00\x01'
 
@@ -44,10 +45,39 @@ class WireError(RuntimeError):
     """The serialized form is not the one this module understands (not CDR little-endian)."""
 
 
+def array_message(topic: Topic) -> Float64MultiArray:
+    """A message of ``topic`` with its self-describing layout and ``data`` preallocated as an
+    ``array.array('d')`` of the layout's length (zeros): fill it in place, ``msg.data[i] = v``,
+    and publish the same message again (no allocation per sample)."""
+    msg = Float64MultiArray()
+    n = len(topic.fields)
+    msg.layout.dim = [MultiArrayDimension(label=topic.label, size=n, stride=n)]
+    msg.data = array.array('d', bytes(8 * n))
+    return msg
+
+
+_CLASSES: dict[str, type] = {}
+
+
+def message_class(topic: Topic) -> type:
+    """The Python message class of a contract topic's type (the contract topics and the
+    typed views)."""
+    if not _CLASSES:
+        from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
+        from rosgraph_msgs.msg import Clock
+        from visualization_msgs.msg import Marker
+
+        from .. import contract
+
+        _CLASSES.update({
+            contract.FLOAT64_ARRAY: Float64MultiArray, contract.CLOCK.type: Clock,
+            contract.POSE.type: PoseStamped, contract.TWIST.type: TwistStamped,
+            contract.WRENCH.type: WrenchStamped, contract.MARKER.type: Marker})
+    return _CLASSES[topic.type]
+
+
 def _template(topic: Topic) -> tuple[bytearray, int]:
     """The serialized message of ``topic`` (layout, zeros) and the offset of its doubles."""
-    from .plant_node import array_message
-
     msg = array_message(topic)
     n = len(topic.fields)
     probe = tuple(float(i + 1) for i in range(n))

@@ -1,7 +1,8 @@
-"""``fohssv gainmap``: two gains of a controller over a grid (see :mod:`.gainmap`).
+"""``fohssv gainmap``: two gains of a controller over a grid (see
+:mod:`fohssv_sim.analysis.gainmap`).
 
-Thin: parses the options into a :class:`.gainmap.GainMapSpec`, runs it, prints, draws. All
-logic is in :mod:`.gainmap`.
+Thin: parses the options into a :class:`~fohssv_sim.analysis.gainmap.GainMapSpec`, runs it,
+prints, draws. All logic is in :mod:`fohssv_sim.analysis.gainmap`.
 """
 
 from __future__ import annotations
@@ -9,8 +10,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..cli import CliError, _assignments, _common, model_params, output_dir, parse_range
-from .cli_sweep import dask_options, run_on_dask
+from .common import (
+    CliError,
+    add_common_options,
+    assignments,
+    model_params,
+    output_dir,
+    parse_range,
+)
+from .sweep import dask_options, run_on_dask
 
 
 def register(sub) -> None:
@@ -24,7 +32,7 @@ def register(sub) -> None:
         '(alpha_c = alpha). Runs on Dask: a local cluster by default, or --scheduler ADDRESS. '
         'Results stream to OUT/chunks/*.csv with OUT/gainmap.json; rerunning the same command '
         'resumes.')
-    _common(p)
+    add_common_options(p)
     p.add_argument('--x', required=True, metavar='NAME=VALUES',
                    help='first gain and its values, start:stop:step or a,b,c, e.g. '
                    'pitch_rate_gain=-1:0:0.1')
@@ -61,7 +69,7 @@ def _axis(text: str, option: str) -> tuple[str, tuple[float, ...]]:
 
 
 def build_spec(args: argparse.Namespace):
-    from .gainmap import GainMapError, GainMapSpec
+    from ..analysis.gainmap import GainMapError, GainMapSpec
 
     over = {'model': args.model} if args.model else {}
     base = model_params(args, **over)
@@ -82,7 +90,7 @@ def build_spec(args: argparse.Namespace):
         raise CliError(f'--control-period={args.control_period} s must be >= 0')
     spec = GainMapSpec(
         controller=args.controller, gain_x=gx, x_values=xs, gain_y=gy, y_values=ys,
-        gains=_assignments(args.gain or [], '--gain'), base=values, alpha=float(alpha),
+        gains=assignments(args.gain or [], '--gain'), base=values, alpha=float(alpha),
         speed=float(speed), envelope_speeds=env_v, envelope_alphas=env_a,
         duration=args.duration, transient=args.transient,
         control_period=args.control_period or None, settle_band=args.settle_band,
@@ -95,7 +103,7 @@ def build_spec(args: argparse.Namespace):
 
 
 def cmd_gainmap(args: argparse.Namespace) -> int:
-    from .gainmap import plot_gain_map, run_gain_map, summary_lines
+    from ..analysis.gainmap import plot_gain_map, run_gain_map, summary_lines
 
     spec = build_spec(args)
     out: Path = output_dir(args.out or Path('reports') / 'gainmap')

@@ -1,52 +1,28 @@
-"""``fohssv sweep alpha|V|alpha-V``: orbit diagrams on Dask (see :mod:`.sweep`)."""
+"""``fohssv sweep alpha|V|alpha-V``: orbit diagrams on Dask (see
+:mod:`fohssv_sim.analysis.sweep`)."""
 
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-from ..cli import (
+from ..analysis.diagrams import plot_alpha_v, plot_orbit_diagram
+from ..analysis.stability import critical_order_curve
+from ..analysis.sweep import ProgressPrinter, SweepSpec, run_sweep
+from ..params import ParameterError
+from .common import (
     CliError,
-    _assignments,
-    _common,
-    _figure_paths,
+    add_common_options,
+    assignments,
+    figure_paths,
+    load_controller,
     model_params,
     output_dir,
     parse_range,
 )
-from ..params import ParameterError
 
 DEFAULT_ALPHAS = '0.6:1.0:0.02'
 DEFAULT_SPEEDS = '75:90:1'
-
-
-class ProgressPrinter:
-    """``progress(done, total, elapsed)`` for :func:`.sweep.run_sweep`, on stderr: one line
-    rewritten in place (``\\r``) on a terminal, one line per update otherwise (log files get
-    no carriage returns)."""
-
-    def __init__(self, what: str, stream=None) -> None:
-        self.what = what
-        self.stream = stream if stream is not None else sys.stderr
-        self.tty = bool(getattr(self.stream, 'isatty', lambda: False)())
-        self.open = False
-
-    def __call__(self, done: int, total: int, elapsed: float) -> None:
-        eta = elapsed / max(done, 1) * (total - done)
-        text = (f'  {self.what} {done}/{total}  {elapsed:6.1f} s elapsed  '
-                f'~{eta:6.1f} s left')
-        if self.tty:
-            print('\r' + text, end='', file=self.stream, flush=True)
-            self.open = True
-        else:
-            print(text, file=self.stream, flush=True)
-
-    def end(self) -> None:
-        """End the in-place line (terminal only)."""
-        if self.open:
-            print(file=self.stream, flush=True)
-            self.open = False
 
 
 def run_on_dask(run, spec, out: Path, args: argparse.Namespace):
@@ -82,7 +58,7 @@ def register(sub) -> None:
                        'default, or --scheduler ADDRESS. Results stream to OUT/chunks/*.csv '
                        'with OUT/sweep.json; rerunning the same command resumes.')
     p.add_argument('kind', choices=('alpha', 'V', 'alpha-V'))
-    _common(p)
+    add_common_options(p)
     p.add_argument('--alpha', help=f'alpha values, start:stop:step or a,b,c (default '
                    f'{DEFAULT_ALPHAS} for alpha sweeps, else the fractional_order parameter)')
     p.add_argument('--speed', help=f'V values in m/s (default {DEFAULT_SPEEDS} for V sweeps, '
@@ -101,8 +77,6 @@ def register(sub) -> None:
 
 
 def build_spec(args: argparse.Namespace):
-    from .sweep import SweepSpec
-
     base = model_params(args)   # validates --set / --preset
     if args.kind == 'alpha':
         alphas = parse_range(args.alpha or DEFAULT_ALPHAS, '--alpha')
@@ -125,9 +99,7 @@ def build_spec(args: argparse.Namespace):
     values = base.to_dict()
     values.pop('fractional_order')
     values.pop('speed')
-    gains = _assignments(args.gain or [], '--gain')
-    from ..cli import load_controller
-
+    gains = assignments(args.gain or [], '--gain')
     load_controller(args.controller, gains)   # fail early on a bad name or gain
     try:
         return SweepSpec(base=values, alphas=tuple(float(a) for a in alphas),
@@ -141,9 +113,6 @@ def build_spec(args: argparse.Namespace):
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    from .diagrams import plot_alpha_v, plot_orbit_diagram
-    from .sweep import run_sweep
-
     spec = build_spec(args)
     out: Path = output_dir(args.out)
     n = len(spec.points())
@@ -163,16 +132,13 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         checked = sum(1 for r in result.rows if r['step_check'])
         print(f'step check: {checked} points re-run at half step, {len(changed)} changed class')
     if args.kind == 'alpha-V':
-        from ..analysis.stability import critical_order_curve
-        from ..cli import load_controller
-
         crit = critical_order_curve(model_params(args), load_controller(args.controller,
                                     spec.gains), spec.speeds)
-        plot_alpha_v(result, _figure_paths(out / 'alpha_v'),
+        plot_alpha_v(result, figure_paths(out / 'alpha_v'),
                      [(p.speed, p.critical_order) for p in crit])
         print(f"alpha-V map: {out / 'alpha_v'}.png/.svg")
     else:
         axis = 'alpha' if args.kind == 'alpha' else 'speed'
-        plot_orbit_diagram(result, axis, _figure_paths(out / f'orbit_{args.kind}'))
+        plot_orbit_diagram(result, axis, figure_paths(out / f'orbit_{args.kind}'))
         print(f'orbit diagram: {out}/orbit_{args.kind}.png/.svg')
     return 0

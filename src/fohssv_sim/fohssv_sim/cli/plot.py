@@ -6,7 +6,10 @@ import argparse
 import json
 from pathlib import Path
 
-from ..cli import BagInputError, _figure_paths, output_dir
+from ..analysis.plots import plot_phase_portrait, plot_time_responses, summary
+from ..bag import BagError, load_run
+from ..bag.__main__ import main as bag_main
+from .common import BagInputError, figure_paths, output_dir
 
 
 def register(sub) -> None:
@@ -32,15 +35,10 @@ def register(sub) -> None:
 
 
 def _delegate(what: str, argv: list[str]) -> int:
-    from ..bag.__main__ import main
-
-    return main([what, *argv])
+    return bag_main([what, *argv])
 
 
 def cmd_plot(args: argparse.Namespace) -> int:
-    from ..bag import BagError, load_run
-    from .plots import plot_phase_portrait, plot_time_responses, summary
-
     runs = []
     for bag in args.bags:
         try:
@@ -56,8 +54,8 @@ def cmd_plot(args: argparse.Namespace) -> int:
             print(f'{run.path}: {run.recovery}')
     output_dir(args.out)
     stem = args.out / args.name
-    plot_time_responses(runs, _figure_paths(stem.parent / f'{stem.name}_time'))
-    plot_phase_portrait(runs, _figure_paths(stem.parent / f'{stem.name}_phase'), args.skip)
+    plot_time_responses(runs, figure_paths(stem.parent / f'{stem.name}_time'))
+    plot_phase_portrait(runs, figure_paths(stem.parent / f'{stem.name}_phase'), args.skip)
     summaries = {str(r.path): summary(r) for r in runs}
     (args.out / f'{args.name}_summary.json').write_text(json.dumps(summaries, indent=2) + '\n')
     for path, s in summaries.items():

@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
+
+from ..analysis.report import ReportSettings, make_report
+from .common import output_dir
 
 
 def register(sub) -> None:
@@ -23,11 +27,6 @@ def register(sub) -> None:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    import dataclasses
-
-    from ..cli import output_dir
-    from .report import ReportSettings, make_report
-
     output_dir(args.out)
 
     s = ReportSettings.quick() if args.quick else ReportSettings()

@@ -1,0 +1,134 @@
+"""What every fohssv node imports: one public module for the shared node plumbing.
+
+A node module (``*_node.py``, here or in another package such as ``fohssv_controller``)
+imports its ROS helpers from here and never from another node's module:
+
+* start and end: :func:`run_node` owns ``rclpy.init``, building the node, spinning it, the
+  exit code and the tear-down (bad arguments or parameters: one line and exit 2, see
+  :mod:`.startup`); the plant and the controller use it. The recorder and the player keep
+  rclpy's own signal handling (a signal shuts the context down and their drain on SIGINT
+  relies on it), so they call :func:`init` and :func:`report` themselves;
+* messages: :func:`array_message`, :class:`ArrayWriter` / :class:`ArrayReader` (serialized
+  messages, :mod:`.wire`), :func:`message_class` (the Python class of a contract type);
+* QoS: :func:`profile`, :func:`offered_qos` (:mod:`.qos`);
+* parameters: :func:`declare`, :func:`install_validation` (from a table, :mod:`.ros_params`),
+  :func:`declare_rows`, :func:`refuse_unknown`, :func:`destroy_on_error` (:mod:`.startup`);
+* spinning: :func:`make_executor`, :func:`spin_until`, :data:`STOP`, :func:`final_log`,
+  and for the real-time plant :class:`PausedCollector`, :func:`set_realtime_priority`,
+  :func:`tighten_timer_slack` (:mod:`.spin`);
+* subscription gating: :class:`SubscriptionGate`, :class:`HoldReporter`,
+  :class:`SecondPublisherWarning` (:mod:`.matching`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from typing import Any
+
+import rclpy
+import rclpy.logging
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+
+from ..params import ParameterSpec
+from .matching import HoldReporter, SecondPublisherWarning, SubscriptionGate
+from .qos import offered_qos, profile
+from .ros_params import declare, install_validation
+from .spin import (
+    STOP,
+    PausedCollector,
+    final_log,
+    make_executor,
+    set_realtime_priority,
+    spin_until,
+    tighten_timer_slack,
+)
+from .startup import (
+    EXIT_BAD_PARAMETERS,
+    BadParameters,
+    declare_rows,
+    destroy_on_error,
+    init,
+    refuse_unknown,
+    report,
+)
+from .wire import ArrayReader, ArrayWriter, ClockWriter, array_message, message_class
+
+__all__ = ['run_node', 'spin_node', 'EXIT_OK', 'EXIT_BAD_PARAMETERS',
+           'array_message', 'message_class', 'ArrayReader', 'ArrayWriter', 'ClockWriter',
+           'profile', 'offered_qos', 'declare', 'install_validation', 'declare_rows',
+           'refuse_unknown', 'destroy_on_error', 'BadParameters', 'make_executor',
+           'spin_until', 'STOP', 'final_log', 'SubscriptionGate', 'HoldReporter',
+           'SecondPublisherWarning',
+           'PausedCollector', 'set_realtime_priority', 'tighten_timer_slack', 'init', 'report']
+
+EXIT_OK = 0
+
+
+def spin_node(node: Node) -> int:
+    """The default run of :func:`run_node`: spin ``node`` on the nodes' executor until a
+    signal (:data:`STOP`) or shutdown; exit code 0."""
+    executor = make_executor()
+    executor.add_node(node)
+    spin_until(executor)
+    return EXIT_OK
+
+
+def run_node(name: str, args: list[str] | None, build: Callable[[], Node],
+             run: Callable[[Any], int] = spin_node, *,
+             specs: Iterable[ParameterSpec] = (),
+             refused: tuple[type[BaseException], ...] = (),
+             on_interrupt: Callable[[Any], int] | None = None,
+             on_error: Callable[[Exception], int] | None = None,
+             on_exit: Callable[[Any], None] | None = None) -> int:
+    """Run one node process from start to exit code; every node's ``main`` is this call.
+
+    1. ``rclpy.init`` with rclpy's signal handlers off: SIGINT/SIGTERM only set :data:`STOP`
+       and the loop ends between callbacks (see :class:`.spin.StopSignal`). Bad arguments:
+       one line, exit :data:`EXIT_BAD_PARAMETERS`.
+    2. ``build()`` makes the node. A ``ValueError`` or rclpy ``ParameterException`` (invalid
+       parameters) gives one line explained with ``specs`` and exit 2 at once; an exception
+       of ``refused`` (e.g. an unknown plugin) is logged under ``name`` and gives exit 2.
+    3. ``run(node)`` spins it (default :func:`spin_node`) and returns the exit code. A
+       ``KeyboardInterrupt`` or ``ExternalShutdownException`` ends it; ``on_interrupt(node)``
+       then gives the code (default: 0). Any other exception (in ``build`` or ``run``) goes to
+       ``on_error(exc)``, which reports it and gives the code (default: it propagates).
+    4. ``on_exit(node)`` (e.g. a final log line), ``node.destroy_node()``, ``rclpy.shutdown``.
+
+    Returns:
+        The process's exit code (the caller passes it to ``sys.exit``).
+    """
+    try:
+        init(args, signal_handler_options=SignalHandlerOptions.NO)
+    except BadParameters as exc:
+        return report(name, exc)
+    STOP.install()
+    code = EXIT_OK
+    node = None
+    try:
+        try:
+            node = build()
+        except refused as exc:
+            rclpy.logging.get_logger(name).error(str(exc))
+            code = EXIT_BAD_PARAMETERS
+        except (ValueError, ParameterException) as exc:   # ParameterError, BadParameters
+            code = report(name, exc, specs)
+        else:
+            code = run(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        if node is not None and on_interrupt is not None:
+            code = on_interrupt(node)
+    except Exception as exc:
+        if on_error is None:
+            raise
+        code = on_error(exc)
+    finally:
+        if node is not None:
+            if on_exit is not None:
+                on_exit(node)
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return code

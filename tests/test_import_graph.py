@@ -1,0 +1,121 @@
+"""The dependency arrows point one way (docs/architecture.md, issue 14).
+
+* No module of ``fohssv_sim`` imports ``fohssv_controller``: the controller contract and the
+  plugin registry are in the core (:mod:`fohssv_sim.control`); the core finds the built-in
+  laws through entry points.
+* No node module (``*_node.py``) imports another node module: shared node plumbing is in
+  :mod:`fohssv_sim.ros.nodekit`.
+* No core module imports the CLI (``fohssv_sim.cli``), and the core (everything outside
+  ``fohssv_sim.ros``) imports no rclpy, checked by importing every core module in a process
+  where rclpy cannot be imported.
+
+Read from the source with ``ast`` (every import statement, function-local ones included).
+"""
+
+from __future__ import annotations
+
+import ast
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SIM = ROOT / 'src' / 'fohssv_sim' / 'fohssv_sim'
+CONTROLLER = ROOT / 'src' / 'fohssv_controller' / 'fohssv_controller'
+
+
+def _module_name(path: Path, package_dir: Path) -> str:
+    rel = path.relative_to(package_dir.parent).with_suffix('')
+    parts = list(rel.parts)
+    if parts[-1] == '__init__':
+        parts.pop()
+    return '.'.join(parts)
+
+
+def _imports(path: Path, package_dir: Path) -> set[str]:
+    """Absolute names of every module ``path`` imports (relative imports resolved)."""
+    name = _module_name(path, package_dir)
+    package = name if path.name == '__init__.py' else name.rpartition('.')[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            found.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split('.')
+                base = base[:len(base) - node.level + 1]
+                mod = '.'.join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module or ''
+            found.add(mod)
+            found.update(f'{mod}.{a.name}' for a in node.names)
+    return found
+
+
+def _modules(package_dir: Path) -> list[Path]:
+    return sorted(p for p in package_dir.rglob('*.py') if '__pycache__' not in p.parts)
+
+
+def test_no_core_module_imports_the_controller_package():
+    bad = {str(p.relative_to(ROOT)): sorted(i for i in _imports(p, SIM)
+                                            if i.split('.')[0] == 'fohssv_controller')
+           for p in _modules(SIM)}
+    assert {k: v for k, v in bad.items() if v} == {}
+
+
+def test_no_node_module_imports_another_node_module():
+    nodes = {p: d for d in (SIM, CONTROLLER) for p in _modules(d) if p.stem.endswith('_node')}
+    names = {_module_name(p, d) for p, d in nodes.items()}
+    assert {'fohssv_sim.ros.plant_node', 'fohssv_controller.ros.controller_node'} <= names
+    bad = {}
+    for p, d in nodes.items():
+        own = _module_name(p, d)
+        other = sorted(i for i in _imports(p, d) if i != own and (
+            i in names or i.rpartition('.')[0] in names - {own}))
+        if other:
+            bad[str(p.relative_to(ROOT))] = other
+    assert bad == {}
+
+
+def test_only_the_cli_imports_the_cli():
+    bad = {}
+    for p in _modules(SIM):
+        if 'cli' in p.relative_to(SIM).parts[:1]:
+            continue
+        hits = sorted(i for i in _imports(p, SIM) if i == 'fohssv_sim.cli'
+                      or i.startswith('fohssv_sim.cli.'))
+        if hits:
+            bad[str(p.relative_to(ROOT))] = hits
+    assert bad == {}
+
+
+_BLOCK_RCLPY = '''
+import importlib, sys
+
+class Block:
+    def find_spec(self, name, path=None, target=None):
+        if name == 'rclpy' or name.startswith('rclpy.'):
+            raise ImportError(f'rclpy is blocked: the core must not import {name}')
+        return None
+
+sys.meta_path.insert(0, Block())
+failed = []
+for name in sys.argv[1:]:
+    try:
+        importlib.import_module(name)
+    except Exception as exc:
+        failed.append(f'{name}: {type(exc).__name__}: {exc}')
+print('\\n'.join(failed))
+sys.exit(1 if failed else 0)
+'''
+
+
+def test_every_core_module_imports_without_rclpy():
+    names = sorted(_module_name(p, SIM) for p in _modules(SIM)
+                   if p.relative_to(SIM).parts[0] != 'ros' and p.name != '__main__.py')
+    assert 'fohssv_sim.control' in names and 'fohssv_sim.cli' in names
+    env = {k: v for k, v in os.environ.items()}
+    out = subprocess.run([sys.executable, '-c', _BLOCK_RCLPY, *names], env=env,
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stdout + out.stderr

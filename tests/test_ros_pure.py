@@ -1,0 +1,166 @@
+"""Unit tests of the pure parts of the ROS layer: ``ros/loop.py`` (command checks, the sampled
+plant, the real-time pacer), ``ros/options.py`` (plant options, clock and view sampling) and
+``ros/ros_params.py`` (ROS typing of table rows, descriptors, integer-to-double coercion).
+No node, no DDS."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from rcl_interfaces.msg import ParameterType
+
+from fohssv_sim.params import PARAMETERS, ModelParameters, ParameterError
+from fohssv_sim.ros.docs import ros_type_name
+from fohssv_sim.ros.loop import (
+    CommandRejected,
+    Pacer,
+    SampledPlant,
+    answered_time,
+    check_command,
+)
+from fohssv_sim.ros.options import (
+    NODE_PARAMETER_BY_NAME,
+    NODE_PARAMETERS,
+    PlantOptions,
+    check_options,
+    clock_samples,
+    view_samples,
+)
+from fohssv_sim.ros.ros_params import _coerce, descriptor, python_value, ros_type
+
+# -- loop.py ----------------------------------------------------------------------------------
+
+
+def test_check_command_passes_a_good_command_and_rejects_with_the_reason():
+    assert check_command([0.5, 0.1, -0.2], 0.5, 0.5) == (0.5, 0.1, -0.2)
+    with pytest.raises(CommandRejected, match='expected 3 values'):
+        check_command([0.5, 0.1], 0.5, 0.5)
+    with pytest.raises(CommandRejected, match='non-finite'):
+        check_command([0.5, math.nan, 0.0], 0.5, 0.5)
+    with pytest.raises(CommandRejected, match='non-finite'):
+        check_command([math.inf, 0.0, 0.0], 0.5, 0.5)
+    with pytest.raises(CommandRejected, match='delta_f=0.6 rad exceeds max_fin_deflection'):
+        check_command([0.0, 0.6, 0.0], 0.5, 0.5)
+    with pytest.raises(CommandRejected, match='delta_c=-0.7 rad exceeds max_cavitator'):
+        check_command([0.0, 0.0, -0.7], 0.5, 0.5)
+
+
+def test_answered_time_is_the_finite_first_value_or_none():
+    assert answered_time([0.25, math.nan]) == 0.25
+    assert answered_time([]) is None
+    assert answered_time([math.nan, 0.0, 0.0]) is None
+    assert answered_time([math.inf]) is None
+
+
+def test_sampled_plant_holds_the_command_and_advances_one_period():
+    params = ModelParameters(model='delay-free')
+    sp = SampledPlant(params, 10 * params.step)
+    assert sp.hold == 10 and sp.t == 0.0 and sp.command == (0.0, 0.0)
+    state, force = [0.0] * 5, [0.0] * 2
+    sp.write_sample(state, force)
+    assert state[0] == 0.0 and tuple(state[1:]) == tuple(sp.plant.x)
+    assert force == [0.0, sp.plant.planing_force]
+    assert sp.sample() == (tuple(state), tuple(force))
+    sp.command = (0.01, -0.02)
+    sp.advance()
+    assert sp.samples == 1 and sp.t == pytest.approx(10 * params.step)
+    assert sp.reached(10 * params.step) and not sp.reached(20 * params.step)
+    assert not sp.reached(0.0)       # 0 = open-ended
+    sp.reset()
+    assert sp.t == 0.0 and sp.command == (0.0, 0.0) and sp.samples == 0
+
+
+def test_pacer_counts_misses_and_slips_when_the_backlog_is_too_long():
+    p = Pacer(period=1e-3, tolerance=2e-4, max_batch=2, max_backlog=10)
+    p.begin(100.0)
+    assert p.next_due() == 100.0
+    assert p.due(100.0) == 1
+    p.published(100.0001)               # on time
+    assert (p.produced, p.misses, p.late) == (1, 0, 0)
+    p.published(100.0015)               # 0.5 ms late: a miss, not late by a period
+    assert (p.misses, p.late) == (1, 0)
+    p.published(100.0035)               # 1.5 ms late
+    assert (p.misses, p.late) == (2, 1)
+    assert p.worst_lateness == pytest.approx(1.5e-3)
+    assert p.due(100.1) == 2 and p.slips == 1   # backlog ~98 > 10: moved forward to 2
+    assert p.due(p.start - 1.0) == 0
+
+
+# -- options.py -------------------------------------------------------------------------------
+
+
+def test_plant_options_validate_and_make_whole_numbers_integers():
+    o = PlantOptions()
+    assert o.mode == 'lockstep' and isinstance(o.min_state_subscribers, int)
+    assert PlantOptions(profile=1.0).profile == 1
+    with pytest.raises(ParameterError, match='mode'):
+        PlantOptions(mode='fast')
+    with pytest.raises(ParameterError, match='whole number'):
+        PlantOptions(profile=0.5)
+    with pytest.raises(ParameterError, match='initial_state'):
+        PlantOptions(initial_state=(0.0, 0.0, 0.0))
+    assert o.replace(control_period=2e-4).control_period == 2e-4
+
+
+def test_clock_and_view_samples():
+    o = PlantOptions(mode='realtime', control_period=1e-4)
+    assert clock_samples(o.replace(clock_period=0.0)) == 1
+    assert clock_samples(o.replace(clock_period=1e-3)) == 10
+    assert clock_samples(o.replace(clock_period=1e-3, mode='lockstep')) == 1
+    with pytest.raises(ParameterError, match='clock_period'):
+        clock_samples(o.replace(clock_period=1.5e-4))
+    assert view_samples(o.replace(view_period=0.0)) == 0
+    assert view_samples(o.replace(view_period=5e-5)) == 1
+    assert view_samples(o.replace(view_period=2e-3)) == 20
+    with pytest.raises(ParameterError, match='view_period'):
+        view_samples(o.replace(view_period=2.5e-4))
+
+
+def test_check_options_gives_the_steps_per_sample_or_the_reason():
+    model = ModelParameters(model='delay-free')
+    assert check_options(model, PlantOptions(control_period=5 * model.step)) == 5
+    with pytest.raises(ParameterError):
+        check_options(model, PlantOptions(control_period=2.5 * model.step))
+
+
+# -- ros_params.py ----------------------------------------------------------------------------
+
+_NAMES = {ParameterType.PARAMETER_DOUBLE: 'double', ParameterType.PARAMETER_INTEGER: 'integer',
+          ParameterType.PARAMETER_STRING: 'string',
+          ParameterType.PARAMETER_NOT_SET: 'string or double',
+          ParameterType.PARAMETER_DOUBLE_ARRAY: 'double[]'}
+
+
+@pytest.mark.parametrize('spec', PARAMETERS + NODE_PARAMETERS, ids=lambda s: s.name)
+def test_ros_type_and_its_documented_name_agree(spec):
+    assert _NAMES[ros_type(spec)] == ros_type_name(spec)
+
+
+def test_ros_types_of_typical_rows():
+    by_name = {s.name: s for s in PARAMETERS}
+    assert ros_type(by_name['speed']) == ParameterType.PARAMETER_DOUBLE
+    assert ros_type(by_name['step']) == ParameterType.PARAMETER_NOT_SET     # 'auto' or a number
+    assert ros_type(by_name['model']) == ParameterType.PARAMETER_STRING
+    assert ros_type(NODE_PARAMETER_BY_NAME['profile']) == ParameterType.PARAMETER_INTEGER
+    assert ros_type(NODE_PARAMETER_BY_NAME['initial_state']) == \
+        ParameterType.PARAMETER_DOUBLE_ARRAY
+
+
+def test_descriptor_carries_unit_range_and_read_only():
+    spec = next(s for s in PARAMETERS if s.name == 'speed')
+    d = descriptor(spec)
+    assert d.name == 'speed' and '[m/s]' in d.description
+    assert d.additional_constraints.startswith('allowed: ')
+    assert d.read_only == spec.needs_reset
+
+
+def test_integers_for_double_rows_become_doubles():
+    D, DA = ParameterType.PARAMETER_DOUBLE, ParameterType.PARAMETER_DOUBLE_ARRAY
+    assert _coerce(D, 80) == 80.0 and isinstance(_coerce(D, 80), float)
+    assert _coerce(D, True) is True
+    assert _coerce(DA, [0, 1, 2, 3]) == [0.0, 1.0, 2.0, 3.0]
+    mixed = [0, 1.5]
+    assert _coerce(DA, mixed) is mixed
+    assert _coerce(ParameterType.PARAMETER_INTEGER, 3) == 3
+    assert python_value([1.0, 2.0]) == (1.0, 2.0) and python_value('auto') == 'auto'

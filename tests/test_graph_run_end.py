@@ -51,10 +51,19 @@ def busy():
 
 
 def _recorder(env, bag, log, *params: str):
+    """A recorder of ``bag`` (extra ``-p`` settings), once it has created the bag."""
     args = ['--ros-args', '-p', f'bag_path:={bag}', '-p', 'plant_timeout:=30.0']
     for p in params:
         args += ['-p', p]
-    return rosproc.start('fohssv_sim', 'recorder', args, env=env, log=log)
+    rec = rosproc.start('fohssv_sim', 'recorder', args, env=env, log=log)
+    rosproc.wait_for(lambda: 'recording to' in log.read_text(), 90, what=f'the recorder of {bag}')
+    return rec
+
+
+def _controller(env):
+    """eq. 31's node, answering once the plant and the recorder subscribe to its commands."""
+    return rosproc.start('fohssv_controller', 'state_feedback',
+                         ['--ros-args', '-p', 'min_command_subscribers:=2'], env=env)
 
 
 def _messages(bag) -> dict[str, list[bytes]]:
@@ -75,9 +84,7 @@ def test_recorded_run_and_its_replay_lose_nothing_under_load(tmp_path, busy):
     rec = _recorder(env, bag, log, 'command_publishers:=1')
     ctl = plant = None
     try:
-        rosproc.wait_for(lambda: 'recording to' in log.read_text(), 90, what='the recorder')
-        ctl = rosproc.start('fohssv_controller', 'state_feedback',
-                            ['--ros-args', '-p', 'min_command_subscribers:=2'], env=env)
+        ctl = _controller(env)
         plant = rosproc.start('fohssv_sim', 'plant', plant_args(
             model='delay-free', duration=DURATION, min_state_subscribers=2,
             pace_to_subscribers=512), env=env)
@@ -105,7 +112,6 @@ def test_recorded_run_and_its_replay_lose_nothing_under_load(tmp_path, busy):
     rec2 = _recorder(env, copy, log2, 'plant_node:=none')
     player = None
     try:
-        rosproc.wait_for(lambda: 'recording to' in log2.read_text(), 90, what='recorder 2')
         player = rosproc.start('fohssv_sim', 'player', [
             '--ros-args', '-p', f'bag_path:={bag}', '-p', 'rate:=0.0',
             '-p', 'start_timeout:=60.0'], env=env)
@@ -130,9 +136,7 @@ def test_sigint_at_the_end_of_the_run_drains_what_was_delivered(tmp_path, busy):
     rec = _recorder(env, bag, log, 'command_publishers:=1', 'stop_at_run_end:=false')
     ctl = plant = None
     try:
-        rosproc.wait_for(lambda: 'recording to' in log.read_text(), 90, what='the recorder')
-        ctl = rosproc.start('fohssv_controller', 'state_feedback',
-                            ['--ros-args', '-p', 'min_command_subscribers:=2'], env=env)
+        ctl = _controller(env)
         plog = tmp_path / 'plant.log'
         # unpaced: the recorder lags the plant (by less than the 2000-sample queue)
         plant = rosproc.start('fohssv_sim', 'plant', plant_args(
@@ -218,9 +222,7 @@ def test_a_recorder_stopped_early_does_not_stall_the_loop(tmp_path):
     rec = _recorder(env, bag, log, 'command_publishers:=1')
     ctl = plant = None
     try:
-        rosproc.wait_for(lambda: 'recording to' in log.read_text(), 90, what='the recorder')
-        ctl = rosproc.start('fohssv_controller', 'state_feedback',
-                            ['--ros-args', '-p', 'min_command_subscribers:=2'], env=env)
+        ctl = _controller(env)
         plog = tmp_path / 'plant.log'
         plant = rosproc.start('fohssv_sim', 'plant', plant_args(
             model='delay-free', duration=2.0, min_state_subscribers=2, command_timeout=5.0,

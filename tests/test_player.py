@@ -129,9 +129,14 @@ def test_commands_replay_reproduces_the_lockstep_run(tmp_path):
     assert np.max(np.abs(b.state - a.state)) <= TOL
     assert np.array_equal(b.state, a.state)           # in fact bit for bit
     assert np.array_equal(b.planing_force, a.planing_force)
-    # B's recorder matched the player before its first command: every command, equal to A's
-    assert np.array_equal(b.command_t, a.command_t)
-    assert np.array_equal(b.delta_f, a.delta_f) and np.array_equal(b.delta_c, a.delta_c)
+    # B's recorder matched the player before its first command: every command, equal to A's.
+    # The answer to the last state comes after the plant's run ended (and its run_end, at
+    # which a recorder closes the bag): a bag may or may not hold it.
+    k = min(len(a.command_t), len(b.command_t))
+    assert k >= N - 1, (len(a.command_t), len(b.command_t))
+    assert np.array_equal(b.command_t[:k], a.command_t[:k])
+    assert np.array_equal(b.delta_f[:k], a.delta_f[:k])
+    assert np.array_equal(b.delta_c[:k], a.delta_c[:k])
     # not a trivial run: eq. 31 moves the cavitator (its fins stay at 0) and the state moves
     assert np.ptp(a.delta_c) > 1e-3 and np.all(np.ptp(a.state, axis=0) > 0)
 

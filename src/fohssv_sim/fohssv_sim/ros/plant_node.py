@@ -160,6 +160,7 @@ class PlantNode(Node):
         self.end_pub = self.create_publisher(String, RUN_END.name, profile(RUN_END))
         self.sent = 0                             # samples published (state, planing_force)
         self.received = 0                         # commands received while running
+        self._announced = False                   # run_end published
 
         self.running = False
         self.rejected = 0
@@ -583,7 +584,7 @@ class PlantNode(Node):
         sample and view topic (not ``/clock``: keep-last 1 by design, a slow reader keeps the
         newest) and the commands received while running (a recorder hears the same
         controllers), so that a recorder can wait for them and report any it lost."""
-        if getattr(self, '_announced', False):
+        if self._announced:
             return
         self._announced = True
         published = {self.state_pub.topic_name: self.sent, self.force_pub.topic_name: self.sent,

@@ -95,6 +95,16 @@ class ParameterSpec:
             parts.append(f'{lb}{lo}, {hi}{hb}')
         return ' or '.join(parts)
 
+    def allowed_text(self) -> str:
+        """``allowed: <range> <unit> (<description>)``: how a refusal of this row ends."""
+        unit = f' {self.unit}' if self.unit and self.unit != '-' else ''
+        return f'allowed: {self.range_text()}{unit} ({self.description})'
+
+    def refuse(self, value: Any, what: str) -> ParameterError:
+        """The error for ``value`` in the table's words, for a rule a range cannot say:
+        ``<name>=<value> <what>; allowed: <range> <unit> (<description>)``."""
+        return ParameterError(f'{self.name}={value!r} {what}; {self.allowed_text()}')
+
     def validate(self, value: Any) -> Any:
         """Return the value normalised (names lower-case, numbers as float).
 

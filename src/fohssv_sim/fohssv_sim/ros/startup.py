@@ -48,7 +48,7 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 
-from ..params import ParameterError, ParameterSpec
+from ..params import ParameterSpec
 
 __all__ = ['EXIT_BAD_PARAMETERS', 'DEFAULT_DISCOVERY_RANGE', 'default_discovery',
            'BadParameters', 'init', 'precheck', 'declare_rows',
@@ -161,11 +161,6 @@ def _a(kind: str) -> str:
     return f"{'an' if kind[0] in 'aeiou' else 'a'} {kind}"
 
 
-def _allowed(spec: ParameterSpec) -> str:
-    unit = f' {spec.unit}' if spec.unit and spec.unit != '-' else ''
-    return f'allowed: {spec.range_text()}{unit} ({spec.description})'
-
-
 def precheck(node: Node, specs: Iterable[ParameterSpec], kinds: Mapping[str, int]) -> None:
     """Check the overrides of ``specs`` before they are declared with the ROS types ``kinds``
     (name -> ``ParameterType``). Whole doubles given for integer rows are converted.
@@ -187,22 +182,20 @@ def precheck(node: Node, specs: Iterable[ParameterSpec], kinds: Mapping[str, int
         got = _kind_name(value)
         if kind == ParameterType.PARAMETER_DOUBLE:
             if got not in ('double', 'integer'):
-                raise ParameterError(f'{spec.name}={value!r} is {_a(got)}, not a number; '
-                                     f'{_allowed(spec)}')
+                raise spec.refuse(value, f'is {_a(got)}, not a number')
         elif kind == ParameterType.PARAMETER_INTEGER:
             if got == 'double' and math.isfinite(value) and value == int(value):
                 overrides[spec.name] = Parameter(spec.name, value=int(value))
                 value = int(value)
             elif got != 'integer':
                 what = 'not a whole number' if got == 'double' else f'{_a(got)}, not a number'
-                raise ParameterError(f'{spec.name}={value!r} is {what}; {_allowed(spec)}')
+                raise spec.refuse(value, f'is {what}')
         elif kind == ParameterType.PARAMETER_STRING:
             if got != 'string':
-                raise ParameterError(f'{spec.name}={value!r} is {_a(got)}, not a name; '
-                                     f'{_allowed(spec)}')
+                raise spec.refuse(value, f'is {_a(got)}, not a name')
         elif kind == ParameterType.PARAMETER_NOT_SET:
             if got not in ('double', 'integer', 'string'):
-                raise ParameterError(f'{spec.name}={value!r} is {_a(got)}; {_allowed(spec)}')
+                raise spec.refuse(value, f'is {_a(got)}')
         spec.validate(value)   # ParameterError: out of range, not a choice, not 4 numbers
 
 
@@ -274,7 +267,7 @@ def explain(exc: BaseException, specs: Iterable[ParameterSpec] = ()) -> str:
         by_name = {s.name: s for s in specs}
         name = _failed_name(exc, by_name)
         text = one_line(str(exc))
-        return text if name is None else f'{text}; {_allowed(by_name[name])}'
+        return text if name is None else f'{text}; {by_name[name].allowed_text()}'
     return one_line(str(exc))
 
 

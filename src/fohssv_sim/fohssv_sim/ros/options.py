@@ -1,8 +1,15 @@
-"""Options of the plant node that are not model parameters: one table, one dataclass.
+"""Options of the plant node that are not model parameters: one table, one dataclass; and
+the kinds of rows and the validated options every node's table uses.
 
 Pure (no rclpy): the table :data:`NODE_PARAMETERS` is declared as ROS parameters next to
 :data:`fohssv_sim.params.PARAMETERS` by :mod:`fohssv_sim.ros.ros_params`, and documented in
 ``docs/ros.md`` from the same rows. ``needs_reset=True`` rows are read-only on a running node.
+
+Rows besides numbers and names (:class:`~fohssv_sim.params.ParameterSpec`): a state
+(:class:`StateSpec`, a double array), a switch (:class:`FlagSpec`, a bool), free text such as
+a path (:class:`TextSpec`, a string) and a list of names (:class:`NamesSpec`, a string array).
+:class:`TableOptions` turns a table's values into validated attributes (the recorder's and the
+player's options, :mod:`.bag_options`).
 
 Control period versus docs/model.md §7: the plant holds each command for ``control_period``
 (zero-order hold). The default 1e-4 s (5 FOM steps of 2e-5 s, 10 RK4 steps of 1e-5 s) shifts
@@ -17,11 +24,19 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from ..params import ModelParameters, ParameterError, ParameterSpec, spec_field, validate_fields
+from ..params import (
+    ModelParameters,
+    ParameterError,
+    ParameterSpec,
+    field_specs,
+    spec_field,
+    validate_fields,
+)
 from ..simulate import steps_per_period
 
-__all__ = ['MODES', 'NODE_PARAMETERS', 'NODE_PARAMETER_BY_NAME', 'StateSpec', 'PlantOptions',
-           'check_options', 'clock_samples', 'view_samples', 'ros_type_name']
+__all__ = ['MODES', 'NODE_PARAMETERS', 'NODE_PARAMETER_BY_NAME', 'StateSpec', 'FlagSpec',
+           'TextSpec', 'NamesSpec', 'TableOptions', 'PlantOptions', 'check_options',
+           'clock_samples', 'view_samples', 'ros_type_name', 'whole_number']
 
 #: The plant node's two modes.
 MODES = ('lockstep', 'realtime')
@@ -50,12 +65,84 @@ class StateSpec(ParameterSpec):
         return vals
 
 
+@dataclass(frozen=True)
+class FlagSpec(ParameterSpec):
+    """A switch: true or false (a bool in ROS)."""
+
+    numeric: bool = False
+
+    def range_text(self) -> str:
+        return 'true | false'
+
+    def validate(self, value: Any) -> bool:
+        """Return the value.
+
+        Raises:
+            ParameterError: not a bool.
+        """
+        if not isinstance(value, bool):
+            raise self.refuse(value, 'is not true or false')
+        return value
+
+
+@dataclass(frozen=True)
+class TextSpec(ParameterSpec):
+    """Free text, such as a path or a node name (a string in ROS), kept as given; ``allowed``
+    says what it names, ``required`` refuses an empty value."""
+
+    numeric: bool = False
+    allowed: str = 'any text'
+    required: bool = False
+
+    def range_text(self) -> str:
+        return self.allowed
+
+    def validate(self, value: Any) -> str:
+        """Return the value.
+
+        Raises:
+            ParameterError: not a string, or empty when required.
+        """
+        if not isinstance(value, str):
+            raise self.refuse(value, 'is not text')
+        if self.required and not value.strip():
+            raise self.refuse(value, f'is empty: {self.name} is required')
+        return value
+
+
+@dataclass(frozen=True)
+class NamesSpec(ParameterSpec):
+    """A list of names, such as topics (a string array in ROS); ``allowed`` says which."""
+
+    numeric: bool = False
+    allowed: str = 'names'
+
+    def range_text(self) -> str:
+        return self.allowed
+
+    def validate(self, value: Any) -> tuple[str, ...]:
+        """Return the names as a tuple.
+
+        Raises:
+            ParameterError: not a list of strings.
+        """
+        if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
+            raise self.refuse(value, 'is not a list of names')
+        return tuple(value)
+
+
+#: The ROS types of the row kinds that are not plain numbers or names.
+_TYPE_OF_KIND = ((StateSpec, 'double[]'), (NamesSpec, 'string[]'), (FlagSpec, 'bool'))
+
+
 def ros_type_name(spec: ParameterSpec) -> str:
     """The ROS parameter type of a table row: ``double``, ``integer``, ``string``, ``string or
-    double`` (dynamically typed: a name or a number) or ``double[]`` (a state). The one rule;
+    double`` (dynamically typed: a name or a number), ``double[]`` (a state), ``bool`` (a
+    switch) or ``string[]`` (a list of names). The one rule;
     :func:`fohssv_sim.ros.ros_params.ros_type` maps it to rclpy's ``ParameterType``."""
-    if isinstance(spec, StateSpec):
-        return 'double[]'
+    for kind, name in _TYPE_OF_KIND:
+        if isinstance(spec, kind):
+            return name
     if spec.choices and spec.numeric:
         return 'string or double'
     if not spec.numeric:
@@ -151,6 +238,72 @@ def _f(name: str) -> Any:
     return spec_field(NODE_PARAMETER_BY_NAME[name])
 
 
+def whole_number(spec: ParameterSpec, value: Any) -> Any:
+    """A validated ``value`` of a row typed ``integer`` in ROS as an int; other rows' values
+    unchanged.
+
+    Raises:
+        ParameterError: not a whole number.
+    """
+    if ros_type_name(spec) != 'integer':
+        return value
+    if value != int(value):
+        raise spec.refuse(value, 'is not a whole number')
+    return int(value)
+
+
+class TableOptions:
+    """A node's validated options: one read-only attribute per row of ``TABLE``.
+
+    Each value (the row's default when not given) is validated by its row
+    (:meth:`~fohssv_sim.params.ParameterSpec.validate`: its range, its wording); rows typed
+    ``integer`` in ROS hold ints. A subclass states the rules a range cannot say in
+    :meth:`check`, refusing with the row's words (:meth:`~fohssv_sim.params.ParameterSpec.refuse`).
+
+    Raises:
+        ParameterError: an invalid value, naming it, the allowed range and unit.
+        TypeError: a name that is no row of the table.
+    """
+
+    TABLE: tuple[ParameterSpec, ...] = ()
+
+    def __init__(self, **values: Any) -> None:
+        unknown = sorted(set(values) - {s.name for s in self.TABLE})
+        if unknown:
+            raise TypeError(f'{type(self).__name__}: no option {", ".join(unknown)}')
+        for spec in self.TABLE:
+            value = spec.validate(values.get(spec.name, spec.default))
+            object.__setattr__(self, spec.name, whole_number(spec, value))
+        self.check()
+
+    def check(self) -> None:
+        """Rules beyond each row's range (none here); may normalise with :meth:`_set`."""
+
+    def _set(self, name: str, value: Any) -> None:
+        object.__setattr__(self, name, value)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError(f'{type(self).__name__} is read-only')
+
+    @classmethod
+    def spec(cls, name: str) -> ParameterSpec:
+        """The row named ``name``."""
+        return next(s for s in cls.TABLE if s.name == name)
+
+    def as_dict(self) -> dict[str, Any]:
+        """The values by name, in table order."""
+        return {s.name: getattr(self, s.name) for s in self.TABLE}
+
+    def __eq__(self, other: object) -> bool:
+        return type(other) is type(self) and other.as_dict() == self.as_dict()
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def __repr__(self) -> str:
+        fields = ', '.join(f'{k}={v!r}' for k, v in self.as_dict().items())
+        return f'{type(self).__name__}({fields})'
+
+
 @dataclass(frozen=True)
 class PlantOptions:
     """Validated plant-node options (see :data:`NODE_PARAMETERS`).
@@ -182,12 +335,8 @@ class PlantOptions:
 
     def __post_init__(self) -> None:
         validate_fields(self)
-        for name in ('min_state_subscribers', 'min_command_publishers', 'profile',
-                     'pace_to_subscribers', 'realtime_priority'):
-            v = getattr(self, name)
-            if v != int(v):
-                raise ParameterError(f'{name}={v!r} must be a whole number')
-            object.__setattr__(self, name, int(v))
+        for spec in field_specs(self):
+            object.__setattr__(self, spec.name, whole_number(spec, getattr(self, spec.name)))
 
     def replace(self, **changes: Any) -> PlantOptions:
         """A validated copy with ``changes``."""

@@ -1,10 +1,11 @@
 """ROS parameters generated from parameter tables (:class:`fohssv_sim.params.ParameterSpec`).
 
-Used by the plant node (model table + node options) and by the controller node (a
-controller's ``field_specs(Parameters)``). Each row becomes a declared parameter whose
-descriptor carries the description with unit and reference, the allowed values as
-``additional_constraints``, a ``FloatingPointRange``/``IntegerRange`` when both bounds are
-finite, and ``read_only`` when the row ``needs_reset``.
+Used by every node: the plant (model table + node options), the controller node (a
+controller's ``field_specs(Parameters)``), the recorder and the player (their tables in
+:mod:`.bag_options`). Each row becomes a declared parameter whose descriptor carries the
+description with unit and reference, the allowed values as ``additional_constraints``, a
+``FloatingPointRange``/``IntegerRange`` when both bounds are finite, and ``read_only`` when the
+row ``needs_reset``.
 
 ROS typing of the rows:
 
@@ -12,7 +13,10 @@ ROS typing of the rows:
 * a name only (``choices``, not numeric) -> ``string``;
 * a name *or* a number (``step``, ``planing_offset``, ``advection_delay``) -> dynamically typed:
   ``step:=auto`` and ``step:=2.0e-5`` are both accepted, and the table's validation decides;
-* a state (:class:`fohssv_sim.ros.options.StateSpec`) -> ``double_array``.
+* a state (:class:`fohssv_sim.ros.options.StateSpec`) -> ``double_array``;
+* a switch (:class:`~fohssv_sim.ros.options.FlagSpec`) -> ``bool``; free text
+  (:class:`~fohssv_sim.ros.options.TextSpec`) -> ``string``; a list of names
+  (:class:`~fohssv_sim.ros.options.NamesSpec`) -> ``string_array``.
 
 An integer given for a ``double`` row (``-p speed:=80``, or ``speed: 80`` in YAML) is
 converted to a double instead of failing with rclpy's type error, at start and on set.
@@ -40,7 +44,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from ..params import ParameterSpec
-from .options import StateSpec, ros_type_name
+from .options import NamesSpec, StateSpec, ros_type_name
 from .startup import precheck
 
 __all__ = ['ros_type', 'descriptor', 'declare', 'values_of', 'install_validation',
@@ -49,6 +53,8 @@ __all__ = ['ros_type', 'descriptor', 'declare', 'values_of', 'install_validation
 
 #: ROS parameter types by the names :func:`.options.ros_type_name` gives.
 _ROS_TYPES = {'double[]': ParameterType.PARAMETER_DOUBLE_ARRAY,
+              'string[]': ParameterType.PARAMETER_STRING_ARRAY,
+              'bool': ParameterType.PARAMETER_BOOL,
               'string or double': ParameterType.PARAMETER_NOT_SET,
               'string': ParameterType.PARAMETER_STRING,
               'integer': ParameterType.PARAMETER_INTEGER,
@@ -89,6 +95,8 @@ def descriptor(spec: ParameterSpec) -> ParameterDescriptor:
 def _ros_default(spec: ParameterSpec) -> Any:
     if isinstance(spec, StateSpec):
         return [float(v) for v in spec.default]
+    if isinstance(spec, NamesSpec):
+        return [str(v) for v in spec.default]
     return spec.default
 
 

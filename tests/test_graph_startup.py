@@ -43,11 +43,11 @@ def bad_parameter_cases(tmp):
         ('controller', ['-p', 'min_command_subscribers:=0'],
          'min_command_subscribers=0 is outside the allowed range [1, 1000]'),
         ('recorder', ['-p', 'flush_period:=abc', '-p', f'bag_path:={bag}'],
-         "flush_period='abc' is a string, expected a double; allowed: (0, 60] s"),
+         "flush_period='abc' is a string, not a number; allowed: (0, 60] s (wall time"),
         ('recorder', ['-p', 'flush_period:=0.0', '-p', f'bag_path:={bag}'],
          'flush_period=0.0 is outside the allowed range (0, 60] s'),
         ('player', ['-p', f'bag_path:={bag}', '-p', 'rate:=fast'],
-         "rate='fast' is a string, expected a double; allowed: [0, inf)"),
+         "rate='fast' is a string, not a number; allowed: [0, inf) (republish:"),
         ('player', ['-p', f'bag_path:={bag}', '-p', 'rate:=-1.0'],
          'rate=-1.0 is outside the allowed range [0, inf)'),
         # defect 3: unknown names, with the close matches

@@ -1,6 +1,7 @@
 """Unit tests of the pure parts of the ROS layer: ``ros/loop.py`` (command checks, the sampled
 plant, the real-time pacer), ``ros/options.py`` (plant options, clock and view sampling) and
-``ros/ros_params.py`` (ROS typing of table rows, descriptors, integer-to-double coercion).
+``ros/ros_params.py`` (ROS typing of table rows, descriptors, integer-to-double coercion),
+``ros/bag_options.py`` (the recorder's and the player's options).
 No node, no DDS."""
 
 from __future__ import annotations
@@ -11,6 +12,13 @@ import pytest
 from rcl_interfaces.msg import ParameterType
 
 from fohssv_sim.params import PARAMETERS, ModelParameters, ParameterError
+from fohssv_sim.ros.bag_options import (
+    PLAYER_PARAMETERS,
+    RECORDER_PARAMETERS,
+    PlayerOptions,
+    RecorderOptions,
+    new_bag_path,
+)
 from fohssv_sim.ros.docs import ros_type_name
 from fohssv_sim.ros.loop import (
     CommandRejected,
@@ -129,10 +137,13 @@ def test_check_options_gives_the_steps_per_sample_or_the_reason():
 _NAMES = {ParameterType.PARAMETER_DOUBLE: 'double', ParameterType.PARAMETER_INTEGER: 'integer',
           ParameterType.PARAMETER_STRING: 'string',
           ParameterType.PARAMETER_NOT_SET: 'string or double',
-          ParameterType.PARAMETER_DOUBLE_ARRAY: 'double[]'}
+          ParameterType.PARAMETER_DOUBLE_ARRAY: 'double[]',
+          ParameterType.PARAMETER_STRING_ARRAY: 'string[]',
+          ParameterType.PARAMETER_BOOL: 'bool'}
 
 
-@pytest.mark.parametrize('spec', PARAMETERS + NODE_PARAMETERS, ids=lambda s: s.name)
+@pytest.mark.parametrize('spec', PARAMETERS + NODE_PARAMETERS + RECORDER_PARAMETERS
+                         + PLAYER_PARAMETERS, ids=lambda s: s.name)
 def test_ros_type_and_its_documented_name_agree(spec):
     assert _NAMES[ros_type(spec)] == ros_type_name(spec)
 
@@ -164,3 +175,59 @@ def test_integers_for_double_rows_become_doubles():
     assert _coerce(DA, mixed) is mixed
     assert _coerce(ParameterType.PARAMETER_INTEGER, 3) == 3
     assert python_value([1.0, 2.0]) == (1.0, 2.0) and python_value('auto') == 'auto'
+
+
+# -- bag_options.py ---------------------------------------------------------------------------
+
+
+def test_player_options_normalise_and_refuse_in_the_tables_words():
+    o = PlayerOptions(bag_path='runs/x', mode='COMMANDS', topics=('', '/state'),
+                      plant_node='/plant/', min_subscribers=2.0)
+    assert (o.mode, o.topics, o.plant_node) == ('commands', ('/state',), 'plant')
+    assert o.min_subscribers == 2 and isinstance(o.min_subscribers, int)
+    cases = [({'bag_path': ''}, "bag_path='' is empty: bag_path is required; allowed: a bag "
+              'directory'),
+             ({'rate': -1.0}, 'rate=-1.0 is outside the allowed range [0, inf) (republish:'),
+             ({'mode': 'loop'}, "mode='loop' is not valid; choose one of 'republish' | "),
+             ({'min_command_subscribers': 0}, 'min_command_subscribers=0 is outside the '
+              'allowed range [1, inf) subscriptions ('),
+             ({'min_subscribers': 1.5}, 'min_subscribers=1.5 is not a whole number; allowed: '
+              '[0, inf) subscribers'),
+             ({'clock': 'yes'}, "clock='yes' is not true or false; allowed: true | false")]
+    for values, words in cases:
+        with pytest.raises(ParameterError) as err:
+            PlayerOptions(**{'bag_path': 'runs/x', **values})
+        assert words in str(err.value)
+    with pytest.raises(AttributeError):
+        o.rate = 2.0
+
+
+def test_recorder_options_refuse_what_a_range_cannot_say(tmp_path):
+    o = RecorderOptions(bag_path=str(tmp_path / 'new'))
+    assert o.chunk_size == 65536 and [t.name for _, t in o.recorded()][:2] == ['state',
+                                                                                 'planing_force']
+    cases = [({'topics': ['speed']}, "topics=['speed'] is not valid: 'speed' is not a contract "
+              'topic; allowed: state, planing_force'),
+             ({'topics': []}, 'topics=[] is empty'),
+             ({'flush_period': 0.0}, 'flush_period=0.0 is outside the allowed range (0, 60] s '
+              '(wall time'),
+             ({'chunk_size': 10}, 'chunk_size=10 is outside the allowed range [1024, inf) bytes'),
+             ({'command_publishers': 1, 'topics': ['state']},
+              'command_publishers=1 needs the command topic recorded')]
+    for values, words in cases:
+        with pytest.raises(ParameterError) as err:
+            RecorderOptions(**values)
+        assert words in str(err.value)
+    assert RecorderOptions(command_publishers=1, topics=['/ns/state', '/ns/command'])
+    assert new_bag_path(o) == tmp_path / 'new'
+    with pytest.raises(ParameterError, match="bag_path='.*' exists already: the recorder never "
+                       'overwrites a bag; allowed: a path that does not exist'):
+        new_bag_path(RecorderOptions(bag_path=str(tmp_path)))
+
+
+@pytest.mark.parametrize('spec', RECORDER_PARAMETERS + PLAYER_PARAMETERS, ids=lambda s: s.name)
+def test_recorder_and_player_rows_are_read_only_with_unit_and_allowed_values(spec):
+    d = descriptor(spec)
+    assert d.read_only and d.additional_constraints == (
+        f'allowed: {spec.range_text()}' + (f' [{spec.unit}]' if spec.unit != '-' else ''))
+    assert d.description.startswith(spec.description)

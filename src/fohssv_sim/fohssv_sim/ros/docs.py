@@ -1,7 +1,8 @@
 """Generated text for the ROS interface: parameter YAML files and markdown tables.
 
 ``config/plant.yaml``, the controllers' ``config/<name>.yaml`` and the tables of
-``docs/ros.md`` are generated from the parameter tables (one source of truth); a test checks
+``docs/ros.md`` (topics; parameters of the model, the plant node, the recorder, the player and
+each controller) are generated from the tables (one source of truth); a test checks
 that the committed files equal what this module generates. Regenerate with::
 
     python -m fohssv_sim.ros.docs plant-yaml > src/fohssv_sim/config/plant.yaml
@@ -23,6 +24,7 @@ from .. import docs as _docs
 from ..contract import TOPICS, VIEW_TOPICS, Topic
 from ..docs import markdown_table
 from ..params import PARAMETERS, ParameterSpec, field_specs
+from .bag_options import PLAYER_PARAMETERS, RECORDER_PARAMETERS
 from .options import NODE_PARAMETERS, ros_type_name
 
 __all__ = ['yaml_value', 'parameters_yaml', 'plant_yaml', 'parameter_table', 'topic_table',
@@ -82,7 +84,8 @@ def parameter_table(specs: Iterable[ParameterSpec]) -> str:
     rows = []
     for s in specs:
         desc = s.description + (f' ({s.reference})' if s.reference else '')
-        default = yaml_value(s.default).strip("'")
+        default = (s.default if isinstance(s.default, str) and s.default
+                   else yaml_value(s.default))
         rows.append((f'`{s.name}`', ros_type_name(s), f'`{default}`', s.unit,
                      s.range_text().replace('|', 'or'), 'no' if s.needs_reset else 'yes',
                      desc.replace('|', '/')))
@@ -108,7 +111,9 @@ def tables() -> str:
     parts = ['<!-- generated: topics -->\n' + topic_table(),
              '<!-- generated: view topics -->\n' + topic_table(VIEW_TOPICS),
              '<!-- generated: model parameters -->\n' + parameter_table(PARAMETERS),
-             '<!-- generated: plant node parameters -->\n' + parameter_table(NODE_PARAMETERS)]
+             '<!-- generated: plant node parameters -->\n' + parameter_table(NODE_PARAMETERS),
+             '<!-- generated: recorder parameters -->\n' + parameter_table(RECORDER_PARAMETERS),
+             '<!-- generated: player parameters -->\n' + parameter_table(PLAYER_PARAMETERS)]
     for name in control.available():
         specs = field_specs(control.load(name).Parameters)
         parts.append(f'<!-- generated: controller {name} -->\n' + parameter_table(specs))

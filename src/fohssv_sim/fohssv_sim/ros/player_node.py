@@ -43,7 +43,6 @@ import time
 from typing import Any
 
 import rclpy
-from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 from rcl_interfaces.srv import GetParameters
 from rclpy.duration import Duration
 from rclpy.exceptions import ParameterException
@@ -68,11 +67,12 @@ from ..bag.replay import (
     pacing_schedule,
     select_tracks,
 )
+from .bag_options import PLAYER_MODES, PLAYER_PARAMETERS, PlayerOptions
 from .nodekit import (
     BadParameters,
     HoldReporter,
     SubscriptionGate,
-    declare_rows,
+    declare,
     destroy_on_error,
     final_log,
     init,
@@ -89,7 +89,7 @@ __all__ = ['Player', 'PlayerError', 'Track', 'select_tracks', 'command_table', '
            'EXIT_OK', 'EXIT_ERROR', 'EXIT_BAD_PARAMETERS', 'EXIT_NO_PEERS']
 
 EXIT_OK, EXIT_ERROR, EXIT_BAD_PARAMETERS, EXIT_NO_PEERS = 0, 1, 2, 4
-MODES = ('republish', 'commands')
+MODES = PLAYER_MODES
 #: Most messages published in one go before the executor runs again (rate 0: all are due).
 _BATCH = 256
 
@@ -116,110 +116,27 @@ class Player(Node):
     @destroy_on_error
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('player', **kwargs)
-        D = ParameterDescriptor
-        declare_rows(self, [
-            ('bag_path', '', D(
-                description='bag to play: directory, its metadata.yaml or the .mcap file '
-                            '(required)', read_only=True)),
-            ('mode', 'republish', D(
-                description="'republish': the bag's topics with /clock at rate; 'commands': "
-                            "answer a fresh plant's states with the recorded commands (open "
-                            'loop)', read_only=True,
-                additional_constraints='allowed: ' + ' | '.join(repr(m) for m in MODES))),
-            ('rate', 1.0, D(
-                description='republish: simulated seconds per wall second (1 = real time); '
-                            '0 = as fast as the subscribers allow', read_only=True,
-                additional_constraints='allowed: [0, inf)')),
-            ('topics', [''], D(
-                type=ParameterType.PARAMETER_STRING_ARRAY, read_only=True,
-                description="topics to play: recorded names ('/state') or contract names "
-                            "('state', any namespace); [''] = every contract topic in the "
-                            'bag (commands mode: the command topic)')),
-            ('clock', True, D(
-                description='republish: publish /clock at every new log time (the recorded '
-                            '/clock is then not replayed)', read_only=True,
-                additional_constraints='allowed: true | false')),
-            ('min_subscribers', 1, D(
-                description='republish: matched subscribers per topic to wait for before '
-                            'playing', read_only=True, additional_constraints='allowed: [0, inf)')),
-            ('min_command_subscribers', 1, D(
-                description='commands: matched subscriptions of command (the plant, '
-                            'recorders) to wait for before the first command; 2 with a '
-                            'recorder, so it hears every command', read_only=True,
-                additional_constraints='allowed: [1, inf)')),
-            ('start_timeout', 30.0, D(
-                description='s to wait for subscribers (republish; rate 0 fails without them, '
-                            'rate > 0 starts anyway) or for the plant (commands)',
-                read_only=True, additional_constraints='allowed: [0, inf) s')),
-            ('end_timeout', 5.0, D(
-                description='s to wait for subscribers to acknowledge the last messages',
-                read_only=True, additional_constraints='allowed: [0, inf) s')),
-            ('end_linger', 1.0, D(
-                description='s the player keeps its publishers after the last message while '
-                            'anything subscribes: a reader drops what it has not taken yet '
-                            'when the writer goes away', read_only=True,
-                additional_constraints='allowed: [0, inf) s')),
-            ('plant_node', 'plant', D(
-                description="commands: the plant node whose model, parameters, "
-                            "control_period and initial_state are compared with the bag's "
-                            '(through its parameter services) before the first command',
-                read_only=True)),
-            ('force', False, D(
-                description='commands: replay even when the plant does not match the '
-                            "recording (a warning instead of exit 1)", read_only=True,
-                additional_constraints='allowed: true | false')),
-        ])
+        self.options = PlayerOptions(**declare(self, PLAYER_PARAMETERS))
         refuse_unknown(self)
-        gp = self.get_parameter
-        self.bag_path = str(gp('bag_path').value)
-        self.mode = str(gp('mode').value)
-        self.rate = float(gp('rate').value)
-        self.topics = [str(t) for t in gp('topics').value if str(t)]
-        self.clock = bool(gp('clock').value)
-        self.min_subscribers = int(gp('min_subscribers').value)
-        self.min_command_subscribers = int(gp('min_command_subscribers').value)
-        self.start_timeout = float(gp('start_timeout').value)
-        self.end_timeout = float(gp('end_timeout').value)
-        self.end_linger = float(gp('end_linger').value)
-        self.plant_node = str(gp('plant_node').value).strip('/')
-        self.force = bool(gp('force').value)
-        if not self.bag_path:
-            raise ValueError('bag_path is required: -p bag_path:=runs/<run>')
-        if self.mode not in MODES:
-            raise ValueError(f'mode={self.mode!r} is not valid; choose one of '
-                             + ' | '.join(repr(m) for m in MODES))
-        for name, v, unit in (('rate', self.rate, ''), ('start_timeout', self.start_timeout,
-                                                         ' s'),
-                              ('end_timeout', self.end_timeout, ' s'),
-                              ('end_linger', self.end_linger, ' s')):
-            if not (math.isfinite(v) and v >= 0):
-                raise ValueError(f'{name}={v!r} is outside the allowed range [0, inf){unit}')
-        if self.min_subscribers < 0:
-            raise ValueError(f'min_subscribers={self.min_subscribers} is outside the allowed '
-                             'range [0, inf) (subscribers)')
-        if self.min_command_subscribers < 1:
-            raise ValueError(f'min_command_subscribers={self.min_command_subscribers} is '
-                             'outside the allowed range [1, inf) (subscriptions)')
-
-        self.scan = scan(self.bag_path)          # BagError: one line from main
+        self.scan = scan(self.options.bag_path)          # BagError: one line from main
         if not self.scan.complete:
             self.get_logger().warning(
                 f'bag is truncated; playing the {len(self.scan.messages)} messages that could '
                 f'be recovered ({self.scan.problem}); python -m fohssv_sim.bag repair '
-                f'{self.bag_path} rebuilds it')
+                f'{self.options.bag_path} rebuilds it')
         self.finished = Future()
         self.exit_code = EXIT_OK
         self.published = 0
-        if self.mode == 'republish':
+        if self.options.mode == 'republish':
             self._setup_republish()
         else:
             self._setup_commands()
 
     # -- republish -------------------------------------------------------------------------
     def _setup_republish(self) -> None:
-        wanted = self.topics
+        wanted = self.options.topics
         tracks, order = select_tracks(self.scan, wanted)
-        if self.clock and not any(w.lstrip('/') == 'clock' for w in wanted):
+        if self.options.clock and not any(w.lstrip('/') == 'clock' for w in wanted):
             # /clock is generated from the log times (every step, never keep-last-dropped)
             order = [m for m in order if m[0] != contract.CLOCK.name]
             tracks = [t for t in tracks if t.name != contract.CLOCK.name]
@@ -229,31 +146,31 @@ class Player(Node):
         self.order = order
         self.pubs = {}
         for tr in tracks:
-            qos = _deep_qos() if self.rate == 0 else _paced_qos(tr.topic)
+            qos = _deep_qos() if self.options.rate == 0 else _paced_qos(tr.topic)
             self.pubs[tr.name] = self.create_publisher(message_class(tr.topic), tr.name,
                                                        qos)
         self.clock_pub = None
-        if self.clock and contract.CLOCK.name not in self.pubs:
+        if self.options.clock and contract.CLOCK.name not in self.pubs:
             self.clock_pub = self.create_publisher(
-                Clock, contract.CLOCK.name, _deep_qos() if self.rate == 0 else
+                Clock, contract.CLOCK.name, _deep_qos() if self.options.rate == 0 else
                 _paced_qos(contract.CLOCK))
         counts = {tr.name: len(tr.messages) for tr in tracks}
         self.sent = dict.fromkeys(self.pubs, 0)
         self.end_pub = self.create_publisher(String, contract.RUN_END.name,
                                              profile(contract.RUN_END))
         span = (order[-1][1] - order[0][1]) * 1e-9
+        rate = self.options.rate
         self.get_logger().info(
-            f'republishing {self.bag_path}: {counts}, {span:.6g} s simulated, rate '
-            f'{self.rate:g}' + (' (as fast as the subscribers allow)' if self.rate == 0
-                                else '') + ('; /clock at every log time' if self.clock_pub
-                                            else ''))
+            f'republishing {self.options.bag_path}: {counts}, {span:.6g} s simulated, rate '
+            f'{rate:g}' + (' (as fast as the subscribers allow)' if rate == 0 else '')
+            + ('; /clock at every log time' if self.clock_pub else ''))
         self._start_republish()
 
     # Republishing runs from the executor: a timer waits for the subscribers, then
     # spin_until paces the messages (Paced: pacing_wait / publish_due, as for the real-time
     # plant), spinning in between; the node's future completes after the last message.
     def _start_republish(self) -> None:
-        self._due = pacing_schedule([log for _, log, _ in self.order], self.rate)
+        self._due = pacing_schedule([log for _, log, _ in self.order], self.options.rate)
         self._next = 0
         self._wall0: float | None = None     # wall time the first message was due
         self.wall = 0.0                      # wall seconds from the first to the last message
@@ -268,14 +185,14 @@ class Player(Node):
         if self._wall0 is not None or self.finished.done():
             return
         missing = [n for n, p in self.pubs.items()
-                   if p.get_subscription_count() < self.min_subscribers]
+                   if p.get_subscription_count() < self.options.min_subscribers]
         if missing:
             waited = time.monotonic() - self._wait_start
-            if waited < self.start_timeout:
+            if waited < self.options.start_timeout:
                 return
-            what = (f'{", ".join(missing)} without {self.min_subscribers} subscriber(s) '
+            what = (f'{", ".join(missing)} without {self.options.min_subscribers} subscriber(s) '
                     f'after {waited:.1f} s')
-            if self.rate == 0:
+            if self.options.rate == 0:
                 self._fail(EXIT_NO_PEERS, f'start timeout: {what}; nothing would receive '
                            'the messages (same ROS_DOMAIN_ID and namespace?)')
                 return
@@ -319,7 +236,7 @@ class Player(Node):
                 pub.publish(data)
                 return
             except Exception:  # noqa: BLE001 - rclpy raises RCLError on a publish timeout
-                if self.rate != 0 or not rclpy.ok():
+                if self.options.rate != 0 or not rclpy.ok():
                     raise
                 time.sleep(0.001)
 
@@ -340,8 +257,8 @@ class Player(Node):
             # everything (a recorder) checks its bag against run_end and exits 6 on a loss.
             self.get_logger().warning(
                 f"{', '.join(unacked)}: not acknowledged by every subscriber within "
-                f'end_timeout = {self.end_timeout:g} s; a subscriber may have lost messages (a '
-                'recorder checks its bag against this replay\'s run_end)')
+                f'end_timeout = {self.options.end_timeout:g} s; a subscriber may have lost '
+                "messages (a recorder checks its bag against this replay's run_end)")
         return self.exit_code
 
     def _announce_end(self) -> None:
@@ -350,7 +267,7 @@ class Player(Node):
         published = {self.pubs[n].topic_name: k for n, k in self.sent.items()
                      if self.pubs[n].qos_profile.history == HistoryPolicy.KEEP_ALL
                      or self.pubs[n].qos_profile.depth > 1}
-        if self.clock_pub is not None and self.rate == 0:
+        if self.clock_pub is not None and self.options.rate == 0:
             published[self.clock_pub.topic_name] = self.clock_sent
         self.end_pub.publish(String(data=contract.run_end_text(
             'player', f'played {self.published} of {len(self.order)} messages', EXIT_OK,
@@ -364,9 +281,9 @@ class Player(Node):
         unacked = []
         for pub in pubs:
             if pub.get_subscription_count() > 0 and rclpy.ok():
-                if not pub.wait_for_all_acked(Duration(seconds=self.end_timeout)):
+                if not pub.wait_for_all_acked(Duration(seconds=self.options.end_timeout)):
                     unacked.append(pub.topic_name)
-        deadline = time.monotonic() + self.end_linger
+        deadline = time.monotonic() + self.options.end_linger
         while (rclpy.ok() and time.monotonic() < deadline
                and any(pub.get_subscription_count() > 0 for pub in pubs)):
             executor.spin_once(timeout_sec=0.05)
@@ -374,7 +291,7 @@ class Player(Node):
 
     # -- commands --------------------------------------------------------------------------
     def _setup_commands(self) -> None:
-        name, self.table, bad = command_table(self.scan, self.topics)
+        name, self.table, bad = command_table(self.scan, self.options.topics)
         self.remaining = sum(len(q) for q in self.table.values())
         self.t_first, self.t_last = min(self.table), max(self.table)
         if bad:
@@ -391,12 +308,12 @@ class Player(Node):
         self.state_sub = self.create_subscription(Float64MultiArray, contract.STATE.name,
                                                   self._on_state, profile(contract.STATE))
         self._matched = SubscriptionGate(self, self.command_pub,
-                                         minimum=self.min_command_subscribers)
+                                         minimum=self.options.min_command_subscribers)
         self._held = HoldReporter(self, self._matched)
         self._setup_verification()
         self._timer = self.create_timer(0.005, self._tick)
         self.get_logger().info(
-            f'replaying {self.remaining} commands of {self.bag_path} ({name}, t in '
+            f'replaying {self.remaining} commands of {self.options.bag_path} ({name}, t in '
             f'[{self.t_first!r}, {self.t_last!r}] s) in answer to {self.state_sub.topic_name}')
 
     # -- commands: is the plant the recorded one? ---------------------------------------------
@@ -414,16 +331,17 @@ class Player(Node):
                 'recording (replaying anyway)')
             return
         self._get_params = self.create_client(GetParameters,
-                                              f'/{self.plant_node}/get_parameters')
+                                              f'/{self.options.plant_node}/get_parameters')
 
     def _verify(self) -> None:
         if self._asked:
             return
         if not self._get_params.service_is_ready():
-            if time.monotonic() - self._wall0 > self.start_timeout:
+            o = self.options
+            if time.monotonic() - self._wall0 > o.start_timeout:
                 self._fail(EXIT_NO_PEERS, f'start timeout: no parameter services of the '
-                           f'plant node /{self.plant_node} after {self.start_timeout:g} s, so '
-                           'it cannot be checked against the recording; name it with '
+                           f'plant node /{o.plant_node} after {o.start_timeout:g} s, so it '
+                           'cannot be checked against the recording; name it with '
                            '-p plant_node:=NAME (or skip the check with -p force:=true)')
             return
         self._asked = True
@@ -436,21 +354,21 @@ class Player(Node):
             return
         result = future.result()
         if result is None or len(result.values) != len(names):
-            self._fail(EXIT_ERROR, f'could not read the parameters of /{self.plant_node}')
+            self._fail(EXIT_ERROR, f'could not read the parameters of /{self.options.plant_node}')
             return
         live = {n: parameter_value_to_python(v) for n, v in zip(names, result.values,
                                                                  strict=True)}
         diffs = compare_plant(self._recorded, live)
         if diffs:
-            text = (f'the plant /{self.plant_node} does not match the recording: '
+            text = (f'the plant /{self.options.plant_node} does not match the recording: '
                     + '; '.join(diffs))
-            if not self.force:
+            if not self.options.force:
                 self._fail(EXIT_ERROR, f'{text}; start the plant with the recorded values '
                            '(or replay anyway with -p force:=true)')
                 return
             self.get_logger().warning(f'{text}; replaying anyway (force)')
         else:
-            self.get_logger().info(f'the plant /{self.plant_node} matches the recording '
+            self.get_logger().info(f'the plant /{self.options.plant_node} matches the recording '
                                    '(model, parameters, control_period, initial_state)')
         self._verified = True
 
@@ -512,17 +430,17 @@ class Player(Node):
         elif self._plant_seen:
             last = 'no state' if self._last_t is None else f'the last state at t={self._last_t!r} s'
             self._finish(f'the plant left ({last})')
-        elif time.monotonic() - self._wall0 > self.start_timeout:
+        elif time.monotonic() - self._wall0 > self.options.start_timeout:
             self._fail(EXIT_NO_PEERS, f'start timeout: no publisher of '
-                       f'{self.state_sub.topic_name} after {self.start_timeout:g} s; is the '
-                       'plant running in the same ROS_DOMAIN_ID and namespace?')
+                       f'{self.state_sub.topic_name} after {self.options.start_timeout:g} s; '
+                       'is the plant running in the same ROS_DOMAIN_ID and namespace?')
 
     # -- end -------------------------------------------------------------------------------
     def _end(self, code: int) -> None:
         if self.finished.done():
             return
         self.exit_code = code
-        if self.mode == 'commands':
+        if self.options.mode == 'commands':
             self.destroy_timer(self._timer)
         self.finished.set_result(code)
 
@@ -548,7 +466,7 @@ def main(args: list[str] | None = None) -> int:
         node = Player()
         executor = make_executor()
         executor.add_node(node)
-        if node.mode == 'republish':
+        if node.options.mode == 'republish':
             spin_until(executor, node.finished, paced=node)
             if node.finished.done() and node.exit_code == EXIT_OK:
                 code = node.end_republish(executor)
@@ -568,7 +486,7 @@ def main(args: list[str] | None = None) -> int:
             code = node.exit_code
             final_log('player', f'interrupted after {node.published} message(s)')
     except (ValueError, ParameterException) as exc:   # BadParameters too
-        code = report('player', exc)
+        code = report('player', exc, PLAYER_PARAMETERS)
     except (BagError, PlayerError, OSError) as exc:
         print(f'player: error: {exc}', file=sys.stderr, flush=True)
         code = EXIT_ERROR

@@ -56,7 +56,6 @@ from pathlib import Path
 from typing import Any
 
 import rclpy
-from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 from rcl_interfaces.srv import GetParameters, ListParameters
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import SingleThreadedExecutor
@@ -67,11 +66,18 @@ from rclpy.task import Future
 from std_msgs.msg import String
 
 from .. import contract
-from ..bag.writer import DEFAULT_CHUNK_SIZE, RunWriter, typestore
+from ..bag.writer import RunWriter, typestore
+from .bag_options import (
+    RECORDED,
+    RECORDER_PARAMETERS,
+    RecorderOptions,
+    default_bag_path,
+    new_bag_path,
+)
 from .nodekit import (
     STOP,
     SecondPublisherWarning,
-    declare_rows,
+    declare,
     destroy_on_error,
     final_log,
     message_class,
@@ -82,23 +88,14 @@ from .nodekit import (
     spin_until,
 )
 
-__all__ = ['Recorder', 'main', 'default_bag_path', 'source_info', 'EXIT_LOST']
+__all__ = ['Recorder', 'main', 'default_bag_path', 'source_info', 'EXIT_LOST', 'RECORDED']
 
 #: Exit code when the bag misses messages that the run's ``run_end`` says were published.
 EXIT_LOST = 6
 #: After a signal: stop draining once nothing arrived for this long (s).
 _DRAIN_QUIET = 0.5
 
-#: What the recorder records by default: the contract and the typed views.
-RECORDED = contract.TOPICS + contract.VIEW_TOPICS
 _CDR_LE = b'\x00\x01'
-
-
-def default_bag_path(now: datetime | None = None) -> Path:
-    """``runs/<UTC timestamp>`` under ``$FOHSSV_ROOT`` (or the current directory)."""
-    now = now or datetime.now(timezone.utc)
-    root = Path(os.environ.get('FOHSSV_ROOT', '.'))
-    return root / 'runs' / now.strftime('%Y%m%dT%H%M%S_%fZ')
 
 
 def source_info() -> dict[str, str]:
@@ -121,91 +118,16 @@ def source_info() -> dict[str, str]:
     return info
 
 
-def _contract_topic(name: str) -> contract.Topic:
-    topic = contract.find_topic(name, RECORDED)
-    if topic is not None:
-        return topic
-    valid = ', '.join(t.name for t in RECORDED)
-    raise ValueError(f'topics: {name!r} is not a contract topic; the recorder records: {valid} '
-                     '(in any namespace)')
-
-
 class Recorder(Node):
     """Subscribes to the run's topics and writes them to a bag; see the module docstring."""
 
     @destroy_on_error
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('recorder', **kwargs)
-        D = ParameterDescriptor
-        declare_rows(self, [
-            ('bag_path', '', D(description='bag directory to create; empty = runs/<UTC '
-                               'timestamp>', read_only=True,
-                               additional_constraints='allowed: a path that does not exist')),
-            ('topics', [t.name for t in RECORDED], D(
-                type=ParameterType.PARAMETER_STRING_ARRAY, read_only=True,
-                description='topics to record (contract topics and typed views, relative names '
-                            "resolved in the recorder's namespace)",
-                additional_constraints='allowed: '
-                + ', '.join(t.name for t in RECORDED))),
-            ('plant_node', 'plant', D(
-                description="node whose parameters are stored with the run; '' or 'none' = "
-                            'no node', read_only=True)),
-            ('plant_timeout', 10.0, D(
-                description='s to wait for the plant parameter services', read_only=True,
-                additional_constraints='allowed: [0, inf) s')),
-            ('flush_period', 0.1, D(
-                description='s of wall time between flushes: the most a SIGKILL can lose',
-                read_only=True, additional_constraints='allowed: (0, 60] s')),
-            ('command_publishers', 0, D(
-                description='subscribe to state only once the command subscription has '
-                            'matched this many publishers (a plant waiting for its state '
-                            'subscribers then cannot start before the recorder hears the '
-                            'controller); 0 = at once', read_only=True,
-                additional_constraints='allowed: [0, inf) publishers')),
-            ('chunk_size', DEFAULT_CHUNK_SIZE, D(
-                description='bytes after which a chunk is written even between flushes',
-                read_only=True, additional_constraints='allowed: [1024, inf) bytes')),
-            ('stop_at_run_end', True, D(
-                description='close the bag and exit once the run_end of the run (plant or '
-                            'player) arrived and every message it lists is in the bag '
-                            '(exit 6 naming what is missing after end_timeout)',
-                read_only=True)),
-            ('end_timeout', 10.0, D(
-                description='s of wall time to wait for the messages a run_end lists, and '
-                            'the most a signal waits for delivered messages to drain',
-                read_only=True, additional_constraints='allowed: (0, 3600] s')),
-        ])
+        self.options = RecorderOptions(**declare(self, RECORDER_PARAMETERS))
         refuse_unknown(self)
-        gp = self.get_parameter
-        flush_period = float(gp('flush_period').value)
-        if not (math.isfinite(flush_period) and 0 < flush_period <= 60):
-            raise ValueError(f'flush_period={flush_period!r} is outside the allowed range '
-                             '(0, 60] s (s of wall time between flushes)')
-        plant_timeout = float(gp('plant_timeout').value)
-        if not (math.isfinite(plant_timeout) and plant_timeout >= 0):
-            raise ValueError(f'plant_timeout={plant_timeout!r} is outside the allowed range '
-                             '[0, inf) s (s to wait for the plant parameter services)')
-        chunk_size = int(gp('chunk_size').value)
-        if chunk_size < 1024:
-            raise ValueError(f'chunk_size={chunk_size!r} is outside the allowed range '
-                             '[1024, inf) bytes')
-        self.end_timeout = float(gp('end_timeout').value)
-        if not (math.isfinite(self.end_timeout) and 0 < self.end_timeout <= 3600):
-            raise ValueError(f'end_timeout={self.end_timeout!r} is outside the allowed range '
-                             '(0, 3600] s (s of wall time to wait for the messages a run_end '
-                             'lists)')
-        if int(gp('command_publishers').value) < 0:
-            raise ValueError(f"command_publishers={gp('command_publishers').value!r} is "
-                             'outside the allowed range [0, inf) publishers')
-        names = list(gp('topics').value)
-        if not names:
-            raise ValueError('topics: empty list; give at least one contract topic')
-        topics = [(name, _contract_topic(name)) for name in names]
-        path = str(gp('bag_path').value)
-        self.bag_path = Path(path) if path else default_bag_path()
-        if self.bag_path.exists():
-            raise ValueError(f'bag_path={str(self.bag_path)!r} exists already; the recorder '
-                             'never overwrites a bag')
+        self.end_timeout = self.options.end_timeout
+        self.bag_path = new_bag_path(self.options)
 
         self._ts = typestore()
         self.closed = False
@@ -213,21 +135,21 @@ class Recorder(Node):
         self.exit_code = 0
         self._expected: dict[str, int] | None = None   # from run_end: topic -> messages
         self._end_deadline = 0.0
-        self.writer = RunWriter(self.bag_path, chunk_size=chunk_size).open()
+        self.writer = RunWriter(self.bag_path, chunk_size=self.options.chunk_size).open()
         print(f'recording to {self.bag_path}', flush=True)
         try:
-            self._start(topics, flush_period, chunk_size)
+            self._start()
         except BaseException:
             self.close()     # interrupted while starting: still a complete (empty) bag
             raise
 
-    def _start(self, topics: list[tuple[str, contract.Topic]], flush_period: float,
-               chunk_size: int) -> None:
-        gp = self.get_parameter
+    def _start(self) -> None:
+        o = self.options
+        topics = o.recorded()
         self._last_log = 0
         self.subscriptions_ = []
         self._deferred = None
-        wait_commands = int(gp('command_publishers').value)
+        wait_commands = o.command_publishers
         for name, topic in topics:
             base = profile(topic)
             # same reliability/durability as the plant's; keep-all: when the recorder falls
@@ -247,11 +169,9 @@ class Recorder(Node):
             self.subscriptions_.append(sub)
         self.topic_names = [self.resolve_topic_name(n) for n, _ in topics]
         if self._deferred is not None:
-            command = next((s for s in self.subscriptions_
-                            if s.topic_name == self.resolve_topic_name(contract.COMMAND.name)),
-                           None)
-            if command is None:
-                raise ValueError('command_publishers > 0 needs the command topic recorded')
+            # there is one: RecorderOptions refuses command_publishers > 0 without it
+            command = next(s for s in self.subscriptions_
+                           if contract.find_topic(s.topic_name) is contract.COMMAND)
             self._wait_commands = (command, wait_commands)
             self._defer_timer = self.create_timer(0.005, self._maybe_subscribe_state)
         self.writer.add_metadata({
@@ -260,24 +180,23 @@ class Recorder(Node):
             'fohssv.topics': self.topic_names,
             'fohssv.log_time': 'simulation time in ns: round(data[0] * 1e9) for '
                                'Float64MultiArray topics, the stamp for /clock',
-            'fohssv.flush_period_s': repr(flush_period),
-            'fohssv.chunk_size_bytes': str(chunk_size),
-            'fohssv.plant_node': str(gp('plant_node').value),
+            'fohssv.flush_period_s': repr(o.flush_period),
+            'fohssv.chunk_size_bytes': str(o.chunk_size),
+            'fohssv.plant_node': o.plant_node,
         })
         steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self._flush_timer = self.create_timer(flush_period, self.writer.flush, clock=steady)
+        self._flush_timer = self.create_timer(o.flush_period, self.writer.flush, clock=steady)
         self._end_timer = None
         # always heard (a drain after a signal waits for what it lists); it ends the recording
         # only with stop_at_run_end
-        self._stop_at_end = bool(gp('stop_at_run_end').value)
+        self._stop_at_end = o.stop_at_run_end
         self._end_sub = self.create_subscription(String, contract.RUN_END.name,
                                                  self._on_run_end, profile(contract.RUN_END))
         state = self.resolve_topic_name(contract.STATE.name)
         self._rivals = (SecondPublisherWarning(self, state) if state in self.topic_names
                         else None)
-        self._plant = str(gp('plant_node').value)
-        self._plant = '' if self._plant.lower() == 'none' else self._plant
-        self._plant_deadline = time.monotonic() + float(gp('plant_timeout').value)
+        self._plant = '' if o.plant_node.lower() == 'none' else o.plant_node
+        self._plant_deadline = time.monotonic() + o.plant_timeout
         self._plant_timer = None
         if self._plant:
             self._list = self.create_client(ListParameters, f'/{self._plant}/list_parameters')
@@ -475,7 +394,8 @@ def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run fohssv_sim recorder``; returns the exit code. SIGINT and
     SIGTERM only set STOP (spin.StopSignal): the loop ends between callbacks, the readers are
     drained and the bag is closed, in order."""
-    return run_node('recorder', args, Recorder, _run, on_error=_error, on_exit=_close)
+    return run_node('recorder', args, Recorder, _run, specs=RECORDER_PARAMETERS,
+                    on_error=_error, on_exit=_close)
 
 
 if __name__ == '__main__':

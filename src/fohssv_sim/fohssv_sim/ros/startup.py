@@ -13,7 +13,8 @@ Shared by the plant, the controller node, the recorder and the player (one imple
   files) against the table *before* rclpy declares them, so a wrong type or a value out of
   range is reported by the table's own text (name, value, allowed range, unit, meaning)
   instead of rclpy's exception.
-* :func:`declare_rows`: declares plain rows ``(name, default, descriptor)`` (recorder, player)
+* :func:`declare_rows`: declares plain rows ``(name, default, descriptor)`` (the controller
+  node's plugin name; every other parameter is a table row, :mod:`.ros_params`)
   and turns rclpy's type errors into one line with the descriptor's allowed values.
 * :func:`refuse_unknown`: an override no parameter of the node declares (``-p sped:=80.0``, a
   misspelt key in a params file, including keys under ``/**``) is refused with the close

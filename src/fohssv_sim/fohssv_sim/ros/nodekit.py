@@ -5,14 +5,14 @@ imports its ROS helpers from here and never from another node's module:
 
 * start and end: :func:`run_node` owns ``rclpy.init``, building the node, spinning it, the
   exit code and the tear-down (bad arguments or parameters: one line and exit 2, see
-  :mod:`.startup`); the plant and the controller use it. The recorder and the player keep
-  rclpy's own signal handling (a signal shuts the context down and their drain on SIGINT
-  relies on it), so they call :func:`init` and :func:`report` themselves;
+  :mod:`.startup`); every node uses it (plant, controller, recorder, player).
+  :func:`error_line` reports a node's failures as one ``NAME: error: ...`` line;
 * messages: :func:`array_message`, :class:`ArrayWriter` / :class:`ArrayReader` (serialized
   messages, :mod:`.wire`), :func:`message_class` (the Python class of a contract type);
 * QoS: :func:`profile`, :func:`offered_qos` (:mod:`.qos`);
 * parameters: :func:`declare`, :func:`install_validation` (from a table, :mod:`.ros_params`),
-  :func:`declare_rows`, :func:`refuse_unknown`, :func:`destroy_on_error` (:mod:`.startup`);
+  :func:`declare_rows` (plain rows: the controller node's plugin name),
+  :func:`refuse_unknown`, :func:`destroy_on_error` (:mod:`.startup`);
 * spinning: :func:`make_executor`, :func:`spin_until`, :data:`STOP`, :func:`final_log`,
   and for the real-time plant :class:`PausedCollector`, :func:`set_realtime_priority`,
   :func:`tighten_timer_slack` (:mod:`.spin`);
@@ -22,6 +22,7 @@ imports its ROS helpers from here and never from another node's module:
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable, Iterable
 from typing import Any
 
@@ -59,7 +60,7 @@ from .wire import ArrayReader, ArrayWriter, ClockWriter, array_message, message_
 __all__ = ['run_node', 'spin_node', 'EXIT_OK', 'EXIT_BAD_PARAMETERS',
            'array_message', 'message_class', 'ArrayReader', 'ArrayWriter', 'ClockWriter',
            'profile', 'offered_qos', 'declare', 'install_validation', 'declare_rows',
-           'refuse_unknown', 'destroy_on_error', 'BadParameters', 'make_executor',
+           'refuse_unknown', 'error_line', 'destroy_on_error', 'BadParameters', 'make_executor',
            'spin_until', 'STOP', 'final_log', 'SubscriptionGate', 'HoldReporter',
            'SecondPublisherWarning',
            'PausedCollector', 'set_realtime_priority', 'tighten_timer_slack', 'init', 'report']
@@ -74,6 +75,26 @@ def spin_node(node: Node) -> int:
     executor.add_node(node)
     spin_until(executor)
     return EXIT_OK
+
+
+def error_line(name: str, expected: tuple[type[BaseException], ...] = (OSError,)
+               ) -> Callable[[Exception], int]:
+    """An ``on_error`` for :func:`run_node`: one line ``NAME: error: ...`` on stderr and exit
+    1, with the text of an ``expected`` exception (a bad bag, an OS error) or the type and
+    text of any other (a bug). After a shutdown of the context (a signal during start-up)
+    nothing is printed and the code is 0."""
+
+    def on_error(exc: Exception) -> int:
+        if isinstance(exc, expected):
+            text = str(exc)
+        elif rclpy.ok():
+            text = f'{type(exc).__name__}: {exc}'
+        else:
+            return EXIT_OK
+        print(f'{name}: error: {text}', file=sys.stderr, flush=True)
+        return 1
+
+    return on_error
 
 
 def run_node(name: str, args: list[str] | None, build: Callable[[], Node],

@@ -32,7 +32,9 @@ were used up (commands); 1 bad bag (missing, empty, truncated before any message
 one ``player: error: ...`` line, no traceback), a state without a recorded command, or a
 plant that does not match the recording (commands, without ``force``);
 2 invalid parameters; 4 no subscriber (rate 0) or no plant (commands) within
-``start_timeout``. SIGINT/SIGTERM stop cleanly with the code so far (0).
+``start_timeout``. SIGINT/SIGTERM stop cleanly with the code so far (0): the process runs
+under :func:`.nodekit.run_node` like every node, so a signal only sets ``spin.STOP`` and the
+replay stops between callbacks (a final ``interrupted after ...`` line; no ``run_end``).
 """
 
 from __future__ import annotations
@@ -45,12 +47,9 @@ from typing import Any
 import rclpy
 from rcl_interfaces.srv import GetParameters
 from rclpy.duration import Duration
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
@@ -69,18 +68,18 @@ from ..bag.replay import (
 )
 from .bag_options import PLAYER_MODES, PLAYER_PARAMETERS, PlayerOptions
 from .nodekit import (
-    BadParameters,
+    STOP,
     HoldReporter,
     SubscriptionGate,
     declare,
     destroy_on_error,
+    error_line,
     final_log,
-    init,
     make_executor,
     message_class,
     profile,
     refuse_unknown,
-    report,
+    run_node,
     spin_until,
 )
 
@@ -212,15 +211,18 @@ class Player(Node):
         order, due = self.order, self._due
         now = time.monotonic() - self._wall0
         for _ in range(_BATCH):
-            if self._next >= len(order) or due[self._next] > now or not rclpy.ok():
+            if (self._next >= len(order) or due[self._next] > now or not rclpy.ok()
+                    or STOP.received is not None):
                 break
             name, log, raw = order[self._next]
             if self.clock_pub is not None and (self._last_log is None or log != self._last_log):
-                self._publish_blocking(self.clock_pub, Clock(clock=Time(nanoseconds=log)
-                                                             .to_msg()))
+                if not self._publish_blocking(self.clock_pub, Clock(
+                        clock=Time(nanoseconds=log).to_msg())):
+                    break
                 self.clock_sent += 1
             self._last_log = log
-            self._publish_blocking(self.pubs[name], raw)
+            if not self._publish_blocking(self.pubs[name], raw):
+                break
             self._next += 1
             self.published += 1
             self.sent[name] += 1
@@ -228,16 +230,18 @@ class Player(Node):
             self.wall = time.monotonic() - self._wall0
             self._end(EXIT_OK)
 
-    def _publish_blocking(self, pub: Any, data: Any) -> None:
+    def _publish_blocking(self, pub: Any, data: Any) -> bool:
         """Publish; at rate 0 a keep-all subscriber's full queue makes DDS time out: retry
-        until it is accepted (or a signal stops the player)."""
+        until it is accepted (True), or a signal stops the player (False: not sent)."""
         while True:
             try:
                 pub.publish(data)
-                return
+                return True
             except Exception:  # noqa: BLE001 - rclpy raises RCLError on a publish timeout
                 if self.options.rate != 0 or not rclpy.ok():
                     raise
+                if STOP.received is not None:
+                    return False
                 time.sleep(0.001)
 
     def end_republish(self, executor: Any) -> int:
@@ -284,7 +288,7 @@ class Player(Node):
                 if not pub.wait_for_all_acked(Duration(seconds=self.options.end_timeout)):
                     unacked.append(pub.topic_name)
         deadline = time.monotonic() + self.options.end_linger
-        while (rclpy.ok() and time.monotonic() < deadline
+        while (rclpy.ok() and STOP.received is None and time.monotonic() < deadline
                and any(pub.get_subscription_count() > 0 for pub in pubs)):
             executor.spin_once(timeout_sec=0.05)
         return unacked
@@ -454,51 +458,37 @@ class Player(Node):
         self._end(code)
 
 
+def _run(node: Player) -> int:
+    """Play until the end (republish: then announce run_end, wait for the acknowledgements and
+    linger; commands: flush the last commands) or a signal (a final line, no run_end); the
+    exit code."""
+    executor = make_executor()
+    executor.add_node(node)
+    republish = node.options.mode == 'republish'
+    spin_until(executor, node.finished, paced=node if republish else None)
+    if not node.finished.done():          # a signal (STOP) or an external shutdown
+        return _on_interrupt(node)
+    if not republish:
+        node._flush_all([node.command_pub], executor)
+    elif node.exit_code == EXIT_OK:
+        return node.end_republish(executor)
+    return node.exit_code
+
+
+def _on_interrupt(node: Player) -> int:
+    sent = (f'{node.published} of {len(node.order)} messages'
+            if node.options.mode == 'republish' else f'{node.published} message(s)')
+    final_log('player', f'interrupted after {sent}')
+    return node.exit_code
+
+
 def main(args: list[str] | None = None) -> int:
-    """Entry point of ``ros2 run fohssv_sim player``; returns the exit code."""
-    try:
-        init(args, signal_handler_options=SignalHandlerOptions.ALL)
-    except BadParameters as exc:
-        return report('player', exc)
-    node = None
-    code = EXIT_OK
-    try:
-        node = Player()
-        executor = make_executor()
-        executor.add_node(node)
-        if node.options.mode == 'republish':
-            spin_until(executor, node.finished, paced=node)
-            if node.finished.done() and node.exit_code == EXIT_OK:
-                code = node.end_republish(executor)
-            elif node.finished.done():
-                code = node.exit_code
-            else:
-                code = node.exit_code
-                final_log('player', f'interrupted after {node.published} of '
-                          f'{len(node.order)} messages')
-        else:
-            spin_until(executor, node.finished)
-            code = node.exit_code
-            if rclpy.ok():
-                node._flush_all([node.command_pub], executor)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        if node is not None:
-            code = node.exit_code
-            final_log('player', f'interrupted after {node.published} message(s)')
-    except (ValueError, ParameterException) as exc:   # BadParameters too
-        code = report('player', exc, PLAYER_PARAMETERS)
-    except (BagError, PlayerError, OSError) as exc:
-        print(f'player: error: {exc}', file=sys.stderr, flush=True)
-        code = EXIT_ERROR
-    except Exception as exc:  # noqa: BLE001 - a signal during start-up, or a bug: one line
-        if rclpy.ok():
-            print(f'player: error: {type(exc).__name__}: {exc}', file=sys.stderr, flush=True)
-            code = EXIT_ERROR
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    """Entry point of ``ros2 run fohssv_sim player``; returns the exit code. SIGINT and SIGTERM
+    only set STOP (spin.StopSignal): the replay stops between callbacks with a final line and
+    the code so far (0); no run_end is announced for an interrupted replay."""
+    return run_node('player', args, Player, _run, specs=PLAYER_PARAMETERS,
+                    on_interrupt=_on_interrupt,
+                    on_error=error_line('player', (BagError, PlayerError, OSError)))
 
 
 if __name__ == '__main__':

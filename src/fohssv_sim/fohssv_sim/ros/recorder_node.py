@@ -79,6 +79,7 @@ from .nodekit import (
     SecondPublisherWarning,
     declare,
     destroy_on_error,
+    error_line,
     final_log,
     message_class,
     offered_qos,
@@ -375,16 +376,6 @@ def _run(node: Recorder) -> int:
     return node.exit_code
 
 
-def _error(exc: Exception) -> int:
-    if isinstance(exc, OSError):
-        print(f'recorder: error: {exc}', file=sys.stderr, flush=True)
-        return 1
-    if rclpy.ok():        # not a signal arriving during start-up
-        print(f'recorder: error: {type(exc).__name__}: {exc}', file=sys.stderr, flush=True)
-        return 1
-    return 0
-
-
 def _close(node: Recorder) -> None:
     node.close()
     node.report_loss()
@@ -395,7 +386,7 @@ def main(args: list[str] | None = None) -> int:
     SIGTERM only set STOP (spin.StopSignal): the loop ends between callbacks, the readers are
     drained and the bag is closed, in order."""
     return run_node('recorder', args, Recorder, _run, specs=RECORDER_PARAMETERS,
-                    on_error=_error, on_exit=_close)
+                    on_error=error_line('recorder'), on_exit=_close)
 
 
 if __name__ == '__main__':

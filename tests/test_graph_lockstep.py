@@ -90,7 +90,7 @@ def test_reset_service_returns_to_t0_and_replays_the_run():
     try:
         probe.wait(lambda: len(probe.states) > 100, 30, 'the run to pass t = 0.01 s')
         response = probe.reset_plant()
-        assert response.success, response.message
+        assert response.success, (response.message, stop_all(plant, ctl))
         assert response.message.startswith('t = 0.0 s')
 
         def restarted_past_0_1_s():

@@ -53,8 +53,9 @@ RECORDER_PARAMETERS: tuple[ParameterSpec, ...] = (
     FlagSpec('stop_at_run_end', '-', True, '-', 'close the bag and exit once the run_end of '
              'the run (plant or player) arrived and every message it lists is in the bag '
              '(exit 6 naming what is missing after end_timeout)'),
-    _P('end_timeout', '-', 10.0, 's', 'wall time to wait for the messages a run_end lists, '
-       'and the most a signal waits for delivered messages to drain', low=0.0, high=3600.0,
+    _P('end_timeout', '-', 10.0, 's', 'wall time without a new message after which the '
+       'messages a run_end lists that are not in the bag count as lost, and a drain after a '
+       'signal ends (a backlog still being written is waited for)', low=0.0, high=3600.0,
        high_open=False),
 )
 

@@ -23,12 +23,13 @@
   messages received in the last ``flush_period`` (plus one callback); SIGINT/SIGTERM close the
   bag completely (summary, index, metadata.yaml) after draining what the readers already
   hold (until the bag holds what a received ``run_end`` lists, else until nothing arrived
-  for 0.5 s; at most ``end_timeout``). ``python -m fohssv_sim.bag
-  repair`` rebuilds a killed recorder's bag.
+  for 0.5 s; it gives up once nothing arrived for ``end_timeout`` s, or at a second
+  signal). ``python -m fohssv_sim.bag repair`` rebuilds a killed recorder's bag.
 * End of run (``stop_at_run_end``, default true): the plant (and the player after a replay)
   publishes ``run_end`` once, with the number of messages it sent on each topic. The recorder
   stores it in the run metadata (``fohssv.run_end``), waits until its bag holds that many
-  messages on every recorded topic listed (at most ``end_timeout`` s), closes the bag and
+  messages on every recorded topic listed (while messages keep arriving; what is missing
+  once nothing arrived for ``end_timeout`` s is lost), closes the bag and
   exits: 0 when nothing is missing, 6 naming each topic's shortfall otherwise. After
   SIGINT/SIGTERM the same comparison is made once the delivered messages are drained.
   (The plant lists the commands it received; ``/clock`` is keep-last 1 and not listed.)
@@ -135,7 +136,7 @@ class Recorder(Node):
         self.done = Future()          # set when the run ended and the bag holds it (or not)
         self.exit_code = 0
         self._expected: dict[str, int] | None = None   # from run_end: topic -> messages
-        self._end_deadline = 0.0
+        self._progress = (0, 0.0)   # (messages written, when that count was reached)
         self.writer = RunWriter(self.bag_path, chunk_size=self.options.chunk_size).open()
         print(f'recording to {self.bag_path}', flush=True)
         try:
@@ -255,7 +256,7 @@ class Recorder(Node):
         if self._expected is not None or self.closed:
             return                                # the first run_end ends the recording
         self._expected = {k: v for k, v in info['published'].items() if k in self.writer.counts}
-        self._end_deadline = time.monotonic() + self.end_timeout
+        self._progress = (sum(self.writer.counts.values()), time.monotonic())
         self.writer.add_metadata({'fohssv.run_end': info})
         self.get_logger().info(
             f"run_end from the {info.get('source', '?')} ({info.get('reason', '')}): waiting "
@@ -270,11 +271,22 @@ class Recorder(Node):
         return {k: (counts.get(k, 0), v) for k, v in (self._expected or {}).items()
                 if counts.get(k, 0) < v}
 
+    def _stalled(self) -> bool:
+        """True once no message was written for ``end_timeout`` s: a backlog that is still
+        being written (a loaded machine, a fast replay) is waited for, a loss is not."""
+        total, since = self._progress
+        now = time.monotonic()
+        n = sum(self.writer.counts.values())
+        if n != total:
+            self._progress = (n, now)
+            return False
+        return now - since >= self.end_timeout
+
     def _check_end(self) -> None:
         if self.done.done():
             return
         missing = self.missing()
-        if missing and time.monotonic() < self._end_deadline:
+        if missing and not self._stalled():
             return
         self._end_timer.cancel()
         self.exit_code = EXIT_LOST if missing else 0
@@ -284,19 +296,17 @@ class Recorder(Node):
 
     def drain(self, executor: Any) -> None:
         """After a signal: take what the readers already hold. Once a run_end arrived, until
-        the bag holds what it lists; before, until nothing arrived for 0.5 s. At most
-        ``end_timeout`` s either way."""
-        deadline = time.monotonic() + self.end_timeout
-        total = sum(self.writer.counts.values())
-        quiet_since = time.monotonic()
-        while rclpy.ok() and (now := time.monotonic()) < deadline:
+        the bag holds what it lists; before, until nothing arrived for 0.5 s. Either way it
+        ends when nothing arrived for ``end_timeout`` s, or at a further signal."""
+        signals = STOP.count
+        self._progress = (sum(self.writer.counts.values()), time.monotonic())
+        while rclpy.ok() and STOP.count == signals:
             if self._expected is not None and not self.missing():
                 break
             executor.spin_once(timeout_sec=0.02)
-            n = sum(self.writer.counts.values())
-            if n != total:
-                total, quiet_since = n, now
-            elif self._expected is None and now - quiet_since >= _DRAIN_QUIET:
+            if self._stalled():
+                break
+            if self._expected is None and time.monotonic() - self._progress[1] >= _DRAIN_QUIET:
                 break
         if self.missing():
             self.exit_code = EXIT_LOST

@@ -12,19 +12,44 @@ import os
 import signal
 import subprocess
 import time
+import zlib
 from collections.abc import Sequence
 from pathlib import Path
 
 from ament_index_python.packages import get_package_prefix
 
 _counter = itertools.count()
+#: ROS_DOMAIN_IDs the tests use: 1 to 200 (Fast DDS allows up to 232).
+_DOMAINS = 200
 #: Every process started by :func:`start`; conftest kills those still running after each test.
 STARTED: list[subprocess.Popen] = []
 
 
+def _worker() -> tuple[int, int]:
+    """(index, count) of this pytest-xdist worker; (0, 1) without xdist."""
+    name = os.environ.get('PYTEST_XDIST_WORKER', '')
+    count = int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1') or 1)
+    return (int(name[2:]) if name.startswith('gw') else 0), max(count, 1)
+
+
+def _run_seed() -> int:
+    """Differs between concurrent test runs: the xdist run id (shared by a run's workers), or
+    the pid of a run without xdist."""
+    run_id = os.environ.get('PYTEST_XDIST_TESTRUNUID')
+    return zlib.crc32(run_id.encode()) if run_id else os.getpid() * 7
+
+
 def unique_domain_id() -> int:
-    """A ROS_DOMAIN_ID in [1, 200] that differs between tests and between concurrent runs."""
-    return 1 + (os.getpid() * 7 + next(_counter) * 13) % 200
+    """A ROS_DOMAIN_ID in [1, 200] that differs between tests and between concurrent runs.
+
+    The parallel workers of one run (``make test`` uses pytest-xdist) never share a domain:
+    worker k of n gets the domains 1 + m with m = k (mod n), in turn, so consecutive tests
+    of one worker differ too. Another run on the machine starts elsewhere in the cycle.
+    """
+    k, n = _worker()
+    span = (_DOMAINS // n) * n          # a multiple of n keeps the residue k when it wraps
+    base = (_run_seed() % (span // n)) * n
+    return 1 + (base + k + n * next(_counter)) % span
 
 
 def ros_env(domain_id: int | None = None, **extra: str) -> dict[str, str]:

@@ -60,9 +60,9 @@ sys.path.insert(0, str(ROOT / 'tests'))
 from test_graph_startup import NODES, bad_parameter_cases  # noqa: E402
 from test_graph_support import Probe, plant_args  # noqa: E402
 
-from fohssv_sim import cli as cli_codes  # noqa: E402
 from fohssv_sim.bag import BagError, load_run  # noqa: E402
 from fohssv_sim.bag.synthetic import edit_metadata, write_bag  # noqa: E402
+from fohssv_sim.cli import common as cli_codes  # noqa: E402
 from fohssv_sim.closed_loop import closed_loop, ros_args  # noqa: E402
 from fohssv_sim.ros import plant_node, player_node  # noqa: E402
 from fohssv_sim.ros.startup import EXIT_BAD_PARAMETERS  # noqa: E402

@@ -1,32 +1,30 @@
-"""Structural check of a bag: the MCAP container is checked by ``pymcap-cli doctor``, the
-ROS 2 layer and ``metadata.yaml`` by fohssv.
+"""Structural check of a bag: what ``pymcap-cli doctor`` checks, written with ``mcap``.
 
-For every MCAP file, ``pymcap-cli doctor`` (run as a program, its JSONL findings read back)
-checks the container against the MCAP specification: magic at both ends, every record
-parses in order with the header first and the footer last, chunk, data-section and summary
-CRCs, chunk indexes and message indexes point at the chunks and messages they describe
-(offsets, lengths, times, channels), statistics equal its recount, metadata indexes and
-summary offsets point at their records. Each error and warning it reports is a problem
-(grouped by finding code); its info findings (no compression, ...) are not.
-
-fohssv adds, reading with ``mcap``: header profile ``ros2``; channels name existing
+For every MCAP file: magic at both ends, header profile ``ros2``, every record readable in
+order, chunk CRCs and the data section CRC, a summary with statistics; each chunk index
+points at a chunk of that length whose message times and per-channel counts it states; each
+message index entry points at a message of its channel with its log time; statistics equal
+the messages counted; metadata indexes point at metadata records; channels name existing
 ``ros2msg``/``ros2idl`` schemas and ``cdr`` encoding; every message decodes with
 ``mcap_ros2``'s decoder. For ``metadata.yaml``: every field ``ros2 bag info`` reads, and its
-counts, start, duration, topic types and type hashes equal the MCAP's. Pure: no rclpy.
+counts, start and duration equal the MCAP's. Pure: no rclpy.
 """
 
 from __future__ import annotations
 
-import json
-import shutil
-import subprocess
+import io
+import struct
 import sys
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
+from mcap.opcode import Opcode
 from mcap.reader import make_reader
+from mcap.records import Chunk, Footer, Header, Message, MessageIndex, Metadata
+from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap_ros2.decoder import DecoderFactory
 
 from .loader import BagError, locate
@@ -40,12 +38,6 @@ REQUIRED_METADATA_FIELDS = ('version', 'storage_identifier', 'duration', 'starti
                             'ros_distro')
 _TOPIC_FIELDS = ('name', 'type', 'serialization_format', 'offered_qos_profiles',
                  'type_description_hash')
-#: doctor finding codes of a file cut short (a killed recorder) or with unreadable data:
-#: ``repair`` rebuilds it from what precedes the damage.
-_REPAIRABLE = {'FILE_TOO_SMALL', 'BAD_TRAILING_MAGIC', 'MISSING_FOOTER', 'MISSING_DATA_END',
-               'TRUNCATED_RECORD_HEADER', 'TRUNCATED_RECORD_BODY', 'RECORD_PARSE_ERROR',
-               'TRUNCATED_CHUNK_RECORD_HEADER', 'TRUNCATED_CHUNK_RECORD_BODY',
-               'CHUNK_CRC_MISMATCH', 'CHUNK_DECOMPRESSION_FAILED', 'DATA_SECTION_CRC_MISMATCH'}
 
 
 @dataclass
@@ -61,45 +53,45 @@ class CheckReport:
         return not self.problems
 
 
-def _doctor(path: Path) -> tuple[dict, list[dict]] | str:
-    """(summary, findings) of ``pymcap-cli doctor --format jsonl path``, or why it failed.
-
-    Raises:
-        FileNotFoundError: pymcap-cli is not installed.
-    """
-    exe = Path(sys.executable).parent / 'pymcap-cli'
-    exe = str(exe) if exe.is_file() else shutil.which('pymcap-cli')
-    if exe is None:
-        raise FileNotFoundError('pymcap-cli not found; bag check needs it (it is pinned in '
-                                'requirements.txt)')
-    out = subprocess.run([exe, 'doctor', '--format', 'jsonl', str(path)], capture_output=True,
-                         text=True, encoding='utf-8', errors='replace', check=False)
-    lines = [json.loads(line) for line in out.stdout.splitlines() if line.startswith('{')]
-    summary = [r for r in lines if r.get('type') == 'summary']
-    if len(summary) != 1:
-        return f'exit {out.returncode}: {(out.stderr.strip().splitlines() or [""])[-1]}'
-    return summary[0], [r for r in lines if r.get('type') == 'finding']
+def _record_at(data: bytes, offset: int, opcode: int):
+    """The record with ``opcode`` at ``offset`` (raises ValueError if it is not there)."""
+    if offset < 0 or offset + 9 > len(data) or data[offset] != opcode:
+        raise ValueError(f'no {Opcode(opcode).name} record at byte {offset}')
+    length = struct.unpack_from('<Q', data, offset + 1)[0]
+    body = data[offset + 9:offset + 9 + length]
+    if len(body) != length:
+        raise ValueError(f'{Opcode(opcode).name} record at byte {offset} runs past the end')
+    reader = StreamReader(io.BytesIO(data[offset:offset + 9 + length]), skip_magic=True,
+                          emit_chunks=True)
+    return next(iter(reader.records)), 9 + length
 
 
-def _check_container(path: Path, p: list[str]) -> dict | None:
-    """The doctor's errors and warnings on ``path`` as problems, one per finding code: its
-    summary, or None when it found an error (the file is not read further)."""
-    res = _doctor(path)
-    if isinstance(res, str):
-        p.append(f'{path.name}: pymcap-cli doctor could not examine it ({res})')
+def _read_records(data: bytes, name: str, p: list[str]) -> int | None:
+    """Read every record in order with CRC checks: the number of messages, or None (a
+    problem recorded) when the file is unreadable, truncated or has no footer."""
+    stream_msgs = 0
+    try:
+        first = True
+        saw_footer = False
+        for rec in StreamReader(io.BytesIO(data), validate_crcs=True).records:
+            if first:
+                first = False
+                if not isinstance(rec, Header):
+                    p.append(f'{name}: first record is {type(rec).__name__}, not Header')
+                elif rec.profile != 'ros2':
+                    p.append(f'{name}: header profile {rec.profile!r}, expected ros2')
+            if isinstance(rec, Message):
+                stream_msgs += 1
+            elif isinstance(rec, Footer):
+                saw_footer = True
+    except (McapError, ValueError, struct.error) as exc:
+        p.append(f'{name}: unreadable or truncated ({type(exc).__name__}: {exc}); '
+                 'run: python -m fohssv_sim.bag repair')
         return None
-    summary, findings = res
-    groups: dict[tuple[str, str], list[dict]] = {}
-    for f in findings:
-        if f['severity'] in ('error', 'warning'):
-            groups.setdefault((f['severity'], f['code']), []).append(f)
-    for (severity, code), same in groups.items():
-        at = '' if same[0]['offset'] is None else f" at byte {same[0]['offset']}"
-        more = f' (and {len(same) - 1} more)' if len(same) > 1 else ''
-        p.append(f"{path.name}: {severity} {code}{at}: {same[0]['message']}{more}")
-    if _REPAIRABLE & {code for _, code in groups}:
-        p.append(f'{path.name}: truncated or corrupt; run: python -m fohssv_sim.bag repair')
-    return None if summary['errors'] else summary
+    if not saw_footer:
+        p.append(f'{name}: no footer')
+        return None
+    return stream_msgs
 
 
 def _check_channels(summary, name: str, p: list[str]) -> None:
@@ -113,6 +105,90 @@ def _check_channels(summary, name: str, p: list[str]) -> None:
             p.append(f'{name}: channel {chan.topic} encoding {chan.message_encoding!r} != cdr')
 
 
+def _check_message_index(data: bytes, raw: bytes, cid: int, off: int, count: int, where: str,
+                         p: list[str]) -> None:
+    """The message index of channel ``cid`` at ``off`` lists the ``count`` messages of the
+    chunk (uncompressed records ``raw``), each at its offset with its log time."""
+    try:
+        mi, _ = _record_at(data, off, Opcode.MESSAGE_INDEX)
+    except ValueError as exc:
+        p.append(f'{where}: {exc}')
+        return
+    assert isinstance(mi, MessageIndex)
+    if mi.channel_id != cid or len(mi.records) != count:
+        p.append(f'{where}: message index of channel {cid} lists {len(mi.records)} '
+                 f'messages, the chunk holds {count}')
+    for log_time, moff in mi.records:
+        try:
+            stream = ReadDataStream(io.BytesIO(raw[moff:]))
+            if stream.read1() != Opcode.MESSAGE:
+                raise ValueError('not a message')
+            msg = Message.read(stream, stream.read8())
+        except (McapError, ValueError, struct.error):
+            p.append(f'{where}: message index entry at {moff} is not a message')
+            return
+        if msg.channel_id != cid or msg.log_time != log_time:
+            p.append(f'{where}: message index entry at {moff} does not match its message')
+            return
+
+
+def _check_chunk(data: bytes, i: int, ci, name: str, p: list[str]
+                 ) -> tuple[Counter, list[Message]]:
+    """Chunk ``i`` matches its chunk index ``ci`` (length, times, message indexes): the
+    per-channel counts and the messages of the chunk (none if it could not be read)."""
+    where = f'{name}: chunk {i} at byte {ci.chunk_start_offset}'
+    try:
+        chunk, length = _record_at(data, ci.chunk_start_offset, Opcode.CHUNK)
+    except ValueError as exc:
+        p.append(f'{where}: {exc}')
+        return Counter(), []
+    assert isinstance(chunk, Chunk)
+    if length != ci.chunk_length:
+        p.append(f'{where}: length {length} != index {ci.chunk_length}')
+    inner = [r for r in breakup_chunk(chunk, validate_crc=True) if isinstance(r, Message)]
+    if inner:
+        lo = min(m.log_time for m in inner)
+        hi = max(m.log_time for m in inner)
+        if (lo, hi) != (ci.message_start_time, ci.message_end_time):
+            p.append(f'{where}: message times [{lo}, {hi}] != index '
+                     f'[{ci.message_start_time}, {ci.message_end_time}]')
+    per_chan = Counter(m.channel_id for m in inner)
+    if set(ci.message_index_offsets) != set(per_chan):
+        p.append(f'{where}: message indexes for channels {sorted(ci.message_index_offsets)}'
+                 f' but messages on {sorted(per_chan)}')
+    for cid, off in ci.message_index_offsets.items():
+        _check_message_index(data, chunk.data, cid, off, per_chan.get(cid, 0), where, p)
+    return per_chan, inner
+
+
+def _check_statistics(stats, summary, counts: Counter, indexed: int, stream_msgs: int,
+                      times: tuple[int | None, int | None], name: str, p: list[str]) -> None:
+    if indexed != stream_msgs:
+        p.append(f'{name}: {stream_msgs} messages in the file, {indexed} in indexed chunks')
+    if stats.message_count != indexed or dict(stats.channel_message_counts) != dict(counts):
+        p.append(f'{name}: statistics say {stats.message_count} messages '
+                 f'{dict(stats.channel_message_counts)}, found {indexed} {dict(counts)}')
+    if stats.chunk_count != len(summary.chunk_indexes):
+        p.append(f'{name}: statistics say {stats.chunk_count} chunks, index has '
+                 f'{len(summary.chunk_indexes)}')
+    if indexed and (stats.message_start_time, stats.message_end_time) != times:
+        p.append(f'{name}: statistics times differ from the messages\'')
+
+
+def _check_metadata_indexes(data: bytes, summary, stats, name: str, p: list[str]) -> None:
+    for mi in summary.metadata_indexes:
+        try:
+            rec, length = _record_at(data, mi.offset, Opcode.METADATA)
+        except ValueError as exc:
+            p.append(f'{name}: metadata index: {exc}')
+            continue
+        if not isinstance(rec, Metadata) or rec.name != mi.name or length != mi.length:
+            p.append(f'{name}: metadata index entry {mi.name!r} does not match its record')
+    if stats.metadata_count != len(summary.metadata_indexes):
+        p.append(f'{name}: statistics say {stats.metadata_count} metadata records, index has '
+                 f'{len(summary.metadata_indexes)}')
+
+
 def _check_decodes(reader, name: str, p: list[str]) -> None:
     topic = '?'
     try:
@@ -123,42 +199,48 @@ def _check_decodes(reader, name: str, p: list[str]) -> None:
                  f'({type(exc).__name__}: {exc})')
 
 
-def _check_mcap(path: Path, report: CheckReport
-                ) -> tuple[Counter, int, int, dict[str, tuple[str, str]]] | None:
-    """The container check, then fohssv's: profile, encodings, every message decodes. The
-    per-topic counts, first and last log time, and per-topic (type, type hash); None when
-    the file is not sound enough to read."""
-    p, name = report.problems, path.name
-    doctor = _check_container(path, p)
-    if doctor is None:
+def _check_mcap(path: Path, report: CheckReport) -> tuple[Counter, int, int] | None:
+    p = report.problems
+    data = path.read_bytes()
+    name = path.name
+    stream_msgs = _read_records(data, name, p)
+    if stream_msgs is None:
         return None
-    report.facts.append(f'{name}: {path.stat().st_size} bytes, {doctor["records"]} records; '
-                        'pymcap-cli doctor: record structure, chunk and data CRCs valid, '
-                        'indexes and statistics consistent')
-    with path.open('rb') as f:
-        try:
-            reader = make_reader(f, decoder_factories=[DecoderFactory()])
-            profile, summary = reader.get_header().profile, reader.get_summary()
-        except (McapError, ValueError) as exc:
-            p.append(f'{name}: header or summary unreadable with mcap ({exc})')
-            return None
-        if profile != 'ros2':
-            p.append(f'{name}: header profile {profile!r}, expected ros2')
-        if summary is None or summary.statistics is None:
-            p.append(f'{name}: no summary or no statistics record')
-            return None
-        _check_channels(summary, name, p)
-        _check_decodes(reader, name, p)
+    report.facts.append(f'{name}: {len(data)} bytes, every record read, chunk and data CRCs '
+                        'valid')
+    try:
+        reader = make_reader(io.BytesIO(data), decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+    except (McapError, ValueError, struct.error) as exc:
+        p.append(f'{name}: summary unreadable ({exc})')
+        return None
+    if summary is None or summary.statistics is None:
+        p.append(f'{name}: no summary or no statistics record')
+        return None
     stats = summary.statistics
-    report.facts.append(f'{name}: {stats.message_count} messages on {len(summary.channels)} '
-                        f'channels, {stats.metadata_count} metadata records, all decode')
-    topics: Counter = Counter({c.topic: 0 for c in summary.channels.values()})
-    for cid, n in stats.channel_message_counts.items():
+    _check_channels(summary, name, p)
+    counts: Counter = Counter()
+    times: list[int] = []
+    indexed = 0
+    for i, ci in enumerate(summary.chunk_indexes):
+        per_chan, inner = _check_chunk(data, i, ci, name, p)
+        counts.update(per_chan)
+        indexed += len(inner)
+        if inner:
+            times += [min(m.log_time for m in inner), max(m.log_time for m in inner)]
+    t_min, t_max = (min(times), max(times)) if times else (None, None)
+    _check_statistics(stats, summary, counts, indexed, stream_msgs, (t_min, t_max), name, p)
+    _check_metadata_indexes(data, summary, stats, name, p)
+    _check_decodes(reader, name, p)
+    report.facts.append(f'{name}: {indexed} messages in {len(summary.chunk_indexes)} indexed '
+                        f'chunks, {len(summary.channels)} channels, '
+                        f'{len(summary.metadata_indexes)} metadata records, all decode')
+    topics = Counter()
+    for cid, n in counts.items():
         topics[summary.channels[cid].topic] += n
-    hashes = {c.topic: (summary.schemas[c.schema_id].name if c.schema_id in summary.schemas
-                        else '', c.metadata.get('topic_type_hash', ''))
-              for c in summary.channels.values()}
-    return topics, stats.message_start_time, stats.message_end_time, hashes
+    for chan in summary.channels.values():
+        topics.setdefault(chan.topic, 0)
+    return topics, t_min or 0, t_max or 0
 
 
 def _check_metadata_yaml(info: dict, topics: Counter, t0: int, t1: int,
@@ -208,7 +290,6 @@ def check(path: str | Path) -> CheckReport:
 
     Raises:
         BagError: the path is not a bag at all (see :func:`.loader.locate`).
-        FileNotFoundError: pymcap-cli is not installed.
     """
     files = locate(path)
     report = CheckReport(files.directory)
@@ -219,12 +300,20 @@ def check(path: str | Path) -> CheckReport:
         res = _check_mcap(mcap_path, report)
         if res is None:
             continue
-        topics, lo, hi, file_hashes = res
+        topics, lo, hi = res
         total.update(topics)
-        hashes.update(file_hashes)
-        if sum(topics.values()):
+        for chan_topic in topics:
+            total.setdefault(chan_topic, 0)
+        if topics and sum(topics.values()):
             t0 = lo if t0 is None else min(t0, lo)
             t1 = hi if t1 is None else max(t1, hi)
+        with mcap_path.open('rb') as f:
+            summary = make_reader(f).get_summary()
+        if summary is not None:
+            for chan in summary.channels.values():
+                schema = summary.schemas.get(chan.schema_id)
+                hashes[chan.topic] = (schema.name if schema else '',
+                                      chan.metadata.get('topic_type_hash', ''))
     if files.info is None:
         report.problems.append(f'{files.directory}: no metadata.yaml; run: python -m '
                                'fohssv_sim.bag repair')

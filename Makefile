@@ -12,6 +12,9 @@ BUILD_STAMP := ros2_ws/install/.fohssv-build
 PKG_INPUTS := $(wildcard src/*/package.xml src/*/setup.py src/*/setup.cfg src/*/resource/* \
                 src/*/config/* src/*/launch/*)
 PYTEST_ARGS ?=
+# Parallel test workers (pytest-xdist; each gets its own ROS domains): a number, auto, or 0 for
+# one process.
+TEST_WORKERS ?= 2
 TEST_PATHS := src/fohssv_sim/test src/fohssv_controller/test tests
 
 .PHONY: setup test demo bench lint lock clean help
@@ -47,7 +50,7 @@ lint: setup
 
 test: setup
 	$(IN_ENV) ruff check src tests bench scripts
-	$(IN_ENV) python -m pytest $(TEST_PATHS) $(PYTEST_ARGS)
+	$(IN_ENV) python -m pytest -n $(TEST_WORKERS) $(TEST_PATHS) $(PYTEST_ARGS)
 
 demo: setup
 	$(IN_ENV) python scripts/demo.py

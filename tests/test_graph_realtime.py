@@ -54,40 +54,47 @@ def _run(duration: float, **params) -> tuple[dict, Probe, ClockListener, str]:
         probe.close()
 
 
+#: Realtime closed-loop runs here last 0.1 s of simulated time: the vehicle cannot leave its
+#: physical bounds within it even with no command at all (open loop it does at t = 0.26 s),
+#: so a loaded machine that delays the controller's answers cannot end the run early.
+#: (Measured offline: eq. 31 loses the delay-free vehicle once its commands lag 3 ms of
+#: simulated time, which a busy 2-core machine gives at a fifth of real time.) They run slower
+#: than real time to last long enough in wall time for what they check.
+SHORT = 0.1
+
+
 def test_realtime_summary_profile_and_clock_decimation():
     """clock_period = 10 control periods: /clock only at t = k * 0.01 s; every state still
     published; the summary's schedule and cost figures are consistent with the run. (5 s of
-    wall time, so that the probe's /clock subscription has matched for most of the run:
-    discovery can take 2.3 s; a step of 1e-4 s keeps the load low. At a fifth of real time:
-    eq. 31 loses the delay-free vehicle when its commands lag 3 ms of simulated time, which a
-    loaded 2-core machine gives at 1 x real time, and the run then ends with exit 1.)"""
-    s, probe, clock, out = _run(1.0, mode='realtime', control_period=1e-3, step=1e-4,
-                                clock_period=0.01, profile=1, real_time_factor=0.2)
-    assert s['mode'] == 'realtime' and s['samples'] == 1000 and s['samples_paced'] == 1001
+    wall time, at a fiftieth of real time, so that the probe's /clock subscription has matched
+    for most of the run: discovery can take 2.3 s.)"""
+    s, probe, clock, out = _run(SHORT, mode='realtime', control_period=1e-3, step=1e-4,
+                                clock_period=0.01, profile=1, real_time_factor=0.02)
+    assert s['mode'] == 'realtime' and s['samples'] == 100 and s['samples_paced'] == 101
     assert s['clock_samples'] == 10
-    assert s['deadline_tolerance'] == pytest.approx(5e-3)   # max(pacing_period, wall period)
+    assert s['deadline_tolerance'] == pytest.approx(0.05)   # max(pacing_period, wall period)
     assert 0 <= s['deadline_misses'] <= s['samples_paced']
     assert 0 <= s['late_samples'] <= s['samples_paced']
-    assert s['deadline_miss_rate'] == pytest.approx(s['deadline_misses'] / 1001)
+    assert s['deadline_miss_rate'] == pytest.approx(s['deadline_misses'] / 101)
     assert s['mean_lateness'] <= s['worst_lateness']
-    assert 0.0 < s['achieved_real_time_factor'] <= 0.2 * 1.05
+    assert 0.0 < s['achieved_real_time_factor'] <= 0.02 * 1.05
     assert s['cpu_time'] > 0.0
-    assert s['cpu_per_sample_us'] == pytest.approx(s['cpu_time'] / 1000 * 1e6)
+    assert s['cpu_per_sample_us'] == pytest.approx(s['cpu_time'] / 100 * 1e6)
     prof = s['profile']
     assert tuple(prof) == PARTS
-    assert prof['advance']['calls'] == 1000
-    assert prof['publish_state']['calls'] == prof['publish_planing_force']['calls'] == 1001
-    assert prof['publish_clock']['calls'] == 101            # t = 0, 0.01, ..., 1.0
+    assert prof['advance']['calls'] == 100
+    assert prof['publish_state']['calls'] == prof['publish_planing_force']['calls'] == 101
+    assert prof['publish_clock']['calls'] == 11             # t = 0, 0.01, ..., 0.1
     # the typed views at the default view_period 0.01 s: decimated the same way
-    assert s['view_samples'] == 10 and s['views'] == prof['publish_views']['calls'] == 101
-    assert 0 < prof['command_callback']['calls'] <= 1001
+    assert s['view_samples'] == 10 and s['views'] == prof['publish_views']['calls'] == 11
+    assert 0 < prof['command_callback']['calls'] <= 101
     for part in PARTS:
         assert 0.0 < prof[part]['mean_us'] <= prof[part]['worst_us']
     # every state reached the probe, /clock only at multiples of clock_period
-    assert [round(x[0] * 1e3) for x in probe.states] == list(range(1001))
-    assert len(clock.ns) >= 20, clock.ns
+    assert [round(x[0] * 1e3) for x in probe.states] == list(range(101))
+    assert len(clock.ns) >= 3, clock.ns
     assert all(ns % 10_000_000 == 0 for ns in clock.ns), clock.ns
-    assert clock.ns == sorted(set(clock.ns)) and clock.ns[-1] == 1_000_000_000
+    assert clock.ns == sorted(set(clock.ns)) and clock.ns[-1] == 100_000_000
 
 
 def test_lockstep_publishes_clock_at_every_sample_whatever_clock_period():
@@ -103,10 +110,10 @@ def test_lockstep_publishes_clock_at_every_sample_whatever_clock_period():
 
 
 def test_profile_off_by_default_and_realtime_summary_without_it():
-    s, _, _, _ = _run(0.2, mode='realtime', control_period=1e-3, real_time_factor=0.2)
+    s, _, _, _ = _run(SHORT, mode='realtime', control_period=1e-3, real_time_factor=0.1)
     assert 'profile' not in s and s['clock_samples'] == 1
-    assert s['views'] == 21            # t = 0, 0.01, ..., 0.2
-    assert s['samples_paced'] == 201 and 'deadline_tolerance' in s
+    assert s['views'] == 11            # t = 0, 0.01, ..., 0.1
+    assert s['samples_paced'] == 101 and 'deadline_tolerance' in s
 
 
 
@@ -126,8 +133,8 @@ def test_realtime_priority_puts_the_plant_under_sched_fifo_or_warns(tmp_path):
     log = tmp_path / 'plant.log'
     ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
     plant = rosproc.start('fohssv_sim', 'plant', plant_args(
-        model='delay-free', mode='realtime', control_period=1e-3, duration=0.6,
-        real_time_factor=0.2, realtime_priority=10, end_linger=0.0), env=env, log=log)
+        model='delay-free', mode='realtime', control_period=1e-3, duration=SHORT,
+        real_time_factor=0.03, realtime_priority=10, end_linger=0.0), env=env, log=log)
     policies: list[int] = []
     try:
         rosproc.wait_for(lambda: 'peers matched' in log.read_text(), 30, what='the run')

@@ -6,10 +6,13 @@ duplicate metadata names (written here with the mcap library directly)."""
 
 from __future__ import annotations
 
+import shutil
+
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
 from fohssv_sim.bag import load_run
+from fohssv_sim.bag.check import check
 from fohssv_sim.bag.repair import repair
 from fohssv_sim.bag.synthetic import METADATA, write_bag
 from fohssv_sim.bag.writer import RunWriter
@@ -73,3 +76,30 @@ def test_doctor_reports_the_faults_bags_used_to_have(tmp_path):
     codes = {(f['severity'], f['code']) for f in doctor(path)[1]}
     assert ('error', 'SUMMARY_OFFSET_WITHOUT_GROUP') in codes
     assert ('warning', 'METADATA_NAME_DUPLICATE') in codes
+
+
+def test_check_rejects_a_damaged_summary_as_the_doctor_does(tmp_path):
+    """A byte flipped in the summary section (channels, statistics, indexes, offsets): the
+    doctor finds an error, and so must ``check`` (the footer's summary CRC covers it)."""
+    bag = tmp_path / 'run'
+    write_bag(bag, n=200, flush_every=50)
+    mcap = bag / 'run.mcap'
+    data = mcap.read_bytes()
+    assert check(bag).ok, check(bag).problems
+    summary_start = int.from_bytes(data[-8 - 20:-8 - 12], 'little')
+    footer = len(data) - 8 - 29
+    by_crc = 0
+    # the first schema record, the middle of the summary, the last summary-offset record
+    positions = (summary_start + 12, (summary_start + footer) // 2, footer - 5)
+    for k, pos in enumerate(positions):
+        damaged = tmp_path / f'd{k}'
+        damaged.mkdir()
+        shutil.copy(bag / 'metadata.yaml', damaged / 'metadata.yaml')
+        flipped = bytearray(data)
+        flipped[pos] ^= 0x5A
+        (damaged / 'run.mcap').write_bytes(bytes(flipped))
+        assert doctor(damaged / 'run.mcap')[0]['errors'] > 0, pos
+        report = check(damaged)
+        assert not report.ok, pos
+        by_crc += any('summary CRC mismatch' in p for p in report.problems)
+    assert by_crc >= 2      # a damaged record length can make the summary unreadable

@@ -1,12 +1,12 @@
 """Structural check of a bag: what ``pymcap-cli doctor`` checks, written with ``mcap``.
 
 For every MCAP file: magic at both ends, header profile ``ros2``, every record readable in
-order, chunk CRCs and the data section CRC, a summary with statistics; each chunk index
-points at a chunk of that length whose message times and per-channel counts it states; each
-message index entry points at a message of its channel with its log time; statistics equal
-the messages counted; metadata indexes point at metadata records; channels name existing
-``ros2msg``/``ros2idl`` schemas and ``cdr`` encoding; every message decodes with
-``mcap_ros2``'s decoder. For ``metadata.yaml``: every field ``ros2 bag info`` reads, and its
+order, chunk CRCs, the data section CRC and the summary CRC, a summary with statistics; each
+chunk index points at a chunk of that length whose message times and per-channel counts it
+states; each message index entry points at a message of its channel with its log time;
+statistics equal the messages counted; metadata indexes point at metadata records; channels
+name existing ``ros2msg``/``ros2idl`` schemas and ``cdr`` encoding; every message decodes
+with ``mcap_ros2``'s decoder. For ``metadata.yaml``: every field ``ros2 bag info`` reads, and its
 counts, start and duration equal the MCAP's. Pure: no rclpy.
 """
 
@@ -15,6 +15,7 @@ from __future__ import annotations
 import io
 import struct
 import sys
+import zlib
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -66,6 +67,18 @@ def _record_at(data: bytes, offset: int, opcode: int):
     return next(iter(reader.records)), 9 + length
 
 
+def _check_summary_crc(data: bytes, footer: Footer, name: str, p: list[str]) -> None:
+    """The footer's CRC of the summary section (0 = not written): it covers the summary from
+    ``summary_start`` up to the footer's ``summary_offset_start`` field (MCAP spec)."""
+    if footer.summary_start == 0 or footer.summary_crc == 0:
+        return
+    footer_at = len(data) - 8 - (1 + 8 + 20)         # magic, then opcode, length, 20 bytes
+    crc = zlib.crc32(data[footer.summary_start:footer_at + 1 + 8 + 16])
+    if crc != footer.summary_crc:
+        p.append(f'{name}: summary CRC mismatch (footer {footer.summary_crc:#010x}, summary '
+                 f'section {crc:#010x}); run: python -m fohssv_sim.bag repair')
+
+
 def _read_records(data: bytes, name: str, p: list[str]) -> int | None:
     """Read every record in order with CRC checks: the number of messages, or None (a
     problem recorded) when the file is unreadable, truncated or has no footer."""
@@ -84,6 +97,7 @@ def _read_records(data: bytes, name: str, p: list[str]) -> int | None:
                 stream_msgs += 1
             elif isinstance(rec, Footer):
                 saw_footer = True
+                _check_summary_crc(data, rec, name, p)
     except (McapError, ValueError, struct.error) as exc:
         p.append(f'{name}: unreadable or truncated ({type(exc).__name__}: {exc}); '
                  'run: python -m fohssv_sim.bag repair')

@@ -30,6 +30,7 @@ __all__ = [
     'PRESETS',
     'DEFAULT_STEPS',
     'ParameterError',
+    'steps_per_period',
     'ParameterSpec',
     'ModelParameters',
     'spec_field',
@@ -396,3 +397,17 @@ def _check_names(values: Mapping[str, Any]) -> None:
             f"{', '.join(PARAMETER_BY_NAME)}"
         )
 
+
+def steps_per_period(period: float, step: float, name: str = 'control_period') -> int:
+    """The whole number of integration steps in ``period``.
+
+    Raises:
+        ValueError: ``period`` is not a positive whole multiple of ``step`` (to 1e-9).
+    """
+    if not (math.isfinite(period) and period > 0):
+        raise ValueError(f'{name}={period!r} s must be a positive number of seconds')
+    k = round(period / step)
+    if k < 1 or abs(k * step - period) > 1e-9 * period:
+        raise ValueError(f'{name}={period:g} s must be a whole multiple of the integration '
+                         f'step {step:g} s (nearest: {max(k, 1) * step:g} s)')
+    return int(k)

@@ -19,7 +19,7 @@ import numpy as np
 
 from .control import as_law
 from .models import AffineLaw, Plant, check_state, make_plant
-from .params import ModelParameters
+from .params import ModelParameters, steps_per_period
 
 __all__ = ['SimulationResult', 'simulate', 'steps_per_period']
 
@@ -46,21 +46,6 @@ class SimulationResult:
     @property
     def step(self) -> float:
         return self.params.step
-
-
-def steps_per_period(period: float, step: float, name: str = 'control_period') -> int:
-    """The whole number of integration steps in ``period``.
-
-    Raises:
-        ValueError: ``period`` is not a positive whole multiple of ``step`` (to 1e-9).
-    """
-    if not (math.isfinite(period) and period > 0):
-        raise ValueError(f'{name}={period!r} s must be a positive number of seconds')
-    k = round(period / step)
-    if k < 1 or abs(k * step - period) > 1e-9 * period:
-        raise ValueError(f'{name}={period:g} s must be a whole multiple of the integration '
-                         f'step {step:g} s (nearest: {max(k, 1) * step:g} s)')
-    return int(k)
 
 
 ControllerLike = Callable[[float, Sequence[float]], Sequence[float]]

@@ -30,9 +30,9 @@ from ..params import (
     ParameterSpec,
     field_specs,
     spec_field,
+    steps_per_period,
     validate_fields,
 )
-from ..simulate import steps_per_period
 
 __all__ = ['MODES', 'NODE_PARAMETERS', 'NODE_PARAMETER_BY_NAME', 'StateSpec', 'FlagSpec',
            'TextSpec', 'NamesSpec', 'TableOptions', 'PlantOptions', 'check_options',

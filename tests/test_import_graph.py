@@ -119,3 +119,19 @@ def test_every_core_module_imports_without_rclpy():
     out = subprocess.run([sys.executable, '-c', _BLOCK_RCLPY, *names], env=env,
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stdout + out.stderr
+
+
+def test_nodes_that_simulate_nothing_start_without_numba():
+    """The controller, recorder and player nodes import neither the compiled kernels nor
+    numba (about 0.3 s of CPU at every start): only the plant simulates."""
+    modules = ['fohssv_controller.ros.controller_node', 'fohssv_sim.ros.recorder_node',
+               'fohssv_sim.ros.player_node']
+    code = ('import importlib, sys\n'
+            f'for name in {modules!r}:\n'
+            '    importlib.import_module(name)\n'
+            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'numba'\n"
+            "             or m == 'fohssv_sim.kernels'))\n")
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == '[]', out.stdout

@@ -50,6 +50,9 @@ lint: setup
 
 test: setup
 	$(IN_ENV) ruff check src tests bench scripts
+	@# byte-compile the sources once: hundreds of node and CLI processes start in the tests, and
+	@# where PYTHONDONTWRITEBYTECODE is set each would compile every module it imports again
+	@$(IN_ENV) python -m compileall -q -j 0 src > /dev/null
 	$(IN_ENV) python -m pytest -n $(TEST_WORKERS) $(TEST_PATHS) $(PYTEST_ARGS)
 
 demo: setup

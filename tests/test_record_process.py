@@ -42,7 +42,7 @@ from fohssv_sim.params import ModelParameters
 from fohssv_sim.ros.qos import profile
 
 from mcap_doctor import assert_doctor_clean
-from rosproc import ros_env, start, stop, unique_domain_id, wait_exit, wait_for
+from rosproc import output, ros_env, start, stop, unique_domain_id, wait_exit, wait_for
 
 pytestmark = pytest.mark.graph
 
@@ -258,3 +258,24 @@ def test_default_path_and_bad_parameters(tmp_path, domain):
         assert wait_exit(proc, 30) == 2     # invalid parameters, as in every node
         out = proc.stdout.read()
         assert words in out and 'Traceback' not in out, out
+
+
+def test_signals_while_the_recorder_exits_keep_exit_0(tmp_path):
+    """A recorder that is closing (here after a first SIGINT) keeps getting SIGINTs until it
+    is gone, as a test harness or an impatient terminal does: it still exits 0 with a
+    complete bag. (Python's finalization restored the default action, so a signal in the
+    last moments killed it with -SIGINT.)"""
+    env = ros_env()
+    bag = tmp_path / 'bag'
+    rec = start('fohssv_sim', 'recorder', ['--ros-args', '-p', f'bag_path:={bag}',
+                                           '-p', 'plant_node:=none'], env=env)
+    wait_for(lambda: any(bag.glob('*.mcap')), 30, what='the bag')
+    deadline = time.monotonic() + 30
+    while rec.poll() is None and time.monotonic() < deadline:
+        try:
+            rec.send_signal(signal.SIGINT)
+        except ProcessLookupError:
+            break
+        time.sleep(0.002)
+    assert wait_exit(rec, 10) == 0, output(rec)
+    assert check(bag).ok

@@ -116,7 +116,8 @@ def run_node(name: str, args: list[str] | None, build: Callable[[], Node],
        ``KeyboardInterrupt`` or ``ExternalShutdownException`` ends it; ``on_interrupt(node)``
        then gives the code (default: 0). Any other exception (in ``build`` or ``run``) goes to
        ``on_error(exc)``, which reports it and gives the code (default: it propagates).
-    4. ``on_exit(node)`` (e.g. a final log line), ``node.destroy_node()``, ``rclpy.shutdown``.
+    4. ``on_exit(node)`` (e.g. a final log line), ``node.destroy_node()``, ``rclpy.shutdown``;
+       from then on SIGINT/SIGTERM are ignored (the process only exits).
 
     Returns:
         The process's exit code (the caller passes it to ``sys.exit``).
@@ -152,4 +153,5 @@ def run_node(name: str, args: list[str] | None, build: Callable[[], Node],
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
+        STOP.exiting()
     return code

@@ -52,6 +52,14 @@ class StopSignal:
             signal.signal(sig, self._handle)
         return self
 
+    def exiting(self) -> None:
+        """The node is shut down and the process only exits: further SIGINT/SIGTERM are
+        ignored. (Python's finalization resets a Python handler to the default action, so a
+        signal sent to a node that has just ended by itself, e.g. a recorder at run_end,
+        used to kill it with -SIGINT instead of exit 0. SIGKILL still ends it.)"""
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, signal.SIG_IGN)
+
     def _handle(self, signum: int, frame: object) -> None:
         self.count += 1
         if self.received is None:

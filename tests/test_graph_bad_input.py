@@ -80,7 +80,9 @@ def test_invalid_parameter_change_is_refused_and_the_run_is_untouched():
     env = rosproc.ros_env(domain)
     probe = Probe(domain)
     ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
-    plant = _plant({'model': 'delay-free', 'duration': 0.2, 'min_state_subscribers': 2}, env)
+    # 0.5 s (5000 lockstep samples): the run must outlast the four service calls, which a
+    # loaded machine can delay by seconds (a call to a plant that has ended gets no answer)
+    plant = _plant({'model': 'delay-free', 'duration': 0.5, 'min_state_subscribers': 2}, env)
     try:
         probe.wait(lambda: len(probe.states) > 50, 30, 'the run to start')
         out_of_range, read_only, wrong_type = probe.set_plant_parameters(
@@ -92,7 +94,7 @@ def test_invalid_parameter_change_is_refused_and_the_run_is_untouched():
             ['real_time_factor', 'speed', 'watchdog_timeout'])).values
         code, out = finish(plant, 60)
         assert code == 0, out
-        probe.wait(lambda: len(probe.states) >= 2001, 10, 'all samples')
+        probe.wait(lambda: len(probe.states) >= 5001, 30, 'all samples')
     finally:
         stop_all(plant, ctl)
         probe.close()
@@ -106,7 +108,7 @@ def test_invalid_parameter_change_is_refused_and_the_run_is_untouched():
     assert not wrong_type.successful
     assert accepted.successful
     assert [p.double_value for p in current] == [1.0, 75.0, 0.5]
-    ref, _ = batch_samples('delay-free', StateFeedback(), 0.2)
+    ref, _ = batch_samples('delay-free', StateFeedback(), 0.5)
     got = probe.state_array()
     assert got.shape == ref.shape
     assert np.max(np.abs(got - ref)) <= TOL

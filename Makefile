@@ -53,7 +53,7 @@ test: setup
 	@# byte-compile the sources once: hundreds of node and CLI processes start in the tests, and
 	@# where PYTHONDONTWRITEBYTECODE is set each would compile every module it imports again
 	@$(IN_ENV) python -m compileall -q -j 0 src > /dev/null
-	$(IN_ENV) python -m pytest -n $(TEST_WORKERS) $(TEST_PATHS) $(PYTEST_ARGS)
+	$(IN_ENV) python -m pytest -n $(TEST_WORKERS) --dist worksteal $(TEST_PATHS) $(PYTEST_ARGS)
 
 demo: setup
 	$(IN_ENV) python scripts/demo.py

@@ -17,10 +17,12 @@ while two busy processes (``yes``) keep both cores of a small machine loaded.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
 import sys
+from types import SimpleNamespace
 
 import pytest
 import rclpy
@@ -66,6 +68,26 @@ def _controller(env):
                          ['--ros-args', '-p', 'min_command_subscribers:=2'], env=env)
 
 
+@contextlib.contextmanager
+def _recorded_loop(tmp_path, recorder_params, **plant_params):
+    """A recorder (``-p`` settings ``recorder_params``), eq. 31's node and a delay-free plant
+    (``plant_params``, logging to ``plant.log``); every process is stopped at the end."""
+    env = rosproc.ros_env()
+    loop = SimpleNamespace(env=env, bag=tmp_path / 'run', log=tmp_path / 'recorder.log',
+                           plog=tmp_path / 'plant.log')
+    loop.rec = _recorder(env, loop.bag, loop.log, *recorder_params)
+    procs = [loop.rec]
+    try:
+        procs.append(_controller(env))
+        loop.plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+            model='delay-free', min_state_subscribers=2, **plant_params), env=env,
+            log=loop.plog)
+        procs.append(loop.plant)
+        yield loop
+    finally:
+        stop_all(*procs)
+
+
 def _messages(bag) -> dict[str, list[bytes]]:
     sc = scan(bag)
     out: dict[str, list[bytes]] = {}
@@ -78,23 +100,12 @@ def test_recorded_run_and_its_replay_lose_nothing_under_load(tmp_path, busy):
     ref, _ = batch_samples('delay-free', StateFeedback(), DURATION)
     n = len(ref)                                  # 3001 samples: t = 0 .. 0.3 s
     views = len(ref[::100])                       # view_period 0.01 s
-    env = rosproc.ros_env()
-    bag = tmp_path / 'run'
-    log = tmp_path / 'recorder.log'
-    rec = _recorder(env, bag, log, 'command_publishers:=1')
-    ctl = plant = None
-    try:
-        ctl = _controller(env)
-        plant = rosproc.start('fohssv_sim', 'plant', plant_args(
-            model='delay-free', duration=DURATION, min_state_subscribers=2,
-            pace_to_subscribers=512), env=env)
-        code, out = finish(plant, 180)
-        assert code == 0, out
+    with _recorded_loop(tmp_path, ['command_publishers:=1'], duration=DURATION,
+                        pace_to_subscribers=512) as loop:
+        assert rosproc.wait_exit(loop.plant, 180) == 0, loop.plog.read_text()
         # no signal: the recorder ends by itself once the bag holds the run
-        assert rosproc.wait_exit(rec, 60) == 0, log.read_text()
-    finally:
-        stop_all(*(p for p in (plant, ctl, rec) if p is not None))
-    text = log.read_text()
+        assert rosproc.wait_exit(loop.rec, 60) == 0, loop.log.read_text()
+    env, bag, text = loop.env, loop.bag, loop.log.read_text()
     assert 'run_end from the plant' in text and 'every message of the run is in the bag' in text
     run = load_run(bag)
     assert not run.truncated
@@ -130,26 +141,16 @@ def test_sigint_at_the_end_of_the_run_drains_what_was_delivered(tmp_path, busy):
     """The recorder is told to stop (SIGINT) the moment the plant logs the end of its run,
     with run_end ignored: what the plant published is in the bag all the same."""
     ref, _ = batch_samples('delay-free', StateFeedback(), DURATION)
-    env = rosproc.ros_env()
-    bag = tmp_path / 'run'
-    log = tmp_path / 'recorder.log'
-    rec = _recorder(env, bag, log, 'command_publishers:=1', 'stop_at_run_end:=false')
-    ctl = plant = None
-    try:
-        ctl = _controller(env)
-        plog = tmp_path / 'plant.log'
-        # unpaced: the recorder lags the plant (by less than the 2000-sample queue)
-        plant = rosproc.start('fohssv_sim', 'plant', plant_args(
-            model='delay-free', duration=DURATION, min_state_subscribers=2), env=env, log=plog)
-        rosproc.wait_for(lambda: 'stopping cleanly' in plog.read_text(), 180,
+    # unpaced: the recorder lags the plant (by less than the 2000-sample queue)
+    with _recorded_loop(tmp_path, ['command_publishers:=1', 'stop_at_run_end:=false'],
+                        duration=DURATION) as loop:
+        rosproc.wait_for(lambda: 'stopping cleanly' in loop.plog.read_text(), 180,
                          interval=0.005, what='the end of the run')
-        rec.send_signal(signal.SIGINT)
-        assert rosproc.wait_exit(rec, 60) == 0, log.read_text()
-        assert rosproc.wait_exit(plant, 60) == 0, plog.read_text()
-    finally:
-        stop_all(*(p for p in (plant, ctl, rec) if p is not None))
-    assert 'draining' in log.read_text()
-    run = load_run(bag)
+        loop.rec.send_signal(signal.SIGINT)
+        assert rosproc.wait_exit(loop.rec, 60) == 0, loop.log.read_text()
+        assert rosproc.wait_exit(loop.plant, 60) == 0, loop.plog.read_text()
+    assert 'draining' in loop.log.read_text()
+    run = load_run(loop.bag)
     assert run.topics['/state'] == run.topics['/planing_force'] == len(ref), run.topics
 
 
@@ -216,22 +217,11 @@ def test_a_recorder_stopped_early_does_not_stall_the_loop(tmp_path):
     """Found by the fault suite: the controller required two command subscribers (plant and
     recorder) during its start-up grace, so a recorder stopped in the first 2 s held the
     commands and the lockstep plant timed out (exit 3). The minimum is a start condition."""
-    env = rosproc.ros_env()
-    bag = tmp_path / 'run'
-    log = tmp_path / 'recorder.log'
-    rec = _recorder(env, bag, log, 'command_publishers:=1')
-    ctl = plant = None
-    try:
-        ctl = _controller(env)
-        plog = tmp_path / 'plant.log'
-        plant = rosproc.start('fohssv_sim', 'plant', plant_args(
-            model='delay-free', duration=2.0, min_state_subscribers=2, command_timeout=5.0,
-            pace_to_subscribers=512), env=env, log=plog)
-        rosproc.wait_for(lambda: 'peers matched' in plog.read_text(), 90, interval=0.005,
-                         what='the start of the run')
-        rec.send_signal(signal.SIGINT)
-        assert rosproc.wait_exit(rec, 60) == 0, log.read_text()
-        assert rosproc.wait_exit(plant, 120) == 0, plog.read_text()
-    finally:
-        stop_all(*(p for p in (plant, ctl, rec) if p is not None))
-    assert load_run(bag).topics['/state'] >= 1         # the partial bag is readable
+    with _recorded_loop(tmp_path, ['command_publishers:=1'], duration=2.0,
+                        command_timeout=5.0, pace_to_subscribers=512) as loop:
+        rosproc.wait_for(lambda: 'peers matched' in loop.plog.read_text(), 90,
+                         interval=0.005, what='the start of the run')
+        loop.rec.send_signal(signal.SIGINT)
+        assert rosproc.wait_exit(loop.rec, 60) == 0, loop.log.read_text()
+        assert rosproc.wait_exit(loop.plant, 120) == 0, loop.plog.read_text()
+    assert load_run(loop.bag).topics['/state'] >= 1    # the partial bag is readable

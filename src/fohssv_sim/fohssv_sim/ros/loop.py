@@ -7,6 +7,8 @@ the same ``control_period``: both take the command computed from the sample at t
 over [t_n, t_n + control_period). :func:`check_command` decides whether a command message is
 usable. :class:`Pacer` schedules real-time samples against the wall clock and counts deadline
 misses. :class:`Profile` accumulates per-sample costs when the node's ``profile`` option is on.
+:class:`HostedLaw` runs a controller plugin inside the loop (the plant's ``controller``
+parameter) and :class:`CommandLag` measures how late an external controller's commands are.
 
 The node calls these on every sample (10 kHz at the default control period): the good path of
 each is a few attribute reads and float comparisons, with no allocation beyond what the model
@@ -21,12 +23,13 @@ from collections.abc import MutableSequence, Sequence
 from dataclasses import dataclass, field
 
 from ..contract import COMMAND, ContractError, decode
-from ..models import MAX_PITCH, Plant, check_state, make_plant
+from ..control import Controller, NonFiniteCommand
+from ..models import MAX_PITCH, AffineLaw, Plant, check_state, make_plant
 from ..params import ModelParameters
 from ..simulate import steps_per_period
 
 __all__ = ['CommandRejected', 'SampledPlant', 'check_command', 'answered_time', 'Pacer',
-           'Profile']
+           'Profile', 'HostedLaw', 'CommandLag']
 
 
 class CommandRejected(ValueError):
@@ -198,7 +201,8 @@ class Pacer:
 
 #: The per-sample costs :class:`Profile` measures, in the order of its ``ns`` accumulators.
 PROFILE_PARTS = ('advance', 'write_sample', 'publish_state', 'publish_planing_force',
-                 'publish_clock', 'command_callback', 'publish_views')
+                 'publish_clock', 'command_callback', 'publish_views', 'hosted_law',
+                 'publish_command')
 
 
 @dataclass
@@ -225,6 +229,111 @@ class Profile:
         return {name: {'mean_us': self.ns[i] / self.calls[i] / 1e3 if self.calls[i] else 0.0,
                        'worst_us': self.worst[i] / 1e3, 'calls': self.calls[i]}
                 for i, name in enumerate(PROFILE_PARTS)}
+
+
+def _affine_command(name: str, law: AffineLaw):
+    """``command(t, x)`` of the affine law u = clamp(K x + u0, limit) as a plain scalar
+    expression (no numpy, no allocation besides the result), summed in the order of the
+    kernels' ``_input`` and of the eq. 31 controller's ``update``."""
+    a0, a1, a2, a3, b0, b1, b2, b3, u0, u1, lf, lc = (float(v) for v in law.packed)
+
+    def command(t: float, x: Sequence[float]) -> tuple[float, float]:
+        z, w, th, q = x
+        uf = (a0 * z + a1 * w + a2 * th + a3 * q) + u0
+        uc = (b0 * z + b1 * w + b2 * th + b3 * q) + u1
+        if uf - uf == 0.0 and uc - uc == 0.0:      # False for NaN and +-inf
+            return max(-lf, min(lf, uf)), max(-lc, min(lc, uc))
+        raise NonFiniteCommand(
+            f'{name}: non-finite output at t={t!r} s: delta_f={uf!r}, delta_c={uc!r} rad from '
+            f'[z, w, theta, q] = {[float(v) for v in x]}')
+
+    return command
+
+
+class HostedLaw:
+    """A controller plugin run inside the plant's loop (the ``controller`` parameter): what
+    ros2_control's controller manager does, read, update, write in one process.
+
+    ``command(t, x)`` gives ``(delta_f, delta_c)`` for the sample at ``t``, clamped as
+    :meth:`fohssv_sim.control.Controller.command` clamps; it raises
+    :class:`~fohssv_sim.control.NonFiniteCommand` for a non-finite output. A law that says
+    it is affine (``Controller.affine()``, e.g. eq. 31) is evaluated as a scalar expression
+    of its gains, a fraction of a microsecond; any other plugin (LQR, fractional PID, your
+    own) through its ``command`` per sample, exactly as the controller node would call it.
+    ``affine`` tells which.
+    """
+
+    def __init__(self, controller: Controller) -> None:
+        self.controller = controller
+        self.name = controller.name or type(controller).__name__
+        law = AffineLaw.from_controller(controller)
+        self.affine = law is not None
+        self.command = (_affine_command(self.name, law) if law is not None
+                        else controller.command)
+
+    def reset(self) -> None:
+        """Clear the controller's memory (the plant was reset)."""
+        self.controller.reset()
+
+    def describe(self) -> str:
+        how = 'affine, a scalar expression' if self.affine else 'its command() per sample'
+        return f'{self.controller.describe()} hosted in the loop ({how})'
+
+
+@dataclass
+class CommandLag:
+    """How late an external controller's commands are, in control periods (realtime mode).
+
+    A command's lag is ``(now - answered) / period``: how many control periods the sample it
+    answers lies before the plant's current sample when it arrives (0: it answered the
+    newest sample). :meth:`add` returns True when the lag has *stayed* above ``limit``: every
+    command that arrived over the last ``limit`` control periods of simulated time lagged by
+    more than ``limit``. One late burst (a stall of the machine followed by catching up) that
+    ends within that span does not stop a run. A few float operations per command.
+    """
+
+    limit: float
+    period: float
+    count: int = 0
+    total: float = 0.0
+    worst: float = 0.0
+    last: float = 0.0
+    over: int = 0                       # commands that lagged by more than the limit
+    over_since: float | None = None     # sim time of the first of the current run above it
+    over_least: float = 0.0             # the smallest lag of that run
+
+    def add(self, now: float, answered: float) -> bool:
+        lag = (now - answered) / self.period
+        self.count += 1
+        self.total += lag
+        self.last = lag
+        if lag > self.worst:
+            self.worst = lag
+        if lag <= self.limit:
+            self.over_since = None
+            return False
+        self.over += 1
+        if self.over_since is None:
+            self.over_since = now
+            self.over_least = lag
+            return False
+        if lag < self.over_least:
+            self.over_least = lag
+        return now - self.over_since >= self.limit * self.period * (1.0 - 1e-9)
+
+    @property
+    def mean(self) -> float:
+        return self.total / self.count if self.count else 0.0
+
+    def lagging(self) -> bool:
+        """True when the newest commands lag by more than the limit (or ever did by more
+        than twice it): a loss of the vehicle now is probably the lag's doing."""
+        return self.over_since is not None or self.worst > 2.0 * self.limit
+
+    def summary(self) -> dict[str, float]:
+        return {'command_lag_mean': self.mean, 'command_lag_worst': self.worst,
+                'command_lag_last': self.last, 'commands_over_lag_limit': self.over,
+                'max_command_lag_periods': self.limit}
 
 
 def cpu_seconds() -> float:

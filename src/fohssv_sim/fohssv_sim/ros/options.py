@@ -224,6 +224,21 @@ NODE_PARAMETERS: tuple[ParameterSpec, ...] = (
        "plant's pacing thread, as real-time ROS 2 nodes use; needs CAP_SYS_NICE or an rtprio "
        'limit (the plant warns and runs normally without it); 0 = the normal scheduler',
        low=0.0, low_open=False, high=99.0, high_open=False),
+    TextSpec('controller', '-', '', '-', "the controller law: '' (default) = an external "
+             'controller node over command; else the name of a controller plugin (entry point '
+             'in group fohssv.controllers, e.g. state_feedback) that the plant hosts: the law '
+             'runs inside the loop every control period (no peer, no DDS in the loop), its '
+             'parameters are declared here as controller.NAME, and the plant publishes the '
+             'commands it gives on command', numeric=False,
+             allowed="'' (an external controller node) or a plugin name of group "
+             'fohssv.controllers'),
+    _P('max_command_lag', '-', 20.0, 'control periods', 'realtime mode, external controller: '
+       "a command's lag is how many control periods its sample lies before the plant's "
+       'current one when it arrives; when every command arriving over this many control '
+       'periods of simulated time lags by more than this (the loop cannot keep up with the '
+       'control period), the plant stops with exit code 6, naming the lag, its cost per '
+       'sample and the remedies', low=1.0, low_open=False, high=1e6, high_open=False,
+       needs_reset=False),
     _P('end_linger', '-', 1.0, 's', 'wall time the plant keeps its publishers after the run '
        'ended, so a subscriber that lags (a recorder, a plotter) can still take the last '
        'samples: Fast DDS drops the samples a reader has not taken when their writer goes '
@@ -331,6 +346,8 @@ class PlantOptions:
     start_timeout: float = _f('start_timeout')
     pace_to_subscribers: int = _f('pace_to_subscribers')
     realtime_priority: int = _f('realtime_priority')
+    controller: str = _f('controller')
+    max_command_lag: float = _f('max_command_lag')
     end_linger: float = _f('end_linger')
 
     def __post_init__(self) -> None:

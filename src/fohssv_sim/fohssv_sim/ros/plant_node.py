@@ -15,7 +15,20 @@ Modes:
   ``command_timeout`` ends the run (exit 3) naming the side that stalled.
 * ``realtime``: a wall-clock pacer publishes every sample when due (``real_time_factor``),
   holding the newest good command; deadline misses are counted and reported; the watchdog
-  warns once per outage when no command came for ``watchdog_timeout``.
+  warns once per outage when no command came for ``watchdog_timeout``. The lag of every
+  command (control periods between the sample it answers and the current one) is measured;
+  when it stays above ``max_command_lag`` the run stops (exit 6) naming the lag, the plant's
+  cost per sample and the remedies.
+
+Hosted controller (``controller:=NAME``, a plugin of group ``fohssv.controllers``): no
+external controller; the plant runs the law itself after publishing each sample and holds
+its output over the next control period (lockstep: as fast as the plant runs, in chunks
+between which the executor is spun; realtime: paced as above). The law's parameters are
+declared as ``controller.<name>`` with the controller node's descriptors; the run-time
+changeable ones change here too. The plant publishes what the law commands on ``command``
+(t = the answered sample), so recorders and viewers see an ordinary run; a second publisher
+of ``command`` (an external controller) stops the plant (exit 7). The hosted law counts as
+one of ``min_state_subscribers`` and as the command publisher.
 
 Start: the plant publishes nothing (no sample, no ``/clock``) until ``min_command_publishers``
 controllers and ``min_state_subscribers`` readers have matched; it logs what it still waits
@@ -26,16 +39,20 @@ positive ``start_timeout`` is for scripts: exit 4 when it expires, in both modes
 Exit codes: 0 clean stop (signal or ``duration`` reached), 1 state turned non-finite,
 2 invalid parameters at start, 3 lockstep timeout or plant overrun, 4 peers missing when a
 positive ``start_timeout`` expired, 5 another publisher of ``state`` (a second plant) on the
-same ROS_DOMAIN_ID and namespace.
+same ROS_DOMAIN_ID and namespace, 6 realtime: the commands of an external controller lagged
+by more than ``max_command_lag`` control periods for as long, 7 a hosted controller and
+another publisher of ``command`` (an external controller) on the same domain and namespace.
 """
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import json
 import sys
 import time
 from collections.abc import Mapping
-from time import monotonic, perf_counter_ns
+from time import monotonic, perf_counter_ns, sleep
 from typing import Any
 
 import rclpy
@@ -46,10 +63,14 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
+from .. import control
 from ..contract import CLOCK, COMMAND, PLANING_FORCE, RUN_END, STATE, run_end_text
-from ..params import PARAMETERS, ModelParameters
+from ..control import NonFiniteCommand
+from ..params import PARAMETERS, ModelParameters, ParameterError, ParameterSpec, field_specs
 from .loop import (
+    CommandLag,
     CommandRejected,
+    HostedLaw,
     Pacer,
     Profile,
     SampledPlant,
@@ -79,11 +100,23 @@ from .options import NODE_PARAMETERS, PlantOptions, check_options, clock_samples
 from .views import ViewPublisher
 
 __all__ = ['PlantNode', 'main', 'EXIT_OK', 'EXIT_DIVERGED', 'EXIT_BAD_PARAMETERS',
-           'EXIT_TIMEOUT', 'EXIT_NO_PEERS', 'EXIT_SECOND_PLANT']
+           'EXIT_TIMEOUT', 'EXIT_NO_PEERS', 'EXIT_SECOND_PLANT', 'EXIT_COMMAND_LAG',
+           'EXIT_SECOND_CONTROLLER', 'CONTROLLER_PREFIX']
 
 EXIT_OK, EXIT_DIVERGED, EXIT_BAD_PARAMETERS, EXIT_TIMEOUT, EXIT_NO_PEERS = 0, 1, 2, 3, 4
 #: Another publisher of ``state`` on the plant's domain and namespace (a second plant).
 EXIT_SECOND_PLANT = 5
+#: Realtime: an external controller's commands lagged beyond ``max_command_lag``.
+EXIT_COMMAND_LAG = 6
+#: A hosted controller and another publisher of ``command`` (two controllers would mix).
+EXIT_SECOND_CONTROLLER = 7
+#: The hosted controller's parameters are declared on the plant under this prefix.
+CONTROLLER_PREFIX = 'controller.'
+#: With a hosted controller: the wall time (s) one chunk of samples runs before the executor
+#: is spun again (services, parameters, the graph checks, signals).
+_CHUNK = 0.005
+#: External controller: wall seconds between two looks at who subscribes to /clock.
+_MATCHED_CHECK = 0.01
 #: Wall seconds between two looks at the graph for a second plant (a graph query, off the
 #: per-sample path).
 _RIVAL_CHECK_PERIOD = 0.5
@@ -120,6 +153,7 @@ class PlantNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('plant', **kwargs)
         values = declare(self, PARAMETERS + NODE_PARAMETERS)
+        self.hosted = self._host(values['controller'])   # the hosted law, or None
         refuse_unknown(self)
         self.model, self.options, hold = build_config(values)
         self.sim = SampledPlant(self.model, self.options.control_period,
@@ -135,6 +169,8 @@ class PlantNode(Node):
         self._force_data = self._force_out.values
         self._clock_out = ClockWriter()
         self._command_in = ArrayReader(COMMAND)
+        self._lag = CommandLag(self.options.max_command_lag, self.options.control_period)
+        self._free_run = self.hosted is not None and self.options.mode == 'lockstep'
         self._clock_every = clock_samples(self.options)
         self._lockstep = self.options.mode == 'lockstep'
         self.profile: Profile | None = Profile() if self.options.profile else None
@@ -143,23 +179,47 @@ class PlantNode(Node):
         self.force_pub = self.create_publisher(Float64MultiArray, PLANING_FORCE.name,
                                                profile(PLANING_FORCE))
         self.clock_pub = self.create_publisher(Clock, CLOCK.name, profile(CLOCK))
+        self._send_state = _raw_publish(self.state_pub)
+        self._send_force = _raw_publish(self.force_pub)
+        self._send_clock = _raw_publish(self.clock_pub)
+        # /clock (and a hosted plant's command) are volatile: written only while someone
+        # subscribes; the counts are refreshed off the per-sample path (_refresh_matched)
+        self._clock_wanted = True
+        self._command_wanted = True
         # typed views for viewers, every view_period (views.py); None when off
         self._view_every = view_samples(self.options)
-        self.views = ViewPublisher(self, self.model) if self._view_every else None
+        self.views = ViewPublisher(
+            self, self.model, spread=self._view_every >= ViewPublisher.MESSAGES
+        ) if self._view_every else None
         # the writers whose readers (recorders, viewers) the start, flush and linger wait for
         self._sample_pubs = (self.state_pub, self.force_pub) + (
             self.views.publishers if self.views is not None else ())
-        on_command = self._on_command if self.profile is None else self._on_command_profiled
-        self.command_sub = self.create_subscription(Float64MultiArray, COMMAND.name,
-                                                    on_command, profile(COMMAND), raw=True)
+        self.command_sub = self.command_pub = None
+        if self.hosted is None:      # an external controller node answers each sample
+            on_command = (self._on_command if self.profile is None
+                          else self._on_command_profiled)
+            self.command_sub = self.create_subscription(Float64MultiArray, COMMAND.name,
+                                                        on_command, profile(COMMAND), raw=True)
+            self.command_topic = self.command_sub.topic_name
+        else:                        # the plant commands itself and says what it commanded
+            self.command_pub = self.create_publisher(Float64MultiArray, COMMAND.name,
+                                                     profile(COMMAND))
+            self.command_topic = self.command_pub.topic_name
+            self._command_out = ArrayWriter(COMMAND)
+            self._command_data = self._command_out.values   # [t, delta_f, delta_c]
+            self._send_command = _raw_publish(self.command_pub)
         if self.profile is not None:
             self._publish = self._publish_profiled   # type: ignore[method-assign]
             self._step = self._step_profiled         # type: ignore[method-assign]
+            self._control = self._control_profiled   # type: ignore[method-assign]
         self.reset_srv = self.create_service(Trigger, 'reset', self._on_reset)
         # once, when the run ends: what was published, for recorders to check (contract.py)
         self.end_pub = self.create_publisher(String, RUN_END.name, profile(RUN_END))
         self.sent = 0                             # samples published (state, planing_force)
         self.received = 0                         # commands received while running
+        self.commanded = 0                        # hosted: commands the law gave
+        self.commands_sent = 0                    # hosted: of those, published (subscribed)
+        self.law_failures = 0                     # hosted: samples the law gave no command
         self._announced = False                   # run_end published
 
         self.running = False
@@ -185,12 +245,52 @@ class PlantNode(Node):
             f'{self.sim.plant.describe()} (ready in {self.sim.compile_seconds:.2f} s); mode '
             f'{self.options.mode}, control period '
             f'{self.options.control_period:g} s = {hold} steps (zero-order hold), duration '
-            f'{self.options.duration:g} s')
+            f'{self.options.duration:g} s; controller '
+            + ('external (a node publishing command)' if self.hosted is None
+               else self.hosted.describe()))
+
+    # -- hosted controller (parameter ``controller``) ------------------------------------------
+    def _host(self, name: str) -> HostedLaw | None:
+        """The plugin ``name`` hosted in the loop, its parameters declared under
+        :data:`CONTROLLER_PREFIX` from its table (the controller node's descriptors, ranges,
+        units; the run-time changeable ones change here too); None for '' (external).
+
+        Raises:
+            control.UnknownController: no such plugin (the message lists the valid ones).
+            ParameterError: an invalid value of one of its parameters.
+        """
+        if not name:
+            return None
+        self._controller_cls = control.load(name)
+        specs: tuple[ParameterSpec, ...] = tuple(
+            dataclasses.replace(spec, name=CONTROLLER_PREFIX + spec.name)
+            for spec in field_specs(self._controller_cls.Parameters))
+        law = HostedLaw(self._build_controller(declare(self, specs)))
+        install_validation(self, tuple(s.name for s in specs), self._build_controller,
+                           self._apply_controller)
+        return law
+
+    def _build_controller(self, values: Mapping[str, Any]) -> control.Controller:
+        cls = self._controller_cls
+        n = len(CONTROLLER_PREFIX)
+        fields = {k[n:]: v for k, v in values.items() if k.startswith(CONTROLLER_PREFIX)}
+        try:
+            return cls(cls.Parameters(**fields))
+        except ParameterError as exc:   # the dataclass names the field without the prefix
+            text = str(exc)
+            if any(text.startswith(f'{f}=') for f in fields):
+                text = CONTROLLER_PREFIX + text
+            raise ParameterError(text) from None
+
+    def _apply_controller(self, controller: control.Controller) -> None:
+        self.hosted = HostedLaw(controller)
+        self.get_logger().info(f'controller parameters changed: {controller.describe()}')
 
     # -- parameters ------------------------------------------------------------------------
     def _apply(self, config: tuple[ModelParameters, PlantOptions, int]) -> None:
         _, options, _ = config
         self.options = options
+        self._lag.limit = options.max_command_lag
         # a lowered deflection limit applies to the command held now, not only to the next
         # ones: a held command beyond it is replaced by the command clamped to the limit
         df, dc = self.sim.command
@@ -206,7 +306,13 @@ class PlantNode(Node):
 
     # -- start -------------------------------------------------------------------------------
     def _peers(self) -> tuple[int, int]:
-        return self.state_pub.get_subscription_count(), self.command_sub.get_publisher_count()
+        """Matched (state subscribers, command publishers); a hosted law counts as one of
+        each (it reads every sample and commands), so the same minimums start a hosted plant
+        alone and a hosted plant with a recorder."""
+        subs = self.state_pub.get_subscription_count()
+        if self.hosted is not None:
+            return subs + 1, 1
+        return subs, self.command_sub.get_publisher_count()
 
     def _listed_matched(self) -> bool:
         """Every subscription the graph lists on the sample topics has matched the plant's
@@ -238,7 +344,10 @@ class PlantNode(Node):
 
     def _check_rivals(self) -> None:
         """Refuse to run beside another publisher of ``state`` (a second plant, a republishing
-        player): the two would take each other's commands and publish interleaved samples."""
+        player): the two would take each other's commands and publish interleaved samples.
+        With a hosted controller, also beside another publisher of ``command``."""
+        if self.hosted is not None:
+            self._check_second_controller()
         if self.finished.done() or self.count_publishers(self.state_pub.topic_name) <= 1:
             return                                # only this plant's own publisher
         infos = self.get_publishers_info_by_topic(self.state_pub.topic_name)
@@ -248,6 +357,21 @@ class PlantNode(Node):
                    f"{', '.join(nodes)}): another plant (or a republishing player) runs on this "
                    'ROS_DOMAIN_ID and namespace, and the two would take each other\'s commands; '
                    'stopping. Give each its own ROS_DOMAIN_ID or namespace.')
+
+    def _check_second_controller(self) -> None:
+        """A hosted plant and an external publisher of ``command`` (a controller node, a
+        player replaying commands): two controllers must never mix, so the plant stops."""
+        topic = self.command_topic
+        if self.finished.done() or self.count_publishers(topic) <= 1:
+            return                                # only the plant's own command publisher
+        infos = self.get_publishers_info_by_topic(topic)
+        nodes = sorted(f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos)
+        self._fail(EXIT_SECOND_CONTROLLER,
+                   f'{len(infos)} publishers of {topic} (nodes: {", ".join(nodes)}): this '
+                   f'plant hosts the controller {self.hosted.name!r} (controller:='
+                   f'{self.options.controller}) and another node publishes commands too; two '
+                   'controllers must not mix, stopping. Stop the external controller, or start '
+                   "the plant with controller:='' to use it.")
 
     def _wait_for_peers(self) -> None:
         if self.running or self.finished.done():
@@ -289,7 +413,13 @@ class PlantNode(Node):
         subs, pubs = self._peers()
         self.get_logger().info(f'peers matched (command: {pubs} publisher(s), state: {subs} '
                                'subscriber(s)); starting at t = 0')
-        if self.options.mode == 'lockstep':
+        self._refresh_matched()
+        if self.hosted is None:      # hosted: refreshed between chunks of samples
+            self._matched_timer = self.create_timer(_MATCHED_CHECK, self._refresh_matched)
+        if self._free_run:           # lockstep, hosted: the spin loop runs chunks of samples
+            self._publish()
+            self._control()
+        elif self.options.mode == 'lockstep':
             self._publish()
             self._await_command()
             period = min(0.05, max(self.options.command_timeout / 4.0, 0.001))
@@ -305,18 +435,25 @@ class PlantNode(Node):
             self._publish()
             pacer.published(time.monotonic())
             self.pacer = pacer   # from now on the spin loop publishes the samples when due
-            self._timer = self.create_timer(_WATCHDOG_CHECK, self._check_watchdog)
+            if self.hosted is None:
+                self._timer = self.create_timer(_WATCHDOG_CHECK, self._check_watchdog)
+            else:
+                self._control()
 
     # -- publishing (every sample: preallocated messages written in place) --------------------
     def _publish(self) -> None:
         self.sent += 1
         self.sim.write_sample(self._state_data, self._force_data)
-        self.state_pub.publish(self._state_out.payload())
-        self.force_pub.publish(self._force_out.payload())
-        if self.sim.samples % self._clock_every == 0:
-            self.clock_pub.publish(self._clock_out.payload(round(self._state_data[0] * 1e9)))
-        if self._view_every and self.sim.samples % self._view_every == 0:
-            self.views.publish(self._state_data, self._force_data[1])
+        self._send_state(self._state_out.payload())
+        self._send_force(self._force_out.payload())
+        if self._clock_wanted and self.sim.samples % self._clock_every == 0:
+            self._send_clock(self._clock_out.payload(round(self._state_data[0] * 1e9)))
+        views = self.views
+        if views is not None:     # a view's messages go out one per sample (views.py)
+            if self.sim.samples % self._view_every == 0:
+                views.publish(self._state_data, self._force_data[1])
+            elif views.pending:
+                views.publish_next()
 
     def _publish_profiled(self) -> None:
         add = self.profile.add
@@ -324,20 +461,24 @@ class PlantNode(Node):
         t0 = perf_counter_ns()
         self.sim.write_sample(self._state_data, self._force_data)
         t1 = perf_counter_ns()
-        self.state_pub.publish(self._state_out.payload())
+        self._send_state(self._state_out.payload())
         t2 = perf_counter_ns()
-        self.force_pub.publish(self._force_out.payload())
+        self._send_force(self._force_out.payload())
         t3 = perf_counter_ns()
         add(1, t1 - t0)
         add(2, t2 - t1)
         add(3, t3 - t2)
-        if self.sim.samples % self._clock_every == 0:
+        if self._clock_wanted and self.sim.samples % self._clock_every == 0:
             t3 = perf_counter_ns()
-            self.clock_pub.publish(self._clock_out.payload(round(self._state_data[0] * 1e9)))
+            self._send_clock(self._clock_out.payload(round(self._state_data[0] * 1e9)))
             add(4, perf_counter_ns() - t3)
-        if self._view_every and self.sim.samples % self._view_every == 0:
+        views = self.views
+        if views is not None and (views.pending or self.sim.samples % self._view_every == 0):
             t3 = perf_counter_ns()
-            self.views.publish(self._state_data, self._force_data[1])
+            if self.sim.samples % self._view_every == 0:
+                views.publish(self._state_data, self._force_data[1])
+            else:
+                views.publish_next()
             add(6, perf_counter_ns() - t3)
 
     def _step(self) -> None:
@@ -349,11 +490,12 @@ class PlantNode(Node):
         self.profile.add(0, perf_counter_ns() - t0)
 
     def _advance(self) -> bool:
-        """One control period and its sample; False when the run ended."""
+        """One control period and its sample (and with a hosted law, its command); False when
+        the run ended."""
         try:
             self._step()
         except FloatingPointError as exc:
-            self._fail(EXIT_DIVERGED, f'simulation failed: {exc}')
+            self._fail(EXIT_DIVERGED, f'simulation failed: {exc}{self._lag_note()}')
             return False
         self._publish()
         if self.pacer is not None:
@@ -361,7 +503,56 @@ class PlantNode(Node):
         if self.sim.reached(self.options.duration):
             self._finish(f'duration {self.options.duration:g} s reached')
             return False
+        if self.hosted is not None:
+            self._control()
         return True
+
+    # -- hosted controller: the law in the loop, every sample --------------------------------
+    def _control(self) -> None:
+        """The hosted law's command for the sample just published: published on ``command``
+        (t = that sample, as a controller node answers) and held over the next control period
+        if within the deflection limits (else rejected, as the plant rejects an external
+        one). A non-finite output or a failing plugin gives no command: the last good one
+        stays held, and it is counted and logged."""
+        sim = self.sim
+        t = sim.plant.t
+        try:
+            df, dc = self.hosted.command(t, sim.plant.x)
+        except Exception as exc:  # noqa: BLE001 - a plugin's bug must not kill the plant
+            self._law_failed(t, exc)
+            return
+        self._publish_command(t, df, dc)
+        o = self.options
+        if abs(df) <= o.max_fin_deflection and abs(dc) <= o.max_cavitator_deflection:
+            sim.command = (df, dc)
+        else:
+            self._take((t, df, dc))   # rejects it with the reason; the last good one stays
+
+    def _control_profiled(self) -> None:
+        t0 = perf_counter_ns()
+        PlantNode._control(self)
+        self.profile.add(7, perf_counter_ns() - t0)
+
+    def _publish_command(self, t: float, df: float, dc: float) -> None:
+        """Publish what the hosted law commanded for the sample at ``t``."""
+        self.commanded += 1
+        if self._command_wanted:
+            data = self._command_data
+            data[0] = t
+            data[1] = df
+            data[2] = dc
+            self._send_command(self._command_out.payload())
+            self.commands_sent += 1
+
+    def _law_failed(self, t: float, exc: Exception) -> None:
+        self.law_failures += 1
+        what = (str(exc) if isinstance(exc, NonFiniteCommand) else
+                f'{self.hosted.name}.command(t={t!r}) raised {type(exc).__name__}: {exc}')
+        df, dc = self.sim.command
+        text = (f'{what}; no command for this sample, holding delta_f={df!r}, delta_c={dc!r} '
+                f'rad ({self.law_failures} without a command)')
+        self.get_logger().error(text, throttle_duration_sec=(
+            0.0 if self.law_failures <= _LOG_EACH else 1.0))
 
     # -- lockstep ----------------------------------------------------------------------------
     def _await_command(self) -> None:
@@ -380,7 +571,7 @@ class PlantNode(Node):
                    f'lockstep timeout: the controller stalled: no command answering '
                    f't={self._awaiting!r} s within command_timeout='
                    f'{self.options.command_timeout:g} s ({last}; command has '
-                   f'{self.command_sub.get_publisher_count()} publisher(s))')
+                   f'{self._peers()[1]} publisher(s))')
 
     def _lockstep_command(self, data: Any, t: float | None) -> None:
         if self._awaiting is None or t != self._awaiting:
@@ -422,7 +613,10 @@ class PlantNode(Node):
     # -- real time ---------------------------------------------------------------------------
     def pacing_wait(self) -> float | None:
         """Seconds until the next real-time sample is due (<= 0: due now); None when no
-        sample is paced (lockstep, not started, or ended). Called by the spin loop."""
+        sample is paced (lockstep, not started, or ended). Called by the spin loop. Lockstep
+        with a hosted law: always due while running (the loop runs as fast as it can)."""
+        if self.hosted is not None:
+            return 0.0 if self.running else None
         pacer = self.pacer
         if pacer is None or not self.running:
             return None
@@ -430,9 +624,40 @@ class PlantNode(Node):
 
     def publish_due(self) -> None:
         """Advance and publish the next real-time sample if it is due (the spin loop calls
-        this when :meth:`pacing_wait` is <= 0)."""
-        if self.running and self.pacer.due(monotonic()):
+        this when :meth:`pacing_wait` is <= 0). Lockstep with a hosted law: a chunk of
+        samples, at most ``_FREE_RUN_CHUNK`` of wall time, then the executor's turn."""
+        if not self.running:
+            return
+        if self.hosted is not None:
+            self._run_chunk()
+        elif self.pacer.due(monotonic()):
             self._advance()
+
+    def _run_chunk(self) -> None:
+        """Hosted: samples for ``_CHUNK`` s of wall time, then the executor's turn (services,
+        parameters, the graph checks; a signal ends the loop there). Lockstep: back to back;
+        realtime: each when due, sleeping in between: ``time.sleep`` costs about half the
+        CPU of a ``spin_once`` wait, and nothing is to be taken between samples."""
+        self._refresh_matched()
+        now = monotonic()
+        end = now + _CHUNK
+        pacer = self.pacer
+        every = self.options.pace_to_subscribers if pacer is None else 0
+        while now < end:
+            if pacer is not None and not pacer.due(now):
+                sleep(pacer.next_due() - now)
+            elif not self._advance():
+                return
+            elif every and self.sim.samples % every == 0:
+                self._keep_subscribers_up()
+            now = monotonic()
+
+    def _refresh_matched(self) -> None:
+        """Whether anyone subscribes to ``/clock`` (and a hosted plant's ``command``): a
+        volatile topic nobody reads is not written (a graph query here, not per sample)."""
+        self._clock_wanted = self.clock_pub.get_subscription_count() > 0
+        if self.command_pub is not None:
+            self._command_wanted = self.command_pub.get_subscription_count() > 0
 
     def _check_watchdog(self) -> None:
         if not self.running:
@@ -473,10 +698,59 @@ class PlantNode(Node):
             if not (0.0 <= lag <= self.options.max_command_age):
                 self._stale(t, now)
                 return
+            if self._lag.add(now, t):
+                self._lag_stop()
+                return
             if self._take(data) and lag > self._max_lag:
                 self._max_lag = lag
         else:
             self._take(data)    # rejected: no finite t
+
+    # -- command lag (realtime, external controller) ---------------------------------------
+    def _cost_text(self) -> str:
+        samples = self.sim.samples
+        if not samples or not self.running:
+            return 'plant CPU per sample unknown'
+        cpu = (cpu_seconds() - self._cpu_start) / samples
+        period = self.options.control_period / self.options.real_time_factor
+        text = (f'plant CPU {cpu * 1e6:.0f} us per sample = {100 * cpu / period:.0f} % of the '
+                f'{period * 1e6:.0f} us period')
+        if self.pacer is not None and self.pacer.produced:
+            p = self.pacer
+            text += f', deadline misses {p.misses}/{p.produced}'
+        return text
+
+    def _remedies(self) -> str:
+        longer = min(1.0, 10.0 * self.options.control_period)
+        return ('remedies: mode:=lockstep (deterministic, at the speed of the loop), a longer '
+                f'control_period (e.g. control_period:={longer:g}), or the law hosted in the '
+                'plant, controller:=NAME (e.g. controller:=state_feedback: no DDS in the loop)')
+
+    def _lag_stop(self) -> None:
+        lag, o = self._lag, self.options
+        self._fail(EXIT_COMMAND_LAG,
+                   f'command lag: the external controller\'s commands lagged by more than '
+                   f'max_command_lag={o.max_command_lag:g} control periods for as long (at '
+                   f'least {lag.over_least:.0f} periods since t={lag.over_since:.6g} s, now '
+                   f'{lag.last:.0f}; mean {lag.mean:.1f}, worst {lag.worst:.0f} over the run) '
+                   f'at t={self.sim.t!r} s: the plant and its controller cannot keep up with '
+                   f'control_period={o.control_period:g} s in real time here '
+                   f'({self._cost_text()}); stopping before late commands lose the vehicle. '
+                   + self._remedies())
+
+    def _lag_note(self) -> str:
+        """For a failure in realtime with an external controller: the command lag, and when
+        it was beyond the limit, that the run was probably lost to it."""
+        lag = self._lag
+        if self.hosted is not None or self.pacer is None or not lag.count:
+            return ''
+        text = (f'; command lag: now {lag.last:.1f}, mean {lag.mean:.1f}, worst '
+                f'{lag.worst:.1f} control periods (max_command_lag='
+                f'{self.options.max_command_lag:g})')
+        if lag.lagging():
+            text += (': the commands were late, so the loop was probably lost to their lag, '
+                     f'not to the model ({self._cost_text()}); ' + self._remedies())
+        return text
 
     def _stale(self, t: float, now: float) -> None:
         """Reject a real-time command answering a time after the current sample or older
@@ -520,6 +794,9 @@ class PlantNode(Node):
             response.message = 'the run has ended'
             return response
         self.sim.reset(self.options.initial_state)
+        if self.hosted is not None:
+            self.hosted.reset()
+        self._lag.over_since = None
         self._watchdog_warned = False
         self.get_logger().info(f'reset to t = 0 at {list(self.options.initial_state)}')
         if self.running:
@@ -528,7 +805,9 @@ class PlantNode(Node):
             self._publish()
             if self.pacer is not None:
                 self.pacer.published(time.monotonic())
-            if self.options.mode == 'lockstep':
+            if self.hosted is not None:
+                self._control()
+            elif self.options.mode == 'lockstep':
                 self._await_command()
         response.success = True
         response.message = f't = {self.sim.t!r} s, state = {list(self.options.initial_state)}'
@@ -548,7 +827,11 @@ class PlantNode(Node):
             'clock_samples': self._clock_every, 'view_samples': self._view_every,
             'views': self.views.published if self.views is not None else 0,
             'rejected_commands': self.rejected, 'ignored_commands': self.ignored,
+            'controller': self.options.controller or 'external',
         }
+        if self.hosted is not None:
+            s.update(hosted_commands=self.commanded, commands_published=self.commands_sent,
+                     law_failures=self.law_failures)
         if self.profile is not None:
             s['profile'] = self.profile.summary()
         if self.pacer is not None:
@@ -561,7 +844,11 @@ class PlantNode(Node):
                      late_samples=p.late,
                      mean_lateness=p.lateness_sum / p.produced if p.produced else 0.0,
                      slips=p.slips, worst_lateness=p.worst_lateness,
-                     max_command_lag=self._max_lag, stale_commands=self.stale)
+                     max_command_lag=self._max_lag, stale_commands=self.stale,
+                     cpu_share_of_period=(cpu / self.sim.samples / p.period
+                                          if self.sim.samples else 0.0))
+            if self.hosted is None:
+                s.update(self._lag.summary())
         elif wall > 0:
             s.update(samples_per_second=self.sim.samples / wall,
                      steps_per_second=self.sim.plant.n / wall)
@@ -588,8 +875,11 @@ class PlantNode(Node):
             return
         self._announced = True
         published = {self.state_pub.topic_name: self.sent, self.force_pub.topic_name: self.sent,
-                     self.command_sub.topic_name: self.received}
+                     self.command_topic: self.received if self.hosted is None
+                     else self.commands_sent}
         if self.views is not None:
+            with contextlib.suppress(Exception):   # the context may be going down (a signal)
+                self.views.flush()                  # a view's last messages, if pending
             n = self.views.published
             for pub in self.views.publishers:
                 published[pub.topic_name] = 2 * n if pub is self.views.marker_pub else n
@@ -632,6 +922,16 @@ class PlantNode(Node):
             executor.spin_once(timeout_sec=0.05)
 
 
+def _raw_publish(pub: Any) -> Any:
+    """The call that publishes serialized bytes on ``pub``: rclpy's C++ ``publish_raw``
+    itself where this rclpy has it (``Publisher.publish`` checks the message's type and
+    takes the handle's guard first, 1-1.5 us of each of the per-sample publishes; the plant
+    only publishes while running, before it destroys anything), else ``pub.publish``."""
+    inner = getattr(pub, '_Publisher__publisher', None)
+    raw = getattr(inner, 'publish_raw', None)
+    return raw if callable(raw) else pub.publish
+
+
 def _interrupted(node: PlantNode) -> None:
     final_log(node.get_name(), 'interrupted; stopping cleanly. summary: '
               + json.dumps(node.summary()))
@@ -672,7 +972,7 @@ def _on_interrupt(node: PlantNode) -> int:
 def main(args: list[str] | None = None) -> None:
     """Entry point of ``ros2 run fohssv_sim plant``; exits with the node's exit code."""
     sys.exit(run_node('plant', args, PlantNode, _run, specs=PARAMETERS + NODE_PARAMETERS,
-                      on_interrupt=_on_interrupt))
+                      refused=(control.UnknownController,), on_interrupt=_on_interrupt))
 
 
 if __name__ == '__main__':

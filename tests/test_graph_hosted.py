@@ -1,0 +1,233 @@
+"""Hosted controllers and the honest limits of external ones (issue 20), real processes over DDS.
+
+* A plant hosting the law (``controller:=NAME``) in lockstep gives the batch runner's
+  trajectory ``simulate(..., control_period=...)`` to 1e-12, for every model and every built-in
+  controller, and publishes the commands the batch runner applied (t = the answered sample);
+  the external controller node gives the same (the combinations tests/test_graph_lockstep.py
+  does not already run are run here), so hosted = external = batch.
+* The hosted law's parameters are the plant's ``controller.*`` parameters: they change at run
+  time and the commands follow; an out-of-range value is refused with its range.
+* A second publisher of ``command`` against a hosted plant stops it (exit 7).
+* An external controller that answers late (a test plugin taking 5 ms per answer at a 1 ms
+  control period) stops the real-time plant with exit 6 and one line naming the lag.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from ament_index_python.packages import get_package_share_directory
+from test_graph_support import Probe, finish, plant_args, stop_all
+
+from fohssv_controller.fractional_pid import FractionalPID
+from fohssv_controller.lqr import LQR
+from fohssv_controller.state_feedback import StateFeedback
+from fohssv_sim.params import ModelParameters
+from fohssv_sim.simulate import simulate
+
+import rosproc
+
+EXAMPLES = Path(__file__).parent / 'examples'
+TOL = 1e-12
+DURATION = 0.05
+MODELS = ('delay-free', 'delayed', 'fractional')
+CONTROLLERS = {'state_feedback': StateFeedback, 'lqr': LQR, 'fractional_pid': FractionalPID}
+#: (model, controller) whose external-node lockstep run tests/test_graph_lockstep.py compares
+#: with the batch runner already
+EXTERNAL_ELSEWHERE = {('delay-free', 'state_feedback'), ('delayed', 'state_feedback'),
+                      ('fractional', 'state_feedback'), ('delay-free', 'lqr')}
+
+
+def _batch(model: str, name: str, duration: float) -> tuple[np.ndarray, np.ndarray]:
+    """The batch runner's samples [t, z, w, theta, q] and the inputs it applied from each
+    sample on [delta_f, delta_c], every 1e-4 s."""
+    p = ModelParameters(model=model)
+    r = simulate(p, CONTROLLERS[name](), duration, control_period=1e-4,
+                 sample_every=round(1e-4 / p.step))
+    return np.column_stack([r.t, r.state]), r.inputs
+
+
+class _Lockstep:
+    """One lockstep run, started at once and collected later (the runs of a test go
+    concurrently): the plant hosting ``hosted``, or with the controller executable
+    ``external``; a probe records the states and commands."""
+
+    def __init__(self, model: str, duration: float, hosted: str = '', external: str = ''
+                 ) -> None:
+        domain = rosproc.unique_domain_id()
+        env = rosproc.ros_env(domain)
+        self.n = round(duration / 1e-4) + 1
+        self.hosted = hosted
+        self.probe = Probe(domain, command_publisher=False)
+        yaml_file = f"{get_package_share_directory('fohssv_sim')}/config/plant.yaml"
+        self.ctl = (rosproc.start('fohssv_controller', external, env=env) if external
+                    else None)
+        extra = {'controller': hosted} if hosted else {}
+        self.plant = rosproc.start(
+            'fohssv_sim', 'plant', ['--ros-args', '--params-file', yaml_file] + plant_args(
+                model=model, duration=duration, min_state_subscribers=2, end_linger=60.0,
+                **extra)[1:], env=env)
+
+    def collect(self) -> tuple[np.ndarray, np.ndarray, str]:
+        """The probe's states and commands (the ones answering all samples but the last: an
+        external node answers the last one too) and the plant's output."""
+        probe, plant, n = self.probe, self.plant, self.n
+        try:
+            probe.wait(lambda: (len(probe.states) >= n and len(probe.commands) >= n - 1)
+                       or plant.poll() is not None, 120, f'{n} samples at the probe')
+            out = stop_all(plant)
+            assert plant.returncode == 0, out
+            assert 'stopping cleanly at t=' in out, out
+            commands = np.array(probe.commands, dtype=float)
+            if not self.hosted:
+                commands = commands[:n - 1]
+            return probe.state_array(), commands, out
+        finally:
+            stop_all(plant, self.ctl)
+            probe.close()
+
+
+def _summary(out: str) -> dict:
+    line = next(ln for ln in out.splitlines() if 'summary: {' in ln)
+    return json.loads(line.split('summary: ', 1)[1])
+
+
+def _check(states: np.ndarray, commands: np.ndarray, ref: np.ndarray, inputs: np.ndarray,
+           out: str) -> None:
+    assert states.shape == ref.shape, out
+    assert np.array_equal(states[:, 0], ref[:, 0])
+    assert np.max(np.abs(states - ref)) <= TOL
+    # one command per sample but the last, answering it, equal to what the batch runner held
+    assert commands.shape == (len(ref) - 1, 3), out
+    assert np.array_equal(commands[:, 0], ref[:-1, 0])
+    assert np.max(np.abs(commands[:, 1:] - inputs[:-1])) <= TOL
+
+
+@pytest.mark.parametrize('model', MODELS)
+def test_hosted_lockstep_equals_the_batch_runner_and_the_external_node(model):
+    """Every built-in controller hosted, and through the external node where
+    tests/test_graph_lockstep.py does not run it already; all runs of a model at once."""
+    hosted = {name: _Lockstep(model, DURATION, hosted=name) for name in CONTROLLERS}
+    external = {name: _Lockstep(model, DURATION, external=name) for name in CONTROLLERS
+                if (model, name) not in EXTERNAL_ELSEWHERE}
+    results = {('hosted', k): run.collect() for k, run in hosted.items()}
+    results.update({('external', k): run.collect() for k, run in external.items()})
+    for (kind, name), (states, commands, out) in results.items():
+        ref, inputs = _batch(model, name, DURATION)
+        _check(states, commands, ref, inputs, out)
+        if kind == 'hosted':
+            s = _summary(out)
+            assert s['controller'] == name and s['hosted_commands'] == len(ref) - 1, s
+            assert f'controller {name}(' in out and 'hosted in the loop' in out
+        else:
+            assert np.max(np.abs(states - results['hosted', name][0])) <= TOL
+
+
+def _realtime_hosted(env: dict, log: Path, **params) -> object:
+    return rosproc.start('fohssv_sim', 'plant', plant_args(
+        model='delay-free', mode='realtime', control_period=1e-3, controller='state_feedback',
+        min_state_subscribers=1, end_linger=0.0, **params), env=env, log=log)
+
+
+def test_hosted_parameters_change_at_run_time_and_the_commands_follow(tmp_path):
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    log = tmp_path / 'plant.log'
+    probe = Probe(domain, command_publisher=False)
+    plant = _realtime_hosted(env, log, duration=60.0, initial_state=[0.05, 0.0, 0.0, 0.0])
+    try:
+        probe.wait(lambda: len(probe.commands) >= 20, 60, 'hosted commands')
+        got = probe.result(probe.params.get_parameters(
+            ['controller.depth_gain', 'controller.pitch_gain'])).values
+        assert [v.double_value for v in got] == [15.0, -30.0]
+        refused = probe.set_plant_parameters(**{'controller.max_cavitator_deflection': 3.0})
+        assert not refused[0].successful
+        assert 'controller.max_cavitator_deflection' in refused[0].reason
+        assert '1.5708' in refused[0].reason, refused[0].reason
+        (ok,) = probe.set_plant_parameters(**{'controller.depth_gain': 10.0})
+        assert ok.successful, ok.reason
+        seen = len(probe.commands)
+        probe.wait(lambda: len(probe.commands) >= seen + 20, 30, 'commands after the change')
+    finally:
+        out = stop_all(plant) + log.read_text()
+        probe.close()
+    assert 'controller parameters changed: state_feedback(depth_gain=10' in out, out
+    states = {row[0]: row[1:] for row in probe.states}
+    before, after = StateFeedback(), StateFeedback(depth_gain=10.0)
+    matched = {'before': 0, 'after': 0}
+    for t, df, dc in probe.commands:
+        x = states.get(t)
+        if x is None or before.command(t, x) == after.command(t, x):
+            continue
+        if (df, dc) == before.command(t, x):
+            matched['before'] += 1
+        elif (df, dc) == after.command(t, x):
+            matched['after'] += 1
+        else:
+            raise AssertionError(f'command {(t, df, dc)} follows neither gain')
+    # the commands before the change follow eq. 31, those after it the new gain
+    assert matched['before'] >= 10 and matched['after'] >= 10, matched
+
+
+def test_a_second_command_publisher_stops_a_hosted_plant(tmp_path):
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    log = tmp_path / 'plant.log'
+    plant = _realtime_hosted(env, log, duration=60.0)
+    probe = None
+    try:
+        rosproc.wait_for(lambda: 'peers matched' in log.read_text(), 60, what='the start')
+        probe = Probe(domain)             # publishes command: a second controller
+        code = rosproc.wait_exit(plant, 30)
+    finally:
+        stop_all(plant)
+        if probe is not None:
+            probe.close()
+    out = log.read_text()
+    assert code == 7, out
+    lines = [ln for ln in out.splitlines() if 'two controllers must not mix' in ln]
+    assert len(lines) == 1, out
+    assert ("2 publishers of /command (nodes: /plant, /probe): this plant hosts the "
+            "controller 'state_feedback'") in lines[0]
+
+
+def test_a_late_external_controller_stops_the_realtime_plant_with_exit_6(tmp_path):
+    """The plugin late_law answers each state 5 ms after it came, at a 1 ms control period:
+    its commands fall behind by about 0.8 periods per period, the lag passes
+    max_command_lag (20) and stays there; the plant stops with exit 6 and one line naming
+    the lag, the plant's cost per sample and the remedies, long before the vehicle could
+    leave its bounds."""
+    dist = tmp_path / 'late_law_example-0.1.dist-info'
+    dist.mkdir()
+    (dist / 'METADATA').write_text('Metadata-Version: 2.1\nName: late-law-example\n'
+                                   'Version: 0.1\n')
+    (dist / 'entry_points.txt').write_text('[fohssv.controllers]\nlate_law = late_law:LateLaw\n')
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    ctl_env = dict(env, PYTHONPATH=f"{tmp_path}:{EXAMPLES}:{env.get('PYTHONPATH', '')}")
+    ctl = rosproc.start('fohssv_controller', 'controller', [
+        '--ros-args', '-p', 'controller:=late_law', '-p', 'answer_delay:=0.005'], env=ctl_env)
+    plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+        model='delay-free', mode='realtime', control_period=1e-3, duration=5.0,
+        end_linger=0.0), env=env)
+    try:
+        code, out = finish(plant, 90)
+    finally:
+        stop_all(plant, ctl)
+    assert code == 6, out
+    lines = [ln for ln in out.splitlines() if 'command lag:' in ln]
+    assert len(lines) == 1, out
+    line = lines[0]
+    for words in ("the external controller's commands lagged by more than "
+                  'max_command_lag=20 control periods for as long',
+                  'cannot keep up with control_period=0.001 s in real time', 'plant CPU ',
+                  ' us per sample = ', 'remedies: mode:=lockstep',
+                  'a longer control_period (e.g. control_period:=0.01)', 'controller:=NAME'):
+        assert words in line, line
+    assert 'state beyond physical bounds' not in out
+    s = _summary(out)
+    assert s['command_lag_worst'] > 20 and s['commands_over_lag_limit'] > 0, s
+    assert s['t'] < 1.0, s

@@ -36,6 +36,28 @@ def bad_parameter_cases(tmp):
         ('plant', ['-p', 'clock_period:=2.0'],
          'clock_period=2.0 is outside the allowed range [0, 1] s (realtime mode'),
         ('plant', ['-p', 'mode:=3'], "mode=3 is an integer, not a name; allowed: 'lockstep'"),
+        # issue 20: the command lag limit, the hosted controller and its parameters
+        ('plant', ['-p', 'max_command_lag:=0.5'],
+         'max_command_lag=0.5 is outside the allowed range [1, 1e+06] control periods '
+         "(realtime mode, external controller: a command's lag"),
+        ('plant', ['-p', 'max_command_lag:=abc'],
+         "max_command_lag='abc' is a string, not a number; allowed: [1, 1e+06] control "
+         'periods'),
+        ('plant', ['-p', 'controller:=3'],
+         "controller=3 is an integer, not a name; allowed: '' (an external controller node) "
+         'or a plugin name of group fohssv.controllers'),
+        ('plant', ['-p', 'controller:=pid'],
+         "unknown controller 'pid'; valid controllers (fohssv.controllers entry points): "
+         'fractional_pid, lqr, state_feedback'),
+        ('plant', ['-p', 'controller:=state_feedback', '-p',
+                   'controller.max_cavitator_deflection:=3.0'],
+         'controller.max_cavitator_deflection=3.0 is outside the allowed range (0, 1.5708] rad'),
+        ('plant', ['-p', 'controller:=lqr', '-p', 'controller.depth_weight:=abc'],
+         "controller.depth_weight='abc' is a string, not a number; allowed: [0, 1e+12] 1/m^2"),
+        ('plant', ['-p', 'controller:=state_feedback', '-p', 'controller.depth_gian:=3.0'],
+         "unknown parameter 'controller.depth_gian' (did you mean 'controller.depth_gain'"),
+        ('plant', ['-p', 'controller.depth_gain:=1.0'],
+         "unknown parameter 'controller.depth_gain'"),
         ('controller', ['-p', 'max_cavitator_deflection:=3.0'],
          'max_cavitator_deflection=3.0 is outside the allowed range (0, 1.5708] rad'),
         ('controller', ['-p', 'depth_gain:=high'],

@@ -55,8 +55,10 @@ test: setup
 	@$(IN_ENV) python -m compileall -q -j 0 src > /dev/null
 	$(IN_ENV) python -m pytest -n $(TEST_WORKERS) --dist worksteal $(TEST_PATHS) $(PYTEST_ARGS)
 
+# e.g. make demo DEMO_ARGS=--hosted (the law hosted in the plant: no controller node)
+DEMO_ARGS ?=
 demo: setup
-	$(IN_ENV) python scripts/demo.py
+	$(IN_ENV) python scripts/demo.py $(DEMO_ARGS)
 
 bench: setup
 	@mkdir -p bench/results

@@ -1,25 +1,37 @@
-"""Benchmark of the ROS 2 graph: real processes over DDS on this machine, the issue's targets.
+"""Benchmark of the ROS 2 graph: real processes over DDS on this machine, the issues' targets.
 
-Cases, all in one run (the machine is shared and noisy: compare within a run):
+Cases, all in one run, side by side (the machine is shared and noisy: compare within a run;
+each case is one function, so a case can be added without touching the others):
 
-* echo: the bare DDS round trip, two processes echoing a ``std_msgs/Float64MultiArray`` with
-  the executor and the QoS of the ``state``/``command`` topics (``bench/ros_echo.py``):
-  round trips per second, the ceiling of any lockstep loop;
-* lockstep: plant + eq. 31 controller node (``state_feedback``), FOM (default solver) and
-  delay-free model at the default control period: samples per second, as a ratio to the echo;
-  and the delay-free model with one step per sample (``control_period`` = ``step``,
-  profiled): what the loop costs on top of the round trip when the integration is cheap;
-* real time: plant in ``realtime`` mode (real_time_factor 1) + the controller node for 10 s of
-  simulated time, for the delay-free, delayed and fractional (alpha 0.85, V 75, h 2e-5, 'soe')
-  models at control periods 1e-4 s and 1e-3 s: achieved real-time factor and deadline misses
-  (a sample published more than one pacing tick after it was due);
-* profile: one short real-time run per model at 1e-4 s with the plant's ``profile:=1``: the
-  plant's cost per sample of advance, each publish and the command callback (mean us).
+* echo (:func:`case_echo`): the bare DDS round trip, two processes echoing a
+  ``std_msgs/Float64MultiArray`` with the executor and the QoS of the ``state``/``command``
+  topics (``bench/ros_echo.py``): round trips per second, the ceiling of any lockstep loop
+  through a controller node, and the figure to scale the others to another machine;
+* lockstep (:func:`case_lockstep`): the plant with the eq. 31 controller node
+  (``state_feedback``) against the plant hosting the same law (``controller:=state_feedback``),
+  FOM (default solver) and delay-free model at the default control period: samples per
+  second, as a ratio to the echo; and the delay-free model with one step per sample
+  (``control_period`` = ``step``, profiled): what the loop costs on top of the round trip;
+* real time (:func:`case_realtime`): plant in ``realtime`` mode (real_time_factor 1) for 10 s
+  of simulated time, external node and hosted law, for the delay-free, delayed and fractional
+  (alpha 0.85, V 75, h 2e-5, 'soe') models at control periods 1e-4 s and 1e-3 s: achieved
+  real-time factor, deadline misses, command lag (external), plant CPU as a share of the
+  period, and whether the run stopped (exit 6: commands too late; 1: the vehicle lost);
+* margin (:func:`case_margin`): the hosted law at real_time_factor 2, 1e-4 s, each model;
+* highest external-node rate (:func:`case_external_rate`): the shortest control period at
+  which the FOM with the controller node holds real time for 10 s (misses <= 1 %, no lag
+  stop), searched over a ladder of periods;
+* in-plant recording (:func:`case_inplant_recording`): the slot for recorded against
+  unrecorded hosted runs (issue 20, item 2);
+* profile (:func:`case_profile`): short real-time runs per model at 1e-4 s with the plant's
+  ``profile:=1``, hosted and external: the plant's cost per sample of each part (mean us);
+* SCHED_FIFO (:func:`case_fifo`): the 1e-3 s external runs under ``realtime_priority``, where
+  the machine permits it.
 
 Every plant run reports its process CPU time per sample (``cpu_per_sample_us``, all threads,
 from the first sample to the last); the controller's over the same span is read from /proc
-(10 ms resolution) when the plant starts and when it logs its summary. Prints a table of the targets
-(measured, goal, pass/fail) and writes the figures to ``--out``.
+(10 ms resolution) when the plant starts and when it logs its summary. Prints a table of the
+targets (measured, goal, pass/fail) and writes the figures to ``--out``.
 
     python bench/bench_ros.py --out bench/results/ros.json [--quick]
 """
@@ -82,16 +94,22 @@ def _stop(proc: subprocess.Popen) -> str:
     return out or ''
 
 
+#: Exit codes of a plant run that are results, not crashes: the vehicle lost (1), the
+#: external controller's commands too late (6).
+RESULT_CODES = {0: 'completed', 1: 'simulation failed', 6: 'command lag'}
+
+
 def run_plant(domains: Domains, plant_params: dict, timeout: float) -> dict:
-    """One plant + eq. 31 controller run; returns the plant's summary, with the controller's
-    CPU time per sample from the plant's start (peers matched) to its end."""
+    """One plant run with the eq. 31 law: through the controller node, or hosted when
+    ``plant_params`` names a ``controller``; returns the plant's summary, with the controller
+    node's CPU time per sample from the plant's start (peers matched) to its end."""
     env = domains.env()
     args = ['--ros-args']
     for k, v in plant_params.items():
         args += ['-p', f'{k}:={v}']
-    ctl = subprocess.Popen([_exe('fohssv_controller', 'state_feedback')], env=env,
-                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                           start_new_session=True)
+    ctl = None if plant_params.get('controller') else subprocess.Popen(
+        [_exe('fohssv_controller', 'state_feedback')], env=env, stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, text=True, start_new_session=True)
     lines: list[str] = []
     ctl_cpu: list[float | None] = []
     try:
@@ -102,9 +120,7 @@ def run_plant(domains: Domains, plant_params: dict, timeout: float) -> dict:
         def pump() -> None:
             for line in plant.stdout:
                 lines.append(line)
-                if 'peers matched' in line:
-                    ctl_cpu.append(_cpu_seconds(ctl.pid))
-                elif 'summary: {' in line:
+                if ctl is not None and ('peers matched' in line or 'summary: {' in line):
                     ctl_cpu.append(_cpu_seconds(ctl.pid))
 
         reader = threading.Thread(target=pump, daemon=True)
@@ -116,17 +132,19 @@ def run_plant(domains: Domains, plant_params: dict, timeout: float) -> dict:
             code = plant.wait()
         reader.join(timeout=10)
     finally:
-        _stop(ctl)
+        if ctl is not None:
+            _stop(ctl)
     text = ''.join(lines)
     found = [ln for ln in lines if 'summary: {' in ln]
-    if code not in (0, 1) or not found:
+    if code not in RESULT_CODES or not found:
         raise RuntimeError(f'plant exited {code}:\n{text[-2000:]}')
     s = json.loads(found[-1].split('summary: ', 1)[1])
     s['exit_code'] = code
-    if code == 1:   # the run stopped: a diverged closed loop is a result, not a crash
-        s['failure'] = next((ln.split(']: ', 1)[-1] for ln in lines if 'simulation failed'
-                             in ln), 'exit 1')
-        print(f"          (stopped at t={s['t']:g} s: {s['failure'][:160]})", flush=True)
+    if code != 0:   # the run stopped: a diverged or lagging loop is a result, not a crash
+        s['failure'] = next((ln.split(']: ', 1)[-1] for ln in lines if RESULT_CODES[code]
+                             in ln), f'exit {code}')
+        print(f"          (stopped at t={s['t']:g} s, exit {code}: {s['failure'][:200]})",
+              flush=True)
     if len(ctl_cpu) == 2 and None not in ctl_cpu and s['samples']:
         s['controller_cpu_time'] = ctl_cpu[1] - ctl_cpu[0]
         s['controller_cpu_per_sample_us'] = s['controller_cpu_time'] / s['samples'] * 1e6
@@ -164,6 +182,194 @@ def _rt_priority_permitted() -> bool:
     return os.geteuid() == 0 or resource.getrlimit(resource.RLIMIT_RTPRIO)[0] > 0
 
 
+#: The eq. 31 law hosted in the plant (the same law the controller node runs).
+HOSTED = {'controller': 'state_feedback'}
+
+
+def _realtime_line(label: str, s: dict) -> str:
+    lag = (f"command lag mean {s['command_lag_mean']:.1f} / worst {s['command_lag_worst']:.0f} "
+           'periods, ' if 'command_lag_mean' in s else '')
+    ctl = (f", controller CPU {s['controller_cpu_per_sample_us']:.0f} us/sample"
+           if 'controller_cpu_per_sample_us' in s else '')
+    return (f"realtime  {label}: RTF {s['achieved_real_time_factor']:.3f}, misses "
+            f"{s['deadline_misses']}/{s['samples_paced']} ({100 * s['deadline_miss_rate']:.2f} "
+            f"%), {lag}plant CPU {s['cpu_per_sample_us']:.0f} us/sample = "
+            f"{s['cpu_share_of_period']:.2f} of the period{ctl}, worst lateness "
+            f"{1e3 * s['worst_lateness']:.1f} ms" + (f", STOPPED exit {s['exit_code']}"
+                                                     if s['exit_code'] else ''))
+
+
+def case_echo(domains: Domains, quick: bool) -> dict:
+    echo = run_echo(domains, 5000 if quick else 20000)
+    print(f"echo      bare DDS round trip: {echo['round_trips_per_second']:.0f} round trips/s "
+          f"({1e6 / echo['round_trips_per_second']:.0f} us each, {echo['round_trips']})",
+          flush=True)
+    return echo
+
+
+def case_lockstep(domains: Domains, quick: bool, echo: dict) -> dict:
+    """External node against hosted law, lockstep, at the default control period; and the
+    node-side cost with one RK4 step per sample (external, profiled)."""
+    out = {}
+    rate = echo['round_trips_per_second']
+    fom = {'model': 'fractional', 'duration': 0.2 if quick else 0.5}
+    free = {'model': 'delay-free', 'duration': 0.5 if quick else 2.0}
+    for key, params in (
+            ('fractional', fom), ('fractional, hosted', {**fom, **HOSTED}),
+            ('delay-free', free), ('delay-free, hosted', {**free, **HOSTED}),
+            ('delay-free, 1 step/sample', {'model': 'delay-free', 'control_period': 1e-5,
+                                           'duration': 0.1 if quick else 0.3,
+                                           'profile': 1})):
+        s = run_plant(domains, {'mode': 'lockstep', **params}, timeout=900.0)
+        s['ratio_to_echo'] = s['samples_per_second'] / rate
+        s['cost_over_round_trip_us'] = 1e6 / s['samples_per_second'] - 1e6 / rate
+        out[key] = s
+        print(f"lockstep  {key:26s} T={s['control_period']:g} s: "
+              f"{s['samples_per_second']:.0f} samples/s ({s['ratio_to_echo']:.2f} of the echo), "
+              f"solver {s['solver']}, plant CPU {s['cpu_per_sample_us']:.0f} us/sample over "
+              f"{s['t']:g} s simulated", flush=True)
+        if 'profile' in s:
+            print('          mean us per call: ' + ', '.join(
+                f"{k} {v['mean_us']:.1f}" for k, v in s['profile'].items() if v['calls']),
+                flush=True)
+    return out
+
+
+def _realtime_params(model: str, period: float, sim_time: float, **extra) -> dict:
+    return {'model': model, 'mode': 'realtime', 'control_period': period,
+            'duration': sim_time, 'real_time_factor': 1.0, **MODEL_PARAMS[model], **extra}
+
+
+def case_realtime(domains: Domains, sim_time: float) -> list[dict]:
+    """External node and hosted law, real time, 1e-4 s and 1e-3 s, each model."""
+    runs = []
+    for model in MODELS:
+        for period in (1e-4, 1e-3):
+            for how, extra in (('external', {}), ('hosted', HOSTED)):
+                s = run_plant(domains, _realtime_params(model, period, sim_time, **extra),
+                              timeout=900.0)
+                s['how'] = how
+                runs.append(s)
+                print(_realtime_line(f'{model:10s} T={period:g} s {how:8s}', s), flush=True)
+    return runs
+
+
+def case_margin(domains: Domains, sim_time: float) -> list[dict]:
+    """The hosted law at real_time_factor 2, 1e-4 s: the margin."""
+    runs = []
+    for model in MODELS:
+        s = run_plant(domains, _realtime_params(model, 1e-4, sim_time, real_time_factor=2.0,
+                                                **HOSTED), timeout=900.0)
+        runs.append(s)
+        print(_realtime_line(f'{model:10s} T=1e-4 s hosted, real_time_factor 2', s),
+              flush=True)
+    return runs
+
+
+#: Control periods the external-node search tries, shortest first (multiples of the FOM's
+#: 2e-5 s step): 10 kHz down to 1 kHz.
+RATE_LADDER = (1e-4, 1.4e-4, 2e-4, 3e-4, 5e-4, 1e-3)
+
+
+def case_external_rate(domains: Domains, sim_time: float) -> dict:
+    """The shortest period of :data:`RATE_LADDER` at which the FOM with the external node
+    runs the whole ``sim_time`` in real time with misses <= 1 % and no lag stop."""
+    tried = []
+    best = None
+    for period in RATE_LADDER:
+        s = run_plant(domains, _realtime_params('fractional', period, sim_time),
+                      timeout=900.0)
+        ok = s['exit_code'] == 0 and s['deadline_miss_rate'] <= 0.01
+        tried.append({'control_period': period, 'sustained': ok, 'summary': s})
+        print(_realtime_line(f'search    fractional T={period:g} s external', s)
+              + (' -> sustained' if ok else ''), flush=True)
+        if ok:
+            best = period
+            break
+    if best is None:
+        print('search    no period of the ladder sustained real time', flush=True)
+    else:
+        print(f'search    highest external-node rate sustained: {1 / best:.0f} Hz '
+              f'(control_period {best:g} s)', flush=True)
+    return {'ladder': list(RATE_LADDER), 'tried': tried, 'best_period': best,
+            'best_rate_hz': 1.0 / best if best else None}
+
+
+def case_inplant_recording(domains: Domains, sim_time: float) -> dict | None:
+    """The hosted plant at 1e-4 s recorded in-plant (``record:=PATH``) against unrecorded:
+    RTF, misses and the bag's message counts. Slot for issue 20, item 2 (in-plant recording,
+    another change): returns None (not measured) until the plant has ``record``."""
+    print('inplant   in-plant recorded vs unrecorded: not measured in this run (no record '
+          'parameter in this plant yet)', flush=True)
+    return None
+
+
+def case_profile(domains: Domains, quick: bool) -> dict:
+    """Profiled real-time runs at 1e-4 s, hosted and external, each model."""
+    profiles = {}
+    for model in MODELS:
+        for how, extra in (('hosted', HOSTED), ('external', {})):
+            params = _realtime_params(model, 1e-4, 0.5 if quick else 2.0, profile=1, **extra)
+            s = run_plant(domains, params, timeout=900.0)
+            profiles[f'{model}, {how}'] = s
+            parts = ', '.join(f"{k} {v['mean_us']:.1f}" for k, v in s['profile'].items()
+                              if v['calls'])
+            print(f"profile   {model:10s} {how:8s} T=1e-4 s realtime, mean us per call: "
+                  f"{parts}; plant CPU {s['cpu_per_sample_us']:.0f} us/sample", flush=True)
+    return profiles
+
+
+def case_fifo(domains: Domains, sim_time: float) -> list[dict]:
+    """The 1e-3 s external runs with the plant's thread under SCHED_FIFO (realtime_priority),
+    where the machine permits it: how much of the misses are scheduling stalls. (At 1e-4 s a
+    FIFO plant starved the controller process on 2 cores.)"""
+    if not _rt_priority_permitted():
+        print('realtime  (SCHED_FIFO not permitted here: no realtime_priority runs)')
+        return []
+    runs = []
+    for model in MODELS:
+        s = run_plant(domains, _realtime_params(model, 1e-3, sim_time, realtime_priority=50),
+                      timeout=900.0)
+        runs.append(s)
+        print(_realtime_line(f'{model:10s} T=0.001 s external, realtime_priority 50', s),
+              flush=True)
+    return runs
+
+
+def targets(sim_time: float, lockstep: dict, realtime: list[dict], margin: list[dict],
+            rate: dict, inplant: dict | None) -> list[dict]:
+    rows = []
+    for s in realtime:
+        name = f"realtime {s['model']} T={s['control_period']:g} s {s['how']}"
+        if s['how'] == 'hosted' and s['control_period'] < 5e-4:
+            rows.append(_row(f'{name}: achieved real-time factor',
+                             s['achieved_real_time_factor'], '>= 0.999',
+                             s['achieved_real_time_factor'] >= 0.999))
+            rows.append(_row(f'{name}: deadline misses', 100 * s['deadline_miss_rate'],
+                             '<= 0.1 %', s['deadline_miss_rate'] <= 0.001, '{:.2f} %'))
+            rows.append(_row(f'{name}: plant CPU / control period', s['cpu_share_of_period'],
+                             '<= 0.35', s['cpu_share_of_period'] <= 0.35, '{:.2f}'))
+        elif s['how'] == 'external' and s['control_period'] >= 5e-4:
+            rows.append(_row(f'{name}: deadline misses', 100 * s['deadline_miss_rate'],
+                             '<= 0.1 %', s['deadline_miss_rate'] <= 0.001, '{:.3f} %'))
+            rows.append(_row(f'{name}: ran {sim_time:g} s, no lag stop', s['t'],
+                             'completes', s['exit_code'] == 0, 'to t={:g} s'))
+    for s in margin:
+        rows.append(_row(f"hosted {s['model']} T=1e-4 s real_time_factor 2: misses",
+                         100 * s['deadline_miss_rate'], '<= 1 %',
+                         s['deadline_miss_rate'] <= 0.01, '{:.2f} %'))
+    best = rate['best_rate_hz']
+    rows.append(_row('highest external-node rate sustained (FOM)', best or 0.0, 'printed',
+                     True, '{:.0f} Hz'))
+    fom = lockstep['fractional']
+    rows.append(_row('lockstep FOM external node / bare DDS round trips',
+                     fom['ratio_to_echo'], '>= 0.85', fom['ratio_to_echo'] >= 0.85, '{:.2f}'))
+    if inplant is None:
+        rows.append(_row('in-plant recorded vs unrecorded (issue 20, item 2)', float('nan'),
+                         'measured', False, 'not run'))
+    return rows
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--out', type=Path, default=Path('bench/results/ros.json'))
@@ -173,116 +379,37 @@ def main() -> int:
     sim_time = 1.0 if a.quick else 10.0
     domains = Domains()
     started = time.monotonic()
+    load_start = os.getloadavg()
 
-    echo_count = 5000 if a.quick else 20000
-    echo = run_echo(domains, echo_count)
-    print(f"echo      bare DDS round trip: {echo['round_trips_per_second']:.0f} round trips/s "
-          f"({1e6 / echo['round_trips_per_second']:.0f} us each, {echo['round_trips']})",
-          flush=True)
+    echo = case_echo(domains, a.quick)
+    lockstep = case_lockstep(domains, a.quick, echo)
+    realtime = case_realtime(domains, sim_time)
+    margin = case_margin(domains, sim_time)
+    rate = case_external_rate(domains, sim_time)
+    inplant = case_inplant_recording(domains, sim_time)
+    profiles = case_profile(domains, a.quick)
+    fifo = case_fifo(domains, sim_time)
 
-    lockstep = {}
-    # the product's cases (default solver and step), then the node-side cost alone: one RK4
-    # step per sample (control_period = step), profiled
-    for key, params in (
-            ('fractional', {'model': 'fractional', 'duration': 0.2 if a.quick else 0.5}),
-            ('delay-free', {'model': 'delay-free', 'duration': 0.5 if a.quick else 2.0}),
-            ('delay-free, 1 step/sample', {'model': 'delay-free', 'control_period': 1e-5,
-                                           'duration': 0.1 if a.quick else 0.3,
-                                           'profile': 1})):
-        s = run_plant(domains, {'mode': 'lockstep', **params}, timeout=900.0)
-        rate = echo['round_trips_per_second']
-        s['ratio_to_echo'] = s['samples_per_second'] / rate
-        s['cost_over_round_trip_us'] = 1e6 / s['samples_per_second'] - 1e6 / rate
-        lockstep[key] = s
-        print(f"lockstep  {key:11s} T={s['control_period']:g} s: "
-              f"{s['samples_per_second']:.0f} samples/s ({s['ratio_to_echo']:.2f} of the echo, "
-              f"{s['cost_over_round_trip_us']:+.0f} us/sample over it), solver {s['solver']}, "
-              f"plant CPU {s['cpu_per_sample_us']:.0f} us/sample over {s['t']:g} s simulated",
-              flush=True)
-        if 'profile' in s:
-            print('          mean us per call: ' + ', '.join(
-                f"{k} {v['mean_us']:.1f}" for k, v in s['profile'].items()), flush=True)
-
-    realtime = []
-    for model in MODELS:
-        for period in (1e-4, 1e-3):
-            params = {'model': model, 'mode': 'realtime', 'control_period': period,
-                      'duration': sim_time, 'real_time_factor': 1.0, **MODEL_PARAMS[model]}
-            s = run_plant(domains, params, timeout=900.0)
-            realtime.append(s)
-            print(f"realtime  {model:11s} T={period:g} s: achieved RTF "
-                  f"{s['achieved_real_time_factor']:.3f}, deadline misses "
-                  f"{s['deadline_misses']}/{s['samples_paced']} "
-                  f"({100 * s['deadline_miss_rate']:.2f} %), slips {s['slips']}, plant CPU "
-                  f"{s['cpu_per_sample_us']:.0f} us/sample, controller CPU "
-                  f"{s.get('controller_cpu_per_sample_us', float('nan')):.0f} us/sample, worst "
-                  f"lateness {1e3 * s['worst_lateness']:.1f} ms", flush=True)
-
-    # the 1e-3 s runs with the plant's thread under SCHED_FIFO (realtime_priority), where the
-    # machine permits it: how much of the misses are scheduling stalls of the process. (At
-    # 1e-4 s a FIFO plant starved the controller process on 2 cores: its commands lagged by
-    # milliseconds and the closed loop left the physical bounds.)
-    fifo = []
-    if _rt_priority_permitted():
-        for model in MODELS:
-            for period in (1e-3,):
-                params = {'model': model, 'mode': 'realtime', 'control_period': period,
-                          'duration': sim_time, 'real_time_factor': 1.0,
-                          'realtime_priority': 50, **MODEL_PARAMS[model]}
-                s = run_plant(domains, params, timeout=900.0)
-                fifo.append(s)
-                print(f"realtime  {model:11s} T={period:g} s, realtime_priority 50: achieved "
-                      f"RTF {s['achieved_real_time_factor']:.3f}, deadline misses "
-                      f"{s['deadline_misses']}/{s['samples_paced']} "
-                      f"({100 * s['deadline_miss_rate']:.2f} %), worst lateness "
-                      f"{1e3 * s['worst_lateness']:.1f} ms", flush=True)
-    else:
-        print('realtime  (SCHED_FIFO not permitted here: no realtime_priority runs)')
-
-    profiles = {}
-    for model in MODELS:
-        params = {'model': model, 'mode': 'realtime', 'control_period': 1e-4,
-                  'duration': 0.5 if a.quick else 2.0, 'profile': 1, **MODEL_PARAMS[model]}
-        s = run_plant(domains, params, timeout=900.0)
-        profiles[model] = s
-        parts = ', '.join(f"{k} {v['mean_us']:.1f}" for k, v in s['profile'].items())
-        print(f"profile   {model:11s} T=1e-4 s realtime, mean us per call: {parts}; "
-              f"plant CPU {s['cpu_per_sample_us']:.0f} us/sample", flush=True)
-
-    targets = []
-    for s in realtime:
-        name = f"realtime {s['model']} T={s['control_period']:g} s"
-        if s['exit_code'] != 0:
-            targets.append(_row(f'{name}: ran the whole {sim_time:g} s', s['t'], 'completes',
-                                False, 'stopped {:g} s'))
-        if s['control_period'] < 5e-4:
-            targets.append(_row(f'{name}: achieved real-time factor',
-                                s['achieved_real_time_factor'], '>= 0.99',
-                                s['achieved_real_time_factor'] >= 0.99))
-            targets.append(_row(f'{name}: deadline misses', 100 * s['deadline_miss_rate'],
-                                '<= 1 %', s['deadline_miss_rate'] <= 0.01, '{:.2f} %'))
-        else:
-            targets.append(_row(f'{name}: deadline misses', 100 * s['deadline_miss_rate'],
-                                '<= 0.1 %', s['deadline_miss_rate'] <= 0.001, '{:.3f} %'))
-    fom = lockstep['fractional']
-    targets.append(_row('lockstep FOM samples/s / bare DDS round trips/s',
-                        fom['ratio_to_echo'], '>= 0.80', fom['ratio_to_echo'] >= 0.80,
-                        '{:.2f}'))
-
-    print('\nissue 11 targets (this run):')
-    width = max(len(r['target']) for r in targets)
+    rows = targets(sim_time, lockstep, realtime, margin, rate, inplant)
+    print(f"\nissue 20 targets (this run; bare DDS echo {echo['round_trips_per_second']:.0f} "
+          'round trips/s here: scale by it for another machine):')
+    width = max(len(r['target']) for r in rows)
     print(f"  {'target':{width}s}  {'measured':>10s}  {'goal':>9s}  result")
-    for r in targets:
+    for r in rows:
         print(f"  {r['target']:{width}s}  {r['text']:>10s}  {r['goal']:>9s}  "
               f"{'pass' if r['pass'] else 'FAIL'}")
+    print(f'load average at start {load_start[0]:.2f}, at end {os.getloadavg()[0]:.2f} '
+          f'({os.cpu_count()} CPUs)')
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps({
         'benchmark': 'ros graph', 'machine': platform.platform(), 'cpus': os.cpu_count(),
-        'python': sys.version.split()[0], 'quick': a.quick,
+        'python': sys.version.split()[0], 'quick': a.quick, 'load_avg_start': load_start,
+        'load_avg_end': os.getloadavg(),
         'simulated_time_realtime': sim_time, 'wall_time': time.monotonic() - started,
-        'echo': echo, 'lockstep': lockstep, 'realtime': realtime,
+        'echo': echo, 'lockstep': lockstep, 'realtime': realtime, 'margin': margin,
+        'external_rate': rate, 'inplant_recording': inplant,
         'realtime_priority_50': fifo, 'profile': profiles,
-        'targets': targets}, indent=2) + '\n')
+        'targets': rows}, indent=2) + '\n')
     print(f'wrote {a.out}')
     return 0
 

@@ -7,7 +7,10 @@ prints a summary computed from the bag: dominant frequency and amplitude of w, p
 samples and integration steps, wall time, with the control period and step.
 
     python scripts/demo.py [--model fractional] [--duration 2.0] [--controller state_feedback]
-                           [--bag runs/demo-...]
+                           [--bag runs/demo-...] [--hosted]
+
+``--hosted`` (``make demo DEMO_ARGS=--hosted``): the plant hosts the controller itself
+(``controller:=NAME`` on the plant), so only the plant and the recorder run.
 """
 
 from __future__ import annotations
@@ -47,12 +50,12 @@ def command(spec: NodeSpec) -> list[str]:
     return [_exe(spec.package, spec.executable), *ros_args(spec)]
 
 
-def specs(args: argparse.Namespace, bag: Path) -> tuple[NodeSpec, NodeSpec, NodeSpec]:
+def specs(args: argparse.Namespace, bag: Path) -> tuple[NodeSpec, ...]:
     """The nodes of the demo: the launch file's list (fohssv_sim.closed_loop) with the
-    command line's choices."""
+    command line's choices (plant, controller, recorder; plant and recorder when hosted)."""
     return closed_loop(controller=args.controller, duration=args.duration, bag_path=str(bag),
                        plant={'model': args.model, 'fractional_order': args.alpha,
-                              'speed': args.speed})
+                              'speed': args.speed}, **({'hosted': True} if args.hosted else {}))
 
 
 def parser() -> argparse.ArgumentParser:
@@ -62,6 +65,8 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument('--speed', type=float, default=DEMO_PLANT['speed'])
     ap.add_argument('--duration', type=float, default=DEFAULT_DURATION)
     ap.add_argument('--controller', default=DEFAULT_CONTROLLER)
+    ap.add_argument('--hosted', action='store_true',
+                    help='the plant hosts the controller (no controller node)')
     ap.add_argument('--timeout', type=float, default=600.0, help='wall-clock limit (s)')
     ap.add_argument('--bag', type=Path, default=None,
                     help='bag folder to record (default runs/demo-<UTC time>)')
@@ -78,6 +83,17 @@ def dominant_frequency(t: np.ndarray, x: np.ndarray, pad: int = 16) -> float:
     return float(freqs[int(np.argmax(spec))])
 
 
+def _stop(proc: subprocess.Popen | None) -> None:
+    """SIGINT to the controller node (none when hosted), SIGKILL after 10 s."""
+    if proc is None:
+        return
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+
+
 def main() -> int:
     args = parser().parse_args()
     stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%SZ')
@@ -91,10 +107,14 @@ def main() -> int:
                PYTHONUNBUFFERED='1')
     # plant, controller, recorder: the launch file's nodes and parameters (closed_loop.py:
     # the settings that make the bag complete are explained there)
-    plant_cmd, ctl_cmd, rec_cmd = (command(s) for s in specs(args, bag))
+    nodes = [command(s) for s in specs(args, bag)]
+    plant_cmd, rec_cmd = nodes[0], nodes[-1]
+    ctl_cmd = nodes[1] if len(nodes) == 3 else None
+    what = (f'hosting controller {args.controller!r}, and recorder as two' if ctl_cmd is None
+            else f'controller {args.controller!r} and recorder as three')
     print(f'demo: plant ({args.model}, alpha={args.alpha:g}, V={args.speed:g} m/s, x(0)=0, '
-          f'lockstep, {args.duration:g} s), controller {args.controller!r} and recorder as '
-          f'three processes, ROS_DOMAIN_ID={domain}', flush=True)
+          f'lockstep, {args.duration:g} s), {what} processes, ROS_DOMAIN_ID={domain}',
+          flush=True)
     print(f'demo: recording to {bag}', flush=True)
     bag.parent.mkdir(parents=True, exist_ok=True)
     rec_log = bag.parent / f'{bag.name}.recorder.log'
@@ -108,8 +128,9 @@ def main() -> int:
             return 1
         time.sleep(0.05)
     wall0 = time.monotonic()
-    ctl = subprocess.Popen(ctl_cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                           text=True, start_new_session=True)
+    ctl = None if ctl_cmd is None else subprocess.Popen(
+        ctl_cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        start_new_session=True)
     plant = subprocess.Popen(plant_cmd, env=env, stdout=subprocess.PIPE,
                              stderr=subprocess.STDOUT, text=True, start_new_session=True)
     plant_out: list[str] = []
@@ -141,14 +162,10 @@ def main() -> int:
             except subprocess.TimeoutExpired:
                 recorder.kill()
                 rec_code = -9
-        ctl.send_signal(signal.SIGINT)
-        try:
-            ctl.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            ctl.kill()
+        _stop(ctl)
     if code != 0:
         print(f'demo: plant exited with code {code}', file=sys.stderr)
-        print(ctl.stdout.read(), file=sys.stderr)
+        print(ctl.stdout.read() if ctl is not None else '', file=sys.stderr)
         return 1
     if rec_code != 0:
         print(f'demo: recorder exited with code {rec_code}: {rec_log.read_text()}',
@@ -170,7 +187,8 @@ def main() -> int:
     amp = 0.5 * (w[half].max() - w[half].min())
     print()
     print(f'closed loop through ROS 2: {args.model}, alpha={args.alpha:g}, V={args.speed:g} '
-          f'm/s, controller {args.controller}')
+          f'm/s, controller {args.controller}' + (' (hosted in the plant)' if args.hosted
+                                                     else ''))
     print(f'  integration step        {summary.get("step", float("nan")):g} s '
           f'({summary.get("solver", "?")})')
     print(f'  control period (ZOH)    {summary.get("control_period", float("nan")):g} s')

@@ -66,11 +66,12 @@ def test_launch_file_starts_the_shared_node_list_and_stops_with_the_plant():
                   and getattr(n.targets[0], 'id', None) == 'ARGUMENTS')
     arguments = eval(compile(ast.Expression(assign.value), str(LAUNCH), 'eval'),  # noqa: S307
                      {'DEFAULT_CONTROLLER': cl.DEFAULT_CONTROLLER,
-                      'DEFAULT_DURATION': cl.DEFAULT_DURATION, 'str': str, 'float': float})
+                      'DEFAULT_DURATION': cl.DEFAULT_DURATION, 'str': str, 'float': float,
+                      'flag': cl.flag})
     signature = inspect.signature(cl.closed_loop).parameters
     for name, (default, kind, _) in arguments.items():
         assert kind(default) == kind(signature[name].default), name
-    assert set(arguments) == {'controller', 'duration', 'bag_path'}
+    assert set(arguments) == {'controller', 'duration', 'bag_path', 'hosted'}
     assert len(_calls(tree, 'DeclareLaunchArgument')) == 1   # in a loop over ARGUMENTS
     # the plant's exit shuts the launch down
     (handler,) = _calls(tree, 'OnProcessExit')
@@ -146,6 +147,36 @@ def test_the_node_list_runs_to_a_complete_bag_with_its_parameters(tmp_path):
     # every sample and every command (the answer to the last sample may be recorded too)
     assert len(run.t) == 501 and np.array_equal(run.command_t[:500], run.t[:500])
     assert run.topics['/pose'] == run.topics['/twist'] == 6     # t = 0, 0.01, ..., 0.05
+
+
+@pytest.mark.graph
+def test_the_hosted_node_list_runs_to_a_complete_bag(tmp_path):
+    """The hosted variant (``hosted:=true``, ``--hosted``): the plant hosting eq. 31 and the
+    recorder, no controller node. The bag is complete by the recorder's run_end check: every
+    sample, and one command per sample but the last (t = the answered sample), equal to the
+    batch runner's trajectory."""
+    bag = tmp_path / 'run'
+    specs = cl.closed_loop(duration=0.05, bag_path=str(bag), hosted=True)
+    assert [s.executable for s in specs] == ['plant', 'recorder']
+    assert specs[0].parameters['controller'] == 'state_feedback'
+    env = rosproc.ros_env()
+    rec = rosproc.start(specs[1].package, specs[1].executable, cl.ros_args(specs[1]), env=env,
+                        log=tmp_path / 'recorder.log')
+    plant = rosproc.start(specs[0].package, specs[0].executable, cl.ros_args(specs[0]),
+                          env=env, log=tmp_path / 'plant.log')
+    try:
+        assert rosproc.wait_exit(plant, 120) == 0, (tmp_path / 'plant.log').read_text()
+        assert rosproc.wait_exit(rec, 60) == 0, (tmp_path / 'recorder.log').read_text()
+    finally:
+        rosproc.stop(plant)
+        rosproc.stop(rec)
+    run = load_run(bag)
+    assert check(bag).ok and not run.truncated
+    assert len(run.t) == 501 and run.topics['/command'] == 500
+    assert np.array_equal(run.command_t, run.t[:500])
+    ref, _ = batch_samples('fractional', StateFeedback(), 0.05, fractional_order=0.85,
+                           speed=75.0)
+    assert np.max(np.abs(run.state - ref[:, 1:])) <= 1e-12
 
 
 def _walkthrough() -> str:

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 __all__ = ['NodeSpec', 'closed_loop', 'DEMO_PLANT', 'DEFAULT_CONTROLLER', 'DEFAULT_DURATION',
-           'ros_args']
+           'ros_args', 'flag']
 
 #: The demo's plant parameters (besides ``duration`` and the start settings).
 DEMO_PLANT: dict[str, Any] = {
@@ -45,18 +45,32 @@ class NodeSpec:
     parameters: dict[str, Any] = field(default_factory=dict)
 
 
+def flag(value: Any) -> bool:
+    """A launch argument or command-line switch as a bool: 'true' (any case), '1', 'yes' or
+    True."""
+    return str(value).strip().lower() in ('true', '1', 'yes')
+
+
 def closed_loop(controller: Any = DEFAULT_CONTROLLER, duration: Any = DEFAULT_DURATION,
-                bag_path: Any = '', plant: dict[str, Any] | None = None
-                ) -> tuple[NodeSpec, NodeSpec, NodeSpec]:
-    """The plant, the controller and the recorder of the closed loop.
+                bag_path: Any = '', plant: dict[str, Any] | None = None,
+                hosted: bool = False) -> tuple[NodeSpec, ...]:
+    """The plant, the controller and the recorder of the closed loop; with ``hosted`` the
+    plant and the recorder only, the plant hosting the law itself (its ``controller``
+    parameter): no controller node, no DDS in the loop.
 
     Args:
         controller: the ``controller`` parameter of the generic controller node (a plugin
-            name of the group ``fohssv.controllers``).
+            name of the group ``fohssv.controllers``), or of the plant when ``hosted``.
         duration: simulated seconds the plant runs before it exits 0.
         bag_path: the recorder's ``bag_path`` ('' = ``runs/<UTC time>``).
         plant: plant parameters replacing :data:`DEMO_PLANT` entries (e.g. another model).
+        hosted: the law in the plant (the same ``min_state_subscribers``: the hosted law
+            counts as one, so the plant waits for the recorder).
     """
+    if hosted:
+        spec_plant, _, spec_recorder = closed_loop(controller, duration, bag_path, plant)
+        return (NodeSpec(spec_plant.package, spec_plant.executable, spec_plant.name,
+                         {**spec_plant.parameters, 'controller': controller}), spec_recorder)
     return (
         NodeSpec('fohssv_sim', 'plant', 'plant', {
             **DEMO_PLANT, **(plant or {}), 'duration': duration,

@@ -201,8 +201,7 @@ class Pacer:
 
 #: The per-sample costs :class:`Profile` measures, in the order of its ``ns`` accumulators.
 PROFILE_PARTS = ('advance', 'write_sample', 'publish_state', 'publish_planing_force',
-                 'publish_clock', 'command_callback', 'publish_views', 'hosted_law',
-                 'publish_command')
+                 'publish_clock', 'command_callback', 'publish_views', 'hosted_law')
 
 
 @dataclass
@@ -224,11 +223,20 @@ class Profile:
         if ns > self.worst[part]:
             self.worst[part] = ns
 
+    def add_more(self, part: int, ns: int) -> None:
+        """More cost of the last call of ``part``, paid at a later sample (a view's messages
+        go out one per sample): the mean is per call, the worst per sample."""
+        self.ns[part] += ns
+        if ns > self.worst[part]:
+            self.worst[part] = ns
+
     def summary(self) -> dict[str, dict[str, float]]:
-        """Per part: mean and worst cost in microseconds and the number of calls."""
-        return {name: {'mean_us': self.ns[i] / self.calls[i] / 1e3 if self.calls[i] else 0.0,
+        """Per part that ran (``command_callback`` with an external controller,
+        ``hosted_law``, the law and the publishing of its command, with a hosted one): mean
+        and worst cost in microseconds and the number of calls."""
+        return {name: {'mean_us': self.ns[i] / self.calls[i] / 1e3,
                        'worst_us': self.worst[i] / 1e3, 'calls': self.calls[i]}
-                for i, name in enumerate(PROFILE_PARTS)}
+                for i, name in enumerate(PROFILE_PARTS) if self.calls[i]}
 
 
 def _affine_command(name: str, law: AffineLaw):

@@ -315,7 +315,6 @@ def run_chunks(out: Path, sidecar_name: str, sidecar: dict[str, Any],
         ValueError: ``out`` holds a different job (the message says how to proceed).
     """
     out.mkdir(parents=True, exist_ok=True)
-    (out / 'chunks').mkdir(exist_ok=True)
     side_path = out / sidecar_name
     if side_path.exists():
         old = json.loads(side_path.read_text())
@@ -324,6 +323,7 @@ def run_chunks(out: Path, sidecar_name: str, sidecar: dict[str, Any],
                              '--out or delete that folder')
     else:
         side_path.write_text(json.dumps(sidecar, indent=2) + '\n')
+    (out / 'chunks').mkdir(exist_ok=True)
 
     todo = [k for k in range(len(chunks)) if not chunk_path(out, k).exists()]
     reused = len(chunks) - len(todo)

@@ -70,9 +70,9 @@ def cmd_stability(args: argparse.Namespace) -> int:
                 'gains': gains, 'speeds': None if speeds is None else
                 [float(v) for v in speeds]}
     slug = f"V{params.speed:g}_alpha{alpha:g}{'_speeds' if speeds is not None else ''}"
-    args.out = resolve_output(args, 'stability', slug, identity, files=['stability.json'])
     with computing('the equilibrium search', given):
         eqs = find_equilibria(params, controller)
+    args.out = resolve_output(args, 'stability', slug, identity, files=['stability.json'])
     result: dict[str, Any] = {'speed': params.speed, 'alpha': alpha,
                               'planing_form': params.planing_form,
                               'controller': controller.describe(), 'equilibria': []}

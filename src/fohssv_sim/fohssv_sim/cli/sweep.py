@@ -144,9 +144,9 @@ def build_spec(args: argparse.Namespace):
     check_chunk_size(args.chunk_size)
     check_dask_options(args)
     alphas, speeds = _grids(args, base)
+    _check_sizes(args, base, len(alphas) * len(speeds))
     for v in speeds:
         model_params(args, speed=v)          # the coefficients exist at every V
-    _check_sizes(args, base, len(alphas) * len(speeds))
     values = base.to_dict()
     values.pop('fractional_order')
     values.pop('speed')

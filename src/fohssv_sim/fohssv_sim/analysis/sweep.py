@@ -37,6 +37,7 @@ import sys
 import threading
 import time
 import uuid
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -314,7 +315,6 @@ def run_chunks(out: Path, sidecar_name: str, sidecar: dict[str, Any],
         ValueError: ``out`` holds a different job (the message says how to proceed).
     """
     out.mkdir(parents=True, exist_ok=True)
-    (out / 'chunks').mkdir(exist_ok=True)
     side_path = out / sidecar_name
     if side_path.exists():
         old = json.loads(side_path.read_text())
@@ -323,6 +323,7 @@ def run_chunks(out: Path, sidecar_name: str, sidecar: dict[str, Any],
                              '--out or delete that folder')
     else:
         side_path.write_text(json.dumps(sidecar, indent=2) + '\n')
+    (out / 'chunks').mkdir(exist_ok=True)
 
     todo = [k for k in range(len(chunks)) if not chunk_path(out, k).exists()]
     reused = len(chunks) - len(todo)
@@ -341,8 +342,12 @@ def run_chunks(out: Path, sidecar_name: str, sidecar: dict[str, Any],
             client = Client(scheduler, timeout='20s')
         else:
             n = workers or os.cpu_count() or 1
-            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                   dashboard_address=None)
+            with warnings.catch_warnings():
+                # its HTTP server (health, metrics: no dashboard here) takes another port
+                # when 8787 is taken, and says so on stderr: noise for a sweep
+                warnings.filterwarnings('ignore', message='Port .* is already in use')
+                cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                       dashboard_address=None)
             client = Client(cluster)
         topic = f'fohssv-chunks-{uuid.uuid4().hex}'
         slot = {k: i for i, k in enumerate(todo)}

@@ -153,10 +153,17 @@ def _rename_in_metadata(meta: Path, old: str, new: str) -> None:
         yaml.dump(data, out)
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """Usage errors in one line (exit 2), as every fohssv command gives them."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f'usage: {self.prog} BAG [--no-backup] [--force]: {message}\n')
+
+
 def main_repair(argv: Sequence[str] | None = None) -> int:
     """``repair BAG [--no-backup] [--force]``: exit 0 when repaired or nothing to do, 1 with a
     one-line error on stderr when the path is not a repairable bag."""
-    parser = argparse.ArgumentParser(
+    parser = _OneLineParser(
         prog='python -m fohssv_sim.bag repair',
         description='Rebuild the MCAP index/summary and metadata.yaml of a bag whose recorder '
                     'was killed, from every complete chunk.')

@@ -11,17 +11,27 @@ Model parameters are set with ``--set name=value`` (repeatable; names as in the 
 parameter table) and ``--preset paper-literal``; the controller with ``--controller NAME``
 (a plugin of group ``fohssv.controllers``) and ``--gain name=value``. Errors print one line;
 nothing prints a traceback for bad input. Exit status: 0 done, 1 a bag that is missing,
-unreadable or not sound (every bag command alike), 2 any other bad input, 130 interrupted.
+unreadable or not sound (every bag command alike), 2 any other bad input, 70 an internal
+error (a defect: one line; ``FOHSSV_TRACEBACK=1`` shows the traceback), 130 interrupted.
+Outputs go to ``reports/<command>/<job>`` unless ``--out`` names a folder.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Sequence
 
 from . import gainmap, plot, report, stability, sweep
-from .common import EXIT_INTERRUPTED, CliError, load_controller, parse_range
+from .common import (
+    EXIT_INTERNAL,
+    EXIT_INTERRUPTED,
+    CliError,
+    OneLineParser,
+    load_controller,
+    parse_range,
+)
 
 __all__ = ['main', 'build_parser', 'load_controller', 'parse_range']
 
@@ -30,7 +40,7 @@ COMMANDS = (stability, plot, sweep, gainmap, report)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog='fohssv', description='FO-HSSV analysis: stability, '
+    ap = OneLineParser(prog='fohssv', description='FO-HSSV analysis: stability, '
                                  'orbit diagrams, plots of recorded runs, the paper report.')
     sub = ap.add_subparsers(dest='command', required=True)
     for command in COMMANDS:
@@ -48,3 +58,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f'fohssv {args.command}: interrupted', file=sys.stderr)
         return EXIT_INTERRUPTED
+    except MemoryError:
+        print(f'fohssv {args.command}: error: out of memory (give smaller grids or shorter '
+              'runs)', file=sys.stderr)
+        return EXIT_INTERNAL
+    except Exception as e:  # noqa: BLE001 - a defect still ends in one line
+        if os.environ.get('FOHSSV_TRACEBACK'):
+            raise
+        text = ' '.join(str(e).split())[:300]
+        print(f'fohssv {args.command}: internal error: {type(e).__name__}: {text} (a defect; '
+              'FOHSSV_TRACEBACK=1 shows the traceback)', file=sys.stderr)
+        return EXIT_INTERNAL

@@ -14,11 +14,20 @@ from .common import (
     CliError,
     add_common_options,
     assignments,
+    bounded,
+    check_chunk_memory,
+    check_chunk_size,
+    check_grid,
+    check_run_steps,
+    job_folder,
+    job_name,
     model_params,
+    out_given,
     output_dir,
+    parameter_type,
     parse_range,
 )
-from .sweep import dask_options, run_on_dask
+from .sweep import check_dask_options, dask_options, run_on_dask
 
 
 def register(sub) -> None:
@@ -38,23 +47,29 @@ def register(sub) -> None:
                    'pitch_rate_gain=-1:0:0.1')
     p.add_argument('--y', required=True, metavar='NAME=VALUES', help='second gain, as --x')
     p.add_argument('--model', help='model (default: the model parameter, fractional)')
-    p.add_argument('--alpha', type=float, help='fractional order (default: the '
-                   'fractional_order parameter, 0.85)')
-    p.add_argument('--speed', type=float, help='V in m/s (default: the speed parameter, 75)')
-    p.add_argument('--duration', type=float, default=2.0, help='s per run (default 2)')
-    p.add_argument('--transient', type=float, default=1.5,
+    p.add_argument('--alpha', type=parameter_type('fractional_order', '--alpha'),
+                   help='fractional order (default: the fractional_order parameter, 0.85)')
+    p.add_argument('--speed', type=parameter_type('speed', '--speed'),
+                   help='V in m/s (default: the speed parameter, 75)')
+    p.add_argument('--duration', type=bounded('--duration', low=0, low_open=True, unit='s'),
+                   default=2.0, help='s per run (default 2)')
+    p.add_argument('--transient', type=bounded('--transient', low=0, unit='s'), default=1.5,
                    help='s before the classification window (default 1.5)')
-    p.add_argument('--control-period', type=float, default=1e-4,
+    p.add_argument('--control-period', type=bounded('--control-period', low=0, unit='s'),
+                   default=1e-4,
                    help='zero-order hold period in s (default 1e-4, the plant\'s); 0 = '
                    'continuous feedback (stateless controllers only)')
-    p.add_argument('--settle-band', type=float, default=0.02,
+    p.add_argument('--settle-band', type=bounded('--settle-band', low=0, low_open=True,
+                                                 high=1, meaning='relative band'),
+                   default=0.02,
                    help='settled when |w - w*| <= band * max(|w*|, 0.1 m/s) (default 0.02)')
     p.add_argument('--envelope-speeds', metavar='VALUES',
                    help='worst case over these V (m/s), e.g. 60:120:20')
     p.add_argument('--envelope-alphas', metavar='VALUES',
                    help='worst case over these alpha, e.g. 0.7:1:0.1')
     dask_options(p, 128, 'one batched solver call; larger batches cost less per point')
-    p.add_argument('--check-step', type=int, default=0, metavar='K',
+    p.add_argument('--check-step', type=bounded('--check-step', low=0, integer=True,
+                                                unit='points'), default=0, metavar='K',
                    help='re-run every K-th point at half the step; flag changed outcomes')
     p.set_defaults(func=cmd_gainmap, out=None)
 
@@ -64,8 +79,8 @@ def _axis(text: str, option: str) -> tuple[str, tuple[float, ...]]:
         raise CliError(f'{option} {text!r} must look like NAME=VALUES, e.g. '
                        'pitch_rate_gain=-1:0:0.1')
     name, values = text.split('=', 1)
-    return name.strip(), tuple(round(float(v), 12) for v in parse_range(values,
-                                                                   f'{option} {name}'))
+    return name.strip(), tuple(round(float(v), 12) for v in parse_range(
+        values, f'{option} {name.strip()}'))
 
 
 def build_spec(args: argparse.Namespace):
@@ -80,14 +95,27 @@ def build_spec(args: argparse.Namespace):
     values.pop('speed', None)
     gx, xs = _axis(args.x, '--x')
     gy, ys = _axis(args.y, '--y')
-    env_v = tuple(float(v) for v in parse_range(args.envelope_speeds, '--envelope-speeds')
-                  ) if args.envelope_speeds else ()
-    env_a = tuple(float(v) for v in parse_range(args.envelope_alphas, '--envelope-alphas')
-                  ) if args.envelope_alphas else ()
-    if args.chunk_size < 1:
-        raise CliError(f'--chunk-size={args.chunk_size} must be >= 1')
-    if args.control_period is not None and args.control_period < 0:
-        raise CliError(f'--control-period={args.control_period} s must be >= 0')
+    env_v = tuple(float(v) for v in parse_range(
+        args.envelope_speeds, '--envelope-speeds', parameter='speed', unit='m/s')
+    ) if args.envelope_speeds is not None else ()
+    env_a = tuple(float(v) for v in parse_range(
+        args.envelope_alphas, '--envelope-alphas', parameter='fractional_order')
+    ) if args.envelope_alphas is not None else ()
+    for v in (speed, *env_v):
+        model_params(args, **over, speed=float(v))     # the coefficients exist at every V
+    check_chunk_size(args.chunk_size)
+    check_dask_options(args)
+    if args.transient >= args.duration:
+        raise CliError(f'--transient={args.transient:g} s must be shorter than --duration='
+                       f'{args.duration:g} s')
+    if args.control_period > args.duration:
+        raise CliError(f'--control-period={args.control_period:g} s is longer than the run '
+                       f'(--duration={args.duration:g} s)')
+    steps = check_run_steps('--duration', args.duration, base.step)
+    n_points = len(xs) * len(ys) * max(1, len(env_v) or 1) * max(1, len(env_a) or 1)
+    check_grid('the gain map', n_points, steps)
+    every = max(1, round(args.control_period / base.step)) if args.control_period else 5
+    check_chunk_memory('--chunk-size', min(args.chunk_size, n_points), steps // every + 1)
     spec = GainMapSpec(
         controller=args.controller, gain_x=gx, x_values=xs, gain_y=gy, y_values=ys,
         gains=assignments(args.gain or [], '--gain'), base=values, alpha=float(alpha),
@@ -102,11 +130,17 @@ def build_spec(args: argparse.Namespace):
     return spec
 
 
+def default_folder(spec) -> Path:
+    """``reports/gainmap/<controller>_<gain x>_<gain y>-<hash of the spec>``."""
+    slug = f'{spec.controller}_{spec.gain_x}_{spec.gain_y}'
+    return job_folder('gainmap', job_name(slug, spec.to_dict()))
+
+
 def cmd_gainmap(args: argparse.Namespace) -> int:
     from ..analysis.gainmap import plot_gain_map, run_gain_map, summary_lines
 
     spec = build_spec(args)
-    out: Path = output_dir(args.out or Path('reports') / 'gainmap')
+    out: Path = output_dir(args.out if out_given(args) else default_folder(spec))
     print(f'gainmap {spec.controller}: {spec.gain_x} ({len(spec.x_values)}) x {spec.gain_y} '
           f'({len(spec.y_values)}), {len(spec.scenarios())} scenario(s), {spec.n_points} '
           f'points, {spec.duration:g} s each -> {out}', flush=True)

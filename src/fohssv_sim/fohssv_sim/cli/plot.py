@@ -9,7 +9,19 @@ from pathlib import Path
 from ..analysis.plots import plot_phase_portrait, plot_time_responses, summary
 from ..bag import BagError, load_run
 from ..bag.__main__ import main as bag_main
-from .common import BagInputError, figure_paths, output_dir
+from .common import (
+    BagInputError,
+    CliError,
+    bounded,
+    claim_output,
+    figure_paths,
+    job_folder,
+    job_name,
+    out_given,
+    output_dir,
+    output_file,
+    safe_name,
+)
 
 
 def register(sub) -> None:
@@ -18,9 +30,12 @@ def register(sub) -> None:
                        '3-4) and the w-q phase portrait (Fig. 7); several bags overlay. '
                        'Writes PNG and SVG and a summary JSON per bag.')
     p.add_argument('bags', nargs='+', type=Path, help='rosbag2 folders (or .mcap files)')
-    p.add_argument('--out', type=Path, default=Path('reports'), help='output folder')
-    p.add_argument('--skip', type=float, default=0.0, help='phase portrait from t >= SKIP s')
-    p.add_argument('--name', default='run', help='figure file stem')
+    p.add_argument('--out', type=Path, default=None, help='output folder (default: '
+                   'reports/plot/<bag names>-<hash of the job>)')
+    p.add_argument('--skip', type=bounded('--skip', low=0, unit='s'), default=0.0,
+                   help='phase portrait from t >= SKIP s (default 0)')
+    p.add_argument('--name', default='run', help="figure file stem, a plain name (default "
+                   "'run': run_time.png, run_phase.png, run_summary.json)")
     p.add_argument('--namespace', help="the vehicle's namespace (e.g. /vehicle1) when a bag "
                    'holds several; default: the only state topic, wherever it is')
     p.set_defaults(func=cmd_plot)
@@ -38,7 +53,23 @@ def _delegate(what: str, argv: list[str]) -> int:
     return bag_main([what, *argv])
 
 
+def _output(args: argparse.Namespace, runs) -> Path:
+    """The output folder, claimed for this job (the bags, --skip, --namespace) under the
+    key ``plot:<name>``; its figures are never silently overwritten by another job's."""
+    name = safe_name(args.name)
+    identity = {'bags': [str(Path(b).resolve()) for b in args.bags], 'skip': args.skip,
+                'namespace': args.namespace}
+    folder = args.out if out_given(args) else job_folder('plot', job_name(
+        '+'.join(Path(b).name.removesuffix('.mcap') for b in args.bags)[:60], identity))
+    output_dir(folder)
+    claim_output(folder, f'plot:{name}', identity,
+                 [f'{name}_{k}' for k in ('time.png', 'time.svg', 'phase.png', 'phase.svg',
+                                          'summary.json')])
+    return folder
+
+
 def cmd_plot(args: argparse.Namespace) -> int:
+    safe_name(args.name)
     runs = []
     for bag in args.bags:
         try:
@@ -50,14 +81,18 @@ def cmd_plot(args: argparse.Namespace) -> int:
             where = f' in namespace {args.namespace}' if args.namespace else ''
             raise BagInputError(f'{run.path}: no state messages{where} to plot (topics: '
                                 f"{', '.join(sorted(run.topics)) or 'none'})")
+        if args.skip >= run.t[-1]:
+            raise CliError(f'--skip={args.skip:g} s leaves nothing of {run.path} for the phase '
+                           f'portrait (its states end at t = {run.t[-1]:.6g} s)')
         if run.recovery:
             print(f'{run.path}: {run.recovery}')
-    output_dir(args.out)
-    stem = args.out / args.name
+    out = _output(args, runs)
+    stem = out / args.name
     plot_time_responses(runs, figure_paths(stem.parent / f'{stem.name}_time'))
     plot_phase_portrait(runs, figure_paths(stem.parent / f'{stem.name}_phase'), args.skip)
     summaries = {str(r.path): summary(r) for r in runs}
-    (args.out / f'{args.name}_summary.json').write_text(json.dumps(summaries, indent=2) + '\n')
+    output_file(out, f'{args.name}_summary.json').write_text(
+        json.dumps(summaries, indent=2) + '\n')
     for path, s in summaries.items():
         print(f'{path}: ' + ', '.join(f'{k}={v:.6g}' if isinstance(v, float) else f'{k}={v}'
                                       for k, v in s.items()))

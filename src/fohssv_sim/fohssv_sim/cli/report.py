@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from ..analysis.report import ReportSettings, make_report
-from .common import output_dir
+from .common import check_scheduler, check_workers, claim_output, output_dir
 
 
 def register(sub) -> None:
@@ -18,16 +18,23 @@ def register(sub) -> None:
                        'each with a half-step check, and writes OUT/report.md, OUT/claims.json '
                        'and the figures. Takes tens of minutes on 2 cores at the default '
                        'settings; sweeps resume if interrupted.')
-    p.add_argument('--out', type=Path, default=Path('reports/paper'), help='output folder')
+    p.add_argument('--out', type=Path, default=None, help='output folder (default: '
+                   'reports/paper, with --quick reports/paper-quick)')
     p.add_argument('--quick', action='store_true', help='tiny grid and short runs: a smoke '
                    'test of the pipeline, NOT converged results')
-    p.add_argument('--workers', type=int, default=0, help='local Dask workers (default: cores)')
+    p.add_argument('--workers', type=int, default=0, help='local Dask workers (default 0: one '
+                   'per core; at most 4 per core)')
     p.add_argument('--scheduler', help='address of an existing Dask scheduler')
     p.set_defaults(func=cmd_report)
 
 
 def cmd_report(args: argparse.Namespace) -> int:
+    check_workers(args.workers)
+    check_scheduler(args.scheduler)
+    if args.out is None:
+        args.out = Path('reports/paper-quick' if args.quick else 'reports/paper')
     output_dir(args.out)
+    claim_output(args.out, 'report', {'quick': args.quick}, ['report.md', 'claims.json'])
 
     s = ReportSettings.quick() if args.quick else ReportSettings()
     s = dataclasses.replace(s, workers=args.workers, scheduler=args.scheduler)

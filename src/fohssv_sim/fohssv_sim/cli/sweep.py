@@ -9,14 +9,24 @@ from pathlib import Path
 from ..analysis.diagrams import plot_alpha_v, plot_orbit_diagram
 from ..analysis.stability import critical_order_curve
 from ..analysis.sweep import ProgressPrinter, SweepSpec, run_sweep
-from ..params import ParameterError
+from ..params import ParameterError, steps_per_period
 from .common import (
     CliError,
     add_common_options,
     assignments,
+    bounded,
+    check_chunk_memory,
+    check_chunk_size,
+    check_grid,
+    check_run_steps,
+    check_scheduler,
+    check_workers,
     figure_paths,
+    job_folder,
+    job_name,
     load_controller,
     model_params,
+    out_given,
     output_dir,
     parse_range,
 )
@@ -36,18 +46,27 @@ def run_on_dask(run, spec, out: Path, args: argparse.Namespace):
                      progress=progress, check_progress=check)
     except ValueError as e:
         raise CliError(str(e)) from None
+    except OSError as e:   # the scheduler went away or timed out after the first check
+        raise CliError(f'--scheduler {args.scheduler}: {type(e).__name__}: {e}') from None
     progress.end()
     check.end()
     return result
 
 
+def check_dask_options(args: argparse.Namespace) -> None:
+    """--workers in range, and a scheduler that answers at --scheduler (before any work)."""
+    check_workers(args.workers)
+    check_scheduler(args.scheduler)
+
+
 def dask_options(p: argparse.ArgumentParser, chunk_size: int, chunk_text: str) -> None:
     """--chunk-size, --scheduler and --workers of the commands that run on Dask."""
     p.add_argument('--chunk-size', type=int, default=chunk_size,
-                   help=f'points per Dask task ({chunk_text})')
-    p.add_argument('--scheduler', help='address of an existing Dask scheduler '
-                   '(default: a local cluster)')
-    p.add_argument('--workers', type=int, default=0, help='local workers (default: cores)')
+                   help=f'points per Dask task, >= 1 ({chunk_text})')
+    p.add_argument('--scheduler', help='address of an existing Dask scheduler, '
+                   'tcp://HOST:PORT (default: a local cluster)')
+    p.add_argument('--workers', type=int, default=0, help='local workers (default 0: one '
+                   'per core; at most 4 per core)')
 
 
 def register(sub) -> None:
@@ -63,44 +82,80 @@ def register(sub) -> None:
                    f'{DEFAULT_ALPHAS} for alpha sweeps, else the fractional_order parameter)')
     p.add_argument('--speed', help=f'V values in m/s (default {DEFAULT_SPEEDS} for V sweeps, '
                    'else the speed parameter)')
-    p.add_argument('--transient', type=float, default=1.5, help='s discarded (default 1.5)')
-    p.add_argument('--window', type=float, default=0.5, help='s sampled (default 0.5)')
-    p.add_argument('--sample-every', type=int, default=1, help='keep every k-th step')
+    p.add_argument('--transient', type=bounded('--transient', low=0, unit='s'), default=1.5,
+                   help='s discarded (default 1.5)')
+    p.add_argument('--window', type=bounded('--window', low=0, low_open=True, unit='s'),
+                   default=0.5, help='s sampled (default 0.5)')
+    p.add_argument('--sample-every', type=bounded('--sample-every', low=1, integer=True,
+                                                  unit='steps'),
+                   default=1, help='keep every k-th step (default 1)')
     p.add_argument('--state', default='w', choices=('z', 'w', 'theta', 'q'))
-    p.add_argument('--control-period', type=float, default=None,
-                   help='zero-order hold period in s (default: continuous feedback)')
+    p.add_argument('--control-period', type=bounded('--control-period', low=0,
+                                                    low_open=True, unit='s'), default=None,
+                   help='zero-order hold period in s, a whole multiple of the step (default: '
+                   'continuous feedback)')
     dask_options(p, 64, 'a batch step costs about the same for 50 or 100 points: prefer '
                  'large chunks')
-    p.add_argument('--check-step', type=int, default=0, metavar='K',
-                   help='re-run every K-th point at half the step; flag changed classes')
+    p.add_argument('--check-step', type=bounded('--check-step', low=0, integer=True,
+                                                unit='points'), default=0, metavar='K',
+                   help='re-run every K-th point at half the step; flag changed classes '
+                   '(default 0: off)')
     p.set_defaults(func=cmd_sweep)
+
+
+def _grids(args: argparse.Namespace, base) -> tuple[list[float], list[float]]:
+    def alphas(default: str | None):
+        text = args.alpha if args.alpha is not None else default
+        if text is None:
+            return [base.fractional_order]
+        return list(parse_range(text, '--alpha', parameter='fractional_order'))
+
+    def speeds(default: str | None):
+        text = args.speed if args.speed is not None else default
+        if text is None:
+            return [base.speed]
+        return list(parse_range(text, '--speed', parameter='speed', unit='m/s'))
+
+    if args.kind == 'alpha':
+        return alphas(DEFAULT_ALPHAS), speeds(None)
+    if args.kind == 'V':
+        return alphas(None), speeds(DEFAULT_SPEEDS)
+    return alphas(DEFAULT_ALPHAS), speeds(DEFAULT_SPEEDS)
+
+
+def _check_sizes(args: argparse.Namespace, base, n_points: int) -> None:
+    """Steps per run, points and work, the memory of one task, the hold period."""
+    steps = check_run_steps('--transient + --window', args.transient + args.window, base.step)
+    check_grid(f'the sweep ({args.kind})', n_points, steps)
+    window_samples = int(args.window / base.step) // args.sample_every + 1
+    check_chunk_memory('--chunk-size', min(args.chunk_size, n_points), window_samples, 32)
+    if args.control_period is not None:
+        if args.control_period > args.transient + args.window:
+            raise CliError(f'--control-period={args.control_period:g} s is longer than the run '
+                           f'(--transient + --window = {args.transient + args.window:g} s)')
+        try:
+            steps_per_period(args.control_period, base.step, '--control-period')
+        except ValueError as e:
+            raise CliError(str(e)) from None
 
 
 def build_spec(args: argparse.Namespace):
     base = model_params(args)   # validates --set / --preset
-    if args.kind == 'alpha':
-        alphas = parse_range(args.alpha or DEFAULT_ALPHAS, '--alpha')
-        speeds = parse_range(args.speed, '--speed') if args.speed else [base.speed]
-    elif args.kind == 'V':
-        speeds = parse_range(args.speed or DEFAULT_SPEEDS, '--speed')
-        alphas = parse_range(args.alpha, '--alpha') if args.alpha else [base.fractional_order]
-    else:
-        alphas = parse_range(args.alpha or DEFAULT_ALPHAS, '--alpha')
-        speeds = parse_range(args.speed or DEFAULT_SPEEDS, '--speed')
-    for a in alphas:
-        if not 0 < a <= 1:
-            raise CliError(f'--alpha value {a:g} is outside (0, 1]')
+    check_chunk_size(args.chunk_size)
+    check_dask_options(args)
+    alphas, speeds = _grids(args, base)
+    _check_sizes(args, base, len(alphas) * len(speeds))
     for v in speeds:
-        if v <= 0:
-            raise CliError(f'--speed value {v:g} m/s must be > 0')
-    for name in ('transient', 'window'):
-        if getattr(args, name) < 0 or (name == 'window' and args.window <= 0):
-            raise CliError(f'--{name}={getattr(args, name)} s must be positive')
+        model_params(args, speed=v)          # the coefficients exist at every V
     values = base.to_dict()
     values.pop('fractional_order')
     values.pop('speed')
     gains = assignments(args.gain or [], '--gain')
-    load_controller(args.controller, gains)   # fail early on a bad name or gain
+    ctl = load_controller(args.controller, gains)   # fail early on a bad name or gain
+    if ctl.affine() is None:
+        raise CliError(f'--controller {args.controller} is not an affine state feedback '
+                       '(u = K x + u0): sweeps run batched and need one (state_feedback, '
+                       'lqr); run other laws with simulate() or fohssv gainmap')
     try:
         return SweepSpec(base=values, alphas=tuple(float(a) for a in alphas),
                          speeds=tuple(float(v) for v in speeds), controller=args.controller,
@@ -112,9 +167,19 @@ def build_spec(args: argparse.Namespace):
         raise CliError(str(e)) from None
 
 
+def _span(values, unit: str = '') -> str:
+    return f'{values[0]:g}{unit}' if len(values) == 1 else f'{values[0]:g}-{values[-1]:g}{unit}'
+
+
+def default_folder(kind: str, spec) -> Path:
+    """``reports/sweep/<kind>_V<speeds>_alpha<alphas>-<hash of the spec>``."""
+    slug = f'{kind}_V{_span(spec.speeds)}_alpha{_span(spec.alphas)}'
+    return job_folder('sweep', job_name(slug, spec.to_dict()))
+
+
 def cmd_sweep(args: argparse.Namespace) -> int:
     spec = build_spec(args)
-    out: Path = output_dir(args.out)
+    out: Path = output_dir(args.out if out_given(args) else default_folder(args.kind, spec))
     n = len(spec.points())
     print(f'sweep {args.kind}: {n} points, {len(spec.alphas)} alpha x {len(spec.speeds)} V, '
           f'transient {spec.transient:g} s, window {spec.window:g} s -> {out}', flush=True)

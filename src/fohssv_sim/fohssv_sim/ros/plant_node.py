@@ -26,7 +26,8 @@ positive ``start_timeout`` is for scripts: exit 4 when it expires, in both modes
 Exit codes: 0 clean stop (signal or ``duration`` reached), 1 state turned non-finite,
 2 invalid parameters at start, 3 lockstep timeout or plant overrun, 4 peers missing when a
 positive ``start_timeout`` expired, 5 another publisher of ``state`` (a second plant) on the
-same ROS_DOMAIN_ID and namespace.
+same ROS_DOMAIN_ID and namespace, 8 the in-plant bag (``record``) misses messages (its
+writer fell behind in real time, or failed).
 """
 
 from __future__ import annotations
@@ -48,6 +49,8 @@ from std_srvs.srv import Trigger
 
 from ..contract import CLOCK, COMMAND, PLANING_FORCE, RUN_END, STATE, run_end_text
 from ..params import PARAMETERS, ModelParameters
+from .inplant_record import EXIT_RECORD_LOST
+from .inplant_record import start as start_recording
 from .loop import (
     CommandRejected,
     Pacer,
@@ -79,7 +82,7 @@ from .options import NODE_PARAMETERS, PlantOptions, check_options, clock_samples
 from .views import ViewPublisher
 
 __all__ = ['PlantNode', 'main', 'EXIT_OK', 'EXIT_DIVERGED', 'EXIT_BAD_PARAMETERS',
-           'EXIT_TIMEOUT', 'EXIT_NO_PEERS', 'EXIT_SECOND_PLANT']
+           'EXIT_TIMEOUT', 'EXIT_NO_PEERS', 'EXIT_SECOND_PLANT', 'EXIT_RECORD_LOST']
 
 EXIT_OK, EXIT_DIVERGED, EXIT_BAD_PARAMETERS, EXIT_TIMEOUT, EXIT_NO_PEERS = 0, 1, 2, 3, 4
 #: Another publisher of ``state`` on the plant's domain and namespace (a second plant).
@@ -161,6 +164,8 @@ class PlantNode(Node):
         self.sent = 0                             # samples published (state, planing_force)
         self.received = 0                         # commands received while running
         self._announced = False                   # run_end published
+        # record:=PATH: the plant writes its own bag (inplant_record.py); None when off
+        self.record = start_recording(self)
 
         self.running = False
         self.rejected = 0
@@ -458,6 +463,8 @@ class PlantNode(Node):
         if not self.running:
             return
         self.received += 1
+        if self.record is not None:
+            self.record.command(raw)
         data = self._command_in.read(raw)
         self._last_command_t = t = answered_time(data)
         self._last_command_wall = monotonic()
@@ -551,6 +558,8 @@ class PlantNode(Node):
         }
         if self.profile is not None:
             s['profile'] = self.profile.summary()
+        if self.record is not None:
+            s.update(self.record.summary())
         if self.pacer is not None:
             p = self.pacer
             s.update(real_time_factor=self.options.real_time_factor,
@@ -593,9 +602,11 @@ class PlantNode(Node):
             n = self.views.published
             for pub in self.views.publishers:
                 published[pub.topic_name] = 2 * n if pub is self.views.marker_pub else n
+        text = run_end_text('plant', reason, code, self.sim.t, published)
+        if self.record is not None:
+            self.record.end(text)
         try:
-            self.end_pub.publish(String(data=run_end_text(
-                'plant', reason, code, self.sim.t, published)))
+            self.end_pub.publish(String(data=text))
         except Exception as exc:  # noqa: BLE001 - the context is going down (a signal)
             final_log(self.get_name(), f'run_end not published: {exc}')
 
@@ -660,13 +671,18 @@ def _run(node: PlantNode) -> int:
     # too, the recorder gets the time to drain what was published (bounded waits)
     node.flush(signals)
     node.linger(executor, signals)
-    return code
+    return _recorded(node, code)
+
+
+def _recorded(node: PlantNode, code: int) -> int:
+    """With ``record``: wait until the writer closed the bag; exit 8 when it misses messages."""
+    return code if node.record is None else node.record.finish(code)
 
 
 def _on_interrupt(node: PlantNode) -> int:
     if not node.finished.done():
         _interrupted(node)
-    return node.exit_code
+    return _recorded(node, node.exit_code)
 
 
 def main(args: list[str] | None = None) -> None:

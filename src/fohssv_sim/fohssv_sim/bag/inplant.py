@@ -10,7 +10,7 @@ module's :func:`main`) takes the records in order and writes them with
 :class:`~.writer.RunWriter`, the recorder node's bag writer: the same rosbag2 version 9 / MCAP
 layout, channels, QoS profiles (``offered_qos_profiles``), log times (:class:`LogTimes`, the
 recorder's rule), run metadata and ``run_end`` check. Nothing is serialized twice: the bytes in
-the bag are the bytes that went out on DDS.
+the bag are the bytes that went out on DDS, as a reader receives them (padded to 4 bytes).
 
 The ring (:class:`Ring`) is a shared file mapping (``memfd``; an unlinked temporary file
 elsewhere) handed to the writer as an inherited file descriptor, so nothing outlives the two
@@ -79,6 +79,7 @@ _RECORD = struct.Struct('<IHH')    # payload length, topic index, spare
 _WRAP = 0xFFFFFFFF                 # record length meaning "continue at the ring's start"
 _CDR_LE = b'\x00\x01'
 _LEN = struct.Struct('<I')
+_PAD = (b'', b'\x00', b'\x00\x00', b'\x00\x00\x00')
 
 
 class Ring:
@@ -390,7 +391,10 @@ class _Session:
         names = [t.name for t in self.topics]
         log = self._log
         for index, raw in self.ring.records(limit):
-            write(names[index], log[index](raw), raw)
+            pad = -len(raw) % 4
+            # as a DDS reader receives it (and the recorder node writes it): RTPS pads a
+            # serialized payload with zeros to a multiple of 4 bytes
+            write(names[index], log[index](raw), bytes(raw) + _PAD[pad] if pad else raw)
             n += 1
         return n
 

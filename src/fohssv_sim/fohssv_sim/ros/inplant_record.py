@@ -5,8 +5,8 @@ The writer and the ring are :mod:`fohssv_sim.bag.inplant` (pure); this module on
 plant's publishers. :func:`start` is the plant's one hook at construction: it checks ``record``
 (:func:`check_record`), starts the writer, and wraps the ``publish`` of the plant's
 ``state``, ``planing_force``, ``/clock`` and view publishers so that each message published
-is also put into the ring (the bytes DDS gets; a view message object is serialized once
-more, every ``view_period``). :meth:`InPlantRecording.command` takes the raw bytes of each
+is also put into the ring: the bytes DDS gets (a view message object is serialized by the tap
+and published as those bytes). :meth:`InPlantRecording.command` takes the raw bytes of each
 command the plant takes while running, :meth:`InPlantRecording.end` the run_end JSON, and
 :meth:`InPlantRecording.finish` waits for the writer to close the bag.
 
@@ -123,8 +123,10 @@ class InPlantRecording:
         full = self._full
 
         def publish_recorded(msg: Any) -> None:
-            publish(msg)
+            # a message object is serialized here and its bytes published: what DDS sends is
+            # then what the bag holds (the serializer leaves alignment padding undefined)
             data = msg if isinstance(msg, (bytes, bytearray)) else serialize_message(msg)
+            publish(data)
             if not put(index, data):
                 full(index, data)
 

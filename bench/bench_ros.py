@@ -14,7 +14,9 @@ Cases, all in one run (the machine is shared and noisy: compare within a run):
   models at control periods 1e-4 s and 1e-3 s: achieved real-time factor and deadline misses
   (a sample published more than one pacing tick after it was due);
 * profile: one short real-time run per model at 1e-4 s with the plant's ``profile:=1``: the
-  plant's cost per sample of advance, each publish and the command callback (mean us).
+  plant's cost per sample of advance, each publish and the command callback (mean us);
+* in-plant recording: the demo's lockstep FOM loop with the plant's ``record`` and without,
+  alternately: recorded loop time (first sample to bag closed) / unrecorded.
 
 Every plant run reports its process CPU time per sample (``cpu_per_sample_us``, all threads,
 from the first sample to the last); the controller's over the same span is read from /proc
@@ -150,6 +152,64 @@ def run_echo(domains: Domains, count: int) -> dict:
     return json.loads(lines[-1])
 
 
+def _timed_loop(env: dict, plant_params: dict, timeout: float) -> tuple[float, dict]:
+    """A lockstep plant + eq. 31 controller node: (wall seconds from the plant's first sample
+    to its bag closed (with ``record``) or to its run's end, the plant's summary)."""
+    args = ['--ros-args']
+    for k, v in plant_params.items():
+        args += ['-p', f'{k}:={v}']
+    ctl = subprocess.Popen([_exe('fohssv_controller', 'state_feedback')], env=env,
+                           stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
+                           start_new_session=True)
+    times: dict[str, float] = {}
+    summary: dict = {}
+    try:
+        plant = subprocess.Popen([_exe('fohssv_sim', 'plant'), *args], env=env,
+                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                 start_new_session=True)
+        for line in plant.stdout:
+            for key in ('starting at t = 0', 'summary: {', 'in-plant recording: closed'):
+                if key in line:
+                    times.setdefault(key, time.monotonic())
+            if 'summary: {' in line:
+                summary = json.loads(line.split('summary: ', 1)[1])
+        code = plant.wait(timeout=timeout)
+    finally:
+        _stop(ctl)
+    end = times.get('in-plant recording: closed', times.get('summary: {'))
+    if code != 0 or end is None or 'starting at t = 0' not in times:
+        raise RuntimeError(f'plant exited {code} ({sorted(times)})')
+    return end - times['starting at t = 0'], summary
+
+
+def run_inplant_recording(domains: Domains, quick: bool) -> dict:
+    """In-plant recorded vs unrecorded: the demo's loop (FOM, lockstep, eq. 31 node),
+    alternately with ``record`` and without, twice each; the ratio of the mean loop times
+    (first sample to bag closed / to the run's end) and each plant's CPU per sample."""
+    import tempfile
+
+    params = {'model': 'fractional', 'fractional_order': 0.85, 'speed': 75.0,
+              'mode': 'lockstep', 'duration': 0.5 if quick else 2.0}
+    runs: dict[str, list] = {'recorded': [], 'unrecorded': []}
+    with tempfile.TemporaryDirectory() as tmp:
+        for i in range(2):
+            for key in ('unrecorded', 'recorded'):
+                extra = {'record': f'{tmp}/run{i}'} if key == 'recorded' else {}
+                wall, s = _timed_loop(domains.env(), {**params, **extra}, timeout=900.0)
+                runs[key].append({'loop_time': wall, 'cpu_per_sample_us': s['cpu_per_sample_us'],
+                                  'record_waits': s.get('record_waits'),
+                                  'record_lost': s.get('record_lost')})
+    mean = {k: sum(r['loop_time'] for r in v) / len(v) for k, v in runs.items()}
+    out = {'runs': runs, 'mean_loop_time': mean,
+           'ratio': mean['recorded'] / mean['unrecorded'], 'duration': params['duration']}
+    cpu = {k: sum(r['cpu_per_sample_us'] for r in v) / len(v) for k, v in runs.items()}
+    print(f"record    in-plant recorded vs unrecorded lockstep FOM loop ({params['duration']:g} s"
+          f" simulated, 2 runs each): {mean['recorded']:.2f} s / {mean['unrecorded']:.2f} s = "
+          f"{out['ratio']:.2f}; plant CPU {cpu['recorded']:.0f} / {cpu['unrecorded']:.0f} "
+          'us/sample', flush=True)
+    return out
+
+
 def _row(name: str, value: float, goal: str, ok: bool, fmt: str = '{:.3f}') -> dict:
     return {'target': name, 'measured': value, 'goal': goal, 'pass': bool(ok),
             'text': fmt.format(value)}
@@ -249,6 +309,8 @@ def main() -> int:
         print(f"profile   {model:11s} T=1e-4 s realtime, mean us per call: {parts}; "
               f"plant CPU {s['cpu_per_sample_us']:.0f} us/sample", flush=True)
 
+    inplant = run_inplant_recording(domains, a.quick)
+
     targets = []
     for s in realtime:
         name = f"realtime {s['model']} T={s['control_period']:g} s"
@@ -264,6 +326,8 @@ def main() -> int:
         else:
             targets.append(_row(f'{name}: deadline misses', 100 * s['deadline_miss_rate'],
                                 '<= 0.1 %', s['deadline_miss_rate'] <= 0.001, '{:.3f} %'))
+    targets.append(_row('in-plant recorded / unrecorded lockstep loop', inplant['ratio'],
+                        '<= 1.2', inplant['ratio'] <= 1.2, '{:.2f}'))
     fom = lockstep['fractional']
     targets.append(_row('lockstep FOM samples/s / bare DDS round trips/s',
                         fom['ratio_to_echo'], '>= 0.80', fom['ratio_to_echo'] >= 0.80,
@@ -281,7 +345,7 @@ def main() -> int:
         'python': sys.version.split()[0], 'quick': a.quick,
         'simulated_time_realtime': sim_time, 'wall_time': time.monotonic() - started,
         'echo': echo, 'lockstep': lockstep, 'realtime': realtime,
-        'realtime_priority_50': fifo, 'profile': profiles,
+        'realtime_priority_50': fifo, 'profile': profiles, 'inplant_recording': inplant,
         'targets': targets}, indent=2) + '\n')
     print(f'wrote {a.out}')
     return 0

@@ -99,6 +99,7 @@ class Ring:
         self._data = self._buf[_HEADER:]
         self.capacity = size - _HEADER
         self._head = self._counters[0]      # producer's copy
+        self._limit = self._counters[1] + self.capacity   # head may grow to this (producer)
         self._tail = self._counters[1]      # consumer's copy
 
     @classmethod
@@ -117,14 +118,29 @@ class Ring:
     # -- producer (the plant) ---------------------------------------------------------------
     def put(self, index: int, data: bytes) -> bool:
         """Copy one record (topic ``index``, ``data``); False when there is no room (nothing
-        is written then)."""
+        is written then). The common case is one header pack and one slice assignment."""
         n = len(data)
         need = 8 + ((n + 7) & ~7)
+        head = self._head
+        off = head % self.capacity
+        if off + need > self.capacity or head + need > self._limit:
+            return self._put_slow(index, data, n, need)
+        self._data[off:off + 8 + n] = _RECORD.pack(n, index, 0) + data
+        head += need
+        self._head = head
+        self._counters[0] = head              # after the bytes: the record is published
+        return True
+
+    def _put_slow(self, index: int, data: bytes, n: int, need: int) -> bool:
+        """:meth:`put` at the ring's end (a wrap) or when the room known is not enough (the
+        writer's tail is read again)."""
         cap = self.capacity
         head = self._head
+        tail = self._counters[1]
+        self._limit = tail + cap
         off = head % cap
         gap = cap - off
-        room = cap - (head - self._counters[1])
+        room = cap - (head - tail)
         if gap < need:                        # wrap: skip the ring's end
             if room < gap + need:
                 return False
@@ -134,11 +150,10 @@ class Ring:
             off = 0
         elif room < need:
             return False
-        _RECORD.pack_into(self._data, off, n, index, 0)
-        self._data[off + 8:off + 8 + n] = data
+        self._data[off:off + 8 + n] = _RECORD.pack(n, index, 0) + data
         head += need
         self._head = head
-        self._counters[0] = head              # after the bytes: the record is published
+        self._counters[0] = head
         return True
 
     def add_lost(self, n: int = 1) -> None:

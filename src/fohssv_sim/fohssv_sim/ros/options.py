@@ -224,15 +224,15 @@ NODE_PARAMETERS: tuple[ParameterSpec, ...] = (
        "plant's pacing thread, as real-time ROS 2 nodes use; needs CAP_SYS_NICE or an rtprio "
        'limit (the plant warns and runs normally without it); 0 = the normal scheduler',
        low=0.0, low_open=False, high=99.0, high_open=False),
-    TextSpec('record', '-', '', '-', "in-plant recording: the bag directory the plant writes "
-             'its own run to (rosbag2 MCAP, as the recorder node writes: every message it '
-             'publishes and every command it takes, through a writer process fed by shared '
-             "memory, off the per-sample path); '' = off",
+    TextSpec('record', '-', '', '-', "in-plant recording: bag directory to create for the "
+             "plant's own run (rosbag2 MCAP as the recorder node writes it: every message the "
+             'plant publishes and every command it takes, written by a writer process fed '
+             "through shared memory, off the per-sample path); '' = off",
              allowed="'' (off) or a path that does not exist (its parent is created)"),
     _P('record_buffer', '-', 32 * 1024 * 1024, 'bytes', 'in-plant recording: size of the ring '
        'between the plant and its writer process; when it is full a lockstep plant waits for '
        'the writer, a realtime plant counts and logs the lost messages (exit code 8)',
-       low=4096.0, low_open=False, high=float(2 ** 31), high_open=False),
+       low=4096.0, low_open=False, high=float(2 ** 30), high_open=False),
     _P('end_linger', '-', 1.0, 's', 'wall time the plant keeps its publishers after the run '
        'ended, so a subscriber that lags (a recorder, a plotter) can still take the last '
        'samples: Fast DDS drops the samples a reader has not taken when their writer goes '

@@ -670,8 +670,9 @@ def _run(node: PlantNode) -> int:
     # a reader loses what it has not taken when the writer goes away: after a signal
     # too, the recorder gets the time to drain what was published (bounded waits)
     node.flush(signals)
+    code = _recorded(node, code)      # the bag closed before the linger (which may wait 1 s)
     node.linger(executor, signals)
-    return _recorded(node, code)
+    return code
 
 
 def _recorded(node: PlantNode, code: int) -> int:

@@ -168,6 +168,64 @@ def run_echo(domains: Domains, count: int) -> dict:
     return json.loads(lines[-1])
 
 
+def _timed_loop(env: dict, plant_params: dict, timeout: float) -> tuple[float, dict]:
+    """A lockstep plant + eq. 31 controller node: (wall seconds from the plant's first sample
+    to its bag closed (with ``record``) or to its run's end, the plant's summary)."""
+    args = ['--ros-args']
+    for k, v in plant_params.items():
+        args += ['-p', f'{k}:={v}']
+    ctl = subprocess.Popen([_exe('fohssv_controller', 'state_feedback')], env=env,
+                           stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
+                           start_new_session=True)
+    times: dict[str, float] = {}
+    summary: dict = {}
+    try:
+        plant = subprocess.Popen([_exe('fohssv_sim', 'plant'), *args], env=env,
+                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                 start_new_session=True)
+        for line in plant.stdout:
+            for key in ('starting at t = 0', 'summary: {', 'in-plant recording: closed'):
+                if key in line:
+                    times.setdefault(key, time.monotonic())
+            if 'summary: {' in line:
+                summary = json.loads(line.split('summary: ', 1)[1])
+        code = plant.wait(timeout=timeout)
+    finally:
+        _stop(ctl)
+    end = times.get('in-plant recording: closed', times.get('summary: {'))
+    if code != 0 or end is None or 'starting at t = 0' not in times:
+        raise RuntimeError(f'plant exited {code} ({sorted(times)})')
+    return end - times['starting at t = 0'], summary
+
+
+def run_inplant_recording(domains: Domains, quick: bool) -> dict:
+    """In-plant recorded vs unrecorded: the demo's loop (FOM, lockstep, eq. 31 node),
+    alternately with ``record`` and without, twice each; the ratio of the mean loop times
+    (first sample to bag closed / to the run's end) and each plant's CPU per sample."""
+    import tempfile
+
+    params = {'model': 'fractional', 'fractional_order': 0.85, 'speed': 75.0,
+              'mode': 'lockstep', 'duration': 0.5 if quick else 2.0}
+    runs: dict[str, list] = {'recorded': [], 'unrecorded': []}
+    with tempfile.TemporaryDirectory() as tmp:
+        for i in range(2):
+            for key in ('unrecorded', 'recorded'):
+                extra = {'record': f'{tmp}/run{i}'} if key == 'recorded' else {}
+                wall, s = _timed_loop(domains.env(), {**params, **extra}, timeout=900.0)
+                runs[key].append({'loop_time': wall, 'cpu_per_sample_us': s['cpu_per_sample_us'],
+                                  'record_waits': s.get('record_waits'),
+                                  'record_lost': s.get('record_lost')})
+    mean = {k: sum(r['loop_time'] for r in v) / len(v) for k, v in runs.items()}
+    out = {'runs': runs, 'mean_loop_time': mean,
+           'ratio': mean['recorded'] / mean['unrecorded'], 'duration': params['duration']}
+    cpu = {k: sum(r['cpu_per_sample_us'] for r in v) / len(v) for k, v in runs.items()}
+    print(f"record    in-plant recorded vs unrecorded lockstep FOM loop ({params['duration']:g} s"
+          f" simulated, 2 runs each): {mean['recorded']:.2f} s / {mean['unrecorded']:.2f} s = "
+          f"{out['ratio']:.2f}; plant CPU {cpu['recorded']:.0f} / {cpu['unrecorded']:.0f} "
+          'us/sample', flush=True)
+    return out
+
+
 def _row(name: str, value: float, goal: str, ok: bool, fmt: str = '{:.3f}') -> dict:
     return {'target': name, 'measured': value, 'goal': goal, 'pass': bool(ok),
             'text': fmt.format(value)}
@@ -295,13 +353,38 @@ def case_external_rate(domains: Domains, sim_time: float) -> dict:
             'best_rate_hz': 1.0 / best if best else None}
 
 
-def case_inplant_recording(domains: Domains, sim_time: float) -> dict | None:
-    """The hosted plant at 1e-4 s recorded in-plant (``record:=PATH``) against unrecorded:
-    RTF, misses and the bag's message counts. Slot for issue 20, item 2 (in-plant recording,
-    another change): returns None (not measured) until the plant has ``record``."""
-    print('inplant   in-plant recorded vs unrecorded: not measured in this run (no record '
-          'parameter in this plant yet)', flush=True)
-    return None
+def _bag_counts(bag: Path) -> dict[str, int]:
+    """Messages per topic in a rosbag2 bag, read with rosbags (an independent reader)."""
+    from rosbags.rosbag2 import Reader
+
+    with Reader(bag) as reader:
+        return {c.topic: c.msgcount for c in reader.connections}
+
+
+def case_inplant_recording(domains: Domains, sim_time: float, quick: bool) -> dict:
+    """In-plant recording (``record:=PATH``): the hosted plant at 1e-4 s in real time, each
+    model, recorded against unrecorded (RTF, misses, CPU share, the bag's message counts);
+    and the demo's lockstep loop recorded in-plant against unrecorded (loop time ratio)."""
+    import tempfile
+
+    runs = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for model in MODELS:
+            pair = {}
+            for key in ('unrecorded', 'recorded'):
+                extra = {'record': f'{tmp}/{model}'} if key == 'recorded' else {}
+                s = run_plant(domains, _realtime_params(model, 1e-4, sim_time, **HOSTED,
+                                                        **extra), timeout=900.0)
+                s['how'] = f'hosted, {key}'
+                print(_realtime_line(f'{model:10s} T=1e-4 s hosted {key:10s}', s), flush=True)
+                pair[key] = s
+            counts = _bag_counts(Path(tmp) / model)
+            pair['bag_counts'] = counts
+            pair['model'] = model
+            print(f'record    {model:10s} in-plant bag: ' + ', '.join(
+                f'{t} {n}' for t, n in sorted(counts.items())), flush=True)
+            runs.append(pair)
+    return {'realtime_hosted': runs, 'demo_loop': run_inplant_recording(domains, quick)}
 
 
 def case_profile(domains: Domains, quick: bool) -> dict:
@@ -337,7 +420,7 @@ def case_fifo(domains: Domains, sim_time: float) -> list[dict]:
 
 
 def targets(sim_time: float, lockstep: dict, realtime: list[dict], margin: list[dict],
-            rate: dict, inplant: dict | None) -> list[dict]:
+            rate: dict, inplant: dict) -> list[dict]:
     rows = []
     for s in realtime:
         name = f"realtime {s['model']} T={s['control_period']:g} s {s['how']}"
@@ -364,9 +447,21 @@ def targets(sim_time: float, lockstep: dict, realtime: list[dict], margin: list[
     fom = lockstep['fractional']
     rows.append(_row('lockstep FOM external node / bare DDS round trips',
                      fom['ratio_to_echo'], '>= 0.85', fom['ratio_to_echo'] >= 0.85, '{:.2f}'))
-    if inplant is None:
-        rows.append(_row('in-plant recorded vs unrecorded (issue 20, item 2)', float('nan'),
-                         'measured', False, 'not run'))
+    samples = round(sim_time / 1e-4)
+    for pair in inplant['realtime_hosted']:
+        counts, rec = pair['bag_counts'], pair['recorded']
+        got = (counts.get('/state', 0), counts.get('/planing_force', 0),
+               counts.get('/command', 0))
+        rows.append(_row(f"hosted {pair['model']} T=1e-4 s recorded in-plant: states, forces, "
+                         'commands in the bag', got[0], f'{samples + 1}/{samples + 1}/{samples}',
+                         got == (samples + 1, samples + 1, samples),
+                         f'{got[0]}/{got[1]}/{got[2]}'))
+        rows.append(_row(f"hosted {pair['model']} T=1e-4 s recorded in-plant: deadline misses",
+                         100 * rec['deadline_miss_rate'], '<= 0.1 %',
+                         rec['deadline_miss_rate'] <= 0.001, '{:.2f} %'))
+    demo = inplant['demo_loop']
+    rows.append(_row('demo loop recorded in-plant / unrecorded lockstep loop', demo['ratio'],
+                     '<= 1.2', demo['ratio'] <= 1.2, '{:.2f}'))
     return rows
 
 
@@ -386,7 +481,7 @@ def main() -> int:
     realtime = case_realtime(domains, sim_time)
     margin = case_margin(domains, sim_time)
     rate = case_external_rate(domains, sim_time)
-    inplant = case_inplant_recording(domains, sim_time)
+    inplant = case_inplant_recording(domains, sim_time, a.quick)
     profiles = case_profile(domains, a.quick)
     fifo = case_fifo(domains, sim_time)
 

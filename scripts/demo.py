@@ -2,15 +2,24 @@
 
 Starts the plant (FOM, alpha = 0.85, V = 75 m/s, x(0) = 0, lockstep, 2 s of simulated time)
 and the eq. 31 state-feedback controller as two separate processes on a ROS domain of their
-own, records the run to a rosbag2/MCAP bag with the recorder node (a third process), and
-prints a summary computed from the bag: dominant frequency and amplitude of w, peak |Fp|,
-samples and integration steps, wall time, with the control period and step.
+own, records the run to a rosbag2/MCAP bag, and prints a summary computed from the bag:
+dominant frequency and amplitude of w, peak |Fp|, samples and integration steps, wall time,
+with the control period and step.
+
+Recording (``--recorder``): ``plant`` (default) is in-plant recording, the plant's
+``record:=BAG`` (a writer process fed through shared memory writes the bag, off the loop);
+``node`` is the recorder node, a third process subscribed over DDS, which the loop must wait
+for (``pace_to_subscribers``). Then (unless ``--no-baseline``) the same loop runs once more
+unrecorded, and the demo prints both loop times and their ratio: what recording costs. A loop
+time runs from the plant's first sample to its bag closed (recorded) or its last sample
+(unrecorded), as the plant's log lines arrive.
 
     python scripts/demo.py [--model fractional] [--duration 2.0] [--controller state_feedback]
-                           [--bag runs/demo-...] [--hosted]
+                           [--bag runs/demo-...] [--recorder plant|node] [--no-baseline]
+                           [--hosted]
 
 ``--hosted`` (``make demo DEMO_ARGS=--hosted``): the plant hosts the controller itself
-(``controller:=NAME`` on the plant), so only the plant and the recorder run.
+(``controller:=NAME`` on the plant): no controller process, no DDS in the loop.
 """
 
 from __future__ import annotations
@@ -55,7 +64,87 @@ def specs(args: argparse.Namespace, bag: Path) -> tuple[NodeSpec, ...]:
     command line's choices (plant, controller, recorder; plant and recorder when hosted)."""
     return closed_loop(controller=args.controller, duration=args.duration, bag_path=str(bag),
                        plant={'model': args.model, 'fractional_order': args.alpha,
-                              'speed': args.speed}, **({'hosted': True} if args.hosted else {}))
+                              'speed': args.speed}, hosted=args.hosted)
+
+
+def in_plant(nodes: tuple[NodeSpec, ...], bag: Path | None
+             ) -> tuple[NodeSpec, NodeSpec | None]:
+    """The plant and the controller of the loop without the recorder node (the controller
+    None when the plant hosts the law): the plant records its own run to ``bag``
+    (``record``; None: unrecorded), so nothing waits for a third process (no
+    ``pace_to_subscribers``, one state subscriber, one command subscriber; a hosted law
+    counts as the state subscriber)."""
+    plant, ctl = nodes[0], (nodes[1] if len(nodes) == 3 else None)
+    params = {k: v for k, v in plant.parameters.items() if k != 'pace_to_subscribers'}
+    params['min_state_subscribers'] = 1
+    if bag is not None:
+        params['record'] = str(bag)
+    return (NodeSpec(plant.package, plant.executable, plant.name, params),
+            None if ctl is None else NodeSpec(ctl.package, ctl.executable, ctl.name,
+                                              {**ctl.parameters, 'min_command_subscribers': 1}))
+
+
+class Loop:
+    """A plant and a controller process; the plant's lines with their arrival times."""
+
+    def __init__(self, plant: NodeSpec, ctl: NodeSpec | None, env: dict[str, str],
+                 echo: str) -> None:
+        self.wall0 = time.monotonic()
+        self.ctl = None if ctl is None else subprocess.Popen(
+            command(ctl), env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+            start_new_session=True)
+        self.plant = subprocess.Popen(command(plant), env=env, stdout=subprocess.PIPE,
+                                      stderr=subprocess.STDOUT, text=True,
+                                      start_new_session=True)
+        self.lines: list[tuple[float, str]] = []
+        self.echo = echo
+        self.reader = threading.Thread(target=self._pump, daemon=True)
+        self.reader.start()
+
+    def _pump(self) -> None:
+        for line in self.plant.stdout:
+            self.lines.append((time.monotonic(), line))
+            if self.echo:
+                print(self.echo + line.rstrip(), flush=True)
+
+    def wait(self, timeout: float) -> int:
+        """The plant's exit code (SIGINT after ``timeout`` s); the controller is stopped."""
+        try:
+            code = self.plant.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.plant.send_signal(signal.SIGINT)
+            code = self.plant.wait(timeout=30)
+            print(f'demo: the plant did not finish within {timeout:g} s', file=sys.stderr)
+        self.wall = time.monotonic() - self.wall0
+        self.reader.join(timeout=5)
+        if self.ctl is not None:
+            self.ctl.send_signal(signal.SIGINT)
+            try:
+                self.ctl.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.ctl.kill()
+        return code
+
+    def controller_output(self) -> str:
+        """What the controller process printed ('' when the plant hosts the law)."""
+        return '' if self.ctl is None else self.ctl.stdout.read()
+
+    def at(self, words: str) -> float:
+        """When the first plant line holding ``words`` arrived (nan: none)."""
+        return next((t for t, line in self.lines if words in line), float('nan'))
+
+    def loop_time(self) -> float:
+        """First sample to bag closed (in-plant recorded) or to the run's summary."""
+        end = self.at('in-plant recording: closed')
+        if end != end:
+            end = self.at('summary: {')
+        return end - self.at('starting at t = 0')
+
+    def summary(self) -> dict:
+        for _, line in self.lines:
+            if 'summary: {' in line:
+                return json.loads(line.split('summary: ', 1)[1])
+        return {}
 
 
 def parser() -> argparse.ArgumentParser:
@@ -65,11 +154,17 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument('--speed', type=float, default=DEMO_PLANT['speed'])
     ap.add_argument('--duration', type=float, default=DEFAULT_DURATION)
     ap.add_argument('--controller', default=DEFAULT_CONTROLLER)
-    ap.add_argument('--hosted', action='store_true',
-                    help='the plant hosts the controller (no controller node)')
     ap.add_argument('--timeout', type=float, default=600.0, help='wall-clock limit (s)')
     ap.add_argument('--bag', type=Path, default=None,
                     help='bag folder to record (default runs/demo-<UTC time>)')
+    ap.add_argument('--recorder', choices=('plant', 'node'), default='plant',
+                    help="'plant': in-plant recording (record:=BAG, default); 'node': the "
+                         'recorder node, a third process')
+    ap.add_argument('--hosted', action='store_true',
+                    help='the plant hosts the controller law (controller:=NAME on the plant): '
+                         'no controller process')
+    ap.add_argument('--no-baseline', dest='baseline', action='store_false',
+                    help='skip the unrecorded run that measures what recording costs')
     return ap
 
 
@@ -83,15 +178,47 @@ def dominant_frequency(t: np.ndarray, x: np.ndarray, pad: int = 16) -> float:
     return float(freqs[int(np.argmax(spec))])
 
 
-def _stop(proc: subprocess.Popen | None) -> None:
-    """SIGINT to the controller node (none when hosted), SIGKILL after 10 s."""
-    if proc is None:
-        return
-    proc.send_signal(signal.SIGINT)
+def _with_recorder_node(nodes, env, bag: Path, timeout: float) -> tuple[int, Loop, float]:
+    """The loop recorded by the recorder node (a third process): (exit code, the loop, when
+    the recorder had closed the bag)."""
+    plant, ctl, rec = nodes if len(nodes) == 3 else (nodes[0], None, nodes[1])
+    rec_log = bag.parent / f'{bag.name}.recorder.log'
+    with open(rec_log, 'w') as log:
+        recorder = subprocess.Popen(command(rec), env=env, stdout=log,
+                                    stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    deadline = time.monotonic() + 60
+    while 'recording to' not in rec_log.read_text() and time.monotonic() < deadline:
+        if recorder.poll() is not None:
+            print(f'demo: the recorder exited: {rec_log.read_text()}', file=sys.stderr)
+            return 1, None, 0.0
+        time.sleep(0.05)
+    closed: list[float] = []
+    watcher = threading.Thread(target=lambda: (recorder.wait(), closed.append(time.monotonic())),
+                               daemon=True)
+    watcher.start()
+    loop = Loop(plant, ctl, env, '  plant: ')
+    code = loop.wait(timeout)
     try:
-        proc.wait(timeout=10)
+        # the recorder closes the bag by itself once it holds everything the plant's
+        # run_end lists (exit 6 naming any loss); SIGINT only if it does not
+        rec_code = recorder.wait(timeout=30)
     except subprocess.TimeoutExpired:
-        proc.kill()
+        recorder.send_signal(signal.SIGINT)   # drains, then closes the bag properly
+        try:
+            rec_code = recorder.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            recorder.kill()
+            rec_code = -9
+    watcher.join(timeout=5)
+    if code != 0:
+        print(f'demo: plant exited with code {code}', file=sys.stderr)
+        print(loop.controller_output(), file=sys.stderr)
+        return 1, loop, 0.0
+    if rec_code != 0:
+        print(f'demo: recorder exited with code {rec_code}: {rec_log.read_text()}',
+              file=sys.stderr)
+        return 1, loop, 0.0
+    return 0, loop, closed[0] if closed else time.monotonic()
 
 
 def main() -> int:
@@ -107,88 +234,53 @@ def main() -> int:
                PYTHONUNBUFFERED='1')
     # plant, controller, recorder: the launch file's nodes and parameters (closed_loop.py:
     # the settings that make the bag complete are explained there)
-    nodes = [command(s) for s in specs(args, bag)]
-    plant_cmd, rec_cmd = nodes[0], nodes[-1]
-    ctl_cmd = nodes[1] if len(nodes) == 3 else None
-    what = (f'hosting controller {args.controller!r}, and recorder as two' if ctl_cmd is None
-            else f'controller {args.controller!r} and recorder as three')
+    nodes = specs(args, bag)
+    if args.hosted:
+        print(f'demo: the plant hosts controller {args.controller!r} (no controller process)',
+              flush=True)
+    how = ('the plant records its own run (in-plant, record:=BAG), two processes'
+           if args.recorder == 'plant' else 'the recorder node records it, three processes')
     print(f'demo: plant ({args.model}, alpha={args.alpha:g}, V={args.speed:g} m/s, x(0)=0, '
-          f'lockstep, {args.duration:g} s), {what} processes, ROS_DOMAIN_ID={domain}',
-          flush=True)
+          f'lockstep, {args.duration:g} s) and controller {args.controller!r}; {how}; '
+          f'ROS_DOMAIN_ID={domain}', flush=True)
     print(f'demo: recording to {bag}', flush=True)
     bag.parent.mkdir(parents=True, exist_ok=True)
-    rec_log = bag.parent / f'{bag.name}.recorder.log'
-    with open(rec_log, 'w') as log:
-        recorder = subprocess.Popen(rec_cmd, env=env, stdout=log,
-                                    stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    deadline = time.monotonic() + 60
-    while 'recording to' not in rec_log.read_text() and time.monotonic() < deadline:
-        if recorder.poll() is not None:
-            print(f'demo: the recorder exited: {rec_log.read_text()}', file=sys.stderr)
+    if args.recorder == 'plant':
+        loop = Loop(*in_plant(nodes, bag), env, '  plant: ')
+        code = loop.wait(args.timeout)
+        if code != 0:
+            print(f'demo: plant exited with code {code}', file=sys.stderr)
+            print(loop.controller_output(), file=sys.stderr)
             return 1
-        time.sleep(0.05)
-    wall0 = time.monotonic()
-    ctl = None if ctl_cmd is None else subprocess.Popen(
-        ctl_cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-        start_new_session=True)
-    plant = subprocess.Popen(plant_cmd, env=env, stdout=subprocess.PIPE,
-                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    plant_out: list[str] = []
-
-    def pump() -> None:
-        for line in plant.stdout:
-            plant_out.append(line)
-            print('  plant: ' + line.rstrip(), flush=True)
-
-    reader = threading.Thread(target=pump, daemon=True)
-    reader.start()
-    try:
-        code = plant.wait(timeout=args.timeout)
-    except subprocess.TimeoutExpired:
-        plant.send_signal(signal.SIGINT)
-        code = plant.wait(timeout=10)
-        print(f'demo: the plant did not finish within {args.timeout:g} s', file=sys.stderr)
-    finally:
-        wall = time.monotonic() - wall0
-        reader.join(timeout=5)
-        try:
-            # the recorder closes the bag by itself once it holds everything the plant's
-            # run_end lists (exit 6 naming any loss); SIGINT only if it does not
-            rec_code = recorder.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            recorder.send_signal(signal.SIGINT)   # drains, then closes the bag properly
-            try:
-                rec_code = recorder.wait(timeout=60)
-            except subprocess.TimeoutExpired:
-                recorder.kill()
-                rec_code = -9
-        _stop(ctl)
-    if code != 0:
-        print(f'demo: plant exited with code {code}', file=sys.stderr)
-        print(ctl.stdout.read() if ctl is not None else '', file=sys.stderr)
-        return 1
-    if rec_code != 0:
-        print(f'demo: recorder exited with code {rec_code}: {rec_log.read_text()}',
-              file=sys.stderr)
-        return 1
+        recorded = loop.loop_time()
+    else:
+        code, loop, closed = _with_recorder_node(nodes, env, bag, args.timeout)
+        if code != 0:
+            return code
+        recorded = closed - loop.at('starting at t = 0')
+    baseline = None
+    if args.baseline:
+        print('demo: the same loop once more, unrecorded (what recording costs)', flush=True)
+        base = Loop(*in_plant(nodes, None), env, '')
+        if base.wait(args.timeout) == 0:
+            baseline = base.loop_time()
+        else:
+            print('demo: the unrecorded loop failed: ' + ''.join(x for _, x in base.lines[-3:]),
+                  file=sys.stderr)
+    wall, summary = loop.wall, loop.summary()
     try:
         run = load_run(bag)   # the summary comes from the bag, not from memory
     except BagError as e:
         print(f'demo: {e}', file=sys.stderr)
         return 1
 
-    summary = {}
-    for line in plant_out:
-        if 'summary: {' in line:
-            summary = json.loads(line.split('summary: ', 1)[1])
     t, w = run.t, run.state[:, 1]
     half = t >= t[-1] / 2
     freq = dominant_frequency(t[half], w[half])
     amp = 0.5 * (w[half].max() - w[half].min())
     print()
     print(f'closed loop through ROS 2: {args.model}, alpha={args.alpha:g}, V={args.speed:g} '
-          f'm/s, controller {args.controller}' + (' (hosted in the plant)' if args.hosted
-                                                     else ''))
+          f'm/s, controller {args.controller}')
     print(f'  integration step        {summary.get("step", float("nan")):g} s '
           f'({summary.get("solver", "?")})')
     print(f'  control period (ZOH)    {summary.get("control_period", float("nan")):g} s')
@@ -201,6 +293,10 @@ def main() -> int:
     print(f'  peak |Fp|               {np.abs(run.planing_force).max():.4g} m^2/s^2')
     print(f'  wall time               {wall:.1f} s (plant loop {summary.get("wall_time", 0):.1f}'
           f' s, {summary.get("samples_per_second", 0):.0f} samples/s)')
+    if baseline is not None:
+        print(f'  recording cost          recorded loop {recorded:.2f} s / unrecorded lockstep '
+              f'loop {baseline:.2f} s = {recorded / baseline:.2f} ({args.recorder} recording;'
+              ' first sample to bag closed / to last sample)')
     print(f'  plots:                  fohssv plot {bag}')
     return 0
 

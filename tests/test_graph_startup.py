@@ -25,6 +25,7 @@ def bad_parameter_cases(tmp):
     broken.write_text('plant:\n  ros__parameters: [speed: 80\n')
     missing = str(tmp / 'no_such_params.yaml')
     bag = str(tmp / 'bag')
+    params_file = str(misspelt)          # a file, not a directory
     return [
         # defect 2: out of range, wrong type; one line with name, value, range and unit
         ('plant', ['-p', 'fractional_order:=1.5'],
@@ -58,6 +59,14 @@ def bad_parameter_cases(tmp):
          "unknown parameter 'controller.depth_gian' (did you mean 'controller.depth_gain'"),
         ('plant', ['-p', 'controller.depth_gain:=1.0'],
          "unknown parameter 'controller.depth_gain'"),
+        # in-plant recording: a bag is never overwritten, and must be creatable
+        ('plant', ['-p', f'record:={tmp}'], f"record='{tmp}' exists already: the plant never "
+         "overwrites a bag; allowed: '' (off) or a path that does not exist"),
+        ('plant', ['-p', f'record:={params_file}/bag'], f"record='{params_file}/bag' cannot be "
+         f"created: {params_file} is not a directory; allowed: '' (off) or a path"),
+        ('plant', ['-p', 'record:=3'], "record=3 is an integer, not a name; allowed: '' (off)"),
+        ('plant', ['-p', f'record:={bag}', '-p', 'record_buffer:=100'],
+         'record_buffer=100 is outside the allowed range [4096, 1.07374e+09] bytes'),
         ('controller', ['-p', 'max_cavitator_deflection:=3.0'],
          'max_cavitator_deflection=3.0 is outside the allowed range (0, 1.5708] rad'),
         ('controller', ['-p', 'depth_gain:=high'],

@@ -28,6 +28,8 @@ Pure module: no rclpy.
 from __future__ import annotations
 
 import json
+import os
+import subprocess
 from collections.abc import Mapping, Sequence
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -40,7 +42,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 __all__ = ['RunWriter', 'METADATA_NAME', 'DEFAULT_CHUNK_SIZE', 'typestore', 'encode_metadata',
-           'library_versions', 'is_run_metadata']
+           'library_versions', 'is_run_metadata', 'source_info']
 
 #: Name of the first MCAP metadata record that carries the run's metadata; later ones are
 #: ``fohssv.2``, ``fohssv.3``, ...
@@ -77,6 +79,23 @@ def library_versions() -> str:
     """The MCAP header's library string: who wrote the file."""
     return (f"fohssv_sim {_version('fohssv_sim')}; rosbags {_version('rosbags')}; "
             f"mcap {_version('mcap')}")
+
+
+def source_info() -> dict[str, str]:
+    """Package version and the source tree's git revision (when it is a git checkout): the
+    first run metadata of every bag the project records (recorder node and in-plant)."""
+    info = {'fohssv.version': _version('fohssv_sim')}
+    root = os.environ.get('FOHSSV_ROOT') or str(Path(__file__).resolve().parents[2])
+    for key, cmd in (('fohssv.git_describe', ['describe', '--always', '--dirty', '--tags']),
+                     ('fohssv.git_revision', ['rev-parse', 'HEAD'])):
+        try:
+            out = subprocess.run(['git', '-C', root, *cmd], capture_output=True, text=True,
+                                 timeout=5)
+            if out.returncode == 0:
+                info[key] = out.stdout.strip()
+        except (OSError, subprocess.SubprocessError):
+            pass
+    return info
 
 
 def encode_metadata(values: Mapping[str, Any]) -> dict[str, str]:

@@ -239,6 +239,15 @@ NODE_PARAMETERS: tuple[ParameterSpec, ...] = (
        'control period), the plant stops with exit code 6, naming the lag, its cost per '
        'sample and the remedies', low=1.0, low_open=False, high=1e6, high_open=False,
        needs_reset=False),
+    TextSpec('record', '-', '', '-', "in-plant recording: bag directory to create for the "
+             "plant's own run (rosbag2 MCAP as the recorder node writes it: every message the "
+             'plant publishes and every command it takes, written by a writer process fed '
+             "through shared memory, off the per-sample path); '' = off",
+             allowed="'' (off) or a path that does not exist (its parent is created)"),
+    _P('record_buffer', '-', 32 * 1024 * 1024, 'bytes', 'in-plant recording: size of the ring '
+       'between the plant and its writer process; when it is full a lockstep plant waits for '
+       'the writer, a realtime plant counts and logs the lost messages (exit code 8)',
+       low=4096.0, low_open=False, high=float(2 ** 30), high_open=False),
     _P('end_linger', '-', 1.0, 's', 'wall time the plant keeps its publishers after the run '
        'ended, so a subscriber that lags (a recorder, a plotter) can still take the last '
        'samples: Fast DDS drops the samples a reader has not taken when their writer goes '
@@ -348,6 +357,8 @@ class PlantOptions:
     realtime_priority: int = _f('realtime_priority')
     controller: str = _f('controller')
     max_command_lag: float = _f('max_command_lag')
+    record: str = _f('record')
+    record_buffer: int = _f('record_buffer')
     end_linger: float = _f('end_linger')
 
     def __post_init__(self) -> None:

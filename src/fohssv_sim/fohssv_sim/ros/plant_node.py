@@ -41,7 +41,9 @@ Exit codes: 0 clean stop (signal or ``duration`` reached), 1 state turned non-fi
 positive ``start_timeout`` expired, 5 another publisher of ``state`` (a second plant) on the
 same ROS_DOMAIN_ID and namespace, 6 realtime: the commands of an external controller lagged
 by more than ``max_command_lag`` control periods for as long, 7 a hosted controller and
-another publisher of ``command`` (an external controller) on the same domain and namespace.
+another publisher of ``command`` (an external controller) on the same domain and namespace,
+8 the in-plant bag (``record``) misses messages (its writer fell behind in real time, or
+failed).
 """
 
 from __future__ import annotations
@@ -67,6 +69,8 @@ from .. import control
 from ..contract import CLOCK, COMMAND, PLANING_FORCE, RUN_END, STATE, run_end_text
 from ..control import NonFiniteCommand
 from ..params import PARAMETERS, ModelParameters, ParameterError, ParameterSpec, field_specs
+from .inplant_record import EXIT_RECORD_LOST
+from .inplant_record import start as start_recording
 from .loop import (
     CommandLag,
     CommandRejected,
@@ -98,10 +102,11 @@ from .nodekit import (
 )
 from .options import NODE_PARAMETERS, PlantOptions, check_options, clock_samples, view_samples
 from .views import ViewPublisher
+from .wire import raw_publish
 
 __all__ = ['PlantNode', 'main', 'EXIT_OK', 'EXIT_DIVERGED', 'EXIT_BAD_PARAMETERS',
            'EXIT_TIMEOUT', 'EXIT_NO_PEERS', 'EXIT_SECOND_PLANT', 'EXIT_COMMAND_LAG',
-           'EXIT_SECOND_CONTROLLER', 'CONTROLLER_PREFIX']
+           'EXIT_SECOND_CONTROLLER', 'CONTROLLER_PREFIX', 'EXIT_RECORD_LOST']
 
 EXIT_OK, EXIT_DIVERGED, EXIT_BAD_PARAMETERS, EXIT_TIMEOUT, EXIT_NO_PEERS = 0, 1, 2, 3, 4
 #: Another publisher of ``state`` on the plant's domain and namespace (a second plant).
@@ -177,9 +182,9 @@ class PlantNode(Node):
         self.force_pub = self.create_publisher(Float64MultiArray, PLANING_FORCE.name,
                                                profile(PLANING_FORCE))
         self.clock_pub = self.create_publisher(Clock, CLOCK.name, profile(CLOCK))
-        self._send_state = _raw_publish(self.state_pub)
-        self._send_force = _raw_publish(self.force_pub)
-        self._send_clock = _raw_publish(self.clock_pub)
+        self._send_state = raw_publish(self.state_pub)
+        self._send_force = raw_publish(self.force_pub)
+        self._send_clock = raw_publish(self.clock_pub)
         # hosted: /clock and command (volatile) are written only while someone subscribes;
         # the counts are looked at between chunks of samples (_refresh_matched)
         self._clock_wanted = True
@@ -205,7 +210,7 @@ class PlantNode(Node):
             self.command_topic = self.command_pub.topic_name
             self._command_out = ArrayWriter(COMMAND)
             self._command_data = self._command_out.values   # [t, delta_f, delta_c]
-            self._send_command = _raw_publish(self.command_pub)
+            self._send_command = raw_publish(self.command_pub)
             # its commands are the run's output like the samples: the start waits for their
             # listed readers, pace_to_subscribers for their acknowledgements, the linger too
             self._sample_pubs += (self.command_pub,)
@@ -224,6 +229,16 @@ class PlantNode(Node):
         self.commands_sent = 0                    # hosted: of those, published (subscribed)
         self.law_failures = 0                     # hosted: samples the law gave no command
         self._announced = False                   # run_end published
+        # record:=PATH: the plant writes its own bag (inplant_record.py); None when off
+        self.record = start_recording(self)
+        if self.record is not None:
+            # the tapped publishers copy each message into the ring as they send it; /clock
+            # and command are then always written (the bag holds them: _refresh_matched)
+            self._send_state = self.state_pub.publish
+            self._send_force = self.force_pub.publish
+            self._send_clock = self.clock_pub.publish
+            if self.command_pub is not None:
+                self._send_command = self.command_pub.publish
 
         self.running = False
         self.rejected = 0
@@ -658,7 +673,10 @@ class PlantNode(Node):
     def _refresh_matched(self) -> None:
         """Hosted: whether anyone subscribes to ``/clock`` and ``command``: a volatile topic
         nobody reads is not written (a reader that is not there gets nothing either way; 3-5
-        us of CPU per message saved). A graph query here, between chunks, not per sample."""
+        us of CPU per message saved). A graph query here, between chunks, not per sample.
+        With ``record`` both are always written: the in-plant bag holds them."""
+        if self.record is not None:
+            return
         self._clock_wanted = self.clock_pub.get_subscription_count() > 0
         if self.command_pub is not None:
             self._command_wanted = self.command_pub.get_subscription_count() > 0
@@ -687,6 +705,8 @@ class PlantNode(Node):
         if not self.running:
             return
         self.received += 1
+        if self.record is not None:
+            self.record.command(raw)
         data = self._command_in.read(raw)
         self._last_command_t = t = answered_time(data)
         self._last_command_wall = monotonic()
@@ -838,6 +858,8 @@ class PlantNode(Node):
                      law_failures=self.law_failures)
         if self.profile is not None:
             s['profile'] = self.profile.summary()
+        if self.record is not None:
+            s.update(self.record.summary())
         if self.pacer is not None:
             p = self.pacer
             s.update(real_time_factor=self.options.real_time_factor,
@@ -887,9 +909,11 @@ class PlantNode(Node):
             n = self.views.published
             for pub in self.views.publishers:
                 published[pub.topic_name] = 2 * n if pub is self.views.marker_pub else n
+        text = run_end_text('plant', reason, code, self.sim.t, published)
+        if self.record is not None:
+            self.record.end(text)
         try:
-            self.end_pub.publish(String(data=run_end_text(
-                'plant', reason, code, self.sim.t, published)))
+            self.end_pub.publish(String(data=text))
         except Exception as exc:  # noqa: BLE001 - the context is going down (a signal)
             final_log(self.get_name(), f'run_end not published: {exc}')
 
@@ -926,16 +950,6 @@ class PlantNode(Node):
             executor.spin_once(timeout_sec=0.05)
 
 
-def _raw_publish(pub: Any) -> Any:
-    """The call that publishes serialized bytes on ``pub``: rclpy's C++ ``publish_raw``
-    itself where this rclpy has it (``Publisher.publish`` checks the message's type and
-    takes the handle's guard first, 1-1.5 us of each of the per-sample publishes; the plant
-    only publishes while running, before it destroys anything), else ``pub.publish``."""
-    inner = getattr(pub, '_Publisher__publisher', None)
-    raw = getattr(inner, 'publish_raw', None)
-    return raw if callable(raw) else pub.publish
-
-
 def _interrupted(node: PlantNode) -> None:
     final_log(node.get_name(), 'interrupted; stopping cleanly. summary: '
               + json.dumps(node.summary()))
@@ -963,14 +977,20 @@ def _run(node: PlantNode) -> int:
     # a reader loses what it has not taken when the writer goes away: after a signal
     # too, the recorder gets the time to drain what was published (bounded waits)
     node.flush(signals)
+    code = _recorded(node, code)      # the bag closed before the linger (which may wait 1 s)
     node.linger(executor, signals)
     return code
+
+
+def _recorded(node: PlantNode, code: int) -> int:
+    """With ``record``: wait until the writer closed the bag; exit 8 when it misses messages."""
+    return code if node.record is None else node.record.finish(code)
 
 
 def _on_interrupt(node: PlantNode) -> int:
     if not node.finished.done():
         _interrupted(node)
-    return node.exit_code
+    return _recorded(node, node.exit_code)
 
 
 def main(args: list[str] | None = None) -> None:

@@ -46,14 +46,10 @@ published (the bag is closed and readable; the line names the topics and counts)
 from __future__ import annotations
 
 import math
-import os
 import struct
-import subprocess
 import sys
 import time
 from datetime import datetime, timezone
-from importlib.metadata import PackageNotFoundError, version
-from pathlib import Path
 from typing import Any
 
 import rclpy
@@ -67,7 +63,7 @@ from rclpy.task import Future
 from std_msgs.msg import String
 
 from .. import contract
-from ..bag.writer import RunWriter, typestore
+from ..bag.writer import RunWriter, source_info, typestore
 from .bag_options import (
     RECORDED,
     RECORDER_PARAMETERS,
@@ -98,26 +94,6 @@ EXIT_LOST = 6
 _DRAIN_QUIET = 0.5
 
 _CDR_LE = b'\x00\x01'
-
-
-def source_info() -> dict[str, str]:
-    """Package version and the source tree's git revision (when it is a git checkout)."""
-    try:
-        pkg = version('fohssv_sim')
-    except PackageNotFoundError:
-        pkg = 'unknown'
-    info = {'fohssv.version': pkg}
-    root = os.environ.get('FOHSSV_ROOT') or str(Path(__file__).resolve().parents[2])
-    for key, cmd in (('fohssv.git_describe', ['describe', '--always', '--dirty', '--tags']),
-                     ('fohssv.git_revision', ['rev-parse', 'HEAD'])):
-        try:
-            out = subprocess.run(['git', '-C', root, *cmd], capture_output=True, text=True,
-                                 timeout=5)
-            if out.returncode == 0:
-                info[key] = out.stdout.strip()
-        except (OSError, subprocess.SubprocessError):
-            pass
-    return info
 
 
 class Recorder(Node):

@@ -1,0 +1,494 @@
+"""In-plant recording: the plant's own run written to a bag by a writer process, fed through
+a ring buffer in shared memory (no DDS between the loop and the bag).
+
+The plant (``record:=PATH``, :mod:`fohssv_sim.ros.inplant_record`) copies the CDR bytes of
+every message it publishes (``state``, ``planing_force``, ``/clock``, the typed views) and of
+every ``command`` it takes while running into a :class:`Ring`: one record is a short header
+and the bytes, written with one slice assignment (about a microsecond), then the ring's head
+moves. The writer process (``python -m fohssv_sim.bag.inplant FD``, started by the plant, this
+module's :func:`main`) takes the records in order and writes them with
+:class:`~.writer.RunWriter`, the recorder node's bag writer: the same rosbag2 version 9 / MCAP
+layout, channels, QoS profiles (``offered_qos_profiles``), log times (:class:`LogTimes`, the
+recorder's rule), run metadata and ``run_end`` check. Nothing is serialized twice: the bytes in
+the bag are the bytes that went out on DDS, as a reader receives them (padded to 4 bytes).
+
+The ring (:class:`Ring`) is a shared file mapping (``memfd``; an unlinked temporary file
+elsewhere) handed to the writer as an inherited file descriptor, so nothing outlives the two
+processes. Its header holds four 64-bit counters, each written by one side only: ``head``
+(bytes the plant produced; written after the record's bytes, so a reader that sees it sees the
+record), ``tail`` (bytes the writer consumed), ``lost`` (records the plant could not put: ring
+full in real time) and ``waits`` (times a lockstep plant waited for room). Aligned 8-byte
+stores are atomic and stay in order on x86-64 and ARMv8 for this one-producer, one-consumer use
+(CPython's own calls around them order them on weaker machines).
+
+Control goes over the writer's stdin, one length-prefixed pickle per message (the two ends are
+this module, one program): ``('open', config)``, ``('metadata', values)`` and ``('end',
+run_end_json)``. The writer answers on its stdout with one JSON line when the bag is open and
+one when it is closed (:func:`read_reply`). End of file on stdin without ``end`` means the plant
+died (SIGKILL included): the writer takes what the ring holds, marks the bag
+``fohssv.record_interrupted`` and closes it completely. A writer killed itself leaves a bag cut
+at its last flush (every ``flush_period``, default 0.1 s), which ``fohssv repair`` completes.
+
+When the ring is full the plant does not drop silently: in lockstep it waits for room (the
+writer paces the loop; counted as ``record_waits``), in real time it counts the record as lost
+(``record_lost``, logged at once, in the summary, and in the bag's ``run_end`` check: the
+writer names each topic's shortfall and the plant exits 8).
+
+Pure module: no rclpy.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import mmap
+import os
+import pickle
+import select
+import signal
+import struct
+import sys
+import tempfile
+import time
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from typing import Any, BinaryIO
+
+from .. import contract
+from .writer import DEFAULT_CHUNK_SIZE, RunWriter, source_info, typestore
+
+__all__ = ['Ring', 'LogTimes', 'TopicSpec', 'WriterConfig', 'send', 'read_reply',
+           'main', 'DEFAULT_RING_BYTES', 'MIN_RING_BYTES', 'EXIT_LOST', 'EXIT_INTERRUPTED',
+           'EMPTY_KEY']
+
+#: Default size of the ring (bytes): 32 MiB, about 8 s of a 10 kHz run with its views.
+DEFAULT_RING_BYTES = 32 * 1024 * 1024
+#: The smallest ring (bytes): a few records.
+MIN_RING_BYTES = 4096
+#: Writer exit codes: the bag misses messages its run_end lists; the plant ended without
+#: run_end (it died). 0: complete.
+EXIT_LOST = 6
+EXIT_INTERRUPTED = 7
+#: Run-metadata key of a bag closed without any message (as the recorder node marks it).
+EMPTY_KEY = 'fohssv.empty'
+#: Wall seconds between two looks at an empty ring (and at the control pipe).
+_IDLE = 0.002
+_HEADER = 64                       # head, tail, lost, waits (u64), rest spare
+_RECORD = struct.Struct('<IHH')    # payload length, topic index, spare
+_WRAP = 0xFFFFFFFF                 # record length meaning "continue at the ring's start"
+_CDR_LE = b'\x00\x01'
+_LEN = struct.Struct('<I')
+_PAD = (b'', b'\x00', b'\x00\x00', b'\x00\x00\x00')
+
+
+class Ring:
+    """One-producer, one-consumer ring of byte records in a shared mapping (module docstring).
+
+    Args:
+        fd: the file descriptor of the mapping (from :meth:`create` or inherited).
+        size: the mapping's size in bytes (header included).
+    """
+
+    def __init__(self, fd: int, size: int) -> None:
+        self.fd = fd
+        self.size = size
+        self._map = mmap.mmap(fd, size)
+        self._buf = memoryview(self._map)
+        self._counters = self._buf[:_HEADER].cast('Q')
+        self._data = self._buf[_HEADER:]
+        self.capacity = size - _HEADER
+        self._head = self._counters[0]      # producer's copy
+        self._limit = self._counters[1] + self.capacity   # head may grow to this (producer)
+        self._tail = self._counters[1]      # consumer's copy
+
+    @classmethod
+    def create(cls, size: int = DEFAULT_RING_BYTES) -> Ring:
+        """A new zeroed ring of ``size`` bytes (rounded up to 8) whose descriptor a child
+        process inherits (``pass_fds``)."""
+        size = max(MIN_RING_BYTES, (int(size) + 7) & ~7) + _HEADER
+        if hasattr(os, 'memfd_create'):
+            fd = os.memfd_create('fohssv-record-ring', 0)      # no name in the file system
+        else:                                                     # pragma: no cover
+            fd = os.dup(tempfile.TemporaryFile().fileno())
+        os.ftruncate(fd, size)
+        os.set_inheritable(fd, True)
+        return cls(fd, size)
+
+    # -- producer (the plant) ---------------------------------------------------------------
+    def put(self, index: int, data: bytes) -> bool:
+        """Copy one record (topic ``index``, ``data``); False when there is no room (nothing
+        is written then). The common case is one header pack and one slice assignment."""
+        n = len(data)
+        need = 8 + ((n + 7) & ~7)
+        head = self._head
+        off = head % self.capacity
+        if off + need > self.capacity or head + need > self._limit:
+            return self._put_slow(index, data, n, need)
+        self._data[off:off + 8 + n] = _RECORD.pack(n, index, 0) + data
+        head += need
+        self._head = head
+        self._counters[0] = head              # after the bytes: the record is published
+        return True
+
+    def _put_slow(self, index: int, data: bytes, n: int, need: int) -> bool:
+        """:meth:`put` at the ring's end (a wrap) or when the room known is not enough (the
+        writer's tail is read again)."""
+        cap = self.capacity
+        head = self._head
+        tail = self._counters[1]
+        self._limit = tail + cap
+        off = head % cap
+        gap = cap - off
+        room = cap - (head - tail)
+        if gap < need:                        # wrap: skip the ring's end
+            if room < gap + need:
+                return False
+            if gap >= 8:
+                _RECORD.pack_into(self._data, off, _WRAP, 0, 0)
+            head += gap
+            off = 0
+        elif room < need:
+            return False
+        self._data[off:off + 8 + n] = _RECORD.pack(n, index, 0) + data
+        head += need
+        self._head = head
+        self._counters[0] = head
+        return True
+
+    def add_lost(self, n: int = 1) -> None:
+        self._counters[2] += n
+
+    def add_wait(self) -> None:
+        self._counters[3] += 1
+
+    # -- both -------------------------------------------------------------------------------
+    @property
+    def lost(self) -> int:
+        return self._counters[2]
+
+    @property
+    def waits(self) -> int:
+        return self._counters[3]
+
+    @property
+    def used(self) -> int:
+        """Bytes produced and not yet consumed."""
+        return self._counters[0] - self._counters[1]
+
+    # -- consumer (the writer) --------------------------------------------------------------
+    def records(self, limit: int = 1 << 30) -> Iterator[tuple[int, memoryview]]:
+        """The records produced so far (at most ``limit`` bytes of them), in order, as
+        ``(index, bytes view)``; the tail moves past each once the caller asked for the next
+        (so a view is valid until then)."""
+        cap = self.capacity
+        head = min(self._counters[0], self._tail + limit)
+        tail = self._tail
+        data = self._data
+        while tail < head:
+            off = tail % cap
+            gap = cap - off
+            if gap < 8:
+                tail += gap
+                continue
+            n, index, _ = _RECORD.unpack_from(data, off)
+            if n == _WRAP:
+                tail += gap
+                continue
+            yield index, data[off + 8:off + 8 + n]
+            tail += 8 + ((n + 7) & ~7)
+            self._tail = tail
+            self._counters[1] = tail
+        self._tail = tail
+        self._counters[1] = tail
+
+    def close(self) -> None:
+        self._counters.release()
+        self._data.release()
+        self._buf.release()
+        self._map.close()
+        os.close(self.fd)
+
+
+class LogTimes:
+    """The recorder's log times (ns) from the raw CDR of a message (``docs/recording.md``):
+    ``round(data[0] * 1e9)`` for the Float64MultiArray topics (the previous log time when
+    ``data[0]`` is not a time), the stamp for ``/clock``, ``header.stamp`` for the typed views
+    (the previous log time when it is negative)."""
+
+    def __init__(self) -> None:
+        self.last = 0
+        self._offsets: dict[tuple[int, bytes], int] = {}
+        self._ts = typestore()
+
+    def array(self, raw: bytes | memoryview) -> int:
+        t = self._first(raw)
+        log = round(t * 1e9) if math.isfinite(t) and 0 <= t < 9e9 else self.last
+        self.last = log
+        return log
+
+    def clock(self, raw: bytes | memoryview) -> int:
+        if raw[:2] == _CDR_LE and len(raw) >= 12:
+            sec, nanosec = struct.unpack_from('<iI', raw, 4)
+        else:
+            c = self._ts.deserialize_cdr(bytes(raw), contract.CLOCK.type).clock
+            sec, nanosec = c.sec, c.nanosec
+        return sec * 1_000_000_000 + nanosec
+
+    def stamped(self, raw: bytes | memoryview, msgtype: str) -> int:
+        if raw[:2] == _CDR_LE and len(raw) >= 12:
+            sec, nanosec = struct.unpack_from('<iI', raw, 4)
+        else:
+            stamp = self._ts.deserialize_cdr(bytes(raw), msgtype).header.stamp
+            sec, nanosec = stamp.sec, stamp.nanosec
+        log = sec * 1_000_000_000 + nanosec
+        return log if log >= 0 else self.last
+
+    def _first(self, raw: bytes | memoryview) -> float:
+        """``data[0]`` of a Float64MultiArray (NaN when empty); the offset is found once per
+        layout (the length and the first 12 bytes fix it for a one-dimension layout)."""
+        key = (len(raw), bytes(raw[:12]))
+        at = self._offsets.get(key)
+        if at is None:
+            at = self._locate(raw)
+            if at is None:
+                data = self._ts.deserialize_cdr(bytes(raw), contract.FLOAT64_ARRAY).data
+                return float(data[0]) if len(data) else math.nan
+            if struct.unpack_from('<I', raw, 4)[0] <= 1:
+                self._offsets[key] = at
+        return struct.unpack_from('<d', raw, at)[0] if at >= 0 else math.nan
+
+    @staticmethod
+    def _locate(raw: bytes | memoryview) -> int | None:
+        """Offset of ``data[0]`` in a little-endian CDR Float64MultiArray (-1: no data);
+        None when the bytes are not one (the typestore then decodes them)."""
+        try:
+            if raw[:2] != _CDR_LE:
+                return None
+            pos = 4
+            (ndim,) = struct.unpack_from('<I', raw, pos)
+            pos += 4
+            for _ in range(ndim):
+                (slen,) = struct.unpack_from('<I', raw, pos)
+                pos += 4 + slen
+                pos = 4 + ((pos - 4 + 3) & ~3)
+                pos += 8                                 # size, stride
+            pos = 4 + ((pos - 4 + 3) & ~3)
+            pos += 4                                     # data_offset
+            (count,) = struct.unpack_from('<I', raw, pos)
+            pos += 4
+            if count == 0:
+                return -1
+            pos = 4 + ((pos - 4 + 7) & ~7)
+            if pos + 8 * count != len(raw):
+                return None
+            return pos
+        except struct.error:
+            return None
+
+
+@dataclass(frozen=True)
+class TopicSpec:
+    """One recorded topic: its resolved name, ROS type, offered QoS profiles (rosbags
+    ``Qos``) and how its log time is read (``array``, ``clock`` or ``stamped``)."""
+
+    name: str
+    type: str
+    qos: tuple
+    kind: str
+
+
+@dataclass(frozen=True)
+class WriterConfig:
+    """What the writer needs: the bag to create, its topics (the ring's record index is the
+    position in ``topics``), the first run metadata, flush period and chunk size."""
+
+    path: str
+    topics: tuple[TopicSpec, ...]
+    metadata: Mapping[str, Any]
+    flush_period: float = 0.1
+    chunk_size: int = DEFAULT_CHUNK_SIZE
+
+
+def kind_of(msgtype: str) -> str:
+    """How the log time of a message of ``msgtype`` is read (:class:`LogTimes`)."""
+    if msgtype == contract.FLOAT64_ARRAY:
+        return 'array'
+    if msgtype == contract.CLOCK.type:
+        return 'clock'
+    return 'stamped'
+
+
+def send(stream: BinaryIO, message: tuple) -> None:
+    """One control message to the writer (length-prefixed pickle)."""
+    data = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
+    stream.write(_LEN.pack(len(data)) + data)
+    stream.flush()
+
+
+def read_reply(stream: BinaryIO) -> dict | None:
+    """The writer's next JSON reply line (None at end of file)."""
+    line = stream.readline()
+    return json.loads(line) if line.strip() else None
+
+
+class _Control:
+    """The writer's end of the control pipe: messages as they are complete, EOF as None."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+        self._buf = b''
+        self.eof = False
+
+    def poll(self, timeout: float) -> list[tuple]:
+        """Messages that arrived within ``timeout`` s (sets :attr:`eof` at end of file)."""
+        if self.eof:
+            return []
+        ready, _, _ = select.select([self.fd], [], [], timeout)
+        if ready:
+            chunk = os.read(self.fd, 1 << 16)
+            if not chunk:
+                self.eof = True
+            self._buf += chunk
+        out = []
+        while len(self._buf) >= 4:
+            (n,) = _LEN.unpack_from(self._buf)
+            if len(self._buf) < 4 + n:
+                break
+            out.append(pickle.loads(self._buf[4:4 + n]))   # noqa: S301 - our own parent
+            self._buf = self._buf[4 + n:]
+        return out
+
+    def wait(self, timeout: float) -> tuple | None:
+        deadline = time.monotonic() + timeout
+        while not self.eof and time.monotonic() < deadline:
+            got = self.poll(min(0.1, max(0.0, deadline - time.monotonic())))
+            if got:
+                return got[0]
+        return None
+
+
+class _Session:
+    """The writer at work: the bag, the log times, the counts."""
+
+    def __init__(self, config: WriterConfig, ring: Ring) -> None:
+        self.ring = ring
+        self.topics = config.topics
+        self.writer = RunWriter(config.path, chunk_size=config.chunk_size).open()
+        for t in self.topics:
+            self.writer.add_topic(t.name, t.type, qos=list(t.qos))
+        self.writer.add_metadata({
+            **source_info(),
+            'fohssv.recorder': 'in-plant (the plant node\'s writer process)',
+            'fohssv.recorder_started_utc': datetime.now(timezone.utc).isoformat(),
+            'fohssv.topics': [t.name for t in self.topics],
+            'fohssv.log_time': 'simulation time in ns: round(data[0] * 1e9) for '
+                               'Float64MultiArray topics, the stamp for /clock',
+            'fohssv.flush_period_s': repr(config.flush_period),
+            'fohssv.chunk_size_bytes': str(config.chunk_size),
+            **config.metadata,
+        })
+        times = LogTimes()
+        self._log = []
+        for t in self.topics:
+            if t.kind == 'array':
+                self._log.append(times.array)
+            elif t.kind == 'clock':
+                self._log.append(times.clock)
+            else:
+                self._log.append(lambda raw, _type=t.type: times.stamped(raw, _type))
+        self.expected: dict[str, int] | None = None
+
+    def drain(self, limit: int = 1 << 22) -> int:
+        """Write what the ring holds (at most ``limit`` bytes of records); records written."""
+        n = 0
+        write = self.writer.write
+        names = [t.name for t in self.topics]
+        log = self._log
+        for index, raw in self.ring.records(limit):
+            pad = -len(raw) % 4
+            # as a DDS reader receives it (and the recorder node writes it): RTPS pads a
+            # serialized payload with zeros to a multiple of 4 bytes
+            write(names[index], log[index](raw), bytes(raw) + _PAD[pad] if pad else raw)
+            n += 1
+        return n
+
+    def end(self, run_end: str | None) -> dict:
+        """Close the bag after ``run_end`` (the plant's JSON; None: the plant died)."""
+        w = self.writer
+        if run_end is None:
+            w.add_metadata({'fohssv.record_interrupted': 'the plant ended without run_end '
+                            '(killed?); the bag holds what it had put in the ring'})
+        else:
+            info = contract.parse_run_end(run_end)
+            self.expected = {k: v for k, v in info['published'].items() if k in w.counts}
+            w.add_metadata({'fohssv.run_end': info})
+        lost = self.ring.lost
+        if lost:
+            w.add_metadata({'fohssv.record_lost': lost})
+        total = sum(w.counts.values())
+        if total == 0:
+            w.add_metadata({EMPTY_KEY: 'no message was recorded before the plant stopped'})
+        w.close()
+        missing = {k: [w.counts.get(k, 0), v] for k, v in (self.expected or {}).items()
+                   if w.counts.get(k, 0) < v}
+        return {'closed': str(w.path), 'messages': total, 'counts': dict(w.counts),
+                'missing': missing, 'lost': lost, 'waits': self.ring.waits,
+                'interrupted': run_end is None}
+
+
+def _reply(out: BinaryIO, values: Mapping[str, Any]) -> None:
+    out.write((json.dumps(values) + '\n').encode())
+    out.flush()
+
+
+def _serve(session: _Session, control: _Control, flush_period: float) -> str | None:
+    """Write until ``end`` (its run_end JSON) or the plant's death (None)."""
+    last_flush = time.monotonic()
+    while True:
+        wrote = session.drain()
+        now = time.monotonic()
+        if now - last_flush >= flush_period:
+            session.writer.flush()
+            last_flush = now
+        for message in control.poll(0.0 if wrote else _IDLE):
+            if message[0] == 'metadata':
+                session.writer.add_metadata(message[1])
+            elif message[0] == 'end':
+                return message[1]
+        if control.eof:
+            return None
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """The writer process: ``python -m fohssv_sim.bag.inplant RING_FD RING_BYTES``."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    # a terminal's Ctrl-C reaches the whole process group: the plant ends the recording
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    out = sys.stdout.buffer
+    ring = Ring(int(argv[0]), int(argv[1]))
+    control = _Control(sys.stdin.fileno())
+    opened = control.wait(60.0)
+    if opened is None or opened[0] != 'open':
+        _reply(out, {'error': 'no configuration from the plant'})
+        return 1
+    config: WriterConfig = opened[1]
+    try:
+        session = _Session(config, ring)
+    except Exception as exc:  # noqa: BLE001 - reported to the plant in one line
+        _reply(out, {'error': f'{config.path}: {exc}'})
+        return 1
+    _reply(out, {'opened': config.path, 'pid': os.getpid()})
+    run_end = _serve(session, control, config.flush_period)
+    while session.drain():
+        pass
+    result = session.end(run_end)
+    _reply(out, result)
+    if result['missing'] or result['lost']:
+        return EXIT_LOST
+    return EXIT_INTERRUPTED if run_end is None else 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,156 @@
+"""In-plant recording without ROS (fohssv_sim.bag.inplant): the shared-memory ring, the
+recorder's log-time rule, and the writer process end to end (a real process, a real bag).
+
+Messages are serialized by rosbags' typestore (not by the code under test); the expected
+log times follow the rule docs/recording.md states, computed from the decoded messages."""
+
+from __future__ import annotations
+
+import math
+import random
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from rosbags.interfaces import (
+    Qos,
+    QosDurability,
+    QosHistory,
+    QosLiveliness,
+    QosReliability,
+    QosTime,
+)
+
+from fohssv_sim import contract
+from fohssv_sim.bag import load_run, scan
+from fohssv_sim.bag.check import check
+from fohssv_sim.bag.inplant import (
+    LogTimes,
+    Ring,
+    TopicSpec,
+    WriterConfig,
+    kind_of,
+    read_reply,
+    send,
+)
+from fohssv_sim.bag.writer import typestore
+
+TS = typestore()
+INF = QosTime(9223372036, 854775807)
+QOS = Qos(history=QosHistory.KEEP_LAST, depth=10, reliability=QosReliability.RELIABLE,
+          durability=QosDurability.VOLATILE, deadline=INF, lifespan=INF,
+          liveliness=QosLiveliness.AUTOMATIC, liveliness_lease_duration=INF,
+          avoid_ros_namespace_conventions=False)
+
+
+def _array(values, label='t_z_w_theta_q') -> bytes:
+    m = TS.types['std_msgs/msg/Float64MultiArray']
+    dim = TS.types['std_msgs/msg/MultiArrayDimension'](label=label, size=len(values),
+                                                         stride=len(values))
+    layout = TS.types['std_msgs/msg/MultiArrayLayout'](dim=[dim], data_offset=0)
+    msg = m(layout=layout, data=np.array(values, dtype=np.float64))
+    return bytes(TS.serialize_cdr(msg, 'std_msgs/msg/Float64MultiArray'))
+
+
+def _clock(ns: int) -> bytes:
+    t = TS.types['builtin_interfaces/msg/Time'](sec=ns // 10**9, nanosec=ns % 10**9)
+    return bytes(TS.serialize_cdr(TS.types['rosgraph_msgs/msg/Clock'](clock=t),
+                                  'rosgraph_msgs/msg/Clock'))
+
+
+def test_ring_gives_back_every_record_in_order_across_wraps():
+    rng = random.Random(3)
+    ring = Ring.create(4096)
+    sent, got = [], []
+    for i in range(5000):
+        data = bytes([i % 251]) * rng.randint(0, 700)
+        while not ring.put(i % 5, data):           # full: the consumer takes what is there
+            got.extend((k, bytes(v)) for k, v in ring.records())
+        sent.append((i % 5, data))
+    got.extend((k, bytes(v)) for k, v in ring.records())
+    assert got == sent
+    assert ring.used == 0 and ring.lost == 0
+    ring.close()
+
+
+def test_a_full_ring_refuses_a_record_and_writes_nothing():
+    ring = Ring.create(4096)
+    n = 0
+    while ring.put(0, bytes(100)):
+        n += 1
+    assert n == 4096 // 112                         # 8-byte header + 100 bytes padded to 104
+    before = ring.used
+    assert not ring.put(0, bytes(100)) and ring.used == before
+    assert len(list(ring.records())) == n
+    ring.close()
+
+
+@pytest.mark.parametrize('values', [[0.25, 1.0, 2.0], [1e-4] * 5, [], [math.nan, 1.0],
+                                    [-1.0, 2.0], [float('inf')], [12345.678]])
+def test_log_time_of_an_array_is_round_t_ns_else_the_previous(values):
+    times = LogTimes()
+    times.last = 777
+    for label in ('t_delta_f_delta_c', '', 'x' * 13):
+        raw = _array(values, label)
+        data = TS.deserialize_cdr(raw, 'std_msgs/msg/Float64MultiArray').data
+        t = float(data[0]) if len(data) else math.nan
+        expected = round(t * 1e9) if math.isfinite(t) and 0 <= t < 9e9 else 777
+        assert times.array(raw) == expected
+        times.last = 777
+
+
+def test_log_time_of_clock_is_its_stamp():
+    for ns in (0, 1, 10**9 - 1, 123_456_789_012):
+        assert LogTimes().clock(_clock(ns)) == ns
+
+
+def test_writer_process_writes_a_complete_bag_and_checks_run_end(tmp_path):
+    ring = Ring.create(64 * 1024)
+    topics = (TopicSpec('/state', contract.FLOAT64_ARRAY, (QOS,), kind_of(contract.FLOAT64_ARRAY)),
+              TopicSpec('/clock', contract.CLOCK.type, (QOS,), kind_of(contract.CLOCK.type)))
+    bag = tmp_path / 'run'
+    proc = subprocess.Popen([sys.executable, '-m', 'fohssv_sim.bag.inplant', str(ring.fd),
+                             str(ring.size)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            pass_fds=(ring.fd,))
+    send(proc.stdin, ('open', WriterConfig(str(bag), topics, {'fohssv.test': 'yes'})))
+    assert 'opened' in read_reply(proc.stdout)
+    states = [_array([k * 1e-4, 0.0, float(k), 0.0, 0.0]) for k in range(3000)]
+    for k, raw in enumerate(states):                 # 3000 x 2 records through a 64 KiB ring
+        while not ring.put(0, raw):
+            pass
+        while not ring.put(1, _clock(round(k * 1e-4 * 1e9))):
+            pass
+    send(proc.stdin, ('end', contract.run_end_text('plant', 'test', 0, 0.2999,
+                                                    {'/state': 3001})))
+    reply = read_reply(proc.stdout)
+    assert proc.wait(timeout=60) == 6                # one state short of what run_end lists
+    assert reply['missing'] == {'/state': [3000, 3001]} and reply['messages'] == 6000
+    assert check(bag).ok
+    sc = scan(bag)
+    assert [bytes(r) for c, _, r in sc.messages if sc.channels[c].topic == '/state'] == states
+    run = load_run(bag)
+    assert np.array_equal(run.t, np.arange(3000) * 1e-4)
+    assert run.metadata['fohssv.test'] == 'yes' and run.metadata['fohssv.run_end']['t'] == 0.2999
+    ring.close()
+
+
+def test_writer_closes_the_bag_when_its_plant_goes_away(tmp_path):
+    """End of file on the control pipe without 'end' (the plant died): what the ring holds
+    is written and the bag is closed, marked interrupted (exit 7)."""
+    ring = Ring.create(8192)
+    topics = (TopicSpec('/state', contract.FLOAT64_ARRAY, (QOS,), 'array'),)
+    bag = tmp_path / 'cut'
+    proc = subprocess.Popen([sys.executable, '-m', 'fohssv_sim.bag.inplant', str(ring.fd),
+                             str(ring.size)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            pass_fds=(ring.fd,))
+    send(proc.stdin, ('open', WriterConfig(str(bag), topics, {})))
+    assert 'opened' in read_reply(proc.stdout)
+    for k in range(20):
+        assert ring.put(0, _array([k * 1e-4, 0.0, 0.0, 0.0, 0.0]))
+    proc.stdin.close()
+    reply = read_reply(proc.stdout)
+    assert proc.wait(timeout=60) == 7 and reply['interrupted']
+    assert check(bag).ok and load_run(bag).topics['/state'] == 20
+    assert 'fohssv.record_interrupted' in load_run(bag).metadata
+    ring.close()

@@ -1,0 +1,219 @@
+"""In-plant recording (issue 20, item 2): ``record:=PATH`` makes the plant write its own run to
+a bag through a writer process fed by shared memory. Real processes over DDS, real bags.
+
+* One lockstep run recorded twice, by the plant (``record``, with a ring so small that the
+  writer falls behind and paces the loop) and by the recorder node in the same graph: the two
+  bags hold the same messages, byte for byte and in order, with the same log times, channels,
+  schemas, QoS profiles, run_end and plant parameters; the in-plant bag passes ``fohssv
+  check``, pymcap-cli doctor, rosbags' reader, the loader and ``fohssv plot``.
+* A realtime writer that falls behind (a 4 KiB ring) is reported: a log line at once, the
+  summary, the bag's run_end check, exit 8; the bag is closed and readable.
+* SIGKILL of the plant: the writer notices, closes the bag; SIGKILL of the plant and its writer:
+  the cut bag is completed by ``fohssv repair``; both then pass ``fohssv check``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import time
+
+import pytest
+from mcap.reader import make_reader
+from rosbags.highlevel import AnyReader
+from test_graph_support import batch_samples, plant_args, stop_all
+
+from fohssv_controller.state_feedback import StateFeedback
+from fohssv_sim.bag import load_run
+
+import rosproc
+from mcap_doctor import assert_doctor_clean
+
+pytestmark = pytest.mark.graph
+
+DURATION = 0.2
+
+
+FOHSSV = rosproc.executable('fohssv_sim', 'fohssv')
+
+
+def _fohssv(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([str(FOHSSV), *args], capture_output=True, text=True, timeout=300)
+
+
+def _mcap(bag):
+    return bag / f'{bag.name}.mcap'
+
+
+def _read(bag) -> tuple[dict, dict, dict]:
+    """(topic -> [(log_time, bytes)], topic -> channel metadata and schema, run metadata)."""
+    messages: dict[str, list] = {}
+    channels: dict[str, tuple] = {}
+    with open(_mcap(bag), 'rb') as f:
+        reader = make_reader(f)
+        for schema, channel, message in reader.iter_messages():
+            messages.setdefault(channel.topic, []).append((message.log_time, message.data))
+            channels[channel.topic] = (dict(channel.metadata), channel.message_encoding,
+                                       schema.name, schema.encoding, schema.data)
+    run = load_run(bag)
+    return messages, channels, run.metadata
+
+
+def _summary(log: str) -> dict:
+    line = next(x for x in log.splitlines() if 'summary: {' in x)
+    return json.loads(line.split('summary: ', 1)[1])
+
+
+def test_inplant_bag_equals_the_recorder_bag_of_the_same_run(tmp_path):
+    n = len(batch_samples('delay-free', StateFeedback(), DURATION)[0])   # samples of the run
+    env = rosproc.ros_env()
+    ours, theirs = tmp_path / 'inplant', tmp_path / 'recorder'
+    rlog, plog = tmp_path / 'recorder.log', tmp_path / 'plant.log'
+    rec = rosproc.start('fohssv_sim', 'recorder', [
+        '--ros-args', '-p', f'bag_path:={theirs}', '-p', 'command_publishers:=1',
+        '-p', 'plant_timeout:=30.0'], env=env, log=rlog)
+    procs = [rec]
+    try:
+        rosproc.wait_for(lambda: 'recording to' in rlog.read_text(), 90, what='the recorder')
+        procs.append(rosproc.start('fohssv_controller', 'state_feedback', [
+            '--ros-args', '-p', 'min_command_subscribers:=2'], env=env))
+        # a 16 KiB ring (about 40 samples) and a writer stopped for the first second: the
+        # ring fills, the plant waits for the writer
+        plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+            model='delay-free', duration=DURATION, min_state_subscribers=2,
+            pace_to_subscribers=512, record=str(ours), record_buffer=16384), env=env, log=plog)
+        procs.append(plant)
+        _stall_writer(plog, 1.0)
+        assert rosproc.wait_exit(plant, 240) == 0, plog.read_text()
+        assert rosproc.wait_exit(rec, 60) == 0, rlog.read_text()
+    finally:
+        stop_all(*procs)
+    text = plog.read_text()
+    assert 'every message of the run is in the bag' in text, text
+    summary = _summary(text)
+    assert summary['record_lost'] == 0 and summary['record_waits'] > 0, summary
+
+    mine, my_channels, my_meta = _read(ours)
+    other, other_channels, other_meta = _read(theirs)
+    assert len(mine['/state']) == len(mine['/planing_force']) == n
+    for topic in ('/state', '/planing_force', '/pose', '/twist', '/planing_wrench',
+                  '/vehicle_marker'):
+        assert mine[topic] == other[topic], topic          # bytes and log times, in order
+    # the plant records the n - 1 commands it took; the controller's answer to the last state
+    # arrives after the run ended: a recorder may or may not have it
+    commands = mine['/command']
+    assert len(commands) == n - 1 and other['/command'][:n - 1] == commands
+    assert len(other['/command']) in (n - 1, n)
+    # /clock is keep-last 1: the recorder may miss some; the plant records each one it sent
+    assert len(mine['/clock']) == n and set(other['/clock']) <= set(mine['/clock'])
+    assert my_channels == other_channels                 # QoS profiles, type hash, schemas
+    assert my_meta['fohssv.run_end'] == other_meta['fohssv.run_end']
+    assert my_meta['fohssv.run_end']['published']['/state'] == n
+    assert my_meta['fohssv.plant_parameters'] == other_meta['fohssv.plant_parameters']
+
+    # what reads the recorder's bags reads this one
+    check = _fohssv('check', str(ours))
+    assert check.returncode == 0, check.stdout + check.stderr
+    assert_doctor_clean(_mcap(ours))
+    with AnyReader([ours]) as reader:
+        assert sum(1 for _ in reader.messages()) == sum(len(v) for v in mine.values())
+    a, b = load_run(ours), load_run(theirs)
+    assert (a.t == b.t).all() and (a.state == b.state).all() and not a.truncated
+    plot = _fohssv('plot', str(ours), '--out', str(tmp_path / 'fig'))
+    assert plot.returncode == 0, plot.stdout + plot.stderr
+    assert (tmp_path / 'fig' / 'run_time.png').stat().st_size > 10_000
+
+
+def _writer(log) -> int:
+    rosproc.wait_for(lambda: 'writer process' in log.read_text(), 120, what='the writer')
+    return int(re.search(r'writer process (\d+)', log.read_text()).group(1))
+
+
+def _stall_writer(log, seconds: float) -> None:
+    """Stop the plant's writer (SIGSTOP) before the run starts, until ``seconds`` after it
+    started: a writer that falls behind, for certain."""
+    writer = _writer(log)
+    os.kill(writer, signal.SIGSTOP)
+    try:
+        rosproc.wait_for(lambda: 'starting at t = 0' in log.read_text(), 120, what='the start')
+        time.sleep(seconds)
+    finally:
+        os.kill(writer, signal.SIGCONT)
+
+
+def test_a_realtime_writer_that_falls_behind_is_reported(tmp_path):
+    bag, log = tmp_path / 'small', tmp_path / 'plant.log'
+    plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+        model='delay-free', mode='realtime', duration=0.1, min_command_publishers=0,
+        min_state_subscribers=0, end_linger=0.0, record=str(bag), record_buffer=4096),
+        env=rosproc.ros_env(), log=log)
+    _stall_writer(log, 0.5)
+    code = rosproc.wait_exit(plant, 120)
+    text = log.read_text()
+    assert code == 8, text
+    assert 'in-plant recording: the writer fell behind' in text          # at once
+    summary = _summary(text)
+    lost = summary['record_lost']
+    assert lost > 0
+    assert re.search(rf'in-plant recording: {lost} message\(s\) lost', text), text
+    run = load_run(bag)                                                  # closed, readable
+    assert int(run.metadata['fohssv.record_lost']) == lost
+    published = run.metadata['fohssv.run_end']['published']
+    shortfall = sum(published.values()) - sum(v for k, v in run.topics.items()
+                                              if k in published)
+    # every lost message is accounted for: the run_end shortfall and the /clock messages
+    # (one per state, not listed in run_end)
+    assert shortfall > 0 and shortfall + published['/state'] - run.topics['/clock'] == lost
+    assert _fohssv('check', str(bag)).returncode == 0
+
+
+def _killed_run(tmp_path, name: str, kill_writer: bool):
+    """A realtime plant (at a fifth of real time, no controller needed) recording until it is
+    SIGKILLed (and its writer too, with ``kill_writer``) after 0.2 s of simulated time."""
+    bag, log = tmp_path / name, tmp_path / f'{name}.log'
+    plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+        model='delay-free', mode='realtime', real_time_factor=0.2, min_command_publishers=0,
+        min_state_subscribers=0, record=str(bag)), env=rosproc.ros_env(), log=log)
+    try:
+        writer = _writer(log)
+        rosproc.wait_for(lambda: 'starting at t = 0' in log.read_text(), 120, what='the start')
+        time.sleep(1.0)
+        if kill_writer:
+            os.kill(writer, signal.SIGKILL)
+        plant.kill()
+        plant.wait(timeout=10)
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:       # the writer exits by itself (or is gone)
+            try:
+                os.kill(writer, 0)
+            except ProcessLookupError:
+                break
+            time.sleep(0.05)
+        else:
+            raise AssertionError('the writer did not exit after the plant was killed')
+    finally:
+        stop_all(plant)
+    return bag
+
+
+@pytest.mark.parametrize('kill_writer', [False, True], ids=['plant', 'plant-and-writer'])
+def test_a_killed_plant_leaves_a_bag_that_repair_restores(tmp_path, kill_writer):
+    bag = _killed_run(tmp_path, 'killed', kill_writer)
+    before = _fohssv('check', str(bag))
+    if kill_writer:
+        assert before.returncode == 1                    # cut: no summary, no metadata.yaml
+    else:
+        # the writer saw the plant die and closed the bag (marked interrupted)
+        assert before.returncode == 0, before.stdout + before.stderr
+        assert 'fohssv.record_interrupted' in load_run(bag).metadata
+    repair = _fohssv('repair', str(bag))
+    assert repair.returncode == 0, repair.stdout + repair.stderr
+    after = _fohssv('check', str(bag))
+    assert after.returncode == 0, after.stdout + after.stderr
+    run = load_run(bag)
+    assert run.topics['/state'] > 100 and run.topics['/state'] == run.topics['/planing_force']
+    assert_doctor_clean(_mcap(bag))
+

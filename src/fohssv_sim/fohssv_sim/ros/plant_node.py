@@ -26,7 +26,9 @@ positive ``start_timeout`` is for scripts: exit 4 when it expires, in both modes
 Exit codes: 0 clean stop (signal or ``duration`` reached), 1 state turned non-finite,
 2 invalid parameters at start, 3 lockstep timeout or plant overrun, 4 peers missing when a
 positive ``start_timeout`` expired, 5 another publisher of ``state`` (a second plant) on the
-same ROS_DOMAIN_ID and namespace.
+same ROS_DOMAIN_ID and namespace, 6 a sample could not be published (DDS refused it for
+``publish_timeout`` s, e.g. a machine so loaded that the readers never acknowledge): the run
+ends there with its summary and a ``run_end`` listing what was published.
 """
 
 from __future__ import annotations
@@ -62,6 +64,7 @@ from .nodekit import (
     ArrayReader,
     ArrayWriter,
     ClockWriter,
+    LogLimiter,
     PausedCollector,
     declare,
     destroy_on_error,
@@ -79,11 +82,18 @@ from .options import NODE_PARAMETERS, PlantOptions, check_options, clock_samples
 from .views import ViewPublisher
 
 __all__ = ['PlantNode', 'main', 'EXIT_OK', 'EXIT_DIVERGED', 'EXIT_BAD_PARAMETERS',
-           'EXIT_TIMEOUT', 'EXIT_NO_PEERS', 'EXIT_SECOND_PLANT']
+           'EXIT_TIMEOUT', 'EXIT_NO_PEERS', 'EXIT_SECOND_PLANT', 'EXIT_PUBLISH_FAILED']
 
 EXIT_OK, EXIT_DIVERGED, EXIT_BAD_PARAMETERS, EXIT_TIMEOUT, EXIT_NO_PEERS = 0, 1, 2, 3, 4
 #: Another publisher of ``state`` on the plant's domain and namespace (a second plant).
 EXIT_SECOND_PLANT = 5
+#: A sample DDS refused to take for :data:`_PUBLISH_RETRY` s (retried every millisecond).
+EXIT_PUBLISH_FAILED = 6
+_PUBLISH_RETRY = 1.0
+
+
+class PublishFailed(Exception):
+    """A sample that could not be published (after retries); ends the run with exit 6."""
 #: Wall seconds between two looks at the graph for a second plant (a graph query, off the
 #: per-sample path).
 _RIVAL_CHECK_PERIOD = 0.5
@@ -161,6 +171,13 @@ class PlantNode(Node):
         self.sent = 0                             # samples published (state, planing_force)
         self.received = 0                         # commands received while running
         self._announced = False                   # run_end published
+        self.forces_lost = 0                      # planing_force samples not published
+        self.publish_retries = 0                  # publishes DDS refused at first
+        self.resets = 0
+        self._samples_before = 0                  # samples and steps before the last reset
+        self._steps_before = 0
+        self._log_rejected = LogLimiter(self.get_logger(), _LOG_EACH)
+        self._log_retry = LogLimiter(self.get_logger(), 5, level='warning')
 
         self.running = False
         self.rejected = 0
@@ -287,6 +304,13 @@ class PlantNode(Node):
         self._cpu_start = cpu_seconds()
         self._last_command_wall = self._run_wall_start
         subs, pubs = self._peers()
+        try:
+            self._start_run()
+        except PublishFailed as exc:
+            self._fail(EXIT_PUBLISH_FAILED, str(exc))
+
+    def _start_run(self) -> None:
+        subs, pubs = self._peers()
         self.get_logger().info(f'peers matched (command: {pubs} publisher(s), state: {subs} '
                                'subscriber(s)); starting at t = 0')
         if self.options.mode == 'lockstep':
@@ -311,12 +335,48 @@ class PlantNode(Node):
     def _publish(self) -> None:
         self.sent += 1
         self.sim.write_sample(self._state_data, self._force_data)
-        self.state_pub.publish(self._state_out.payload())
-        self.force_pub.publish(self._force_out.payload())
+        # a failed publish (rclpy's RCLError 'Failed to publish' under load) is retried,
+        # and ends the run with exit 6 (summary, run_end) if DDS keeps refusing it
+        try:
+            self.state_pub.publish(self._state_out.payload())
+        except Exception as exc:  # noqa: BLE001 - RCLError is not exported by rclpy
+            self._retry_publish(self.state_pub, self._state_out.payload(), exc, state=True)
+        try:
+            self.force_pub.publish(self._force_out.payload())
+        except Exception as exc:  # noqa: BLE001
+            self._retry_publish(self.force_pub, self._force_out.payload(), exc)
         if self.sim.samples % self._clock_every == 0:
-            self.clock_pub.publish(self._clock_out.payload(round(self._state_data[0] * 1e9)))
+            try:
+                self.clock_pub.publish(self._clock_out.payload(round(self._state_data[0] * 1e9)))
+            except Exception as exc:  # noqa: BLE001 - keep-last 1: the next one replaces it
+                self._log_retry(f'/clock at t={self._state_data[0]!r} s not published: {exc}')
         if self._view_every and self.sim.samples % self._view_every == 0:
-            self.views.publish(self._state_data, self._force_data[1])
+            try:
+                self.views.publish(self._state_data, self._force_data[1])
+            except Exception as exc:  # noqa: BLE001 - views are for people: never fatal
+                self._log_retry(f'views at t={self._state_data[0]!r} s not published: {exc}')
+
+    def _retry_publish(self, pub: Any, payload: Any, exc: Exception, state: bool = False
+                       ) -> None:
+        """Publish again every millisecond for up to :data:`_PUBLISH_RETRY` s (counted, the
+        first lines logged); raise :class:`PublishFailed` if DDS still refuses."""
+        self.publish_retries += 1
+        self._log_retry(f'{pub.topic_name}: publishing the sample at t={self._state_data[0]!r} '
+                        f'failed ({exc}); retrying ({self.publish_retries} retried)')
+        deadline = monotonic() + _PUBLISH_RETRY
+        while monotonic() < deadline and rclpy.ok():
+            time.sleep(0.001)
+            try:
+                pub.publish(payload)
+                return
+            except Exception as again:  # noqa: BLE001
+                exc = again
+        if state:
+            self.sent -= 1                     # the state of this sample never went out
+        self.forces_lost += 1                  # nor its planing_force (not published after)
+        raise PublishFailed(f'{pub.topic_name}: the sample at t={self._state_data[0]!r} s '
+                            f'could not be published for {_PUBLISH_RETRY:g} s ({exc}); '
+                            'stopping the run')
 
     def _publish_profiled(self) -> None:
         add = self.profile.add
@@ -355,7 +415,11 @@ class PlantNode(Node):
         except FloatingPointError as exc:
             self._fail(EXIT_DIVERGED, f'simulation failed: {exc}')
             return False
-        self._publish()
+        try:
+            self._publish()
+        except PublishFailed as exc:
+            self._fail(EXIT_PUBLISH_FAILED, str(exc))
+            return False
         if self.pacer is not None:
             self.pacer.published(monotonic())
         if self.sim.reached(self.options.duration):
@@ -505,27 +569,33 @@ class PlantNode(Node):
         second); the last good command stays held."""
         self.rejected += 1
         df, dc = self.sim.command
-        text = (f'rejected command at t={self.sim.t!r} s: {reason}; keeping the last good '
-                f'command delta_f={df!r}, delta_c={dc!r} rad ({self.rejected} rejected)')
-        if self.rejected <= _LOG_EACH:
-            self.get_logger().error(text)
-        else:
-            self.get_logger().error(text, throttle_duration_sec=1.0)
+        self._log_rejected(f'rejected command at t={self.sim.t!r} s: {reason}; keeping the last '
+                           f'good command delta_f={df!r}, delta_c={dc!r} rad ({self.rejected} '
+                           'rejected)')
 
     # -- reset -------------------------------------------------------------------------------
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response
                   ) -> Trigger.Response:
-        if self.finished.done():
+        if self.finished.done() or self._announced:
             response.success = False
             response.message = 'the run has ended'
             return response
+        self.resets += 1
+        self._samples_before += self.sim.samples
+        self._steps_before += self.sim.plant.n
         self.sim.reset(self.options.initial_state)
         self._watchdog_warned = False
         self.get_logger().info(f'reset to t = 0 at {list(self.options.initial_state)}')
         if self.running:
             if self.pacer is not None:
                 self.pacer.begin(time.monotonic())
-            self._publish()
+            try:
+                self._publish()
+            except PublishFailed as exc:
+                self._fail(EXIT_PUBLISH_FAILED, str(exc))
+                response.success = False
+                response.message = str(exc)
+                return response
             if self.pacer is not None:
                 self.pacer.published(time.monotonic())
             if self.options.mode == 'lockstep':
@@ -539,22 +609,30 @@ class PlantNode(Node):
         """Figures of the run so far (also logged as one JSON line at the end)."""
         wall = time.monotonic() - self._run_wall_start if self.running else 0.0
         cpu = cpu_seconds() - self._cpu_start if self.running else 0.0
+        # t, samples and steps count from the last /reset; the rates divide the whole run's
+        # samples (samples_total) by the whole run's wall and CPU time
+        total = self._samples_before + self.sim.samples
+        steps = self._steps_before + self.sim.plant.n
         s: dict[str, Any] = {
             'mode': self.options.mode, 'model': self.model.model, 'solver': self.model.solver,
             'step': self.model.step, 'control_period': self.options.control_period,
             't': self.sim.t, 'samples': self.sim.samples,
-            'steps': self.sim.plant.n, 'wall_time': wall, 'cpu_time': cpu,
-            'cpu_per_sample_us': cpu / self.sim.samples * 1e6 if self.sim.samples else 0.0,
+            'steps': self.sim.plant.n, 'resets': self.resets, 'samples_total': total,
+            'steps_total': steps, 'published_states': self.sent,
+            'wall_time': wall, 'cpu_time': cpu,
+            'cpu_per_sample_us': cpu / total * 1e6 if total else 0.0,
             'clock_samples': self._clock_every, 'view_samples': self._view_every,
             'views': self.views.published if self.views is not None else 0,
             'rejected_commands': self.rejected, 'ignored_commands': self.ignored,
+            'publish_retries': self.publish_retries,
         }
         if self.profile is not None:
             s['profile'] = self.profile.summary()
         if self.pacer is not None:
             p = self.pacer
             s.update(real_time_factor=self.options.real_time_factor,
-                     achieved_real_time_factor=self.sim.t / wall if wall > 0 else 0.0,
+                     achieved_real_time_factor=(total * self.options.control_period / wall
+                                                if wall > 0 else 0.0),
                      deadline_tolerance=p.tolerance,
                      deadline_misses=p.misses, samples_paced=p.produced,
                      deadline_miss_rate=p.misses / p.produced if p.produced else 0.0,
@@ -563,8 +641,7 @@ class PlantNode(Node):
                      slips=p.slips, worst_lateness=p.worst_lateness,
                      max_command_lag=self._max_lag, stale_commands=self.stale)
         elif wall > 0:
-            s.update(samples_per_second=self.sim.samples / wall,
-                     steps_per_second=self.sim.plant.n / wall)
+            s.update(samples_per_second=total / wall, steps_per_second=steps / wall)
         return s
 
     def _end(self, code: int) -> None:
@@ -587,7 +664,8 @@ class PlantNode(Node):
         if self._announced:
             return
         self._announced = True
-        published = {self.state_pub.topic_name: self.sent, self.force_pub.topic_name: self.sent,
+        published = {self.state_pub.topic_name: self.sent,
+                     self.force_pub.topic_name: self.sent - self.forces_lost,
                      self.command_sub.topic_name: self.received}
         if self.views is not None:
             n = self.views.published
@@ -633,8 +711,12 @@ class PlantNode(Node):
 
 
 def _interrupted(node: PlantNode) -> None:
-    final_log(node.get_name(), 'interrupted; stopping cleanly. summary: '
-              + json.dumps(node.summary()))
+    summary = json.dumps(node.summary())
+    # the announced end is the end: nothing is stepped or published after it (the linger
+    # spins the executor, and a lockstep command arriving then would advance the run)
+    node.running = False
+    node.pacer = None
+    final_log(node.get_name(), f'interrupted; stopping cleanly. summary: {summary}')
     node.announce_end('interrupted', node.exit_code)
 
 

@@ -8,7 +8,14 @@ Shared by the plant, the controller node, the recorder and the player (one imple
   otherwise: when neither ``ROS_AUTOMATIC_DISCOVERY_RANGE`` nor the older
   ``ROS_LOCALHOST_ONLY`` is set, :func:`init` sets ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``
   (ROS's own default is ``SUBNET``: every host on the network) and logs one line saying so;
-  ``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET`` opens it on purpose.
+  ``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET`` opens discovery on purpose.
+  Transports stay on this machine too (:func:`default_transport`): unless the user set
+  ``FASTDDS_DEFAULT_PROFILES_FILE`` (or the older ``FASTRTPS_DEFAULT_PROFILES_FILE``) or
+  ``FOHSSV_DDS_NETWORK=open``, the package's Fast DDS profile ``config/fastdds_localhost.xml``
+  is applied: shared memory and UDPv4 on 127.0.0.1 only, no socket on 0.0.0.0 or an external
+  address. (rmw_fastrtps in LOCALHOST mode adds a UDP transport on every interface of its
+  own, so with the profile a LOCALHOST range is handed to rcl as SUBNET: discovery then runs
+  over the loopback-only transports, which no other host can reach.)
 * params files (``--params-file``), read before rcl parses them: a file larger than
   :data:`MAX_PARAMS_BYTES` or with more than :data:`MAX_PARAMS_KEYS` keys is refused at once
   (rcl's parse and the unknown-name check of 200 000 keys took 6 minutes), and so is a key
@@ -59,6 +66,7 @@ from rclpy.node import Node
 from ..params import ParameterSpec
 
 __all__ = ['EXIT_BAD_PARAMETERS', 'DEFAULT_DISCOVERY_RANGE', 'default_discovery',
+           'default_transport', 'localhost_profile', 'NETWORK_VAR',
            'MAX_PARAMS_BYTES', 'MAX_PARAMS_KEYS', 'read_params_file', 'params_file_args',
            'BadParameters', 'init', 'precheck', 'declare_rows',
            'refuse_unknown', 'explain', 'one_line', 'report', 'destroy_on_error']
@@ -68,6 +76,12 @@ EXIT_BAD_PARAMETERS = 2
 #: Discovery range of the nodes when the environment does not choose one.
 DEFAULT_DISCOVERY_RANGE = 'LOCALHOST'
 _DISCOVERY_VARS = ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_LOCALHOST_ONLY')
+_PROFILE_VARS = ('FASTDDS_DEFAULT_PROFILES_FILE', 'FASTRTPS_DEFAULT_PROFILES_FILE')
+#: The package's Fast DDS profile (installed with it): loopback and shared memory only.
+PROFILE_NAME = 'fastdds_localhost.xml'
+#: ``FOHSSV_DDS_NETWORK=open``: leave Fast DDS's transports at their defaults (every
+#: interface), e.g. to reach other hosts together with ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET.
+NETWORK_VAR = 'FOHSSV_DDS_NETWORK'
 #: The largest params file a node reads (bytes); the plant's full file is about 6 KiB.
 MAX_PARAMS_BYTES = 1 << 20
 #: The most keys a params file may hold (all mappings together); the plant has about 60.
@@ -85,6 +99,56 @@ def default_discovery(environ: dict[str, str] | None = None) -> bool:
         return False
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = DEFAULT_DISCOVERY_RANGE
     return True
+
+
+def localhost_profile() -> str | None:
+    """The path of the package's Fast DDS profile (installed share, else the source tree)."""
+    from pathlib import Path
+
+    candidates = []
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        candidates.append(Path(get_package_share_directory('fohssv_sim')) / 'config')
+    except Exception:  # noqa: BLE001, S110 - not installed with colcon: the source tree
+        pass
+    candidates.append(Path(__file__).resolve().parents[2] / 'config')
+    for folder in candidates:
+        if (folder / PROFILE_NAME).is_file():
+            return str(folder / PROFILE_NAME)
+    return None
+
+
+def _same_file(a: str, b: str) -> bool:
+    """The same profile: one path, or the same content (env.sh names the source tree's copy,
+    a node finds the installed one)."""
+    try:
+        return os.path.realpath(a) == os.path.realpath(b) or (
+            open(a, 'rb').read() == open(b, 'rb').read())  # noqa: SIM115
+    except OSError:
+        return False
+
+
+def default_transport(environ: dict[str, str] | None = None) -> str | None:
+    """Apply the package's loopback-only Fast DDS profile in ``environ`` (``os.environ``,
+    read by Fast DDS when rclpy starts) unless the user chose a profile or
+    ``FOHSSV_DDS_NETWORK=open``; the profile path when it is in force (set here, or set to it
+    already by env.sh), else None. With it in force a LOCALHOST discovery range becomes SUBNET
+    for rcl (see the module docstring)."""
+    env = os.environ if environ is None else environ
+    if env.get(NETWORK_VAR, '').strip().lower() == 'open':
+        return None
+    ours = localhost_profile()
+    if ours is None:
+        return None
+    given = [env.get(v, '').strip() for v in _PROFILE_VARS]
+    given = [g for g in given if g]
+    if given and not all(_same_file(g, ours) for g in given):
+        return None                       # the user's own profile
+    env['FASTDDS_DEFAULT_PROFILES_FILE'] = ours
+    if env.get('ROS_AUTOMATIC_DISCOVERY_RANGE', '').strip().upper() == 'LOCALHOST':
+        env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'SUBNET'
+    return ours
 
 
 class BadParameters(ValueError):
@@ -214,6 +278,7 @@ def init(args: Sequence[str] | None = None, **kwargs: Any) -> None:
     # rcl logs its own 'Failed to parse global arguments' line before raising: silenced, the
     # one line below carries rcl's reason
     defaulted = default_discovery()
+    profile = default_transport()
     _PARAMS_SECTIONS.clear()
     for path in params_file_args(sys.argv if args is None else args):
         sections = read_params_file(path)      # BadParameters: too large, duplicates
@@ -237,8 +302,10 @@ def init(args: Sequence[str] | None = None, **kwargs: Any) -> None:
     if defaulted:
         rclpy.logging.get_logger('fohssv').info(
             f'discovery: this machine only (ROS_AUTOMATIC_DISCOVERY_RANGE='
-            f'{DEFAULT_DISCOVERY_RANGE}, the fohssv default); set '
-            'ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET to reach nodes on other hosts')
+            f'{DEFAULT_DISCOVERY_RANGE}, the fohssv default'
+            + (f'; transports: loopback and shared memory, {PROFILE_NAME}' if profile else '')
+            + '); set ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET and FOHSSV_DDS_NETWORK=open to '
+            'reach nodes on other hosts')
 
 
 def _overrides(node: Node) -> dict[str, Any]:

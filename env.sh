@@ -30,6 +30,12 @@ case ":${AMENT_PREFIX_PATH:-}:" in
 esac
 # Kilted ignores ROS_LOCALHOST_ONLY; this keeps DDS traffic on the host unless the user says otherwise.
 export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
+# ... and at the transport: Fast DDS binds UDP on loopback only (plus shared memory) with the
+# package's profile, unless you chose a profile or FOHSSV_DDS_NETWORK=open (docs/ros.md).
+if [ "${FOHSSV_DDS_NETWORK:-}" != "open" ] && [ -z "${FASTDDS_DEFAULT_PROFILES_FILE:-}" ] \
+   && [ -z "${FASTRTPS_DEFAULT_PROFILES_FILE:-}" ]; then
+  export FASTDDS_DEFAULT_PROFILES_FILE="$FOHSSV_ROOT/src/fohssv_sim/config/fastdds_localhost.xml"
+fi
 
 if [ -f "$FOHSSV_ROOT/ros2_ws/install/setup.sh" ]; then
   # colcon's setup scripts fail under `set -u`: relax it while sourcing.

@@ -181,3 +181,32 @@ def test_controller_sends_no_command_for_a_non_finite_law_output():
             '[z, w, theta, q] = [10.0, 0.0, 10.0, 0.0]; no command sent for this state '
             '(1 withheld)') in out, out
     assert 'withheld 1 (non-finite law output)' in out
+
+
+def test_controller_survives_many_bad_states_and_throttles_their_lines():
+    """Issue 21, class 1: the 21st dropped state killed the node (rclpy: "Requested logging
+    filters cannot be changed between calls"). 40 bad states: the node stays alive, answers
+    a good state after them, and logs the first 20 drops one by one, then at most one line a
+    second (docs/ros.md)."""
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    probe = Probe(domain)
+    ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
+    try:
+        _first_state_to_controller(probe)
+        for k in range(40):
+            probe.publish_state([0.1 + k * 1e-3, float('nan'), 0.0, 0.0, 0.0])
+        probe.publish_state([0.5, 0.01, 0.0, 0.0, 0.0])
+        probe.wait(lambda: any(c[0] == 0.5 for c in probe.commands), 20, 'the good answer')
+        alive = ctl.poll() is None
+    finally:
+        out = stop_all(ctl)
+        probe.close()
+    assert alive, out
+    assert 'Traceback' not in out and 'cannot be changed' not in out
+    lines = [ln for ln in out.splitlines() if 'dropped a state message' in ln]
+    # 20 one by one; the other 20 arrive within far less than a second on a quiet machine,
+    # and never more than one a second: at most 20 + (seconds taken + 1) lines
+    assert 20 <= len(lines) < 40, out
+    assert '(20 dropped) [logged one by one up to here' in lines[19]
+    assert 'answered 2 state(s), dropped 40' in out

@@ -24,6 +24,17 @@ def bad_parameter_cases(tmp):
     broken = tmp / 'broken.yaml'
     broken.write_text('plant:\n  ros__parameters: [speed: 80\n')
     missing = str(tmp / 'no_such_params.yaml')
+    # issue 21, class 4: a section for no node of this name, a key twice, a huge file
+    foreign = tmp / 'foreign.yaml'
+    foreign.write_text('plnat:\n  ros__parameters:\n    speed: 80.0\n')
+    twice = tmp / 'twice.yaml'
+    twice.write_text('plant:\n  ros__parameters:\n    speed: 80.0\n    speed: 90.0\n')
+    huge = tmp / 'huge.yaml'
+    huge.write_text('plant:\n  ros__parameters:\n'
+                    + ''.join(f'    k{i}: 1.0\n' for i in range(200_000)))
+    many = tmp / 'many.yaml'
+    many.write_text('plant:\n  ros__parameters:\n'
+                    + ''.join(f'    k{i}: 1\n' for i in range(12_000)))
     bag = str(tmp / 'bag')
     params_file = str(misspelt)          # a file, not a directory
     return [
@@ -94,6 +105,17 @@ def bad_parameter_cases(tmp):
          "unknown parameter 'flush_periode' (did you mean 'flush_period'?)"),
         ('player', ['-p', f'bag_path:={bag}', '-p', 'rat:=0.0'],
          "unknown parameter 'rat' (did you mean 'rate'?)"),
+        ('plant', ['--params-file', str(foreign)],
+         f"params file {foreign} sets nothing for node '/plant': its sections are 'plnat' "
+         "(did you mean 'plant' for 'plnat'?)"),
+        ('controller', ['--params-file', str(foreign)],
+         "sets nothing for node '/controller': its sections are 'plnat'"),
+        ('plant', ['--params-file', str(twice)],
+         f"params file {twice} gives 'speed' twice (line 4;"),
+        ('plant', ['--params-file', str(huge)],
+         f'params file {huge} is {huge.stat().st_size} bytes, more than the 1048576'),
+        ('recorder', ['--params-file', str(many)],
+         f'params file {many} has more than 10000 keys'),
         # defect 4: a missing or malformed params file, bad --ros-args
         *[(node, ['--params-file', missing], 'invalid arguments: ') for node in NODES],
         *[(node, ['--params-file', str(broken)], 'invalid arguments: ') for node in NODES],

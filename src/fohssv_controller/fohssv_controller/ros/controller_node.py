@@ -8,8 +8,9 @@ lockstep and real time alike. The controller's parameters are declared from its
 controller and applied only when that succeeds. A state message that does not fit the
 contract is dropped and logged; a state whose time goes backwards (the plant was reset) resets
 the controller. A control law whose output is not finite (NaN or infinite: clamping it would
-command a full deflection) gets no command sent for that state: the node logs it (the first 20
-one by one, then at most one line a second) and counts it; the plant keeps its last good
+command a full deflection), or that raises an exception, gets no command sent for that state:
+the node logs it (the first 20 one by one, then at most one line a second, see
+:class:`~fohssv_sim.ros.nodekit.LogLimiter`) and counts it; the plant keeps its last good
 command (in lockstep it waits for an answer and ends with exit 3 after ``command_timeout``,
 naming the stalled controller).
 
@@ -42,6 +43,7 @@ from fohssv_sim.ros.nodekit import (
     ArrayReader,
     ArrayWriter,
     HoldReporter,
+    LogLimiter,
     SecondPublisherWarning,
     SubscriptionGate,
     declare,
@@ -108,6 +110,12 @@ class ControllerNode(Node):
         self.answered = 0
         self.dropped = 0
         self.withheld = 0     # states whose law output was not finite: no command sent
+        self.raised = 0       # states whose law raised an exception: no command sent
+        # each fault its own limiter: the first 20 lines one by one, then one a second
+        logger = self.get_logger()
+        self._log_dropped = LogLimiter(logger, _LOG_EACH)
+        self._log_withheld = LogLimiter(logger, _LOG_EACH)
+        self._log_raised = LogLimiter(logger, _LOG_EACH)
         self.get_logger().info(f'controller {self.controller.describe()}')
 
     def _plugin(self, default_controller: str) -> type[Controller]:
@@ -138,9 +146,7 @@ class ControllerNode(Node):
             t, *x = decode(STATE, data)   # the slow path: rejects with the reason, or passes
         except ContractError as exc:       # finite values whose sum overflowed
             self.dropped += 1
-            text = f'dropped a state message: {exc} ({self.dropped} dropped)'
-            self.get_logger().error(text, throttle_duration_sec=(
-                0.0 if self.dropped <= _LOG_EACH else 1.0))
+            self._log_dropped(f'dropped a state message: {exc} ({self.dropped} dropped)')
             return
         self._answer(t, x)
 
@@ -156,13 +162,14 @@ class ControllerNode(Node):
             # never sent (clamped it would be a full deflection): the plant keeps its last
             # good command; in lockstep it waits, and its command_timeout names this node
             self.withheld += 1
-            self.get_logger().error(
-                f'{exc}; no command sent for this state ({self.withheld} withheld)',
-                throttle_duration_sec=0.0 if self.withheld <= _LOG_EACH else 1.0)
+            self._log_withheld(f'{exc}; no command sent for this state ({self.withheld} '
+                               'withheld)')
             return
-        except Exception as exc:  # a plugin's bug must not kill the node silently
-            self.get_logger().error(f'{self.controller.name}.command(t={t!r}) raised '
-                                    f'{type(exc).__name__}: {exc}; no command sent')
+        except Exception as exc:  # a plugin's bug must not kill the node, nor flood the log
+            self.raised += 1
+            self._log_raised(f'{self.controller.name}.command(t={t!r}) raised '
+                             f'{type(exc).__name__}: {exc}; no command sent ({self.raised} '
+                             'raised)')
             return
         if self._open:
             out = self._out
@@ -208,7 +215,8 @@ def main(args: list[str] | None = None,
 
     def on_exit(node: ControllerNode) -> None:
         final_log(node.get_name(), f'answered {node.answered} state(s), dropped '
-                  f'{node.dropped}, withheld {node.withheld} (non-finite law output)')
+                  f'{node.dropped}, withheld {node.withheld} (non-finite law output), '
+                  f'{node.raised} raised by the law')
 
     sys.exit(run_node('controller', args, lambda: ControllerNode(default_controller),
                       specs=(*specs, MIN_COMMAND_SUBSCRIBERS),

@@ -3,6 +3,8 @@
 * :func:`select_tracks`: the contract topics to republish and their messages in recorded
   order;
 * :func:`pacing_schedule`: when each of them is due at a replay rate;
+* :func:`replay_timeline`: the same for messages of several topics in recorded order, with
+  the monotonic ``/clock`` to publish before each;
 * :func:`command_table`: the recorded commands by the state time they answer (open-loop
   replay);
 * :func:`compare_plant`: the differences between the plant parameters a bag recorded and a
@@ -21,7 +23,8 @@ from .. import contract
 from ..params import PARAMETERS, ModelParameters, ParameterError
 from .writer import typestore
 
-__all__ = ['PlayerError', 'Track', 'select_tracks', 'pacing_schedule', 'command_table',
+__all__ = ['PlayerError', 'Track', 'select_tracks', 'pacing_schedule', 'replay_timeline',
+           'command_table',
            'compare_plant', 'COMPARED']
 
 
@@ -161,3 +164,48 @@ def pacing_schedule(logs: list[int], rate: float) -> list[float]:
         out.append(due)
         last = log
     return out
+
+
+def replay_timeline(order: list[tuple[str, int, bytes]] | list[tuple[str, int]], rate: float
+                    ) -> tuple[list[float], list[int | None]]:
+    """When each message of ``order`` ((topic, log ns, ...) in recorded order) is due at
+    ``rate``, and the ``/clock`` (ns) to publish before it (None: no new clock).
+
+    A recorder writes in arrival order: the command answering t_n often arrives after the
+    state t_(n+1), so the log times of the whole file step back thousands of times a second
+    although each topic's own times only go forward. Time here is the high-water mark of the
+    log times: ``/clock`` never steps back, and the pacing counts each simulated interval
+    once (with :func:`pacing_schedule` on the interleaved times, the steps back and forth are
+    counted again and again, and a replay at rate 1 ran at a fraction of real time). Only a
+    topic whose own time goes back (the run was reset: the live plant's ``/clock`` went back
+    too) starts a new epoch: the mark restarts from that time, and messages of the old epoch
+    still in flight neither move the clock nor the pacing.
+    """
+    last: dict[str, int] = {}      # per topic: log time of its previous message
+    epoch: dict[str, int] = {}     # per topic: resets it has seen
+    current = 0                    # the newest epoch
+    mark: int | None = None        # high-water mark of the log times in the newest epoch
+    due = 0.0
+    dues: list[float] = []
+    clocks: list[int | None] = []
+    for item in order:
+        name, log = item[0], item[1]
+        prev = last.get(name)
+        e = epoch.get(name, 0)
+        if prev is not None and log < prev:
+            e += 1                 # this topic went back in time: a reset
+            epoch[name] = e
+        last[name] = log
+        clock = None
+        if e > current:
+            current = e
+            mark = log
+            clock = log
+        elif e == current and (mark is None or log > mark):
+            if mark is not None and rate > 0:
+                due += (log - mark) * 1e-9 / rate
+            mark = log
+            clock = log
+        dues.append(due)
+        clocks.append(clock)
+    return dues, clocks

@@ -17,13 +17,16 @@ imports its ROS helpers from here and never from another node's module:
   and for the real-time plant :class:`PausedCollector`, :func:`set_realtime_priority`,
   :func:`tighten_timer_slack` (:mod:`.spin`);
 * subscription gating: :class:`SubscriptionGate`, :class:`HoldReporter`,
-  :class:`SecondPublisherWarning` (:mod:`.matching`).
+  :class:`SecondPublisherWarning` (:mod:`.matching`);
+* counted faults: :class:`LogLimiter` (the first lines one by one, then at most one a
+  second: dropped messages, rejected commands, a plugin that raises).
 """
 
 from __future__ import annotations
 
 import sys
 from collections.abc import Callable, Iterable
+from time import monotonic
 from typing import Any
 
 import rclpy
@@ -63,9 +66,63 @@ __all__ = ['run_node', 'spin_node', 'EXIT_OK', 'EXIT_BAD_PARAMETERS',
            'refuse_unknown', 'error_line', 'destroy_on_error', 'BadParameters', 'make_executor',
            'spin_until', 'STOP', 'final_log', 'SubscriptionGate', 'HoldReporter',
            'SecondPublisherWarning',
-           'PausedCollector', 'set_realtime_priority', 'tighten_timer_slack', 'init', 'report']
+           'PausedCollector', 'set_realtime_priority', 'tighten_timer_slack', 'init', 'report',
+           'LogLimiter']
 
 EXIT_OK = 0
+
+
+class LogLimiter:
+    """Log a counted fault: the first ``each`` lines one by one, then at most one line every
+    ``period`` s (wall time), which says how many were not logged since the last one.
+
+    rclpy's own ``throttle_duration_sec`` cannot do this from one call site: a call site
+    that passes it once with 0 and then with 1.0 raises "Requested logging filters cannot be
+    changed between calls" (rclpy keys a filter context by the caller's file and line), which
+    killed the controller node at the 21st dropped state. Here the logger is called without
+    filters, from one place, and the limiting is plain arithmetic (cheap: one clock read
+    per fault).
+
+    Args:
+        logger: an rclpy logger (``node.get_logger()``).
+        each: lines logged one by one before the limit applies.
+        period: the least time between two lines after that (s).
+        level: the logger method, ``'error'`` or ``'warning'``.
+    """
+
+    def __init__(self, logger: Any, each: int = 20, period: float = 1.0,
+                 level: str = 'error') -> None:
+        self._log = getattr(logger, level)
+        self.each = each
+        self.period = period
+        self.count = 0           # faults seen
+        self.logged = 0          # lines logged
+        self._skipped = 0        # faults not logged since the last line
+        self._next = 0.0
+
+    def __call__(self, text: str) -> bool:
+        """Count one fault; log ``text`` unless the limit holds it back. True when logged."""
+        self.count += 1
+        if self.count > self.each:
+            now = monotonic()
+            if now < self._next:
+                self._skipped += 1
+                return False
+            self._next = now + self.period
+            if self._skipped:
+                text = f'{text} [{self._skipped} similar line(s) not logged in the last ' \
+                       f'{self.period:g} s]'
+                self._skipped = 0
+        elif self.count == self.each:
+            text = f'{text} [logged one by one up to here; from now on at most one line ' \
+                   f'every {self.period:g} s]'
+            self._next = monotonic() + self.period
+        self.logged += 1
+        try:
+            self._log(text)
+        except Exception:  # noqa: BLE001 - the context is going down (a signal): say it here
+            final_log('fohssv', text)
+        return True
 
 
 def spin_node(node: Node) -> int:

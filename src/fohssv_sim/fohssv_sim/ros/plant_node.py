@@ -43,7 +43,10 @@ same ROS_DOMAIN_ID and namespace, 6 realtime: the commands of an external contro
 by more than ``max_command_lag`` control periods for as long, 7 a hosted controller and
 another publisher of ``command`` (an external controller) on the same domain and namespace,
 8 the in-plant bag (``record``) misses messages (its writer fell behind in real time, or
-failed).
+failed),
+9 a sample could not be published (DDS refused it for a second, e.g. a machine so loaded
+that the readers never acknowledge): the run ends there with its summary and a ``run_end``
+listing what was published.
 """
 
 from __future__ import annotations
@@ -87,6 +90,7 @@ from .nodekit import (
     ArrayReader,
     ArrayWriter,
     ClockWriter,
+    LogLimiter,
     PausedCollector,
     declare,
     destroy_on_error,
@@ -106,7 +110,8 @@ from .wire import raw_publish
 
 __all__ = ['PlantNode', 'main', 'EXIT_OK', 'EXIT_DIVERGED', 'EXIT_BAD_PARAMETERS',
            'EXIT_TIMEOUT', 'EXIT_NO_PEERS', 'EXIT_SECOND_PLANT', 'EXIT_COMMAND_LAG',
-           'EXIT_SECOND_CONTROLLER', 'CONTROLLER_PREFIX', 'EXIT_RECORD_LOST']
+           'EXIT_SECOND_CONTROLLER', 'CONTROLLER_PREFIX', 'EXIT_RECORD_LOST',
+           'EXIT_PUBLISH_FAILED']
 
 EXIT_OK, EXIT_DIVERGED, EXIT_BAD_PARAMETERS, EXIT_TIMEOUT, EXIT_NO_PEERS = 0, 1, 2, 3, 4
 #: Another publisher of ``state`` on the plant's domain and namespace (a second plant).
@@ -120,6 +125,13 @@ CONTROLLER_PREFIX = 'controller.'
 #: With a hosted controller: the wall time (s) one chunk of samples runs before the executor
 #: is spun again (services, parameters, the graph checks, signals).
 _CHUNK = 0.005
+#: A sample DDS refused to take for :data:`_PUBLISH_RETRY` s (retried every millisecond).
+EXIT_PUBLISH_FAILED = 9
+_PUBLISH_RETRY = 1.0
+
+
+class PublishFailed(Exception):
+    """A sample that could not be published (after retries); ends the run with exit 9."""
 #: Wall seconds between two looks at the graph for a second plant (a graph query, off the
 #: per-sample path).
 _RIVAL_CHECK_PERIOD = 0.5
@@ -229,6 +241,14 @@ class PlantNode(Node):
         self.commands_sent = 0                    # hosted: of those, published (subscribed)
         self.law_failures = 0                     # hosted: samples the law gave no command
         self._announced = False                   # run_end published
+        self.forces_lost = 0                      # planing_force samples not published
+        self.publish_retries = 0                  # publishes DDS refused at first
+        self.resets = 0
+        self._samples_before = 0                  # samples and steps before the last reset
+        self._steps_before = 0
+        self._log_rejected = LogLimiter(self.get_logger(), _LOG_EACH)
+        self._log_law = LogLimiter(self.get_logger(), _LOG_EACH)   # hosted: no command
+        self._log_retry = LogLimiter(self.get_logger(), 5, level='warning')
         # record:=PATH: the plant writes its own bag (inplant_record.py); None when off
         self.record = start_recording(self)
         if self.record is not None:
@@ -428,6 +448,12 @@ class PlantNode(Node):
         self._run_wall_start = time.monotonic()
         self._cpu_start = cpu_seconds()
         self._last_command_wall = self._run_wall_start
+        try:
+            self._start_run()
+        except PublishFailed as exc:
+            self._fail(EXIT_PUBLISH_FAILED, str(exc))
+
+    def _start_run(self) -> None:
         subs, pubs = self._peers()
         self.get_logger().info(f'peers matched (command: {pubs} publisher(s), state: {subs} '
                                'subscriber(s)); starting at t = 0')
@@ -461,16 +487,54 @@ class PlantNode(Node):
     def _publish(self) -> None:
         self.sent += 1
         self.sim.write_sample(self._state_data, self._force_data)
-        self._send_state(self._state_out.payload())
-        self._send_force(self._force_out.payload())
+        # a failed publish (rclpy's RCLError 'Failed to publish' under load) is retried,
+        # and ends the run with exit 9 (summary, run_end) if DDS keeps refusing it
+        try:
+            self._send_state(self._state_out.payload())
+        except Exception as exc:  # noqa: BLE001 - RCLError is not exported by rclpy
+            self._retry_publish(self._send_state, self.state_pub.topic_name,
+                                self._state_out.payload(), exc, state=True)
+        try:
+            self._send_force(self._force_out.payload())
+        except Exception as exc:  # noqa: BLE001
+            self._retry_publish(self._send_force, self.force_pub.topic_name,
+                                self._force_out.payload(), exc)
         if self._clock_wanted and self.sim.samples % self._clock_every == 0:
-            self._send_clock(self._clock_out.payload(round(self._state_data[0] * 1e9)))
+            try:
+                self._send_clock(self._clock_out.payload(round(self._state_data[0] * 1e9)))
+            except Exception as exc:  # noqa: BLE001 - keep-last 1: the next one replaces it
+                self._log_retry(f'/clock at t={self._state_data[0]!r} s not published: {exc}')
         views = self.views
         if views is not None:     # a view's messages go out one per sample (views.py)
-            if self.sim.samples % self._view_every == 0:
-                views.publish(self._state_data, self._force_data[1])
-            elif views.pending:
-                views.publish_next()
+            try:
+                if self.sim.samples % self._view_every == 0:
+                    views.publish(self._state_data, self._force_data[1])
+                elif views.pending:
+                    views.publish_next()
+            except Exception as exc:  # noqa: BLE001 - views are for people: never fatal
+                self._log_retry(f'views at t={self._state_data[0]!r} s not published: {exc}')
+
+    def _retry_publish(self, send: Any, name: str, payload: Any, exc: Exception,
+                       state: bool = False) -> None:
+        """Publish again every millisecond for up to :data:`_PUBLISH_RETRY` s (counted, the
+        first lines logged); raise :class:`PublishFailed` if DDS still refuses."""
+        self.publish_retries += 1
+        self._log_retry(f'{name}: publishing the sample at t={self._state_data[0]!r} '
+                        f'failed ({exc}); retrying ({self.publish_retries} retried)')
+        deadline = monotonic() + _PUBLISH_RETRY
+        while monotonic() < deadline and rclpy.ok():
+            time.sleep(0.001)
+            try:
+                send(payload)
+                return
+            except Exception as again:  # noqa: BLE001
+                exc = again
+        if state:
+            self.sent -= 1                     # the state of this sample never went out
+        self.forces_lost += 1                  # nor its planing_force (not published after)
+        raise PublishFailed(f'{name}: the sample at t={self._state_data[0]!r} s '
+                            f'could not be published for {_PUBLISH_RETRY:g} s ({exc}); '
+                            'stopping the run')
 
     def _publish_profiled(self) -> None:
         add = self.profile.add
@@ -515,7 +579,11 @@ class PlantNode(Node):
         except FloatingPointError as exc:
             self._fail(EXIT_DIVERGED, f'simulation failed: {exc}{self._lag_note()}')
             return False
-        self._publish()
+        try:
+            self._publish()
+        except PublishFailed as exc:
+            self._fail(EXIT_PUBLISH_FAILED, str(exc))
+            return False
         if self.pacer is not None:
             self.pacer.published(monotonic())
         if self.sim.reached(self.options.duration):
@@ -569,8 +637,7 @@ class PlantNode(Node):
         df, dc = self.sim.command
         text = (f'{what}; no command for this sample, holding delta_f={df!r}, delta_c={dc!r} '
                 f'rad ({self.law_failures} without a command)')
-        self.get_logger().error(text, throttle_duration_sec=(
-            0.0 if self.law_failures <= _LOG_EACH else 1.0))
+        self._log_law(text)
 
     # -- lockstep ----------------------------------------------------------------------------
     def _await_command(self) -> None:
@@ -803,20 +870,20 @@ class PlantNode(Node):
         second); the last good command stays held."""
         self.rejected += 1
         df, dc = self.sim.command
-        text = (f'rejected command at t={self.sim.t!r} s: {reason}; keeping the last good '
-                f'command delta_f={df!r}, delta_c={dc!r} rad ({self.rejected} rejected)')
-        if self.rejected <= _LOG_EACH:
-            self.get_logger().error(text)
-        else:
-            self.get_logger().error(text, throttle_duration_sec=1.0)
+        self._log_rejected(f'rejected command at t={self.sim.t!r} s: {reason}; keeping the last '
+                           f'good command delta_f={df!r}, delta_c={dc!r} rad ({self.rejected} '
+                           'rejected)')
 
     # -- reset -------------------------------------------------------------------------------
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response
                   ) -> Trigger.Response:
-        if self.finished.done():
+        if self.finished.done() or self._announced:
             response.success = False
             response.message = 'the run has ended'
             return response
+        self.resets += 1
+        self._samples_before += self.sim.samples
+        self._steps_before += self.sim.plant.n
         self.sim.reset(self.options.initial_state)
         if self.hosted is not None:
             self.hosted.reset()
@@ -826,7 +893,13 @@ class PlantNode(Node):
         if self.running:
             if self.pacer is not None:
                 self.pacer.begin(time.monotonic())
-            self._publish()
+            try:
+                self._publish()
+            except PublishFailed as exc:
+                self._fail(EXIT_PUBLISH_FAILED, str(exc))
+                response.success = False
+                response.message = str(exc)
+                return response
             if self.pacer is not None:
                 self.pacer.published(time.monotonic())
             if self.hosted is not None:
@@ -842,16 +915,23 @@ class PlantNode(Node):
         """Figures of the run so far (also logged as one JSON line at the end)."""
         wall = time.monotonic() - self._run_wall_start if self.running else 0.0
         cpu = cpu_seconds() - self._cpu_start if self.running else 0.0
+        # t, samples and steps count from the last /reset; the rates divide the whole run's
+        # samples (samples_total) by the whole run's wall and CPU time
+        total = self._samples_before + self.sim.samples
+        steps = self._steps_before + self.sim.plant.n
         s: dict[str, Any] = {
             'mode': self.options.mode, 'model': self.model.model, 'solver': self.model.solver,
             'step': self.model.step, 'control_period': self.options.control_period,
             't': self.sim.t, 'samples': self.sim.samples,
-            'steps': self.sim.plant.n, 'wall_time': wall, 'cpu_time': cpu,
-            'cpu_per_sample_us': cpu / self.sim.samples * 1e6 if self.sim.samples else 0.0,
+            'steps': self.sim.plant.n, 'resets': self.resets, 'samples_total': total,
+            'steps_total': steps, 'published_states': self.sent,
+            'wall_time': wall, 'cpu_time': cpu,
+            'cpu_per_sample_us': cpu / total * 1e6 if total else 0.0,
             'clock_samples': self._clock_every, 'view_samples': self._view_every,
             'views': self.views.published if self.views is not None else 0,
             'rejected_commands': self.rejected, 'ignored_commands': self.ignored,
             'controller': self.options.controller or 'external',
+            'publish_retries': self.publish_retries,
         }
         if self.hosted is not None:
             s.update(hosted_commands=self.commanded, commands_published=self.commands_sent,
@@ -863,7 +943,8 @@ class PlantNode(Node):
         if self.pacer is not None:
             p = self.pacer
             s.update(real_time_factor=self.options.real_time_factor,
-                     achieved_real_time_factor=self.sim.t / wall if wall > 0 else 0.0,
+                     achieved_real_time_factor=(total * self.options.control_period / wall
+                                                if wall > 0 else 0.0),
                      deadline_tolerance=p.tolerance,
                      deadline_misses=p.misses, samples_paced=p.produced,
                      deadline_miss_rate=p.misses / p.produced if p.produced else 0.0,
@@ -876,8 +957,7 @@ class PlantNode(Node):
             if self.hosted is None:
                 s.update(self._lag.summary())
         elif wall > 0:
-            s.update(samples_per_second=self.sim.samples / wall,
-                     steps_per_second=self.sim.plant.n / wall)
+            s.update(samples_per_second=total / wall, steps_per_second=steps / wall)
         return s
 
     def _end(self, code: int) -> None:
@@ -900,7 +980,8 @@ class PlantNode(Node):
         if self._announced:
             return
         self._announced = True
-        published = {self.state_pub.topic_name: self.sent, self.force_pub.topic_name: self.sent,
+        published = {self.state_pub.topic_name: self.sent,
+                     self.force_pub.topic_name: self.sent - self.forces_lost,
                      self.command_topic: self.received if self.hosted is None
                      else self.commands_sent}
         if self.views is not None:
@@ -951,8 +1032,12 @@ class PlantNode(Node):
 
 
 def _interrupted(node: PlantNode) -> None:
-    final_log(node.get_name(), 'interrupted; stopping cleanly. summary: '
-              + json.dumps(node.summary()))
+    summary = json.dumps(node.summary())
+    # the announced end is the end: nothing is stepped or published after it (the linger
+    # spins the executor, and a lockstep command arriving then would advance the run)
+    node.running = False
+    node.pacer = None
+    final_log(node.get_name(), f'interrupted; stopping cleanly. summary: {summary}')
     node.announce_end('interrupted', node.exit_code)
 
 

@@ -63,7 +63,7 @@ from ..bag.replay import (
     Track,
     command_table,
     compare_plant,
-    pacing_schedule,
+    replay_timeline,
     select_tracks,
 )
 from .bag_options import PLAYER_MODES, PLAYER_PARAMETERS, PlayerOptions
@@ -169,13 +169,16 @@ class Player(Node):
     # spin_until paces the messages (Paced: pacing_wait / publish_due, as for the real-time
     # plant), spinning in between; the node's future completes after the last message.
     def _start_republish(self) -> None:
-        self._due = pacing_schedule([log for _, log, _ in self.order], self.options.rate)
+        # /clock: the high-water mark of the log times (monotonic; back only at a recorded
+        # reset), published before the message that moves it (bag/replay.py)
+        self._due, self._clocks = replay_timeline(self.order, self.options.rate)
         self._next = 0
         self._wall0: float | None = None     # wall time the first message was due
         self.wall = 0.0                      # wall seconds from the first to the last message
         self.clock_sent = 0
-        self._last_log: int | None = None    # log time of the previous message
+        self._clock_due: int | None = None   # the last /clock published (ns)
         self._wait_start = time.monotonic()
+        self._minimums_since: float | None = None
         self._wait_timer = self.create_timer(0.01, self._check_subscribers)
 
     def _check_subscribers(self) -> None:
@@ -185,6 +188,8 @@ class Player(Node):
             return
         missing = [n for n, p in self.pubs.items()
                    if p.get_subscription_count() < self.options.min_subscribers]
+        if not missing and not self._listed_matched():
+            return
         if missing:
             waited = time.monotonic() - self._wait_start
             if waited < self.options.start_timeout:
@@ -198,6 +203,22 @@ class Player(Node):
             self.get_logger().warning(f'starting without all subscribers: {what}')
         self.destroy_timer(self._wait_timer)
         self._wall0 = time.monotonic()
+
+    def _listed_matched(self) -> bool:
+        """Every subscription the graph lists on the played topics and on ``run_end`` has
+        matched this player's writers: a recorder started together with the player is heard
+        in full, and its run_end reader is matched before the end is announced (it used to
+        miss the run_end and never stop). Best effort: 2 s after the minimums were met the
+        replay starts anyway (a listed reader may never match, e.g. incompatible QoS)."""
+        now = time.monotonic()
+        if self._minimums_since is None:
+            self._minimums_since = now
+        if now - self._minimums_since > 2.0:
+            return True
+        pubs = [*self.pubs.values(), self.end_pub] + (
+            [self.clock_pub] if self.clock_pub is not None else [])
+        return all(p.get_subscription_count() >= self.count_subscribers(p.topic_name)
+                   for p in pubs)
 
     def pacing_wait(self) -> float | None:
         """Seconds until the next message is due; None before the start and after the end."""
@@ -214,13 +235,14 @@ class Player(Node):
             if (self._next >= len(order) or due[self._next] > now or not rclpy.ok()
                     or STOP.received is not None):
                 break
-            name, log, raw = order[self._next]
-            if self.clock_pub is not None and (self._last_log is None or log != self._last_log):
+            name, _, raw = order[self._next]
+            clock = self._clocks[self._next]
+            if self.clock_pub is not None and clock is not None and self._clock_due != clock:
                 if not self._publish_blocking(self.clock_pub, Clock(
-                        clock=Time(nanoseconds=log).to_msg())):
+                        clock=Time(nanoseconds=clock).to_msg())):
                     break
                 self.clock_sent += 1
-            self._last_log = log
+                self._clock_due = clock     # published: not again if the message is retried
             if not self._publish_blocking(self.pubs[name], raw):
                 break
             self._next += 1
@@ -248,7 +270,7 @@ class Player(Node):
         """After the last message: announce ``run_end``, wait for the acknowledgements and
         linger (spinning ``executor``); the exit code."""
         self._announce_end()
-        pubs = list(self.pubs.values()) + [p for p in (self.clock_pub,) if p]
+        pubs = list(self.pubs.values()) + [p for p in (self.clock_pub,) if p] + [self.end_pub]
         unacked = self._flush_all(pubs, executor)
         span = (self.order[-1][1] - self.order[0][1]) * 1e-9
         wall = self.wall
@@ -291,6 +313,14 @@ class Player(Node):
         while (rclpy.ok() and STOP.received is None and time.monotonic() < deadline
                and any(pub.get_subscription_count() > 0 for pub in pubs)):
             executor.spin_once(timeout_sec=0.05)
+        # run_end too: a recorder that has not taken it yet would lose it with this writer;
+        # a recorder leaves once it has it (bounded by end_timeout)
+        end = getattr(self, 'end_pub', None)
+        if end is not None and end in pubs:
+            deadline = time.monotonic() + self.options.end_timeout
+            while (rclpy.ok() and STOP.received is None and time.monotonic() < deadline
+                   and end.get_subscription_count() > 0):
+                executor.spin_once(timeout_sec=0.05)
         return unacked
 
     # -- commands --------------------------------------------------------------------------

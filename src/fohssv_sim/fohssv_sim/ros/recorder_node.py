@@ -90,10 +90,64 @@ __all__ = ['Recorder', 'main', 'default_bag_path', 'source_info', 'EXIT_LOST', '
 
 #: Exit code when the bag misses messages that the run's ``run_end`` says were published.
 EXIT_LOST = 6
+#: Exit code when the bag's completeness could not be checked: a publisher of the recorded
+#: topics left (or stayed silent for ``end_timeout``) without its ``run_end``.
+EXIT_UNCHECKED = 7
+#: Exit code of an OS error: the bag could not be created or written (a full disk).
+EXIT_OS_ERROR = 1
 #: After a signal: stop draining once nothing arrived for this long (s).
 _DRAIN_QUIET = 0.5
 
 _CDR_LE = b'\x00\x01'
+
+
+def _namespace(name: str) -> str:
+    """The namespace of a resolved topic name (``/a/state`` -> ``/a``, ``/state`` -> ``/``)."""
+    return name.rsplit('/', 1)[0] or '/'
+
+
+def _namespaces(topics: list[str], own: str) -> list[str]:
+    """The namespaces whose ``run_end`` the recorder hears: those of the recorded topics
+    (``/clock`` is global and says nothing), else the recorder's own."""
+    found = sorted({_namespace(n) for n in topics if n != contract.CLOCK.name})
+    return found or [own]
+
+
+class _Source:
+    """What publishes the recorded topics of one namespace (a plant, a player, two of them):
+    its ``run_end`` subscription, the run_ends heard, and the most publishers seen at once on
+    its run_end and sample topics (every one of them must announce its end before the bag is
+    called complete). Commands are left out: controllers publish no run_end."""
+
+    def __init__(self, node: Recorder, namespace: str, topics: list[str]) -> None:
+        self.node = node
+        self.namespace = namespace
+        self.topic = f"{namespace.rstrip('/')}/{contract.RUN_END.name}"
+        self.ends: list[dict] = []
+        self.samples = [t for t in topics if contract.find_topic(t, RECORDED)
+                        not in (contract.COMMAND, contract.CLOCK)]
+        self.most = 0          # the most publishers seen at once
+        self.now = 0           # publishers at the last look
+        self.seen = False      # a publisher was there once
+        self.sub = node.create_subscription(String, self.topic,
+                                            lambda msg: node._on_run_end(self, msg),
+                                            profile(contract.RUN_END))
+
+    def look(self) -> None:
+        """Count the publishers now (graph queries: every 0.1 s, off the message path)."""
+        count = self.node.count_publishers
+        self.now = max([count(self.topic)] + [count(t) for t in self.samples])
+        self.most = max(self.most, self.now)
+        self.seen = self.seen or self.now > 0
+
+    def expected(self) -> int:
+        """How many run_ends this namespace owes: one per publisher seen (at least those
+        heard)."""
+        return max(self.most, len(self.ends))
+
+    def left_without_end(self) -> bool:
+        """Its publishers were there and are gone, and not every one announced its end."""
+        return self.seen and self.now == 0 and len(self.ends) < self.expected()
 
 
 class Recorder(Node):
@@ -112,7 +166,11 @@ class Recorder(Node):
         self.done = Future()          # set when the run ended and the bag holds it (or not)
         self.exit_code = 0
         self._expected: dict[str, int] | None = None   # from run_end: topic -> messages
-        self._progress = (0, 0.0)   # (messages written, when that count was reached)
+        self._runs_ended = 0          # run_end messages heard
+        self.unchecked = ''           # why the bag's completeness could not be checked
+        self._end_timer = None
+        self._progress = (0, time.monotonic())   # (messages written, when reached)
+        self.write_error: Exception | None = None   # the bag could not be written (full disk)
         self.writer = RunWriter(self.bag_path, chunk_size=self.options.chunk_size).open()
         print(f'recording to {self.bag_path}', flush=True)
         try:
@@ -141,9 +199,10 @@ class Recorder(Node):
                 self.writer.add_topic(self.resolve_topic_name(name), topic.type,
                                       qos=[offered_qos(topic)])
                 continue
+            resolved = self.resolve_topic_name(name)
             sub = self.create_subscription(message_class(topic), name,
-                                           self._callback(topic), qos, raw=True)
-            self.writer.add_topic(sub.topic_name, topic.type, qos=[offered_qos(topic)])
+                                           self._callback(topic, resolved), qos, raw=True)
+            self.writer.add_topic(resolved, topic.type, qos=[offered_qos(topic)])
             self.subscriptions_.append(sub)
         self.topic_names = [self.resolve_topic_name(n) for n, _ in topics]
         if self._deferred is not None:
@@ -163,13 +222,14 @@ class Recorder(Node):
             'fohssv.plant_node': o.plant_node,
         })
         steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self._flush_timer = self.create_timer(o.flush_period, self.writer.flush, clock=steady)
-        self._end_timer = None
+        self._flush_timer = self.create_timer(o.flush_period, self._flush, clock=steady)
         # always heard (a drain after a signal waits for what it lists); it ends the recording
         # only with stop_at_run_end
         self._stop_at_end = o.stop_at_run_end
-        self._end_sub = self.create_subscription(String, contract.RUN_END.name,
-                                                 self._on_run_end, profile(contract.RUN_END))
+        self._sources = {ns: _Source(self, ns, [n for n in self.topic_names
+                                                if _namespace(n) == ns])
+                         for ns in _namespaces(self.topic_names, self.get_namespace())}
+        self._watch_timer = self.create_timer(0.1, self._watch_sources, clock=steady)
         state = self.resolve_topic_name(contract.STATE.name)
         self._rivals = (SecondPublisherWarning(self, state) if state in self.topic_names
                         else None)
@@ -189,13 +249,15 @@ class Recorder(Node):
         self._deferred = None
         self.destroy_timer(self._defer_timer)
         self.subscriptions_.append(self.create_subscription(
-            message_class(topic), name, self._callback(topic), qos, raw=True))
+            message_class(topic), name, self._callback(topic, self.resolve_topic_name(name)),
+            qos, raw=True))
         print(f'command matched {command.get_publisher_count()} publisher(s); subscribed to '
               f'{self.resolve_topic_name(name)}', flush=True)
 
     # -- messages ---------------------------------------------------------------------------
-    def _callback(self, topic: contract.Topic):
-        name = self.resolve_topic_name(topic.name)
+    def _callback(self, topic: contract.Topic, name: str):
+        """The callback writing ``topic``'s messages under ``name`` (the resolved name the
+        recorder subscribed to, in whatever namespace it was given)."""
         write = self.writer.write
         if topic.type == contract.CLOCK.type:
             def on_clock(raw: bytes) -> None:
@@ -223,23 +285,64 @@ class Recorder(Node):
         return on_array
 
     # -- end of run -------------------------------------------------------------------------
-    def _on_run_end(self, msg: String) -> None:
+    def _on_run_end(self, source: _Source, msg: String) -> None:
         try:
             info = contract.parse_run_end(msg.data)
         except contract.ContractError as exc:
             self.get_logger().warning(f'dropped a bad run_end message: {exc}')
             return
-        if self._expected is not None or self.closed:
-            return                                # the first run_end ends the recording
-        self._expected = {k: v for k, v in info['published'].items() if k in self.writer.counts}
+        if self.closed:
+            return
+        source.ends.append(info)
+        self._runs_ended += 1
+        # what every run_end heard so far lists, summed: two players of one topic each list
+        # what they sent (the bag holds both); topics the recorder does not record are left out
+        expected: dict[str, int] = dict(self._expected or {})
+        for k, v in info['published'].items():
+            if k in self.writer.counts:
+                expected[k] = expected.get(k, 0) + v
+        self._expected = expected
         self._progress = (sum(self.writer.counts.values()), time.monotonic())
-        self.writer.add_metadata({'fohssv.run_end': info})
+        key = 'fohssv.run_end' if self._runs_ended == 1 else f'fohssv.run_end.{self._runs_ended}'
+        self.writer.add_metadata({key: info})
+        waiting = self._unended()
+        more = (f'; still waiting for the run_end of {waiting}' if waiting else '')
         self.get_logger().info(
-            f"run_end from the {info.get('source', '?')} ({info.get('reason', '')}): waiting "
-            f'for {sum(self._expected.values())} messages on {len(self._expected)} topics')
-        if self._stop_at_end:
+            f"run_end from the {info.get('source', '?')} on {source.topic} "
+            f"({info.get('reason', '')}): waiting for {sum(expected.values())} messages on "
+            f'{len(expected)} topics{more}')
+        if self._stop_at_end and self._end_timer is None:
             steady = Clock(clock_type=ClockType.STEADY_TIME)
             self._end_timer = self.create_timer(0.01, self._check_end, clock=steady)
+
+    def _unended(self) -> str:
+        """The sources (publishers of the recorded topics) whose run_end has not arrived, in
+        words; '' when every one seen has announced its end."""
+        parts = [f'{src.expected() - len(src.ends)} of {src.expected()} publisher(s) in '
+                 f'{src.namespace}' for src in self._sources.values()
+                 if len(src.ends) < src.expected()]
+        return ', '.join(parts)
+
+    def _watch_sources(self) -> None:
+        """Every 0.1 s: how many publishers each namespace's topics have (so that two
+        players of one topic need two run_ends), and whether a plant left without run_end."""
+        if self.done.done() or self.closed:
+            return
+        for src in self._sources.values():
+            src.look()
+        if not self._stop_at_end or self._end_timer is not None:
+            return
+        gone = [src for src in self._sources.values() if src.left_without_end()]
+        if gone and self._stalled():
+            names = ', '.join(src.namespace for src in gone)
+            self.get_logger().error(
+                f'the publishers of the recorded topics in {names} are gone without a run_end '
+                f'and nothing arrived for end_timeout={self.end_timeout:g} s (the plant '
+                f'died?): closing the bag; its completeness cannot be checked '
+                f'(exit {EXIT_UNCHECKED})')
+            self.unchecked = 'no run_end from ' + names
+            self.exit_code = EXIT_UNCHECKED
+            self.done.set_result(self.exit_code)
 
     def missing(self) -> dict[str, tuple[int, int]]:
         """Topics whose recorded count is below the run_end's: topic -> (recorded, published)."""
@@ -262,11 +365,23 @@ class Recorder(Node):
         if self.done.done():
             return
         missing = self.missing()
-        if missing and not self._stalled():
+        waiting = self._unended()
+        if (missing or waiting) and not self._stalled():
             return
         self._end_timer.cancel()
-        self.exit_code = EXIT_LOST if missing else 0
-        if not missing:
+        if missing:
+            self.exit_code = EXIT_LOST
+        elif waiting:
+            # never claim a completeness that was not checked: a publisher seen on the
+            # recorded topics never announced what it sent
+            self.unchecked = f'no run_end from {waiting}'
+            self.exit_code = EXIT_UNCHECKED
+            self.get_logger().error(
+                f'no run_end from {waiting} within end_timeout={self.end_timeout:g} s of '
+                'silence: the bag holds what every run_end heard lists, but its completeness '
+                f'cannot be checked; closing (exit {EXIT_UNCHECKED})')
+        else:
+            self.exit_code = 0
             self.get_logger().info('every message of the run is in the bag; closing')
         self.done.set_result(self.exit_code)
 
@@ -296,6 +411,9 @@ class Recorder(Node):
             print(f'recorder: error: {lost} message(s) lost: the bag holds {detail} published '
                   f'(run_end); {self.bag_path} is closed and readable', file=sys.stderr,
                   flush=True)
+
+    def _flush(self) -> None:
+        self.writer.flush()
 
     # -- plant parameters -------------------------------------------------------------------
     def _poll_plant(self) -> None:
@@ -340,11 +458,25 @@ class Recorder(Node):
 
     # -- end --------------------------------------------------------------------------------
     def close(self) -> None:
-        """Close the bag (summary, index, metadata.yaml) and print the counts."""
+        """Close the bag (summary, index, metadata.yaml) and print the counts. When the bag
+        cannot be written (a full disk), one line says so and how to rebuild it."""
         if self.closed:
             return
         self.closed = True
-        self.writer.close()
+        error = self.write_error
+        if error is None:
+            try:
+                self.writer.close()
+            except Exception as exc:  # noqa: BLE001 - OSError, or the library's after it
+                error = exc
+        if error is not None:
+            self.exit_code = EXIT_OS_ERROR
+            why = getattr(error, 'strerror', None) or error
+            print(f'recorder: error: writing {self.bag_path}: {why}; the '
+                  f'bag is unfinished ({sum(self.writer.counts.values())} messages written): '
+                  f'`fohssv repair {self.bag_path}` rebuilds it once there is space',
+                  file=sys.stderr, flush=True)
+            return
         counts = ', '.join(f'{k}: {v}' for k, v in self.writer.counts.items())
         print(f'closed {self.bag_path}: {sum(self.writer.counts.values())} messages ({counts})',
               flush=True)
@@ -355,16 +487,21 @@ def _run(node: Recorder) -> int:
     # steady-clock timers and service clients in a first try; see docs/recording.md
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    spin_until(executor, node.done)
-    if STOP.received is not None:
-        final_log('recorder', 'stopping: draining the delivered messages')
-        node.drain(executor)
+    try:
+        spin_until(executor, node.done)
+        if STOP.received is not None:
+            final_log('recorder', 'stopping: draining the delivered messages')
+            node.drain(executor)
+    except OSError as exc:          # the bag cannot be written (ENOSPC): one line at close
+        node.write_error = exc
+    node.close()                    # here, so that a failing close gives the exit code
     return node.exit_code
 
 
 def _close(node: Recorder) -> None:
     node.close()
-    node.report_loss()
+    if node.write_error is None:
+        node.report_loss()
 
 
 def main(args: list[str] | None = None) -> int:

@@ -8,7 +8,21 @@ Shared by the plant, the controller node, the recorder and the player (one imple
   otherwise: when neither ``ROS_AUTOMATIC_DISCOVERY_RANGE`` nor the older
   ``ROS_LOCALHOST_ONLY`` is set, :func:`init` sets ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``
   (ROS's own default is ``SUBNET``: every host on the network) and logs one line saying so;
-  ``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET`` opens it on purpose.
+  ``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET`` opens discovery on purpose.
+  Transports stay on this machine too (:func:`default_transport`): unless the user set
+  ``FASTDDS_DEFAULT_PROFILES_FILE`` (or the older ``FASTRTPS_DEFAULT_PROFILES_FILE``) or
+  ``FOHSSV_DDS_NETWORK=open``, the package's Fast DDS profile ``config/fastdds_localhost.xml``
+  is applied: shared memory and UDPv4 on 127.0.0.1 only, no socket on 0.0.0.0 or an external
+  address. (rmw_fastrtps in LOCALHOST mode adds a UDP transport on every interface of its
+  own, so with the profile a LOCALHOST range is handed to rcl as SUBNET: discovery then runs
+  over the loopback-only transports, which no other host can reach.)
+* params files (``--params-file``), read before rcl parses them: a file larger than
+  :data:`MAX_PARAMS_BYTES` or with more than :data:`MAX_PARAMS_KEYS` keys is refused at once
+  (rcl's parse and the unknown-name check of 200 000 keys took 6 minutes), and so is a key
+  given twice in one mapping (YAML keeps the last silently). After the node is built,
+  :func:`refuse_unknown` also refuses a file with no section for this node (a misspelt node
+  name: the node would run on its defaults without a word); a section is the node's name
+  (``plant``, ``/ns/plant``) or an rcl wildcard (``/**``, ``/*/plant``).
 * :func:`precheck`: checks the overrides of a node's table rows (``--ros-args -p`` and params
   files) against the table *before* rclpy declares them, so a wrong type or a value out of
   range is reported by the table's own text (name, value, allowed range, unit, meaning)
@@ -52,6 +66,8 @@ from rclpy.node import Node
 from ..params import ParameterSpec
 
 __all__ = ['EXIT_BAD_PARAMETERS', 'DEFAULT_DISCOVERY_RANGE', 'default_discovery',
+           'default_transport', 'localhost_profile', 'NETWORK_VAR',
+           'MAX_PARAMS_BYTES', 'MAX_PARAMS_KEYS', 'read_params_file', 'params_file_args',
            'BadParameters', 'init', 'precheck', 'declare_rows',
            'refuse_unknown', 'explain', 'one_line', 'report', 'destroy_on_error']
 
@@ -60,6 +76,18 @@ EXIT_BAD_PARAMETERS = 2
 #: Discovery range of the nodes when the environment does not choose one.
 DEFAULT_DISCOVERY_RANGE = 'LOCALHOST'
 _DISCOVERY_VARS = ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_LOCALHOST_ONLY')
+_PROFILE_VARS = ('FASTDDS_DEFAULT_PROFILES_FILE', 'FASTRTPS_DEFAULT_PROFILES_FILE')
+#: The package's Fast DDS profile (installed with it): loopback and shared memory only.
+PROFILE_NAME = 'fastdds_localhost.xml'
+#: ``FOHSSV_DDS_NETWORK=open``: leave Fast DDS's transports at their defaults (every
+#: interface), e.g. to reach other hosts together with ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET.
+NETWORK_VAR = 'FOHSSV_DDS_NETWORK'
+#: The largest params file a node reads (bytes); the plant's full file is about 6 KiB.
+MAX_PARAMS_BYTES = 1 << 20
+#: The most keys a params file may hold (all mappings together); the plant has about 60.
+MAX_PARAMS_KEYS = 10_000
+#: Params files of this process's arguments -> their node sections (set by :func:`init`).
+_PARAMS_SECTIONS: dict[str, list[str]] = {}
 
 
 def default_discovery(environ: dict[str, str] | None = None) -> bool:
@@ -71,6 +99,56 @@ def default_discovery(environ: dict[str, str] | None = None) -> bool:
         return False
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = DEFAULT_DISCOVERY_RANGE
     return True
+
+
+def localhost_profile() -> str | None:
+    """The path of the package's Fast DDS profile (installed share, else the source tree)."""
+    from pathlib import Path
+
+    candidates = []
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        candidates.append(Path(get_package_share_directory('fohssv_sim')) / 'config')
+    except Exception:  # noqa: BLE001, S110 - not installed with colcon: the source tree
+        pass
+    candidates.append(Path(__file__).resolve().parents[2] / 'config')
+    for folder in candidates:
+        if (folder / PROFILE_NAME).is_file():
+            return str(folder / PROFILE_NAME)
+    return None
+
+
+def _same_file(a: str, b: str) -> bool:
+    """The same profile: one path, or the same content (env.sh names the source tree's copy,
+    a node finds the installed one)."""
+    try:
+        return os.path.realpath(a) == os.path.realpath(b) or (
+            open(a, 'rb').read() == open(b, 'rb').read())  # noqa: SIM115
+    except OSError:
+        return False
+
+
+def default_transport(environ: dict[str, str] | None = None) -> str | None:
+    """Apply the package's loopback-only Fast DDS profile in ``environ`` (``os.environ``,
+    read by Fast DDS when rclpy starts) unless the user chose a profile or
+    ``FOHSSV_DDS_NETWORK=open``; the profile path when it is in force (set here, or set to it
+    already by env.sh), else None. With it in force a LOCALHOST discovery range becomes SUBNET
+    for rcl (see the module docstring)."""
+    env = os.environ if environ is None else environ
+    if env.get(NETWORK_VAR, '').strip().lower() == 'open':
+        return None
+    ours = localhost_profile()
+    if ours is None:
+        return None
+    given = [env.get(v, '').strip() for v in _PROFILE_VARS]
+    given = [g for g in given if g]
+    if given and not all(_same_file(g, ours) for g in given):
+        return None                       # the user's own profile
+    env['FASTDDS_DEFAULT_PROFILES_FILE'] = ours
+    if env.get('ROS_AUTOMATIC_DISCOVERY_RANGE', '').strip().upper() == 'LOCALHOST':
+        env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'SUBNET'
+    return ours
 
 
 class BadParameters(ValueError):
@@ -105,6 +183,88 @@ def one_line(text: str) -> str:
     return '; '.join(parts)
 
 
+def params_file_args(args: Sequence[str]) -> list[str]:
+    """The paths given with ``--params-file`` after ``--ros-args`` in ``args``."""
+    out = []
+    inside = False
+    items = list(args)
+    for i, a in enumerate(items):
+        if a == '--ros-args':
+            inside = True
+        elif a == '--':
+            inside = False
+        elif inside and a == '--params-file' and i + 1 < len(items):
+            out.append(items[i + 1])
+    return out
+
+
+def read_params_file(path: str) -> list[str] | None:
+    """The node sections (names holding ``ros__parameters``) of the params file ``path``;
+    None when it cannot be read or parsed (rcl then reports it, in its words).
+
+    Raises:
+        BadParameters: larger than :data:`MAX_PARAMS_BYTES`, more keys than
+            :data:`MAX_PARAMS_KEYS`, or a key given twice in one mapping.
+    """
+    import yaml
+
+    try:
+        size = os.path.getsize(path)
+        if size > MAX_PARAMS_BYTES:
+            raise BadParameters(f'invalid arguments: params file {path} is {size} bytes, more '
+                                f'than the {MAX_PARAMS_BYTES} a node reads')
+        with open(path, encoding='utf-8') as f:
+            text = f.read()
+    except (OSError, UnicodeDecodeError):
+        return None
+    loader_cls = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
+    keys = 0
+
+    class _Loader(loader_cls):  # type: ignore[misc, valid-type]
+        pass
+
+    def mapping(loader: Any, node: Any) -> dict:
+        nonlocal keys
+        seen: dict[Any, Any] = {}
+        for key_node, value_node in node.value:
+            key = loader.construct_object(key_node, deep=True)
+            keys += 1
+            if keys > MAX_PARAMS_KEYS:
+                raise BadParameters(f'invalid arguments: params file {path} has more than '
+                                    f'{MAX_PARAMS_KEYS} keys')
+            if key in seen:
+                raise BadParameters(
+                    f'invalid arguments: params file {path} gives {key!r} twice (line '
+                    f'{key_node.start_mark.line + 1}; YAML would keep the last silently)')
+            seen[key] = loader.construct_object(value_node, deep=True)
+        return seen
+
+    _Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, mapping)
+    try:
+        data = yaml.load(text, Loader=_Loader)  # noqa: S506 - a SafeLoader subclass
+    except yaml.YAMLError:
+        return None
+    if not isinstance(data, dict):
+        return None
+    return [str(k) for k, v in data.items() if isinstance(v, dict) and 'ros__parameters' in v]
+
+
+def _section_matches(section: str, fqn: str) -> bool:
+    """Whether the params-file section ``section`` applies to the node ``fqn`` (rcl's
+    rules: a name without a leading slash is absolute, ``*`` is one name token, ``**`` any
+    number of them)."""
+    parts = [p for p in section.strip('/').split('/') if p] or ['']
+    pattern = ''
+    for p in parts:
+        if p == '**':
+            pattern += '(/[^/]+)*'
+        elif p == '*':
+            pattern += '/[^/]+'
+        else:
+            pattern += '/' + re.escape(p)
+    return re.fullmatch(pattern, fqn) is not None
+
+
 def init(args: Sequence[str] | None = None, **kwargs: Any) -> None:
     """``rclpy.init(args=args, **kwargs)``.
 
@@ -118,6 +278,12 @@ def init(args: Sequence[str] | None = None, **kwargs: Any) -> None:
     # rcl logs its own 'Failed to parse global arguments' line before raising: silenced, the
     # one line below carries rcl's reason
     defaulted = default_discovery()
+    profile = default_transport()
+    _PARAMS_SECTIONS.clear()
+    for path in params_file_args(sys.argv if args is None else args):
+        sections = read_params_file(path)      # BadParameters: too large, duplicates
+        if sections is not None:
+            _PARAMS_SECTIONS[path] = sections
     rclpy.logging.set_logger_level('rcl', rclpy.logging.LoggingSeverity.FATAL)
     try:
         rclpy.init(args=args, **kwargs)
@@ -136,8 +302,10 @@ def init(args: Sequence[str] | None = None, **kwargs: Any) -> None:
     if defaulted:
         rclpy.logging.get_logger('fohssv').info(
             f'discovery: this machine only (ROS_AUTOMATIC_DISCOVERY_RANGE='
-            f'{DEFAULT_DISCOVERY_RANGE}, the fohssv default); set '
-            'ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET to reach nodes on other hosts')
+            f'{DEFAULT_DISCOVERY_RANGE}, the fohssv default'
+            + (f'; transports: loopback and shared memory, {PROFILE_NAME}' if profile else '')
+            + '); set ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET and FOHSSV_DDS_NETWORK=open to '
+            'reach nodes on other hosts')
 
 
 def _overrides(node: Node) -> dict[str, Any]:
@@ -245,6 +413,7 @@ def refuse_unknown(node: Node) -> None:
     Raises:
         BadParameters: the unknown names, each with its close matches, and the valid names.
     """
+    _refuse_foreign_params_files(node)
     unknown = sorted(n for n in _overrides(node) if not node.has_parameter(n))
     if not unknown:
         return
@@ -258,6 +427,21 @@ def refuse_unknown(node: Node) -> None:
     raise BadParameters(f"unknown parameter{'s' if len(unknown) > 1 else ''} "
                         f"{', '.join(parts)} for node {node.get_name()!r}; its parameters: "
                         f"{', '.join(declared)}")
+
+
+def _refuse_foreign_params_files(node: Node) -> None:
+    """A params file with no section for ``node`` is refused (it would set nothing)."""
+    fqn = node.get_fully_qualified_name()
+    for path, sections in _PARAMS_SECTIONS.items():
+        if any(_section_matches(s, fqn) for s in sections):
+            continue
+        have = ', '.join(repr(s) for s in sections) or 'none'
+        close = difflib.get_close_matches(node.get_name(), [s.strip('/').rsplit('/', 1)[-1]
+                                                            for s in sections], n=1)
+        hint = f' (did you mean {node.get_name()!r} for {close[0]!r}?)' if close else ''
+        raise BadParameters(f'params file {path} sets nothing for node {fqn!r}: its sections '
+                            f"are {have}{hint}; name the node's section "
+                            f"{node.get_name()!r} or {fqn!r}, or use '/**' for every node")
 
 
 def explain(exc: BaseException, specs: Iterable[ParameterSpec] = ()) -> str:

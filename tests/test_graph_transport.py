@@ -1,0 +1,76 @@
+"""Issue 21, class 5: localhost at the transport, not only at discovery. A running plant (and
+its controller) binds no UDP socket on an address other than loopback: the package's Fast DDS
+profile (config/fastdds_localhost.xml) is applied by the nodes themselves, here with the
+profile variables removed from the environment (as in a shell without env.sh). The sockets are
+read from /proc/<pid>/net/udp through the process's socket inodes, independently of Fast DDS.
+FOHSSV_DDS_NETWORK=open leaves Fast DDS's defaults: the same check then finds a socket on
+0.0.0.0 (the check can fail)."""
+
+from __future__ import annotations
+
+import ipaddress
+import os
+import socket
+import struct
+from pathlib import Path
+
+import pytest
+from test_graph_support import plant_args, stop_all
+
+import rosproc
+
+pytestmark = pytest.mark.graph
+
+
+def _inodes(pid: int) -> set[str]:
+    out = set()
+    for fd in Path(f'/proc/{pid}/fd').iterdir():
+        try:
+            target = os.readlink(fd)
+        except OSError:
+            continue
+        if target.startswith('socket:['):
+            out.add(target[8:-1])
+    return out
+
+
+def udp_addresses(pid: int) -> list[str]:
+    """The local IPv4 addresses of the UDP sockets process ``pid`` holds."""
+    inodes = _inodes(pid)
+    found = []
+    for line in Path(f'/proc/{pid}/net/udp').read_text().splitlines()[1:]:
+        fields = line.split()
+        if fields[9] in inodes:
+            addr_hex = fields[1].split(':')[0]
+            found.append(socket.inet_ntoa(struct.pack('<I', int(addr_hex, 16))))
+    return found
+
+
+def _outside(addresses: list[str]) -> list[str]:
+    # a multicast group (239.255.0.1, joined on the loopback interface) is not an interface
+    return [a for a in addresses if not ipaddress.ip_address(a).is_loopback
+            and not ipaddress.ip_address(a).is_multicast]
+
+
+def _sockets_of_a_waiting_plant(**extra: str) -> list[str]:
+    env = {k: v for k, v in rosproc.ros_env().items()
+           if k not in ('FASTDDS_DEFAULT_PROFILES_FILE', 'FASTRTPS_DEFAULT_PROFILES_FILE')}
+    env.update(extra)
+    plant = rosproc.start('fohssv_sim', 'plant', plant_args(model='delay-free', duration=0.0),
+                          env=env)
+    try:
+        rosproc.wait_for(lambda: plant.poll() is not None or len(udp_addresses(plant.pid)) >= 3,
+                         90, what='the plant to open its sockets')
+        return udp_addresses(plant.pid)
+    finally:
+        stop_all(plant)
+
+
+def test_a_plant_binds_udp_on_loopback_only():
+    addresses = _sockets_of_a_waiting_plant()
+    assert addresses and not _outside(addresses), addresses
+
+
+def test_fohssv_dds_network_open_leaves_fast_dds_defaults():
+    addresses = _sockets_of_a_waiting_plant(FOHSSV_DDS_NETWORK='open')
+    assert _outside(addresses), addresses

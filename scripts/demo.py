@@ -8,6 +8,14 @@ samples and integration steps, wall time, with the control period and step.
 
     python scripts/demo.py [--model fractional] [--duration 2.0] [--controller state_feedback]
                            [--bag runs/demo-...]
+
+ROS domain: ``ROS_DOMAIN_ID`` when it is exported, else ``FOHSSV_DEMO_DOMAIN``, else
+1 + pid % 200 (a domain of its own); the first line printed names it. Discovery stays on this
+machine (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``).
+
+The run ends as the launch file's does (fohssv_sim.closed_loop.EXIT_RULE): when the plant
+exits 0, or when any node exits non-zero: then the demo prints that node's exit code and last
+line, stops the others, removes the bag if nothing was recorded, and exits with that code.
 """
 
 from __future__ import annotations
@@ -15,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -31,8 +40,10 @@ from fohssv_sim.closed_loop import (
     DEFAULT_CONTROLLER,
     DEFAULT_DURATION,
     DEMO_PLANT,
+    ExitVerdict,
     NodeSpec,
     closed_loop,
+    exit_verdict,
     ros_args,
 )
 
@@ -53,6 +64,108 @@ def specs(args: argparse.Namespace, bag: Path) -> tuple[NodeSpec, NodeSpec, Node
     return closed_loop(controller=args.controller, duration=args.duration, bag_path=str(bag),
                        plant={'model': args.model, 'fractional_order': args.alpha,
                               'speed': args.speed})
+
+
+def demo_domain(environ: dict[str, str]) -> int:
+    """The ROS domain of the demo: ``ROS_DOMAIN_ID`` when exported (as every ROS tool honours
+    it), else ``FOHSSV_DEMO_DOMAIN``, else 1 + pid % 200 (a domain of its own, so that two demos
+    on one machine do not meet)."""
+    for name in ('ROS_DOMAIN_ID', 'FOHSSV_DEMO_DOMAIN'):
+        value = environ.get(name, '').strip()
+        if value:
+            return int(value)
+    return 1 + os.getpid() % 200
+
+
+class Started:
+    """A node process of the demo; its output is read by a thread (``echo``: printed with that
+    prefix as it comes) or written to ``log``; ``last_line()`` for the exit rule."""
+
+    def __init__(self, proc: subprocess.Popen, *, log: Path | None = None,
+                 echo: str | None = None) -> None:
+        self.proc, self.log, self.echo = proc, log, echo
+        self.lines: list[str] = []
+        self.reader = None
+        if proc.stdout is not None:
+            self.reader = threading.Thread(target=self._pump, daemon=True)
+            self.reader.start()
+
+    def _pump(self) -> None:
+        for line in self.proc.stdout:
+            self.lines.append(line)
+            if self.echo is not None:
+                print(self.echo + line.rstrip(), flush=True)
+
+    def last_line(self) -> str:
+        if self.reader is not None:
+            self.reader.join(timeout=2)
+        lines = self.lines if self.log is None else self.log.read_text().splitlines()
+        lines = [x.strip() for x in lines if x.strip()]
+        return lines[-1] if lines else ''
+
+
+def supervise(nodes: dict[str, Started], timeout: float) -> tuple[str, ExitVerdict]:
+    """Wait until a node's exit ends the run (fohssv_sim.closed_loop.EXIT_RULE: the plant's
+    exit 0, or any node's non-zero exit); after ``timeout`` s the plant gets SIGINT (a clean
+    stop) and the run ends with its exit."""
+    deadline = time.monotonic() + timeout
+    interrupted = False
+    while True:
+        for name, node in nodes.items():
+            code = node.proc.poll()
+            if code is None:
+                continue
+            verdict = exit_verdict(name, code, name == 'plant', node.last_line())
+            if verdict.ends_run:
+                return name, verdict
+        if not interrupted and time.monotonic() > deadline and 'plant' in nodes:
+            print(f'demo: the plant did not finish within {timeout:g} s; stopping it',
+                  file=sys.stderr)
+            nodes['plant'].proc.send_signal(signal.SIGINT)
+            interrupted = True
+        time.sleep(0.05)
+
+
+def _stop(proc: subprocess.Popen, grace: float) -> int:
+    if proc.poll() is None:
+        # every node stops cleanly on SIGTERM as on SIGINT (the recorder drains and closes the
+        # bag); one still importing its modules ends quietly, without a KeyboardInterrupt
+        proc.send_signal(signal.SIGTERM)
+    try:
+        return proc.wait(timeout=grace)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return proc.wait()
+
+
+def stop_all(nodes: dict[str, Started], wait_recorder: bool) -> dict[str, int]:
+    """Stop what still runs; the exit codes. After a complete run the recorder closes the bag
+    by itself once it holds everything the plant's run_end lists (exit 6 naming any loss):
+    it is waited for (30 s) before it gets SIGTERM."""
+    codes = {}
+    recorder = nodes['recorder'].proc
+    if wait_recorder:
+        try:
+            recorder.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            pass
+    for name in ('plant', 'controller', 'recorder'):
+        if name in nodes:
+            codes[name] = _stop(nodes[name].proc, 60 if name == 'recorder' else 10)
+    for node in nodes.values():
+        if node.reader is not None:
+            node.reader.join(timeout=5)
+    return codes
+
+
+def remove_if_empty(bag: Path, rec_log: Path) -> None:
+    """A failed start leaves the bag the recorder opened without a message (it marks it
+    ``fohssv.empty``): remove it and its log rather than leave an empty run behind."""
+    meta = bag / 'metadata.yaml'
+    if meta.exists() and 'fohssv.empty' in meta.read_text():
+        shutil.rmtree(bag)
+        rec_log.unlink(missing_ok=True)
+        print(f'demo: removed the empty bag {bag} (no message was recorded)', file=sys.stderr)
 
 
 def parser() -> argparse.ArgumentParser:
@@ -86,7 +199,7 @@ def main() -> int:
         print(f'demo: {bag} exists already; choose another --bag', file=sys.stderr)
         return 2
 
-    domain = int(os.environ.get('FOHSSV_DEMO_DOMAIN', 1 + os.getpid() % 200))
+    domain = demo_domain(os.environ)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                PYTHONUNBUFFERED='1')
     # plant, controller, recorder: the launch file's nodes and parameters (closed_loop.py:
@@ -101,59 +214,33 @@ def main() -> int:
     with open(rec_log, 'w') as log:
         recorder = subprocess.Popen(rec_cmd, env=env, stdout=log,
                                     stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    nodes = {'recorder': Started(recorder, log=rec_log)}
     deadline = time.monotonic() + 60
     while 'recording to' not in rec_log.read_text() and time.monotonic() < deadline:
         if recorder.poll() is not None:
-            print(f'demo: the recorder exited: {rec_log.read_text()}', file=sys.stderr)
-            return 1
+            break      # supervise() reports it
         time.sleep(0.05)
     wall0 = time.monotonic()
-    ctl = subprocess.Popen(ctl_cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                           text=True, start_new_session=True)
-    plant = subprocess.Popen(plant_cmd, env=env, stdout=subprocess.PIPE,
-                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    plant_out: list[str] = []
-
-    def pump() -> None:
-        for line in plant.stdout:
-            plant_out.append(line)
-            print('  plant: ' + line.rstrip(), flush=True)
-
-    reader = threading.Thread(target=pump, daemon=True)
-    reader.start()
-    try:
-        code = plant.wait(timeout=args.timeout)
-    except subprocess.TimeoutExpired:
-        plant.send_signal(signal.SIGINT)
-        code = plant.wait(timeout=10)
-        print(f'demo: the plant did not finish within {args.timeout:g} s', file=sys.stderr)
-    finally:
-        wall = time.monotonic() - wall0
-        reader.join(timeout=5)
-        try:
-            # the recorder closes the bag by itself once it holds everything the plant's
-            # run_end lists (exit 6 naming any loss); SIGINT only if it does not
-            rec_code = recorder.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            recorder.send_signal(signal.SIGINT)   # drains, then closes the bag properly
-            try:
-                rec_code = recorder.wait(timeout=60)
-            except subprocess.TimeoutExpired:
-                recorder.kill()
-                rec_code = -9
-        ctl.send_signal(signal.SIGINT)
-        try:
-            ctl.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            ctl.kill()
-    if code != 0:
-        print(f'demo: plant exited with code {code}', file=sys.stderr)
-        print(ctl.stdout.read(), file=sys.stderr)
-        return 1
-    if rec_code != 0:
-        print(f'demo: recorder exited with code {rec_code}: {rec_log.read_text()}',
+    if recorder.poll() is None:
+        nodes['controller'] = Started(subprocess.Popen(
+            ctl_cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+            start_new_session=True))
+        nodes['plant'] = Started(subprocess.Popen(
+            plant_cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+            start_new_session=True), echo='  plant: ')
+    name, verdict = supervise(nodes, args.timeout)
+    wall = time.monotonic() - wall0
+    codes = stop_all(nodes, wait_recorder=not verdict.failed)
+    if verdict.failed:
+        print(f'demo: {verdict.message}', file=sys.stderr)
+        remove_if_empty(bag, rec_log)
+        code = nodes[name].proc.returncode
+        return code if 0 < code < 128 else 1
+    if codes['recorder'] != 0:
+        print(f'demo: recorder exited with code {codes["recorder"]}: {rec_log.read_text()}',
               file=sys.stderr)
         return 1
+    plant_out = nodes['plant'].lines
     try:
         run = load_run(bag)   # the summary comes from the bag, not from memory
     except BagError as e:

@@ -32,6 +32,9 @@
   once nothing arrived for ``end_timeout`` s is lost), closes the bag and
   exits: 0 when nothing is missing, 6 naming each topic's shortfall otherwise. After
   SIGINT/SIGTERM the same comparison is made once the delivered messages are drained.
+* A bag closed without any message (the recorder stopped before the run started, e.g. because
+  another node of the loop failed at start) is marked ``fohssv.empty`` in its run metadata,
+  and the closing line says it is empty.
   (The plant lists the commands it received; ``/clock`` is keep-last 1 and not listed.)
 * A second publisher of ``state`` (two plants on one domain and namespace) is reported once as
   a warning naming the nodes (the plants themselves refuse to run beside each other).
@@ -90,8 +93,11 @@ from .nodekit import (
     spin_until,
 )
 
-__all__ = ['Recorder', 'main', 'default_bag_path', 'source_info', 'EXIT_LOST', 'RECORDED']
+__all__ = ['Recorder', 'main', 'default_bag_path', 'source_info', 'EXIT_LOST', 'EMPTY_KEY',
+           'RECORDED']
 
+#: Run-metadata key (metadata.yaml custom_data) of a bag closed without any message.
+EMPTY_KEY = 'fohssv.empty'
 #: Exit code when the bag misses messages that the run's ``run_end`` says were published.
 EXIT_LOST = 6
 #: After a signal: stop draining once nothing arrived for this long (s).
@@ -368,9 +374,16 @@ class Recorder(Node):
         if self.closed:
             return
         self.closed = True
+        total = sum(self.writer.counts.values())
+        if total == 0:
+            # stopped before any message (e.g. a node of the loop failed at start): say so in
+            # the bag, so that an empty run is not taken for a recorded one
+            self.writer.add_metadata({EMPTY_KEY: 'no message arrived before the recorder '
+                                                 'stopped'})
         self.writer.close()
         counts = ', '.join(f'{k}: {v}' for k, v in self.writer.counts.items())
-        print(f'closed {self.bag_path}: {sum(self.writer.counts.values())} messages ({counts})',
+        print(f'closed {self.bag_path}: {total} messages ({counts})'
+              + (f'; the bag is empty (marked {EMPTY_KEY} in its metadata)' if not total else ''),
               flush=True)
 
 

@@ -17,7 +17,8 @@
   ``metadata.yaml`` custom_data: package version, ``git describe`` and revision of
   ``$FOHSSV_ROOT``, recorder settings, and (when the plant answers its parameter services)
   every parameter of the node named by ``plant_node``: the model parameters, model options,
-  solver, mode.
+  solver, mode; and the node publishing ``command`` with its ``controller`` parameter (the
+  law it hosts: ``fohssv.controller_node``, ``fohssv.controller``).
 * Durability: the chunk in progress is flushed to the OS every ``flush_period`` seconds of
   wall time (and whenever it exceeds ``chunk_size`` bytes). SIGKILL loses at most the
   messages received in the last ``flush_period`` (plus one callback); SIGINT/SIGTERM close the
@@ -210,6 +211,37 @@ class Recorder(Node):
             self._list = self.create_client(ListParameters, f'/{self._plant}/list_parameters')
             self._get = self.create_client(GetParameters, f'/{self._plant}/get_parameters')
             self._plant_timer = self.create_timer(0.05, self._poll_plant, clock=steady)
+        # the law answering the plant: the 'controller' parameter of the command's publisher
+        # (stored as fohssv.controller, e.g. for plot titles)
+        self._command_topic = self.resolve_topic_name(contract.COMMAND.name)
+        self._ctl_client = None
+        self._ctl_timer = (self.create_timer(0.1, self._poll_controller, clock=steady)
+                           if self._command_topic in self.topic_names else None)
+
+    def _poll_controller(self) -> None:
+        if self.closed or time.monotonic() > self._plant_deadline + 60.0:
+            self._ctl_timer.cancel()
+            return
+        if self._ctl_client is None:
+            infos = self.get_publishers_info_by_topic(self._command_topic)
+            if not infos:
+                return
+            ns = infos[0].node_namespace.rstrip('/')
+            self._ctl_node = f'{ns}/{infos[0].node_name}'
+            self._ctl_client = self.create_client(GetParameters,
+                                                  f'{self._ctl_node}/get_parameters')
+        if self._ctl_client.service_is_ready():
+            self._ctl_timer.cancel()
+            self._ctl_client.call_async(GetParameters.Request(names=['controller'])
+                                        ).add_done_callback(self._on_controller)
+
+    def _on_controller(self, future) -> None:
+        result = future.result()
+        values = [parameter_value_to_python(v) for v in result.values] if result else []
+        if self.closed:
+            return
+        self.writer.add_metadata({'fohssv.controller_node': self._ctl_node, **(
+            {'fohssv.controller': values[0]} if values and isinstance(values[0], str) else {})})
 
     def _maybe_subscribe_state(self) -> None:
         command, wanted = self._wait_commands

@@ -44,6 +44,7 @@ from fohssv_sim.closed_loop import (
     NodeSpec,
     closed_loop,
     exit_verdict,
+    reason_line,
     ros_args,
 )
 
@@ -79,7 +80,8 @@ def demo_domain(environ: dict[str, str]) -> int:
 
 class Started:
     """A node process of the demo; its output is read by a thread (``echo``: printed with that
-    prefix as it comes) or written to ``log``; ``last_line()`` for the exit rule."""
+    prefix as it comes) or written to ``log``; ``last_line()`` for the exit rule (the line
+    that says why it exited)."""
 
     def __init__(self, proc: subprocess.Popen, *, log: Path | None = None,
                  echo: str | None = None) -> None:
@@ -97,11 +99,10 @@ class Started:
                 print(self.echo + line.rstrip(), flush=True)
 
     def last_line(self) -> str:
+        """Why it exited: its last error line, else its last line."""
         if self.reader is not None:
             self.reader.join(timeout=2)
-        lines = self.lines if self.log is None else self.log.read_text().splitlines()
-        lines = [x.strip() for x in lines if x.strip()]
-        return lines[-1] if lines else ''
+        return reason_line(self.lines if self.log is None else self.log.read_text().splitlines())
 
 
 def supervise(nodes: dict[str, Started], timeout: float) -> tuple[str, ExitVerdict]:

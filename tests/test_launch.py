@@ -222,3 +222,13 @@ def test_demo_ends_when_a_node_fails_at_start(tmp_path, args, node, words):
     assert 'Traceback' not in out.stdout + out.stderr
     assert not bag.exists() and f'removed the empty bag {bag}' in out.stderr
     assert list((tmp_path / 'runs').iterdir()) == []
+
+
+def test_the_reason_line_is_the_last_error_else_the_last_line():
+    assert cl.reason_line(['[INFO] a', '[ERROR] [plant]: 2 publishers of /state ...',
+                           '[INFO] [plant]: summary: {...}', '']) == (
+        '[ERROR] [plant]: 2 publishers of /state ...')
+    assert cl.reason_line(['x', 'recorder: error: 3 message(s) lost', 'closed x']) == (
+        'recorder: error: 3 message(s) lost')
+    assert cl.reason_line(['started', 'stopping cleanly  ', '']) == 'stopping cleanly'
+    assert cl.reason_line([]) == ''

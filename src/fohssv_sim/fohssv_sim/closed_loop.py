@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 __all__ = ['NodeSpec', 'closed_loop', 'DEMO_PLANT', 'DEFAULT_CONTROLLER', 'DEFAULT_DURATION',
-           'ros_args', 'EXIT_RULE', 'ExitVerdict', 'exit_verdict']
+           'ros_args', 'EXIT_RULE', 'ExitVerdict', 'exit_verdict', 'reason_line']
 
 #: The demo's plant parameters (besides ``duration`` and the start settings).
 DEMO_PLANT: dict[str, Any] = {
@@ -125,3 +125,11 @@ def exit_verdict(name: str, code: int, is_plant: bool, last_line: str = '') -> E
         return ExitVerdict(False, True,
                            'the plant exited: shutting down the controller and the recorder')
     return ExitVerdict(False, False, f'{name} exited')
+
+
+def reason_line(lines: list[str]) -> str:
+    """The line that says why a node exited: its last error line (``[ERROR]``, ``error:``,
+    ``[FATAL]``), else its last non-empty line ('' if none)."""
+    lines = [x.strip() for x in lines if x.strip()]
+    errors = [x for x in lines if '[ERROR]' in x or '[FATAL]' in x or 'error:' in x]
+    return (errors or lines or [''])[-1]

@@ -23,7 +23,13 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 
-from fohssv_sim.closed_loop import DEFAULT_CONTROLLER, DEFAULT_DURATION, closed_loop, exit_verdict
+from fohssv_sim.closed_loop import (
+    DEFAULT_CONTROLLER,
+    DEFAULT_DURATION,
+    closed_loop,
+    exit_verdict,
+    reason_line,
+)
 
 #: Launch arguments: the keyword arguments of closed_loop(), with default, type, meaning.
 ARGUMENTS = {
@@ -46,11 +52,11 @@ class NodeFailed(RuntimeError):
 
 
 def _watch(name, last):
-    """Keep the last non-empty line ``name`` printed (its error line, when it fails)."""
+    """Keep the line that says why ``name`` would exit: its last error line, else its last
+    line (:func:`fohssv_sim.closed_loop.reason_line`)."""
     def on_output(event):
-        lines = [x for x in event.text.decode(errors='replace').splitlines() if x.strip()]
-        if lines:
-            last[name] = lines[-1].strip()
+        lines = [last.get(name, ''), *event.text.decode(errors='replace').splitlines()]
+        last[name] = reason_line(lines)
     return on_output
 
 
@@ -75,7 +81,7 @@ def generate_launch_description():
     nodes = [Node(package=s.package, executable=s.executable, name=s.name, output='screen',
                   parameters=[s.parameters]) for s in specs]
     plant = nodes[0]
-    last = {}           # node name -> the last line it printed
+    last = {}           # node name -> the line saying why it would exit (its last error)
     handlers = []
     for spec, node in zip(specs, nodes):
         handlers += [

@@ -53,7 +53,7 @@ except ImportError:
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'src' / 'fohssv_sim'))
 
 from fohssv_sim.analysis.orbits import classify  # noqa: E402
-from fohssv_sim.analysis.sweep import SweepSpec, run_sweep  # noqa: E402
+from fohssv_sim.analysis.sweep import SweepSpec, run_sweep, state_scale  # noqa: E402
 from fohssv_sim.batch import simulate_batch  # noqa: E402
 from fohssv_sim.fractional import soe as _soe  # noqa: E402
 from fohssv_sim.params import ModelParameters  # noqa: E402
@@ -161,7 +161,8 @@ def main(argv: list[str] | None = None) -> int:
         sweeps.append((workers, chunk, n_chunks, wall))
         print(f'  {wall:.2f} s ({n_chunks} chunks)', flush=True)
         for i, (t, x) in s_traj.items():
-            cls, peaks = classify(t, x[:, 1], eq_tol=spec.eq_tol, rel_tol=spec.rel_tol)
+            cls, peaks = classify(t, x[:, 1], steady_rtol=spec.steady_rtol, rel_tol=spec.rel_tol,
+                                  scale=state_scale(x, 1, 1.0))
             row = res.rows[i]
             if row['label'] != cls.label or row['n_maxima'] != peaks.size:
                 label_mismatch.append((workers, i, row['label'], cls.label))

@@ -17,6 +17,7 @@ import importlib.util
 import inspect
 import re
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -73,16 +74,39 @@ def test_launch_file_starts_the_shared_node_list_and_stops_with_the_plant():
         assert kind(default) == kind(signature[name].default), name
     assert set(arguments) == {'controller', 'duration', 'bag_path', 'hosted'}
     assert len(_calls(tree, 'DeclareLaunchArgument')) == 1   # in a loop over ARGUMENTS
-    # the plant's exit shuts the launch down
+    # every node's exit goes through the shared exit rule: one handler per node, in the loop
+    # over the nodes; the plant's exit 0 shuts the launch down, a non-zero exit raises
     (handler,) = _calls(tree, 'OnProcessExit')
     hk = {k.arg: k.value for k in handler.keywords}
-    assert ast.unparse(hk['target_action']) == 'plant'
-    assert 'Shutdown(' in ast.unparse(hk['on_exit'])
+    assert ast.unparse(hk['target_action']) == 'node'
+    assert ast.unparse(hk['on_exit']) == '_on_exit(spec.name, node is plant, last)'
+    loop = next(n for n in ast.walk(tree) if isinstance(n, ast.For)
+                and ast.unparse(n.iter) == 'zip(specs, nodes)')
+    assert handler in list(ast.walk(loop))
     plant = next(n for n in ast.walk(tree) if isinstance(n, ast.Assign)
                  and getattr(n.targets[0], 'id', None) == 'plant')
     assert ast.unparse(plant.value) == 'nodes[0]'
     assert cl.closed_loop()[0].executable == 'plant'
     assert _calls(tree, 'RegisterEventHandler')
+    on_exit = next(n for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)
+                   and n.name == 'on_exit')
+    body = ast.unparse(on_exit)
+    assert 'exit_verdict(name, event.returncode, is_plant' in body
+    assert 'raise NodeFailed(verdict.message)' in body     # launch then returns 1
+    assert 'Shutdown(' in body
+    assert ('fohssv_sim.closed_loop', 'exit_verdict') in imports
+
+
+@pytest.mark.parametrize('name,code,plant,failed,ends', [
+    ('plant', 0, True, False, True), ('controller', 0, False, False, False),
+    ('recorder', 0, False, False, False), ('controller', 2, False, True, True),
+    ('recorder', 2, False, True, True), ('recorder', 6, False, True, True),
+    ('plant', 3, True, True, True), ('plant', -9, True, True, True)])
+def test_exit_rule(name, code, plant, failed, ends):
+    v = cl.exit_verdict(name, code, plant, f'{name}: error: the reason')
+    assert (v.failed, v.ends_run) == (failed, ends)
+    if failed:
+        assert v.message == f'{name} exited with code {code}: {name}: error: the reason'
 
 
 def test_demo_starts_the_launch_files_list_with_its_defaults(tmp_path):
@@ -206,3 +230,36 @@ def test_readme_walkthrough_ends_on_its_own_with_a_complete_bag(tmp_path):
     assert np.max(np.abs(run.state - ref[:, 1:])) <= 1e-12
     assert run.topics['/pose'] == round(duration / 0.01) + 1
     assert list((tmp_path / 'mine-plots').glob('*.png')), out.stdout
+
+
+@pytest.mark.graph
+@pytest.mark.parametrize('args,node,words', [
+    (['--controller', 'nope'], 'controller', "'nope'"),
+    (['--alpha', '5'], 'plant', 'fractional_order=5.0')])
+def test_demo_ends_when_a_node_fails_at_start(tmp_path, args, node, words):
+    """The exit rule as a process: scripts/demo.py with a node that exits 2 at start ends by
+    itself (no waiting for a node that never comes), with that node's line and its exit
+    code, and leaves no empty bag behind."""
+    bag = tmp_path / 'runs' / 'demo'
+    domain = rosproc.unique_domain_id()
+    out = subprocess.run([sys.executable, str(ROOT / 'scripts' / 'demo.py'), *args,
+                          '--duration', '0.05', '--bag', str(bag), '--timeout', '120'],
+                         cwd=tmp_path, env=rosproc.ros_env(domain), capture_output=True,
+                         text=True, timeout=180)
+    assert out.returncode == 2, out.stdout + out.stderr
+    assert f'ROS_DOMAIN_ID={domain}' in out.stdout           # the exported domain is honoured
+    line = next(x for x in out.stderr.splitlines() if x.startswith('demo: ') and 'exited' in x)
+    assert line.startswith(f'demo: {node} exited with code 2: ') and words in line, line
+    assert 'Traceback' not in out.stdout + out.stderr
+    assert not bag.exists() and f'removed the empty bag {bag}' in out.stderr
+    assert list((tmp_path / 'runs').iterdir()) == []
+
+
+def test_the_reason_line_is_the_last_error_else_the_last_line():
+    assert cl.reason_line(['[INFO] a', '[ERROR] [plant]: 2 publishers of /state ...',
+                           '[INFO] [plant]: summary: {...}', '']) == (
+        '[ERROR] [plant]: 2 publishers of /state ...')
+    assert cl.reason_line(['x', 'recorder: error: 3 message(s) lost', 'closed x']) == (
+        'recorder: error: 3 message(s) lost')
+    assert cl.reason_line(['started', 'stopping cleanly  ', '']) == 'stopping cleanly'
+    assert cl.reason_line([]) == ''

@@ -104,6 +104,17 @@ def _assert_layout_names_what_the_bag_has(msgs: dict[str, list]) -> None:
         if panel_id.startswith('3D!'):
             assert config['followTf'] == contract.VIEW_WORLD_FRAME
     assert {'/pose', '/vehicle_marker'} <= topics and '/state.data[2]' in paths
+    # panels are named by foxglovePanelTitle (Plot's own `title` is deprecated in PlotConfig);
+    # the depth-and-pitch panel plots both
+    plots = {k: c for k, c in layout['configById'].items() if k.startswith('Plot!')}
+    for panel_id, config in plots.items():
+        assert 'title' not in config and config['foxglovePanelTitle'], panel_id
+    (depth,) = [c for c in plots.values() if 'depth' in c['foxglovePanelTitle']]
+    assert 'pitch' in depth['foxglovePanelTitle']
+    assert {p['value'] for p in depth['paths'] if p['enabled']} == {
+        '/pose.pose.position.z', '/state.data[3]'}      # -z (up) and theta (nose up)
+    panels = re.findall(r'"((?:Plot|3D)![\w]+)"', json.dumps(layout['layout']))
+    assert sorted(panels) == sorted(layout['configById'])   # every panel is placed
     for topic in topics:
         assert msgs.get(topic), f'the layout shows {topic}, which the bag lacks'
     for path in paths:

@@ -27,10 +27,10 @@ setup(
             'fractional_pid = fohssv_controller.fractional_pid:FractionalPID',
         ],
         'console_scripts': [
-            'controller = fohssv_controller.ros.controller_node:main',
-            'state_feedback = fohssv_controller.ros.controller_node:main_state_feedback',
-            'lqr = fohssv_controller.ros.controller_node:main_lqr',
-            'fractional_pid = fohssv_controller.ros.controller_node:main_fractional_pid',
+            'controller = fohssv_controller.ros.entry:controller',
+            'state_feedback = fohssv_controller.ros.entry:state_feedback',
+            'lqr = fohssv_controller.ros.entry:lqr',
+            'fractional_pid = fohssv_controller.ros.entry:fractional_pid',
         ],
     },
 )

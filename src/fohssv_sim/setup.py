@@ -22,9 +22,9 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'plant = fohssv_sim.ros.plant_node:main',
-            'recorder = fohssv_sim.ros.recorder_node:main',
-            'player = fohssv_sim.ros.player_node:main',
+            'plant = fohssv_sim.ros.entry:plant',
+            'recorder = fohssv_sim.ros.entry:recorder',
+            'player = fohssv_sim.ros.entry:player',
             'fohssv = fohssv_sim.cli:main',
         ],
     },

@@ -12,6 +12,11 @@ the recorder: ``min_state_subscribers: 2``), and the controller holds its comman
 plant and the recorder both listen (``min_command_subscribers: 2``); the recorder, slower than
 the lockstep loop, paces it (``pace_to_subscribers: 512``).
 
+How the run ends (:data:`EXIT_RULE`, :func:`exit_verdict`; the launch file and ``scripts/demo.py``
+both follow it): the plant's exit 0 ends the run (the others are stopped, the recorder closes
+the bag); any node's non-zero exit ends it too, with that node's exit code and last line, and
+the launch or demo exits non-zero instead of waiting for a node that will never come.
+
 Pure: no rclpy, no launch.
 """
 
@@ -21,7 +26,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 __all__ = ['NodeSpec', 'closed_loop', 'DEMO_PLANT', 'DEFAULT_CONTROLLER', 'DEFAULT_DURATION',
-           'ros_args', 'flag']
+           'ros_args', 'flag', 'EXIT_RULE', 'ExitVerdict', 'exit_verdict', 'reason_line']
 
 #: The demo's plant parameters (besides ``duration`` and the start settings).
 DEMO_PLANT: dict[str, Any] = {
@@ -105,3 +110,40 @@ def ros_args(spec: NodeSpec) -> list[str]:
         if v != '':
             out += ['-p', f'{k}:={_value(v)}']
     return out
+
+
+#: How a node's exit ends the closed loop (the launch file's exit handlers, scripts/demo.py).
+EXIT_RULE = ('the plant exiting 0 ends the run: the controller and the recorder are stopped '
+             '(SIGINT) and the recorder closes the bag; any node exiting non-zero (at start: a '
+             'bad parameter, a bag_path that exists, an unknown controller; later: a plant '
+             'error, lost messages) ends it with that node\'s exit code and last line, and the '
+             'launch (exit 1) or the demo (that exit code) fails')
+
+
+@dataclass(frozen=True)
+class ExitVerdict:
+    """What one node's exit means for the closed loop (:func:`exit_verdict`)."""
+
+    failed: bool         # the loop fails: stop everything, exit non-zero
+    ends_run: bool       # stop the other nodes now
+    message: str
+
+
+def exit_verdict(name: str, code: int, is_plant: bool, last_line: str = '') -> ExitVerdict:
+    """:data:`EXIT_RULE` for node ``name`` exiting with ``code`` (negative: killed by that
+    signal); ``last_line`` is the last line it printed (its error, when it fails)."""
+    if code != 0:
+        text = f'{name} exited with code {code}'
+        return ExitVerdict(True, True, f'{text}: {last_line}' if last_line else text)
+    if is_plant:
+        return ExitVerdict(False, True,
+                           'the plant exited: shutting down the controller and the recorder')
+    return ExitVerdict(False, False, f'{name} exited')
+
+
+def reason_line(lines: list[str]) -> str:
+    """The line that says why a node exited: its last error line (``[ERROR]``, ``error:``,
+    ``[FATAL]``), else its last non-empty line ('' if none)."""
+    lines = [x.strip() for x in lines if x.strip()]
+    errors = [x for x in lines if '[ERROR]' in x or '[FATAL]' in x or 'error:' in x]
+    return (errors or lines or [''])[-1]

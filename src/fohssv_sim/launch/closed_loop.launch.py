@@ -4,8 +4,14 @@ x(0) = 0, lockstep), a controller node hosting the law named by the ``controller
 (default: eq. 31) and the recorder, with the settings that make the bag complete; with
 ``hosted:=true`` the plant hosts the law itself and there is no controller node. The nodes and
 their parameters are :func:`fohssv_sim.closed_loop.closed_loop`, the list ``scripts/demo.py``
-starts too (made when the launch runs, from the arguments' values). When the plant exits
-(``duration`` reached, or an error) everything shuts down and the recorder closes the bag.
+starts too (made when the launch runs, from the arguments' values).
+
+How it ends (:data:`fohssv_sim.closed_loop.EXIT_RULE`, the rule ``scripts/demo.py`` follows
+too): when the plant exits 0 (``duration`` reached) everything shuts down and the recorder
+closes the bag; when any node exits non-zero (a bad argument at start such as
+``controller:=nope`` or a ``bag_path`` that exists, a lost message, a plant error) the launch
+logs that node's exit code and last line, stops the others and exits 1. A recorder stopped
+before any message arrived marks its bag empty (``fohssv.empty`` in metadata.yaml).
 
     ros2 launch fohssv_sim closed_loop.launch.py controller:=lqr duration:=2.0 \\
         bag_path:=runs/launched [hosted:=true]
@@ -19,11 +25,18 @@ from launch.actions import (
     RegisterEventHandler,
     Shutdown,
 )
-from launch.event_handlers import OnProcessExit
+from launch.event_handlers import OnProcessExit, OnProcessIO
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from fohssv_sim.closed_loop import DEFAULT_CONTROLLER, DEFAULT_DURATION, closed_loop, flag
+from fohssv_sim.closed_loop import (
+    DEFAULT_CONTROLLER,
+    DEFAULT_DURATION,
+    closed_loop,
+    exit_verdict,
+    flag,
+    reason_line,
+)
 
 #: Launch arguments: the keyword arguments of closed_loop(), with default, type, meaning.
 ARGUMENTS = {
@@ -37,21 +50,62 @@ ARGUMENTS = {
                'DDS in the loop)'),
 }
 
+#: Key of ``last`` naming the first node that failed.
+FAILED = '<failed>'
+
+
+class NodeFailed(RuntimeError):
+    """A node of the closed loop exited non-zero. Raised from the exit handler: launch then
+    logs the message, shuts the other nodes down and returns 1 (an exception is the only way
+    a launch file sets ``ros2 launch``'s exit status)."""
+
+
+def _watch(name, last):
+    """Keep the line that says why ``name`` would exit: its last error line, else its last
+    line (:func:`fohssv_sim.closed_loop.reason_line`)."""
+    def on_output(event):
+        lines = [last.get(name, ''), *event.text.decode(errors='replace').splitlines()]
+        last[name] = reason_line(lines)
+    return on_output
+
+
+def _on_exit(name, is_plant, last):
+    def on_exit(event, context):
+        verdict = exit_verdict(name, event.returncode, is_plant, last.get(name, ''))
+        if last.get(FAILED) is not None:     # stopping after a failure: that one is the cause
+            return [LogInfo(msg=f'{verdict.message} (stopped after {last[FAILED]} failed)')
+                    ] if verdict.failed else None
+        if verdict.failed:
+            last[FAILED] = name
+            raise NodeFailed(verdict.message)
+        if verdict.ends_run:
+            return [LogInfo(msg=verdict.message), Shutdown(reason=verdict.message)]
+        return None
+    return on_exit
+
 
 def _nodes(context):
+    """The nodes (made from the arguments' values: hosted:=true has no controller node) and
+    the handlers of the exit rule."""
     specs = closed_loop(**{name: kind(LaunchConfiguration(name).perform(context))
                            for name, (_, kind, _) in ARGUMENTS.items()})
     nodes = [Node(package=s.package, executable=s.executable, name=s.name, output='screen',
                   parameters=[s.parameters]) for s in specs]
     plant = nodes[0]
-    return [
-        *nodes,
-        # the run is over when the plant exits: stop the controller and close the bag (the
-        # recorder closes it completely on the SIGINT that launch sends at shutdown)
-        RegisterEventHandler(OnProcessExit(target_action=plant, on_exit=[
-            LogInfo(msg='the plant exited: shutting down the controller and the recorder'),
-            Shutdown(reason='the plant exited')])),
-    ]
+    last = {}           # node name -> the line saying why it would exit (its last error)
+    handlers = []
+    for spec, node in zip(specs, nodes):
+        handlers += [
+            RegisterEventHandler(OnProcessIO(target_action=node,
+                                             on_stdout=_watch(spec.name, last),
+                                             on_stderr=_watch(spec.name, last))),
+            # every node's exit: the plant's exit 0 ends the run (the recorder closes the bag
+            # completely on the SIGINT that launch sends at shutdown); any non-zero exit
+            # ends the launch with that node's line and exit status 1
+            RegisterEventHandler(OnProcessExit(target_action=node, on_exit=_on_exit(
+                spec.name, node is plant, last))),
+        ]
+    return [*nodes, *handlers]
 
 
 def generate_launch_description():

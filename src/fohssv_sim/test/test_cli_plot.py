@@ -116,3 +116,47 @@ def test_plot_a_bag_with_two_namespaces_by_namespace(tmp_path):
         assert out.returncode == 0, out.stderr
         s = json.loads((fig / 'run_summary.json').read_text())[str(tmp_path / 'two')]
         assert s['samples'] == run.t.size
+
+
+def test_plot_titles_name_the_controller_and_step_zoom_the_last_cycles(tmp_path):
+    """The time-response figure (read back from the saved PNG's Title and the SVG's text):
+    title with the controller (recorded by the recorder as fohssv.controller) and the step
+    ('auto' resolved to the model's 1e-5 s), a zoom on the last cycles of the 36 Hz delay-free
+    tail slap (four periods, from the spectrum), and the legend below the plots."""
+    import matplotlib
+    from PIL import Image
+
+    from fohssv_sim.analysis.plots import plot_phase_portrait, plot_time_responses, zoom_window
+    from fohssv_sim.bag import load_run
+
+    p = ModelParameters(model='delay-free')
+    run = simulate(p, StateFeedback(), 1.0, sample_every=10)
+    w = RunWriter(tmp_path / 'a').open()
+    for topic in contract.TOPICS:
+        w.add_topic(topic.name if topic.name.startswith('/') else '/' + topic.name, topic.type)
+    w.add_metadata({'fohssv.plant_parameters': {**p.to_dict(), 'control_period': 1e-4},
+                    'fohssv.controller': 'state_feedback', 'fohssv.controller_node': '/c'})
+    for i, t in enumerate(run.t):
+        ns = round(t * 1e9)
+        w.write('/state', ns, float64_array(contract.STATE, [t, *run.state[i]]))
+        w.write('/planing_force', ns, float64_array(contract.PLANING_FORCE,
+                                                    [t, run.planing_force[i]]))
+        w.write('/command', ns, float64_array(contract.COMMAND, [t, *run.inputs[i]]))
+    w.close()
+    bag = load_run(tmp_path / 'a')
+    tm, _ = local_maxima(run.t[run.t >= 0.5], run.state[run.t >= 0.5, 1])
+    period = float(np.median(np.diff(tm)))                        # second method: the maxima
+    z0, z1 = zoom_window(bag)
+    assert z1 == run.t[-1] and abs((z1 - z0) - 4 * period) < 0.1 * period
+    with matplotlib.rc_context({'svg.fonttype': 'none'}):         # text stays text in SVG
+        plot_time_responses([bag], [tmp_path / 't.png', tmp_path / 't.svg'])
+        plot_phase_portrait([bag], [tmp_path / 'p.png'], 0.5)
+    with Image.open(tmp_path / 't.png') as im:
+        title = im.text['Title']
+    assert title.splitlines()[0] == ('Time responses: controller state_feedback, h=1e-05 s, '
+                                     'ZOH 0.0001 s')
+    assert f'zoom: last {z1 - z0:.3g} s' in title
+    with Image.open(tmp_path / 'p.png') as im:
+        assert 'controller state_feedback, h=1e-05 s' in im.text['Title']
+    svg = (tmp_path / 't.svg').read_text()
+    assert 'a: controller state_feedback, delay-free, V=75, h=1e-05 s, ZOH 0.0001 s' in svg

@@ -41,7 +41,7 @@ def _sweep(rows, alphas, speeds, model='fractional'):
 
 
 def test_orbit_diagrams_name_the_fixed_parameter_and_the_unit_of_w(tmp_path):
-    rows = [_row(0, 0.7, 84.5, 'converging', [1.87]),
+    rows = [_row(0, 0.7, 84.5, 'steady', [1.87]),
             _row(1, 0.8, 84.5, 'periodic', [2.1, 2.1, 2.1])]
     fig = plot_orbit_diagram(_sweep(rows, (0.7, 0.8), (84.5,)), 'alpha', [tmp_path / 'a.png'])
     ax = fig.axes[0]
@@ -65,20 +65,22 @@ def _legend(fig):
 
 
 def test_alpha_v_legend_lists_alpha_star_only_when_it_is_drawn(tmp_path):
-    # at V = 75 the class changes between alpha 0.7 and 0.8; at 80 it never does
-    rows = [_row(0, 0.7, 75.0, 'equilibrium', [1.8]), _row(1, 0.8, 75.0, 'periodic', [2.0]),
+    # at V = 75 the orbits change from steady to periodic between alpha 0.7 and 0.8 (a
+    # drifting point between them is neither side and is skipped); at 80 they never do
+    rows = [_row(0, 0.7, 75.0, 'steady', [1.8]), _row(4, 0.75, 75.0, 'drifting', [1.9]),
+            _row(1, 0.8, 75.0, 'periodic', [2.0]),
             _row(2, 0.7, 80.0, 'periodic', [2.0]), _row(3, 0.8, 80.0, 'periodic', [2.0])]
-    fig = plot_alpha_v(_sweep(rows, (0.7, 0.8), (75.0, 80.0)), [tmp_path / 'm.png'])
-    assert 'α*(V): first change of class' in _legend(fig)
-    (star,) = [ln for ln in fig.axes[0].get_lines()
-               if ln.get_label() == 'α*(V): first change of class']
+    fig = plot_alpha_v(_sweep(rows, (0.7, 0.75, 0.8), (75.0, 80.0)), [tmp_path / 'm.png'])
+    label = 'α*(V): steady → oscillating'
+    assert label in _legend(fig)
+    (star,) = [ln for ln in fig.axes[0].get_lines() if ln.get_label() == label]
     # one speed only: a line alone would draw nothing, the marker shows the point
     assert star.get_marker() not in ('', 'None', None)
     assert list(star.get_xdata()) == [75.0] and list(star.get_ydata()) == [0.75]
     rows = [_row(0, 0.7, 75.0, 'periodic', [2.0]), _row(1, 0.8, 75.0, 'periodic', [2.0])]
     fig = plot_alpha_v(_sweep(rows, (0.7, 0.8), (75.0,)), [tmp_path / 'n.png'], label='x')
-    assert 'α*(V): first change of class' not in _legend(fig)
-    assert 'α*(V): no change of class on the grid' in _legend(fig)
+    assert label not in _legend(fig)
+    assert 'α*(V): no steady-oscillating change on the grid' in _legend(fig)
     assert not [ln for ln in fig.axes[0].get_lines() if len(ln.get_xdata())]
 
 

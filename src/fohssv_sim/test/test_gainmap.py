@@ -161,3 +161,27 @@ def test_cli_draws_valid_figures_and_rejects_bad_input(tmp_path):
     r = run('--x', 'pitch_gainz=1,2', '--y', 'depth_gain=1,2', '--out', str(tmp_path / 'bad'))
     assert 'depth_gain, max_cavitator_deflection' in r.stderr      # lists the parameters
     assert np.isfinite(side['n_points'])
+
+
+def test_map_figures_carry_units_the_unstable_side_and_the_papers_gains(tmp_path, grid_rows):
+    """The class map as saved (SVG with text kept as text): axes named with the gains' units
+    from the controller's parameter table, the Matignon-unstable cells labelled α_c < α (the
+    side where the linearisation is unstable), and the paper's gains (eq. 31: pitch-rate gain
+    -0.3, w gain 0) marked where the grid holds them."""
+    import matplotlib
+
+    from fohssv_sim.analysis.gainmap import GainMapResult, _sidecar, plot_gain_map
+
+    spec, rows = grid_rows
+    result = GainMapResult([dict(r) for r in rows], _sidecar(spec, [list(range(len(rows)))]))
+    with matplotlib.rc_context({'svg.fonttype': 'none'}):
+        paths = plot_gain_map(result, tmp_path / 'g')
+    svg = (tmp_path / 'g_classes.svg').read_text()
+    assert tmp_path / 'g_classes.svg' in paths
+    assert 'pitch_rate_gain (rad s/rad)' in svg and 'vertical_velocity_gain (rad s/m)' in svg
+    assert 'linearisation unstable (α_c &lt; α)' in svg and 'α_c − α)' not in svg
+    assert ("the paper's gains (eq. 31: pitch_rate_gain = -0.3, vertical_velocity_gain = 0)"
+            in svg.replace('&#39;', "'"))
+    # every unstable mark is a pair whose alpha_c is below alpha (independent: the rows'
+    # alpha_c comes from the Jacobian's eigenvalues)
+    assert any(r['alpha_c'] < r['alpha'] for r in rows)

@@ -25,12 +25,28 @@ def test_period_one_and_period_two_and_three():
     assert classify(T, y3)[0].label == 'periodic-3'
 
 
-def test_equilibrium_and_converging():
-    assert classify(T, 1.8 + 1e-8 * np.sin(2 * np.pi * 40 * T))[0].kind == 'equilibrium'
+def test_steady_is_one_class_settled_or_converging():
+    assert classify(T, 1.8 + 1e-8 * np.sin(2 * np.pi * 40 * T))[0].kind == 'steady'
     decaying = np.exp(-2.0 * T) * np.sin(2 * np.pi * 40 * T)
-    assert classify(T, decaying)[0].kind == 'converging'
+    cls = classify(T, decaying)[0]
+    assert cls.kind == 'steady' and cls.converging
     algebraic = (1.0 + 50 * T) ** -0.85 * np.sin(2 * np.pi * 40 * T)   # fractional-like decay
-    assert classify(T, algebraic)[0].kind == 'converging'
+    assert classify(T, algebraic)[0].kind == 'steady'
+
+
+def test_the_steady_tolerance_is_relative_to_the_state_scale():
+    # the same relative motion (1e-6 of the level) is steady at any level and in any unit;
+    # an absolute tolerance would call it steady at one scale and periodic at another
+    ripple = np.sin(2 * np.pi * 40 * T)
+    for level in (1e-3, 1.87, 1e4):
+        y = level * (1.0 + 1e-6 * ripple)
+        cls = classify(T, y)[0]
+        assert cls.kind == 'steady', level
+        assert cls.tolerance == pytest.approx(1e-4 * level * (1 + 1e-6))
+        assert classify(T, level * (1.0 + 1e-3 * ripple))[0].label == 'periodic-1'
+    # an explicit scale (a state whose steady value is 0)
+    assert classify(T, 1e-6 * ripple, scale=1.0)[0].kind == 'steady'
+    assert classify(T, 1e-6 * ripple)[0].label == 'periodic-1'
 
 
 def logistic(n, r=4.0, x=0.3):
@@ -69,19 +85,20 @@ def test_period_of_a_sampled_map_orbit(p):
     assert classify(t, y)[0].label == f'periodic-{p}'
 
 
-def test_a_window_without_maxima_is_equilibrium_only_below_the_amplitude_tolerance():
-    # the README's rule: equilibrium only when the peak-to-peak range is below eq_tol. A
-    # monotone algebraic approach (alpha = 0.70 at V = 84.5: range 1.6e-4 m/s over the window,
-    # eq_tol 1e-5 in the report) has no local maxima but is not yet steady.
+def test_a_window_without_maxima_is_steady_only_below_the_tolerance_or_shrinking():
+    # steady: the peak-to-peak range below steady_rtol of the state's scale, or a range that
+    # still shrinks. A monotone algebraic approach (alpha = 0.70 at V = 84.5: range 1.6e-4 m/s
+    # over the window, above 1e-5 of w's scale 1.87 m/s) has no local maxima and shrinks.
     t = np.linspace(1.5, 2.0, 12501)
     shape = t ** -0.7 - 2.0 ** -0.7          # decreasing, derivative shrinking
     amp = 1.5 ** -0.7 - 2.0 ** -0.7          # its range over the window, by hand
     slow = 1.87 + 1.6e-4 * shape / amp
-    cls, peaks = classify(t, slow, eq_tol=1e-5)
+    cls, peaks = classify(t, slow, steady_rtol=1e-5)
     assert peaks.size == 0 and abs(cls.amplitude - 1.6e-4) < 1e-12
-    assert cls.kind == 'converging'
+    assert cls.kind == 'steady' and cls.converging
     settled = 1.87 + 5e-6 * shape / amp      # the same approach, below the tolerance
-    assert classify(t, settled, eq_tol=1e-5)[0].kind == 'equilibrium'
+    cls = classify(t, settled, steady_rtol=1e-5)[0]
+    assert cls.kind == 'steady' and not cls.converging
     ramp = 1.87 + 1e-3 * (t - 1.5)           # no maxima, range not shrinking
-    cls, _ = classify(t, ramp, eq_tol=1e-5)
+    cls, _ = classify(t, ramp, steady_rtol=1e-5)
     assert cls.kind == 'drifting' and cls.label == 'drifting'

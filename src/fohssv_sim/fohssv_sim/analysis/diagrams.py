@@ -13,12 +13,13 @@ from pathlib import Path
 from typing import Any
 
 from .figures import STATE_UNITS, pyplot, save, titled
+from .orbits import OSCILLATING
 from .sweep import SweepResult
 
 __all__ = ['plot_orbit_diagram', 'alpha_star', 'plot_alpha_v']
 
-COLORS = {'equilibrium': 'tab:green', 'converging': 'tab:olive', 'drifting': 'tab:cyan',
-          'periodic': 'tab:blue', 'aperiodic': 'tab:red', 'diverged': 'k'}
+COLORS = {'steady': 'tab:green', 'drifting': 'tab:cyan', 'periodic': 'tab:blue',
+          'aperiodic': 'tab:red', 'diverged': 'k'}
 
 
 def _caption(side: dict[str, Any]) -> str:
@@ -75,18 +76,19 @@ def plot_orbit_diagram(result: SweepResult, axis: str, paths: Sequence[Path],
 
 
 def alpha_star(result: SweepResult) -> list[tuple[float, float]]:
-    """alpha*(V): per speed, the first alpha (scanning upward) where the orbit leaves the
-    equilibrium class ('equilibrium' or 'converging'), as the midpoint between the two grid
-    values; NaN when the class never changes on the grid."""
+    """alpha*(V), the stability boundary: per speed, scanning alpha upward, the first change
+    between ``steady`` and an oscillating class (periodic or aperiodic), as the midpoint of
+    the two grid values (``drifting`` and ``diverged`` points are neither and are skipped);
+    NaN when the grid shows no such change."""
     out = []
     speeds = sorted({r['speed'] for r in result.rows})
     for v in speeds:
-        rows = sorted((r for r in result.rows if r['speed'] == v), key=lambda r: r['alpha'])
-        steady = [r['kind'] in ('equilibrium', 'converging') for r in rows]
+        rows = sorted((r for r in result.rows if r['speed'] == v and (
+            r['kind'] == 'steady' or r['kind'] in OSCILLATING)), key=lambda r: r['alpha'])
         a = math.nan
-        for i in range(1, len(rows)):
-            if steady[i] != steady[i - 1]:
-                a = 0.5 * (rows[i]['alpha'] + rows[i - 1]['alpha'])
+        for lo, hi in zip(rows, rows[1:]):
+            if (lo['kind'] == 'steady') != (hi['kind'] == 'steady'):
+                a = 0.5 * (lo['alpha'] + hi['alpha'])
                 break
         out.append((v, a))
     return out
@@ -99,7 +101,7 @@ def plot_alpha_v(result: SweepResult, paths: Sequence[Path],
     in the legend only when drawn; otherwise the legend says it was not found. Returns the
     (closed) figure."""
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(8, 5))
+    fig, ax = plt.subplots(figsize=(8, 6))
     for kind, color in COLORS.items():
         pts = [(r['speed'], r['alpha']) for r in result.rows if r['kind'] == kind]
         if pts:
@@ -108,15 +110,16 @@ def plot_alpha_v(result: SweepResult, paths: Sequence[Path],
     star = [(v, a) for v, a in alpha_star(result) if not math.isnan(a)]
     if star:
         ax.plot(*zip(*star), 'k-', marker='D', ms=5, lw=1.5,
-                label='α*(V): first change of class')
+                label='α*(V): steady → oscillating')
     else:
-        ax.plot([], [], ' ', label='α*(V): no change of class on the grid')
+        ax.plot([], [], ' ', label='α*(V): no steady-oscillating change on the grid')
     if critical:
         ax.plot(*zip(*critical), 'm--', lw=1, label='Matignon α_c(V) (linear)')
     ax.set_xlabel('V (m/s)')
     ax.set_ylabel('fractional order α')
     ax.set_title(titled('α–V map\n' + _caption(result.sidecar), label), fontsize=9)
-    ax.legend(fontsize=8)
+    # below the axes: inside, it would hide points of the grid
+    ax.legend(fontsize=8, loc='upper center', bbox_to_anchor=(0.5, -0.12), ncol=3)
     fig.tight_layout()
     save(fig, paths, dpi=130)
     plt.close(fig)

@@ -19,7 +19,7 @@ Per point (columns of the rows; all from samples every ``sample_every`` steps, b
 one per control period, so the held command is sampled exactly):
 
 * ``outcome``: the classifier of :mod:`.orbits` on w after ``transient``, grouped as
-  steady (equilibrium or converging) < drifting < periodic < chaotic (aperiodic: chaotic or
+  steady (settled or converging) < drifting < periodic < chaotic (aperiodic: chaotic or
   quasi-periodic, the 0-1 statistic K in ``k01``) < diverged (non-finite state, or |w| > V or
   |theta| > pi/2, the plant's physical bounds); ``label`` keeps the classifier's label.
 * ``peak_fp``: max |Fp| (normalised planing force, m^2/s^2) over the whole run;
@@ -60,7 +60,7 @@ from typing import Any
 import numpy as np
 
 from ..params import ModelParameters, ParameterError
-from .orbits import METHOD, classify
+from .orbits import METHOD, STEADY_RTOL, classify
 from .sweep import ChunkedResult, check_half_step, read_chunk_rows, run_chunks
 
 __all__ = ['GainMapSpec', 'GainMapResult', 'GainMapError', 'OUTCOMES', 'OUTCOME_RANK',
@@ -84,7 +84,7 @@ ROW_FIELDS = ('point', 'pair', 'ix', 'iy', 'x', 'y', 'alpha', 'speed', 'outcome'
 _INT = ('point', 'pair', 'ix', 'iy', 'period')
 _STR = ('outcome', 'label', 'kind', 'path')
 
-METRIC_TEXT = ('outcome: orbit classifier on w after the transient (steady = equilibrium or '
+METRIC_TEXT = ('outcome: orbit classifier on w after the transient (steady = settled or '
                'converging); peak_fp: max |Fp| over the run; settle_time: first time after '
                'which |w - w*| <= settle_band * max(|w*|, 0.1 m/s) to the end (inf: out of the '
                'band in the window after the transient; NaN: no equilibrium); effort_rms: '
@@ -100,7 +100,7 @@ class GainMapError(ValueError):
 
 def outcome(kind: str) -> str:
     """The map's outcome for a classifier kind (see the module docstring)."""
-    return {'equilibrium': 'steady', 'converging': 'steady', 'drifting': 'drifting',
+    return {'steady': 'steady', 'drifting': 'drifting',
             'periodic': 'periodic', 'aperiodic': 'chaotic'}.get(kind, 'diverged')
 
 
@@ -161,7 +161,7 @@ class GainMapSpec:
     settle_band: float = 0.02
     chunk_size: int = 128
     check_step: int = 0           # re-run every k-th point at half step (0 = off)
-    eq_tol: float = 1e-6
+    steady_rtol: float = STEADY_RTOL   # steady tolerance, relative to w's scale
     rel_tol: float = 1e-3
 
     # -- grid ----------------------------------------------------------------------------
@@ -420,7 +420,8 @@ def run_points(spec_dict: dict[str, Any], indices: Sequence[int], *,
                        peak_fp_window=math.inf, settle_time=math.inf, effort_rms=math.inf)
             rows.append(row)
             continue
-        cls, _ = classify(t[win], x[win, 1], eq_tol=spec.eq_tol, rel_tol=spec.rel_tol)
+        cls, _ = classify(t[win], x[win, 1], steady_rtol=spec.steady_rtol,
+                          rel_tol=spec.rel_tol)
         c = coefficients(params[j])
         fp_law = planing_smooth_array if params[j].planing_form == 'smooth' else \
             planing_exact_array
@@ -623,9 +624,37 @@ def _caption(result: GainMapResult) -> str:
             f"{s.controller}{' (' + fixed + ')' if fixed else ''}")
 
 
-def _boundary(ax: Any, result: GainMapResult, margin: np.ndarray, what: str) -> str:
-    """Draw the contour margin = 0 (alpha_c - alpha) and mark the Matignon-unstable cells;
-    returns a note for the title when nothing can be drawn."""
+def gain_label(controller: str, name: str) -> str:
+    """An axis label for a gain: its name and unit, e.g. 'pitch_rate_gain (rad s/rad)'."""
+    spec = controller_parameters(controller).get(name)
+    unit = getattr(spec, 'unit', '-')
+    return name if unit in ('', '-') else f'{name} ({unit})'
+
+
+def reference_gains(s: GainMapSpec) -> tuple[tuple[float, float], str] | None:
+    """The controller's default (x, y) gains and a legend text, when they lie inside the map:
+    for eq. 31 (defaults referenced to the paper) the paper's gains, named so when every other
+    gain is at its default too."""
+    specs = controller_parameters(s.controller)
+    x0, y0 = specs[s.gain_x].default, specs[s.gain_y].default
+    if not all(isinstance(v, (int, float)) for v in (x0, y0)):
+        return None
+    inside = (min(s.x_values) <= x0 <= max(s.x_values)
+              and min(s.y_values) <= y0 <= max(s.y_values))
+    if not inside:
+        return None
+    eq31 = {k for k, p in specs.items() if getattr(p, 'reference', '') == 'eq. 31'}
+    paper = {s.gain_x, s.gain_y} <= eq31 and all(
+        specs[k].default == v for k, v in s.gains.items() if k in eq31)
+    text = "the paper's gains (eq. 31" if paper else 'default gains ('
+    return (float(x0), float(y0)), f'{text}: {s.gain_x} = {x0:g}, {s.gain_y} = {y0:g})'
+
+
+def _boundary(ax: Any, result: GainMapResult, margin: np.ndarray, what: str,
+              unstable_text: str) -> str:
+    """Draw the contour margin = 0 (alpha_c - alpha) and mark the Matignon-unstable cells
+    (``unstable_text``: when a cell is, e.g. 'α_c < α'); returns a note for the title when
+    nothing can be drawn."""
     s = result.spec
     if np.all(np.isnan(margin)):
         return ('Matignon boundary not drawn: no linearisation (controller with internal '
@@ -633,7 +662,7 @@ def _boundary(ax: Any, result: GainMapResult, margin: np.ndarray, what: str) -> 
     X, Y = np.meshgrid(s.x_values, s.y_values)
     unstable = margin < 0
     ax.plot(X[unstable], Y[unstable], 'x', color='m', ms=4, lw=0.8,
-            label=f'linearisation unstable ({what})')
+            label=f'linearisation unstable ({unstable_text})')
     finite = np.where(np.isnan(margin), np.nan, margin)
     note = ''
     if margin.shape[0] >= 2 and margin.shape[1] >= 2 and np.nanmin(finite) < 0 < np.nanmax(
@@ -665,6 +694,7 @@ def plot_gain_map(result: GainMapResult, stem: Path, *, worst: bool = False,
         rows = result.worst()
         margin = result.grid(rows, 'alpha_margin')
         what = 'min over envelope of α_c(V) − α'
+        unstable_text = 'α_c(V) < α somewhere in the envelope'
         speeds = sorted({r['speed'] for r in result.rows})
         alphas = sorted({r['alpha'] for r in result.rows})
         head = (f'worst case over V ∈ [{speeds[0]:g}, {speeds[-1]:g}] m/s ({len(speeds)}), '
@@ -677,6 +707,7 @@ def plot_gain_map(result: GainMapResult, stem: Path, *, worst: bool = False,
             r['alpha_margin'] = r['alpha_c'] - r['alpha']
         margin = result.grid(rows, 'alpha_margin')
         what = 'α_c − α'
+        unstable_text = 'α_c < α'
         head = f'α = {alpha:g}, V = {speed:g} m/s'
     if not rows:
         raise GainMapError(f'no points of scenario alpha={alpha}, V={speed} in the map')
@@ -688,14 +719,20 @@ def plot_gain_map(result: GainMapResult, stem: Path, *, worst: bool = False,
         'step_check', 'same') not in ('same', '')}
     pairs = s.pairs()
 
+    reference = reference_gains(s)
+
     def finish(fig: Any, ax: Any, name: str, title: str) -> None:
-        note = _boundary(ax, result, margin, what)
+        note = _boundary(ax, result, margin, what, unstable_text)
         if changed:
             ax.plot([s.x_values[pairs[k][0]] for k in sorted(changed)],
                     [s.y_values[pairs[k][1]] for k in sorted(changed)], 'o', mfc='none',
                     mec='orange', ms=9, label='outcome changes at half step')
-        ax.set_xlabel(s.gain_x)
-        ax.set_ylabel(s.gain_y)
+        if reference is not None:
+            (x0, y0), text = reference
+            ax.plot([x0], [y0], '*', color='gold', mec='k', mew=0.8, ms=15, ls='none',
+                    label=text)
+        ax.set_xlabel(gain_label(s.controller, s.gain_x))
+        ax.set_ylabel(gain_label(s.controller, s.gain_y))
         ax.set_title(titled(f'{title}, {head}\n{_caption(result)}' + (
             f'\n{note}' if note else ''), label), fontsize=7)
         if ax.get_legend_handles_labels()[0]:

@@ -111,7 +111,7 @@ def _time_responses(s: ReportSettings, out: Path, log: Callable[[str], None]) ->
                      'evidence': f"half step: {_fmt(res[name]['freq'][1])} Hz "
                                  f"({res[name]['class'][1]})",
                      'verdict': 'holds' if lower and not res[name]['class'][0].startswith(
-                         ('equilibrium', 'converging')) else 'does not hold'})
+                         'steady') else 'does not hold'})
     return rows
 
 
@@ -180,7 +180,7 @@ def _sweep(s: ReportSettings, name: str, base: ModelParameters, alphas, speeds,
     values.pop('speed')
     spec = SweepSpec(base=values, alphas=tuple(alphas), speeds=tuple(speeds),
                      transient=s.transient, window=s.window, check_step=s.check_step,
-                     sample_every=max(1, round(4e-5 / base.step)), eq_tol=1e-5)
+                     sample_every=max(1, round(4e-5 / base.step)))
     log(f'  sweep {name}: {len(spec.points())} points')
     progress, check = ProgressPrinter(f'{name}: points'), ProgressPrinter(
         f'{name}: step check points')
@@ -215,7 +215,7 @@ def _sweeps(s: ReportSettings, out: Path, log: Callable[[str], None], client: An
     r6 = _sweep(s, 'fig6_alpha_V84.5', fom, s.alphas, (84.5,), out, log, client)
     plot_orbit_diagram(r6, 'alpha', [out / 'fig6_orbit_alpha.png', out / 'fig6_orbit_alpha.svg'],
                        s.label)
-    steady = [r['alpha'] for r in r6.rows if r['kind'] in ('equilibrium', 'converging')]
+    steady = [r['alpha'] for r in r6.rows if r['kind'] == 'steady']
     rows.append({'claim': 'Fig. 6: at V = 84.5 stable for alpha > 0.78; chaos at 0.78, period '
                           'doubling at 0.69, chaotic bands at 0.65',
                  'model': ('steady for alpha in {' + ', '.join(f'{a:g}' for a in steady) + '}'
@@ -237,7 +237,7 @@ def _sweeps(s: ReportSettings, out: Path, log: Callable[[str], None], client: An
     r9 = _sweep(s, 'fig9_V_alpha0.85', fom, (0.85,), s.speeds, out, log, client)
     plot_orbit_diagram(r9, 'speed', [out / 'fig9_orbit_V.png', out / 'fig9_orbit_V.svg'],
                        s.label)
-    steady9 = [r['speed'] for r in r9.rows if r['kind'] in ('equilibrium', 'converging')]
+    steady9 = [r['speed'] for r in r9.rows if r['kind'] == 'steady']
     rows.append({'claim': 'Fig. 9: FOM alpha = 0.85 steady for V > 83.3, period doubling in '
                           '[81, 83.3], chaos below 81',
                  'model': _classes(r9, 'speed'), 'evidence': _step_evidence(r9),

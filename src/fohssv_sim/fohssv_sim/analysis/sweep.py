@@ -47,10 +47,11 @@ import numpy as np
 
 from ..control import make
 from ..params import ModelParameters
-from .orbits import METHOD, classify
+from .orbits import METHOD, STEADY_RTOL, classify
 
 __all__ = ['SweepSpec', 'SweepResult', 'ChunkedResult', 'run_chunks', 'check_half_step',
-           'run_sweep', 'run_chunk', 'load_sweep', 'STATE_INDEX', 'ProgressPrinter']
+           'run_sweep', 'run_chunk', 'load_sweep', 'STATE_INDEX', 'ProgressPrinter',
+           'state_scale']
 
 STATE_INDEX = {'z': 0, 'w': 1, 'theta': 2, 'q': 3}
 ROW_FIELDS = ('point', 'alpha', 'speed', 'label', 'kind', 'period', 'k01', 'amplitude',
@@ -79,7 +80,7 @@ class SweepSpec:
     control_period: float | None = None
     chunk_size: int = 64
     check_step: int = 0           # re-run every k-th point at half step (0 = off)
-    eq_tol: float = 1e-6
+    steady_rtol: float = STEADY_RTOL   # steady tolerance, relative to the state's scale
     rel_tol: float = 1e-3
 
     def points(self) -> list[tuple[float, float]]:
@@ -128,6 +129,15 @@ def _simulate(params: list[ModelParameters], ctl: Any, spec: SweepSpec, every: i
                        params=list(params))
 
 
+def state_scale(states: np.ndarray, k: int, length: float) -> float:
+    """The scale of state ``k`` over the window that the steady tolerance is relative to: its
+    largest |value|; for the pitch rate q, whose steady value is 0, the pitch rate that turns
+    the nose's largest vertical velocity |w| over the body length (|w| / L, rad/s)."""
+    if k == STATE_INDEX['q']:
+        return float(np.max(np.abs(states[:, STATE_INDEX['w']]))) / length
+    return float(np.max(np.abs(states[:, k])))
+
+
 def run_chunk(spec_dict: dict[str, Any], indices: Sequence[int], step_factor: float = 1.0,
               progress: Callable[[float], None] | None = None) -> list[dict[str, Any]]:
     """Compute the rows of the points ``indices`` of the sweep ``spec_dict`` (one Dask task).
@@ -154,7 +164,8 @@ def run_chunk(spec_dict: dict[str, Any], indices: Sequence[int], step_factor: fl
                          'step_check': '', 'maxima': []})
             continue
         y = res.states[j, :, k]
-        cls, peaks = classify(res.t, y, eq_tol=spec.eq_tol, rel_tol=spec.rel_tol)
+        cls, peaks = classify(res.t, y, steady_rtol=spec.steady_rtol, rel_tol=spec.rel_tol,
+                              scale=state_scale(res.states[j], k, params[j].length))
         if peaks.size == 0:
             peaks = y[-1:]   # a steady orbit is drawn at its last value
         rows.append({'point': i, 'alpha': alpha, 'speed': speed, 'label': cls.label,
@@ -424,7 +435,28 @@ def run_sweep(spec: SweepSpec, out: Path, *, scheduler: str | None = None, worke
     result.computed_chunks, result.reused_chunks = computed, reused
     if spec.check_step:
         _check_step(spec, out, result, check_progress)
+    if len(spec.alphas) > 1:
+        write_alpha_star(out, result)
     return result
+
+
+def write_alpha_star(out: Path, result: SweepResult) -> None:
+    """Add ``alpha_star`` to ``out/sweep.json``: per V of the sweep, alpha*(V), the boundary
+    between steady and oscillating orbits (:func:`.diagrams.alpha_star`; null where the grid
+    shows none), as ``[{"speed": V, "alpha_star": a}, ...]``."""
+    from .diagrams import alpha_star
+
+    side_path = out / 'sweep.json'
+    side = json.loads(side_path.read_text())
+    side['alpha_star'] = [{'speed': v, 'alpha_star': None if math.isnan(a) else a}
+                          for v, a in alpha_star(result)]
+    side['alpha_star_rule'] = ('per V, the midpoint of the first two alpha grid values '
+                               '(upward) whose orbits are steady and oscillating (periodic or '
+                               'aperiodic)')
+    tmp = side_path.with_suffix('.tmp')
+    tmp.write_text(json.dumps(side, indent=2) + '\n')
+    os.replace(tmp, side_path)
+    result.sidecar = side
 
 
 def check_half_step(out: Path, rows: list[dict[str, Any]], every: int,

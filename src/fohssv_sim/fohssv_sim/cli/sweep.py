@@ -72,7 +72,7 @@ def dask_options(p: argparse.ArgumentParser, chunk_size: int, chunk_text: str) -
 def register(sub) -> None:
     p = sub.add_parser('sweep', help='orbit diagrams over alpha, V or the alpha-V grid',
                        description='Local maxima of a state after a transient, per parameter '
-                       'value, each orbit classified (equilibrium / converging / periodic-p / '
+                       'value, each orbit classified (steady / drifting / periodic-p / '
                        'aperiodic with the 0-1 test K). Runs on Dask: a local cluster by '
                        'default, or --scheduler ADDRESS. Results stream to OUT/chunks/*.csv '
                        'with OUT/sweep.json; rerunning the same command resumes.')

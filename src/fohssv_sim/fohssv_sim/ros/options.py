@@ -216,9 +216,11 @@ NODE_PARAMETERS: tuple[ParameterSpec, ...] = (
        'expires the plant exits with code 4 (both modes)', low=0.0, low_open=False,
        high=3600.0, high_open=False),
     _P('pace_to_subscribers', '-', 0, 'samples', 'lockstep mode: every this many samples wait '
-       "(at most 1 s) until every subscriber acknowledged the samples, so a recorder slower "
-       "than the loop paces the run instead of losing samples (set it when recording, e.g. "
-       "512; below the queue depth of 2000); 0 = off: the loop runs at the controller's pace",
+       "until every subscriber acknowledged the samples, so a recorder slower than the loop "
+       "paces the run instead of losing samples (set it when recording, e.g. 512; below the "
+       "queue depth of 2000). After 1 s the loop goes on while that cannot lose a sample, "
+       "else it waits up to 10 s (a stalled subscriber is then left behind with a warning); "
+       "0 = off: the loop runs at the controller's pace",
        low=0.0, low_open=False, high=1900.0, high_open=False),
     _P('realtime_priority', '-', 0, '-', 'realtime mode: SCHED_FIFO priority (1-99) of the '
        "plant's pacing thread, as real-time ROS 2 nodes use; needs CAP_SYS_NICE or an rtprio "

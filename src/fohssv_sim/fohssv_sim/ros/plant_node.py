@@ -138,8 +138,11 @@ _RIVAL_CHECK_PERIOD = 0.5
 
 _MODEL_NAMES = tuple(p.name for p in PARAMETERS)
 _NODE_NAMES = tuple(p.name for p in NODE_PARAMETERS)
-#: Lockstep with pace_to_subscribers: the longest wait for the acknowledgements (s).
+#: Lockstep with pace_to_subscribers: the wait for the acknowledgements (s) after which the
+#: loop goes on while that cannot lose a sample ...
 _ACK_TIMEOUT = 1.0
+#: ... and the longest wait once going on could overrun the writer's queue (a stalled reader).
+_STALL_TIMEOUT = 10.0
 #: Rejected commands logged one by one; later ones are throttled to one line per second.
 _LOG_EACH = 20
 #: Realtime mode: wall-clock period of the watchdog check (s).
@@ -191,6 +194,7 @@ class PlantNode(Node):
         self.profile: Profile | None = Profile() if self.options.profile else None
         self._cpu_start = 0.0
         self.state_pub = self.create_publisher(Float64MultiArray, STATE.name, profile(STATE))
+        self._all_acked: dict[str, int] = {}   # topic -> samples when all acknowledged
         self.force_pub = self.create_publisher(Float64MultiArray, PLANING_FORCE.name,
                                                profile(PLANING_FORCE))
         self.clock_pub = self.create_publisher(Clock, CLOCK.name, profile(CLOCK))
@@ -686,14 +690,30 @@ class PlantNode(Node):
         """Lockstep with ``pace_to_subscribers``: wait until every subscriber of the samples
         has acknowledged them, so a subscriber slower than the loop (a recorder, whose keep-all
         readers stop acknowledging when their queue is full) paces the run instead of losing
-        what falls out of the writer's queue. One that stays silent for _ACK_TIMEOUT (stalled)
-        is left behind, with a warning."""
+        what falls out of the writer's queue. After _ACK_TIMEOUT the loop goes on only while
+        that cannot lose a sample: the samples since the subscriber last acknowledged
+        everything, plus those until the next wait, still fit the writer's queue. Otherwise it
+        waits on, up to _STALL_TIMEOUT; a subscriber silent that long (stalled) is left
+        behind with a warning, and from then on waited for only _ACK_TIMEOUT until it
+        catches up."""
+        n = self.sim.samples
+        every = self.options.pace_to_subscribers
         for pub in self._paced_pubs:
-            if not pub.wait_for_all_acked(Duration(seconds=_ACK_TIMEOUT)):
-                self.get_logger().warning(
-                    f'{pub.topic_name}: a subscriber acknowledged nothing for {_ACK_TIMEOUT:g} s'
-                    f' at t={self.sim.t!r} s; continuing (it may lose samples)',
-                    throttle_duration_sec=5.0)
+            topic = pub.topic_name
+            if pub.wait_for_all_acked(Duration(seconds=_ACK_TIMEOUT)):
+                self._all_acked[topic] = n
+                continue
+            behind = n - self._all_acked.get(topic, 0)
+            if behind + every <= pub.qos_profile.depth or self._all_acked.get(topic) == -1:
+                continue       # nothing can be lost before the next wait (or stalled before)
+            if pub.wait_for_all_acked(Duration(seconds=_STALL_TIMEOUT - _ACK_TIMEOUT)):
+                self._all_acked[topic] = n
+                continue
+            self._all_acked[topic] = -1
+            self.get_logger().warning(
+                f'{topic}: a subscriber has not acknowledged up to {behind} samples for '
+                f'{_STALL_TIMEOUT:g} s at t={self.sim.t!r} s (the queue holds '
+                f'{pub.qos_profile.depth}); continuing (it may lose samples)')
 
     # -- real time ---------------------------------------------------------------------------
     def pacing_wait(self) -> float | None:

@@ -17,7 +17,8 @@
   ``metadata.yaml`` custom_data: package version, ``git describe`` and revision of
   ``$FOHSSV_ROOT``, recorder settings, and (when the plant answers its parameter services)
   every parameter of the node named by ``plant_node``: the model parameters, model options,
-  solver, mode.
+  solver, mode; and the node publishing ``command`` with its ``controller`` parameter (the
+  law it hosts: ``fohssv.controller_node``, ``fohssv.controller``).
 * Durability: the chunk in progress is flushed to the OS every ``flush_period`` seconds of
   wall time (and whenever it exceeds ``chunk_size`` bytes). SIGKILL loses at most the
   messages received in the last ``flush_period`` (plus one callback); SIGINT/SIGTERM close the
@@ -32,6 +33,9 @@
   once nothing arrived for ``end_timeout`` s is lost), closes the bag and
   exits: 0 when nothing is missing, 6 naming each topic's shortfall otherwise. After
   SIGINT/SIGTERM the same comparison is made once the delivered messages are drained.
+* A bag closed without any message (the recorder stopped before the run started, e.g. because
+  another node of the loop failed at start) is marked ``fohssv.empty`` in its run metadata,
+  and the closing line says it is empty.
   (The plant lists the commands it received; ``/clock`` is keep-last 1 and not listed.)
 * A second publisher of ``state`` (two plants on one domain and namespace) is reported once as
   a warning naming the nodes (the plants themselves refuse to run beside each other).
@@ -86,8 +90,11 @@ from .nodekit import (
     spin_until,
 )
 
-__all__ = ['Recorder', 'main', 'default_bag_path', 'source_info', 'EXIT_LOST', 'RECORDED']
+__all__ = ['Recorder', 'main', 'default_bag_path', 'source_info', 'EXIT_LOST', 'EMPTY_KEY',
+           'RECORDED']
 
+#: Run-metadata key (metadata.yaml custom_data) of a bag closed without any message.
+EMPTY_KEY = 'fohssv.empty'
 #: Exit code when the bag misses messages that the run's ``run_end`` says were published.
 EXIT_LOST = 6
 #: Exit code when the bag's completeness could not be checked: a publisher of the recorded
@@ -240,6 +247,37 @@ class Recorder(Node):
             self._list = self.create_client(ListParameters, f'/{self._plant}/list_parameters')
             self._get = self.create_client(GetParameters, f'/{self._plant}/get_parameters')
             self._plant_timer = self.create_timer(0.05, self._poll_plant, clock=steady)
+        # the law answering the plant: the 'controller' parameter of the command's publisher
+        # (stored as fohssv.controller, e.g. for plot titles)
+        self._command_topic = self.resolve_topic_name(contract.COMMAND.name)
+        self._ctl_client = None
+        self._ctl_timer = (self.create_timer(0.1, self._poll_controller, clock=steady)
+                           if self._command_topic in self.topic_names else None)
+
+    def _poll_controller(self) -> None:
+        if self.closed or time.monotonic() > self._plant_deadline + 60.0:
+            self._ctl_timer.cancel()
+            return
+        if self._ctl_client is None:
+            infos = self.get_publishers_info_by_topic(self._command_topic)
+            if not infos:
+                return
+            ns = infos[0].node_namespace.rstrip('/')
+            self._ctl_node = f'{ns}/{infos[0].node_name}'
+            self._ctl_client = self.create_client(GetParameters,
+                                                  f'{self._ctl_node}/get_parameters')
+        if self._ctl_client.service_is_ready():
+            self._ctl_timer.cancel()
+            self._ctl_client.call_async(GetParameters.Request(names=['controller'])
+                                        ).add_done_callback(self._on_controller)
+
+    def _on_controller(self, future) -> None:
+        result = future.result()
+        values = [parameter_value_to_python(v) for v in result.values] if result else []
+        if self.closed:
+            return
+        self.writer.add_metadata({'fohssv.controller_node': self._ctl_node, **(
+            {'fohssv.controller': values[0]} if values and isinstance(values[0], str) else {})})
 
     def _maybe_subscribe_state(self) -> None:
         command, wanted = self._wait_commands
@@ -466,6 +504,11 @@ class Recorder(Node):
         error = self.write_error
         if error is None:
             try:
+                if sum(self.writer.counts.values()) == 0:
+                    # stopped before any message (e.g. a node of the loop failed at start):
+                    # say so in the bag, so that an empty run is not taken for a recorded one
+                    self.writer.add_metadata({EMPTY_KEY: 'no message arrived before the '
+                                                         'recorder stopped'})
                 self.writer.close()
             except Exception as exc:  # noqa: BLE001 - OSError, or the library's after it
                 error = exc
@@ -477,8 +520,10 @@ class Recorder(Node):
                   f'`fohssv repair {self.bag_path}` rebuilds it once there is space',
                   file=sys.stderr, flush=True)
             return
+        total = sum(self.writer.counts.values())
         counts = ', '.join(f'{k}: {v}' for k, v in self.writer.counts.items())
-        print(f'closed {self.bag_path}: {sum(self.writer.counts.values())} messages ({counts})',
+        print(f'closed {self.bag_path}: {total} messages ({counts})'
+              + (f'; the bag is empty (marked {EMPTY_KEY} in its metadata)' if not total else ''),
               flush=True)
 
 

@@ -24,6 +24,7 @@ setup(
             'plant = fohssv_sim.ros.plant_node:main',
             'recorder = fohssv_sim.ros.recorder_node:main',
             'player = fohssv_sim.ros.player_node:main',
+            'viewer = fohssv_sim.ros.viewer_node:main',
             'fohssv = fohssv_sim.cli:main',
         ],
     },

@@ -30,13 +30,15 @@ _MESSAGE_DATA, _TIME = 1, 2
 @dataclass
 class Received:
     """One decoded message: its channel's topic and schema, log time (ns), the decoded
-    message (a protobuf message or a JSON value) and a plain dict of it."""
+    message (a protobuf message or a JSON value), a plain dict of it and when it arrived
+    (``time.monotonic()``)."""
 
     topic: str
     schema_name: str
     log_time: int
     message: Any
     fields: Any
+    arrived: float
 
 
 def _protobuf_class(channel: dict) -> Any:
@@ -94,13 +96,22 @@ class FoxgloveClient:
     def _decode(self, channel: dict, log_time: int, payload: bytes) -> Received:
         if channel['encoding'] == 'json':
             value = json.loads(payload)
-            return Received(channel['topic'], channel['schemaName'], log_time, value, value)
+            return Received(channel['topic'], channel['schemaName'], log_time, value, value,
+                            time.monotonic())
         assert channel['encoding'] == 'protobuf', channel
         cls = self._classes.setdefault(channel['id'], _protobuf_class(channel))
         msg = cls.FromString(payload)
         fields = json_format.MessageToDict(msg, preserving_proto_field_name=True,
                                            always_print_fields_with_no_presence=True)
-        return Received(channel['topic'], channel['schemaName'], log_time, msg, fields)
+        return Received(channel['topic'], channel['schemaName'], log_time, msg, fields,
+                        time.monotonic())
+
+    def drain(self, timeout: float) -> None:
+        """Take a frame within ``timeout`` s and then whatever else has arrived."""
+        if self.poll(timeout):
+            for _ in range(1000):
+                if not self.poll(0):
+                    break
 
     def wait(self, predicate, timeout: float, what: str) -> None:
         """Take frames until ``predicate()`` holds; AssertionError after ``timeout`` s."""
@@ -109,10 +120,7 @@ class FoxgloveClient:
             left = deadline - time.monotonic()
             if left <= 0:
                 raise AssertionError(f'timed out after {timeout} s waiting for {what}')
-            if self.poll(min(left, 0.2)):
-                for _ in range(1000):           # what else has arrived
-                    if not self.poll(0):
-                        break
+            self.drain(min(left, 0.2))
 
     def by_topic(self) -> dict[str, dict]:
         return {c['topic']: c for c in self.channels.values()}

@@ -7,7 +7,11 @@ prints a summary computed from the bag: dominant frequency and amplitude of w, p
 samples and integration steps, wall time, with the control period and step.
 
     python scripts/demo.py [--model fractional] [--duration 2.0] [--controller state_feedback]
-                           [--bag runs/demo-...]
+                           [--bag runs/demo-...] [--viewer [PORT]]
+
+``--viewer`` (``make demo DEMO_ARGS=--viewer``) also starts the Foxglove viewer on
+ws://localhost:8765 (or PORT) and starts the run once a Foxglove client has subscribed (at
+most ``--viewer-wait`` s later), so the run is watched from t = 0.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -30,10 +35,12 @@ from fohssv_sim.bag import BagError, load_run
 from fohssv_sim.closed_loop import (
     DEFAULT_CONTROLLER,
     DEFAULT_DURATION,
+    DEFAULT_VIEWER_PORT,
     DEMO_PLANT,
     NodeSpec,
     closed_loop,
     ros_args,
+    viewer,
 )
 
 
@@ -65,7 +72,56 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument('--timeout', type=float, default=600.0, help='wall-clock limit (s)')
     ap.add_argument('--bag', type=Path, default=None,
                     help='bag folder to record (default runs/demo-<UTC time>)')
+    ap.add_argument('--viewer', type=int, nargs='?', const=DEFAULT_VIEWER_PORT, default=None,
+                    metavar='PORT', help='also start the Foxglove viewer on ws://localhost:PORT '
+                    f'(default {DEFAULT_VIEWER_PORT}; 0 = a free port)')
+    ap.add_argument('--viewer-wait', type=float, default=120.0, metavar='S',
+                    help='with --viewer: wall seconds to wait for a Foxglove client before '
+                    'the run starts anyway (default 120)')
     return ap
+
+
+def start_viewer(args: argparse.Namespace, bag: Path, env: dict[str, str]
+                 ) -> subprocess.Popen | bool | None:
+    """The viewer of ``--viewer``, once it serves and a client subscribed (or
+    ``--viewer-wait`` passed); None (after saying why) if it exited; False without
+    ``--viewer``."""
+    if args.viewer is None:
+        return False
+    log = bag.parent / f'{bag.name}.viewer.log'
+    with open(log, 'w') as out:
+        proc = subprocess.Popen(command(viewer(args.viewer)), env=env, stdout=out,
+                                stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    said = False
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        text = log.read_text()
+        if proc.poll() is not None:
+            print(f'demo: the viewer exited: {text}', file=sys.stderr)
+            return None
+        if 'Foxglove clients: ' in text:
+            break
+        served = re.search(r'serving Foxglove on ws://[^:]+:(\d+)', text)
+        if served and not said:
+            said = True
+            deadline = time.monotonic() + args.viewer_wait
+            print(f'demo: Foxglove viewer on ws://localhost:{served.group(1)}: in Foxglove, '
+                  'Open connection -> Foxglove WebSocket -> that URL, Layout -> Import from '
+                  'file docs/foxglove/fohssv_layout.json; the run starts when it connects '
+                  f'(at most {args.viewer_wait:g} s)', flush=True)
+        time.sleep(0.05)
+    return proc
+
+
+def interrupt(proc: subprocess.Popen | bool) -> None:
+    """SIGINT ``proc`` (if it is one) and wait; kill it after 10 s."""
+    if not proc:
+        return
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
 
 
 def dominant_frequency(t: np.ndarray, x: np.ndarray, pad: int = 16) -> float:
@@ -97,6 +153,9 @@ def main() -> int:
           f'three processes, ROS_DOMAIN_ID={domain}', flush=True)
     print(f'demo: recording to {bag}', flush=True)
     bag.parent.mkdir(parents=True, exist_ok=True)
+    view = start_viewer(args, bag, env)          # False without --viewer
+    if view is None:
+        return 1
     rec_log = bag.parent / f'{bag.name}.recorder.log'
     with open(rec_log, 'w') as log:
         recorder = subprocess.Popen(rec_cmd, env=env, stdout=log,
@@ -141,11 +200,8 @@ def main() -> int:
             except subprocess.TimeoutExpired:
                 recorder.kill()
                 rec_code = -9
-        ctl.send_signal(signal.SIGINT)
-        try:
-            ctl.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            ctl.kill()
+        interrupt(ctl)
+        interrupt(view)
     if code != 0:
         print(f'demo: plant exited with code {code}', file=sys.stderr)
         print(ctl.stdout.read(), file=sys.stderr)

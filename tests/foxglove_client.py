@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from google.protobuf import descriptor_pb2, descriptor_pool, json_format, message_factory
+from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
 SUBPROTOCOL = 'foxglove.sdk.v1'
@@ -64,16 +65,23 @@ class FoxgloveClient:
         self._subscriptions: dict[int, dict] = {}
         self._classes: dict[int, Any] = {}
         self._next_id = 1
+        self.closed = False
 
     @property
     def subprotocol(self) -> str | None:
         return self.ws.subprotocol
 
     def poll(self, timeout: float) -> bool:
-        """Take one frame within ``timeout`` s; False when none came."""
+        """Take one frame within ``timeout`` s; False when none came (or the server closed
+        the connection: :attr:`closed`)."""
+        if self.closed:
+            return False
         try:
             frame = self.ws.recv(timeout=timeout)
         except TimeoutError:
+            return False
+        except ConnectionClosed:
+            self.closed = True                  # the server stopped
             return False
         if isinstance(frame, str):
             msg = json.loads(frame)
@@ -108,7 +116,9 @@ class FoxgloveClient:
 
     def drain(self, timeout: float) -> None:
         """Take a frame within ``timeout`` s and then whatever else has arrived."""
-        if self.poll(timeout):
+        if self.closed:
+            time.sleep(min(timeout, 0.05))
+        elif self.poll(timeout):
             for _ in range(1000):
                 if not self.poll(0):
                     break

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 import socket
+import time
 
 import pytest
 from foxglove_client import SUBPROTOCOL, FoxgloveClient
@@ -94,6 +95,7 @@ def test_the_client_gets_every_channel_with_its_schema_and_the_view_values(serve
     for c in chans.values():
         assert c['schemaEncoding'] == ('jsonschema' if c['encoding'] == 'json' else 'protobuf')
     client.subscribe(chans)
+    client.wait(lambda: server.subscriptions == len(TOPICS), 10, 'the server to count them')
     a = ViewAssembler()
     _feed(a)
     view = a._latest
@@ -159,6 +161,11 @@ def test_a_reset_starts_a_new_session(served):
     infos = lambda: [m for m in client.texts if m['op'] == 'serverInfo']   # noqa: E731
     client.wait(lambda: len(infos()) == 2, 10, 'a second serverInfo')
     assert infos()[0]['sessionId'] != infos()[1]['sessionId'] and server.sessions == 2
+    client.close()                                 # a client that leaves is not counted
+    deadline = time.monotonic() + 10
+    while server.subscriptions and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert server.subscriptions == 0
 
 
 def _outward_address() -> str | None:

@@ -13,6 +13,8 @@ import json
 import math
 import re
 import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -157,3 +159,40 @@ def test_a_foxglove_client_sees_the_runs_samples_at_the_viewer_rate(tmp_path):
         for path in paths:
             topic = re.match(r'/[\w/]+?(?=[.\[])', path).group(0)
             assert isinstance(_path_value(last[topic], path[len(topic):]), float), path
+
+
+@pytest.mark.graph
+def test_make_demo_with_viewer_waits_for_a_client_and_serves_the_run(tmp_path):
+    """``scripts/demo.py --viewer 0`` (a free port): it names the URL, starts the run once
+    the client subscribed, and the client sees the run up to its last view."""
+    domain = str(rosproc.unique_domain_id())
+    env = rosproc.ros_env(int(domain), FOHSSV_DEMO_DOMAIN=domain)
+    out = tmp_path / 'demo.log'
+    duration = 0.05
+    with open(out, 'w') as log:
+        demo = subprocess.Popen([sys.executable, str(ROOT / 'scripts' / 'demo.py'), '--viewer',
+                                 '0', '--duration', str(duration), '--model', 'delay-free',
+                                 '--bag', str(tmp_path / 'bag')], env=env, stdout=log,
+                                stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    client = None
+    try:
+        found = rosproc.wait_for(lambda: re.search(
+            r'Foxglove viewer on ws://localhost:(\d+).*the run starts when it connects',
+            out.read_text()), 120, what="the demo's viewer line")
+        assert 'the plant' not in out.read_text() and demo.poll() is None   # it waits
+        client = FoxgloveClient(f'ws://127.0.0.1:{found.group(1)}')
+        client.wait(lambda: len(client.channels) == len(TOPICS), 10, 'the channels')
+        client.subscribe(['/state', '/vehicle_marker'])
+        client.wait(lambda: demo.poll() is not None, 240, 'the end of the demo')
+    finally:
+        if client is not None:
+            client.close()
+        if demo.poll() is None:
+            demo.kill()
+            demo.wait(timeout=10)
+    text = out.read_text()
+    assert demo.returncode == 0, text
+    assert 'closed loop through ROS 2' in text
+    stamps = [r.log_time for r in client.messages('/state')]
+    assert stamps and stamps[-1] == round(duration * 1e9), (stamps, text)
+    assert [r.log_time for r in client.messages('/vehicle_marker')] == stamps

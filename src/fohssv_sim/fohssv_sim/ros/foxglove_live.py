@@ -39,6 +39,7 @@ back to t = 0.
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -57,7 +58,7 @@ from foxglove.messages import (
     Timestamp,
     Vector3,
 )
-from foxglove.websocket import Capability
+from foxglove.websocket import Capability, ChannelView, Client
 
 __all__ = ['Marker', 'View', 'ViewAssembler', 'LiveServer', 'TOPICS', 'ENTITY_IDS',
            'JSON_SCHEMAS', 'scene_update', 'frame_transform', 'pose_in_frame',
@@ -302,6 +303,23 @@ _JSON_MESSAGES = {'twist': twist_message, 'wrench': wrench_message, 'state': sta
                   'force': force_message}
 
 
+class _Subscriptions:
+    """The server listener: counts the clients' subscriptions (the SDK calls it from its own
+    threads)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self.count = 0
+
+    def on_subscribe(self, client: Client, channel: ChannelView) -> None:
+        with self._lock:
+            self.count += 1
+
+    def on_unsubscribe(self, client: Client, channel: ChannelView) -> None:
+        with self._lock:
+            self.count -= 1
+
+
 class LiveServer:
     """A Foxglove WebSocket server (the SDK's) with the viewer's channels; :meth:`send` a
     :class:`View` to every subscribed client.
@@ -320,9 +338,11 @@ class LiveServer:
         self.topics = {**TOPICS, **(topics or {})}
         self._context = foxglove.Context()
         ctx = self._context
+        self._subscriptions = _Subscriptions()
         try:
             self._server = foxglove.start_server(
-                name=name, host=host, port=port, capabilities=[Capability.Time], context=ctx)
+                name=name, host=host, port=port, capabilities=[Capability.Time], context=ctx,
+                server_listener=self._subscriptions)
         except RuntimeError as exc:
             raise OSError(f'cannot serve Foxglove on {host}:{port}: {exc}') from None
         t = self.topics
@@ -339,6 +359,11 @@ class LiveServer:
     def port(self) -> int:
         """The port the server listens on."""
         return self._server.port
+
+    @property
+    def subscriptions(self) -> int:
+        """The clients' subscriptions now (one per client and channel)."""
+        return self._subscriptions.count
 
     def send(self, view: View) -> None:
         """Log ``view`` on every channel at its stamp and broadcast the stamp as the time."""

@@ -94,6 +94,7 @@ class Viewer(Node):
             self.get_logger().warning(
                 f'host={o.host!r} is not a loopback address: anyone who can reach this '
                 'machine can connect and watch the run (no authentication)')
+        self._reported = 0
         self.timer = self.create_timer(1.0 / o.rate, self._forward)
 
     def _on_pose(self, msg: PoseStamped) -> None:
@@ -115,6 +116,11 @@ class Viewer(Node):
             _xyz(msg.scale), (c.r, c.g, c.b, c.a)))
 
     def _forward(self) -> None:
+        subscriptions = self.server.subscriptions
+        if subscriptions != self._reported:
+            self._reported = subscriptions
+            self.get_logger().info(f'Foxglove clients: {subscriptions} subscription(s) of '
+                                   f'{len(self.server.topics)} channels')
         view = self.assembler.take()
         if view is not None:
             self.server.send(view)

@@ -13,6 +13,7 @@ import json
 import math
 import re
 import signal
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -196,3 +197,18 @@ def test_make_demo_with_viewer_waits_for_a_client_and_serves_the_run(tmp_path):
     stamps = [r.log_time for r in client.messages('/state')]
     assert stamps and stamps[-1] == round(duration * 1e9), (stamps, text)
     assert [r.log_time for r in client.messages('/vehicle_marker')] == stamps
+
+
+def test_a_port_in_use_gives_one_line_and_exit_1():
+    with socket.socket() as taken:
+        taken.bind(('127.0.0.1', 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        proc = rosproc.start('fohssv_sim', 'viewer', ['--ros-args', '-p', f'port:={port}'],
+                             env=rosproc.ros_env())
+        code = rosproc.wait_exit(proc, 60)
+    out = rosproc.output(proc)
+    lines = [ln for ln in out.splitlines() if ln.strip()]
+    assert code == 1 and len(lines) == 1 and 'Traceback' not in out, out
+    assert lines[0].startswith(f'viewer: error: cannot serve Foxglove on 127.0.0.1:{port}: ')
+    assert 'in use' in lines[0]

@@ -12,6 +12,8 @@ BUILD_STAMP := ros2_ws/install/.fohssv-build
 PKG_INPUTS := $(wildcard src/*/package.xml src/*/setup.py src/*/setup.cfg src/*/resource/* \
                 src/*/config/* src/*/launch/*)
 PYTEST_ARGS ?=
+# Options of scripts/demo.py for `make demo`, e.g. DEMO_ARGS=--viewer (watch it in Foxglove).
+DEMO_ARGS ?=
 # Parallel test workers (pytest-xdist; each gets its own ROS domains): a number, auto, or 0 for
 # one process.
 TEST_WORKERS ?= 2

@@ -11,7 +11,8 @@ import pytest
 import rosproc
 
 NODES = {'plant': ('fohssv_sim', 'plant'), 'controller': ('fohssv_controller', 'state_feedback'),
-         'recorder': ('fohssv_sim', 'recorder'), 'player': ('fohssv_sim', 'player')}
+         'recorder': ('fohssv_sim', 'recorder'), 'player': ('fohssv_sim', 'player'),
+         'viewer': ('fohssv_sim', 'viewer')}
 
 
 def bad_parameter_cases(tmp):
@@ -92,6 +93,15 @@ def bad_parameter_cases(tmp):
          "rate='fast' is a string, not a number; allowed: [0, inf) (republish:"),
         ('player', ['-p', f'bag_path:={bag}', '-p', 'rate:=-1.0'],
          'rate=-1.0 is outside the allowed range [0, inf)'),
+        ('viewer', ['-p', 'port:=70000'],
+         'port=70000 is outside the allowed range [0, 65535] (TCP port of the Foxglove'),
+        ('viewer', ['-p', 'port:=http'],
+         "port='http' is a string, not a number; allowed: [0, 65535] (TCP port"),
+        ('viewer', ['-p', 'rate:=0.0'],
+         'rate=0.0 is outside the allowed range (0, 1000] Hz (most views forwarded'),
+        ('viewer', ['-p', 'host:=my host'],
+         "host='my host' is not an IP address or host name; allowed: an IP address or host "
+         'name (address the Foxglove'),
         # defect 3: unknown names, with the close matches
         ('plant', ['-p', 'sped:=80.0'], "unknown parameter 'sped' (did you mean 'speed'?)"),
         ('plant', ['--params-file', str(misspelt)],
@@ -116,6 +126,7 @@ def bad_parameter_cases(tmp):
          f'params file {huge} is {huge.stat().st_size} bytes, more than the 1048576'),
         ('recorder', ['--params-file', str(many)],
          f'params file {many} has more than 10000 keys'),
+        ('viewer', ['-p', 'prot:=9000'], "unknown parameter 'prot' (did you mean 'port'?)"),
         # defect 4: a missing or malformed params file, bad --ros-args
         *[(node, ['--params-file', missing], 'invalid arguments: ') for node in NODES],
         *[(node, ['--params-file', str(broken)], 'invalid arguments: ') for node in NODES],

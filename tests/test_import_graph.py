@@ -122,10 +122,10 @@ def test_every_core_module_imports_without_rclpy():
 
 
 def test_nodes_that_simulate_nothing_start_without_numba():
-    """The controller, recorder and player nodes import neither the compiled kernels nor
+    """The controller, recorder, player and viewer nodes import neither the compiled kernels nor
     numba (about 0.3 s of CPU at every start): only the plant simulates."""
     modules = ['fohssv_controller.ros.controller_node', 'fohssv_sim.ros.recorder_node',
-               'fohssv_sim.ros.player_node']
+               'fohssv_sim.ros.player_node', 'fohssv_sim.ros.viewer_node']
     code = ('import importlib, sys\n'
             f'for name in {modules!r}:\n'
             '    importlib.import_module(name)\n'

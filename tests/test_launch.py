@@ -29,6 +29,7 @@ from fohssv_controller.state_feedback import StateFeedback
 from fohssv_sim import closed_loop as cl
 from fohssv_sim.bag import load_run
 from fohssv_sim.bag.check import check
+from fohssv_sim.ros.viewer_options import VIEWER_PARAMETERS
 
 import rosproc
 
@@ -109,6 +110,19 @@ def test_exit_rule(name, code, plant, failed, ends):
         assert v.message == f'{name} exited with code {code}: {name}: error: the reason'
 
 
+def test_launch_file_starts_the_viewer_on_request():
+    """viewer:=true (default false) adds the Foxglove viewer to the node list."""
+    text = LAUNCH.read_text()
+    tree = ast.parse(text)
+    optional = next(n for n in tree.body if isinstance(n, ast.Assign)
+                    and getattr(n.targets[0], 'id', None) == 'OPTIONAL_ARGUMENTS')
+    optional = eval(compile(ast.Expression(optional.value), str(LAUNCH), 'eval'),  # noqa: S307
+                    {'flag': cl.flag})
+    assert set(optional) == {'viewer'} and optional['viewer'][0] == 'false'
+    assert "if flag(LaunchConfiguration('viewer').perform(context)):" in text
+    assert 'specs = (*specs, viewer())' in text
+
+
 def test_demo_starts_the_launch_files_list_with_its_defaults(tmp_path):
     demo = _demo()
     args = demo.parser().parse_args([])
@@ -122,6 +136,12 @@ def test_demo_starts_the_launch_files_list_with_its_defaults(tmp_path):
     assert rec.parameters == {'bag_path': str(bag), 'command_publishers': 1}
     for spec in (plant, ctl, rec):
         assert Path(demo.command(spec)[0]) == rosproc.executable(spec.package, spec.executable)
+    # --viewer [PORT]: the launch file's viewer, on that port (the option is off by default)
+    assert args.viewer is None and demo.parser().parse_args(['--viewer']).viewer == 8765
+    view = cl.viewer(demo.parser().parse_args(['--viewer', '9000']).viewer)
+    assert view == cl.viewer(9000) and demo.command(view)[-2:] == ['-p', 'port:=9000']
+    assert Path(demo.command(view)[0]) == rosproc.executable('fohssv_sim', 'viewer')
+    assert set(view.parameters) <= {s.name for s in VIEWER_PARAMETERS}
 
 
 def _parameters(probe: Probe, node: str, names: list[str]) -> dict:

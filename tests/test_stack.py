@@ -15,7 +15,7 @@ from ament_index_python.packages import get_package_prefix, get_package_share_di
 ROOT = Path(__file__).resolve().parents[1]
 
 EXECUTABLES = {
-    'fohssv_sim': ['plant', 'recorder', 'player', 'fohssv'],
+    'fohssv_sim': ['plant', 'recorder', 'player', 'viewer', 'fohssv'],
     'fohssv_controller': ['controller', 'state_feedback', 'lqr', 'fractional_pid'],
 }
 

@@ -25,6 +25,7 @@ setup(
             'plant = fohssv_sim.ros.entry:plant',
             'recorder = fohssv_sim.ros.entry:recorder',
             'player = fohssv_sim.ros.entry:player',
+            'viewer = fohssv_sim.ros.entry:viewer',
             'fohssv = fohssv_sim.cli:main',
         ],
     },

@@ -10,7 +10,9 @@ commands of a run"): the recorder subscribes to ``state`` only once it hears a c
 (``command_publishers: 1``), the plant waits for two ``state`` subscribers (the controller and
 the recorder: ``min_state_subscribers: 2``), and the controller holds its commands until the
 plant and the recorder both listen (``min_command_subscribers: 2``); the recorder, slower than
-the lockstep loop, paces it (``pace_to_subscribers: 512``).
+the lockstep loop, paces it (``pace_to_subscribers: 512``). On request (the launch's
+``viewer:=true``, ``scripts/demo.py --viewer``) a fourth node, :func:`viewer`, serves the
+run to Foxglove; it reads only the typed views, so the loop's start rules do not change.
 
 How the run ends (:data:`EXIT_RULE`, :func:`exit_verdict`; the launch file and ``scripts/demo.py``
 both follow it): the plant's exit 0 ends the run (the others are stopped, the recorder closes
@@ -25,8 +27,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ['NodeSpec', 'closed_loop', 'DEMO_PLANT', 'DEFAULT_CONTROLLER', 'DEFAULT_DURATION',
-           'ros_args', 'flag', 'EXIT_RULE', 'ExitVerdict', 'exit_verdict', 'reason_line']
+__all__ = ['NodeSpec', 'closed_loop', 'viewer', 'DEMO_PLANT', 'DEFAULT_CONTROLLER',
+           'DEFAULT_DURATION', 'DEFAULT_VIEWER_PORT', 'ros_args', 'flag', 'EXIT_RULE',
+           'ExitVerdict', 'exit_verdict', 'reason_line']
 
 #: The demo's plant parameters (besides ``duration`` and the start settings).
 DEMO_PLANT: dict[str, Any] = {
@@ -36,6 +39,8 @@ DEMO_PLANT: dict[str, Any] = {
 DEFAULT_CONTROLLER = 'state_feedback'
 #: Simulated seconds of the demo run.
 DEFAULT_DURATION = 2.0
+#: The Foxglove viewer's port (the one Foxglove's Open connection dialog proposes).
+DEFAULT_VIEWER_PORT = 8765
 
 
 @dataclass(frozen=True)
@@ -92,6 +97,11 @@ def closed_loop(controller: Any = DEFAULT_CONTROLLER, duration: Any = DEFAULT_DU
             # subscribe to state (which the plant waits for) only once a controller is heard
             'command_publishers': 1}),
     )
+
+
+def viewer(port: Any = DEFAULT_VIEWER_PORT) -> NodeSpec:
+    """The Foxglove viewer (``ros2 run fohssv_sim viewer``) on ws://127.0.0.1:``port``."""
+    return NodeSpec('fohssv_sim', 'viewer', 'viewer', {'port': port})
 
 
 def _value(v: Any) -> str:

@@ -14,7 +14,10 @@ logs that node's exit code and last line, stops the others and exits 1. A record
 before any message arrived marks its bag empty (``fohssv.empty`` in metadata.yaml).
 
     ros2 launch fohssv_sim closed_loop.launch.py controller:=lqr duration:=2.0 \\
-        bag_path:=runs/launched [hosted:=true]
+        bag_path:=runs/launched [hosted:=true] [viewer:=true]
+
+``viewer:=true`` also starts the Foxglove viewer (fohssv_sim.closed_loop.viewer()) on
+ws://localhost:8765; it reads the views, so the loop does not wait for it.
 """
 
 from launch import LaunchDescription
@@ -36,6 +39,7 @@ from fohssv_sim.closed_loop import (
     exit_verdict,
     flag,
     reason_line,
+    viewer,
 )
 
 #: Launch arguments: the keyword arguments of closed_loop(), with default, type, meaning.
@@ -48,6 +52,11 @@ ARGUMENTS = {
     'bag_path': ('', str, "the recorder's bag directory; empty = runs/<UTC time>"),
     'hosted': ('false', flag, 'true: the plant hosts the controller (no controller node, no '
                'DDS in the loop)'),
+}
+#: Launch arguments of the nodes started on request, with default, type, meaning.
+OPTIONAL_ARGUMENTS = {
+    'viewer': ('false', flag, 'true: also start the Foxglove viewer on ws://localhost:8765 '
+               '(Open connection in Foxglove; layout docs/foxglove/fohssv_layout.json)'),
 }
 
 #: Key of ``last`` naming the first node that failed.
@@ -89,6 +98,8 @@ def _nodes(context):
     the handlers of the exit rule."""
     specs = closed_loop(**{name: kind(LaunchConfiguration(name).perform(context))
                            for name, (_, kind, _) in ARGUMENTS.items()})
+    if flag(LaunchConfiguration('viewer').perform(context)):
+        specs = (*specs, viewer())
     nodes = [Node(package=s.package, executable=s.executable, name=s.name, output='screen',
                   parameters=[s.parameters]) for s in specs]
     plant = nodes[0]
@@ -111,6 +122,6 @@ def _nodes(context):
 def generate_launch_description():
     return LaunchDescription([
         *(DeclareLaunchArgument(name, default_value=default, description=text)
-          for name, (default, _, text) in ARGUMENTS.items()),
+          for name, (default, _, text) in {**ARGUMENTS, **OPTIONAL_ARGUMENTS}.items()),
         OpaqueFunction(function=_nodes),
     ])

@@ -1,8 +1,8 @@
 """Generated text for the ROS interface: parameter YAML files and markdown tables.
 
 ``config/plant.yaml``, the controllers' ``config/<name>.yaml`` and the tables of
-``docs/ros.md`` (topics; parameters of the model, the plant node, the recorder, the player and
-each controller) are generated from the tables (one source of truth); a test checks
+``docs/ros.md`` (topics; parameters of the model, the plant node, the recorder, the player,
+the viewer and each controller) are generated from the tables (one source of truth); a test checks
 that the committed files equal what this module generates. Regenerate with::
 
     python -m fohssv_sim.ros.docs plant-yaml > src/fohssv_sim/config/plant.yaml
@@ -26,6 +26,7 @@ from ..docs import markdown_table
 from ..params import PARAMETERS, ParameterSpec, field_specs
 from .bag_options import PLAYER_PARAMETERS, RECORDER_PARAMETERS
 from .options import NODE_PARAMETERS, ros_type_name
+from .viewer_options import VIEWER_PARAMETERS
 
 __all__ = ['yaml_value', 'parameters_yaml', 'plant_yaml', 'parameter_table', 'topic_table',
            'ros_type_name']
@@ -113,7 +114,8 @@ def tables() -> str:
              '<!-- generated: model parameters -->\n' + parameter_table(PARAMETERS),
              '<!-- generated: plant node parameters -->\n' + parameter_table(NODE_PARAMETERS),
              '<!-- generated: recorder parameters -->\n' + parameter_table(RECORDER_PARAMETERS),
-             '<!-- generated: player parameters -->\n' + parameter_table(PLAYER_PARAMETERS)]
+             '<!-- generated: player parameters -->\n' + parameter_table(PLAYER_PARAMETERS),
+             '<!-- generated: viewer parameters -->\n' + parameter_table(VIEWER_PARAMETERS)]
     for name in control.available():
         specs = field_specs(control.load(name).Parameters)
         parts.append(f'<!-- generated: controller {name} -->\n' + parameter_table(specs))

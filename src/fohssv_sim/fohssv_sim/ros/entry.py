@@ -16,7 +16,7 @@ import sys
 from collections.abc import Callable
 from importlib import import_module
 
-__all__ = ['quiet_until_started', 'run', 'plant', 'recorder', 'player']
+__all__ = ['quiet_until_started', 'run', 'plant', 'recorder', 'player', 'viewer']
 
 
 def _ended(signum: int, frame: object) -> None:
@@ -41,6 +41,7 @@ def run(module: str, function: str = 'main') -> Callable[[], int]:
 plant = run('fohssv_sim.ros.plant_node')
 recorder = run('fohssv_sim.ros.recorder_node')
 player = run('fohssv_sim.ros.player_node')
+viewer = run('fohssv_sim.ros.viewer_node')
 
 if __name__ == '__main__':
     sys.exit(plant())

@@ -25,6 +25,7 @@ setup(
             'state_feedback = fohssv_controller.state_feedback:StateFeedback',
             'lqr = fohssv_controller.lqr:LQR',
             'fractional_pid = fohssv_controller.fractional_pid:FractionalPID',
+            'scheduled = fohssv_controller.scheduled:Scheduled',
         ],
         'console_scripts': [
             'controller = fohssv_controller.ros.entry:controller',

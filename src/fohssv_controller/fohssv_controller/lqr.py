@@ -143,3 +143,9 @@ class LQR(Controller):
         df = self._u[0] - (kf[0] * e[0] + kf[1] * e[1] + kf[2] * e[2] + kf[3] * e[3])
         dc = self._u[1] - (kc[0] * e[0] + kc[1] * e[1] + kc[2] * e[2] + kc[3] * e[3])
         return df, dc
+
+    def affine(self) -> tuple[list[list[float]], list[float]]:
+        """u = -K x + (u* + K x*): the same law in the batched runners' form."""
+        k = [list(row) for row in self._k]
+        u0 = [self._u[i] + sum(k[i][j] * self._x[j] for j in range(4)) for i in range(2)]
+        return [[-v for v in row] for row in k], u0

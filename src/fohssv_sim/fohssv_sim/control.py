@@ -22,6 +22,8 @@ Rules for implementers:
   solver stage; a controller with internal memory must set ``stateless = False`` so that
   continuous mode, which calls it at intermediate stage times, refuses it.
 * ``reset()`` clears internal memory (called when the plant resets).
+* ``scheduling`` maps controller parameters that must follow a model parameter (the speed of a
+  gain-scheduled law) to that model parameter; the analysis sets them per scenario.
 * ``Parameters`` is a frozen dataclass whose fields are built with
   :func:`fohssv_sim.params.spec_field` and validated by
   :func:`fohssv_sim.params.validate_fields` in ``__post_init__``: each field has a name,
@@ -95,6 +97,11 @@ class Controller(ABC):
     Parameters: ClassVar[type]
     #: False when ``update`` keeps memory between calls (continuous mode is then refused).
     stateless: ClassVar[bool] = True
+    #: Controller parameters that follow the plant: {controller parameter: model parameter}.
+    #: The analysis (``fohssv tune``, ``fohssv gainmap``) sets each from the scenario's model
+    #: parameters, e.g. a gain-scheduled law's ``speed`` input (``scheduled``); on a graph the
+    #: user sets it as a node parameter.
+    scheduling: ClassVar[dict[str, str]] = {}
 
     def __init__(self, params: Any = None, **overrides: Any) -> None:
         if params is None:

@@ -65,7 +65,8 @@ from .sweep import ChunkedResult, check_half_step, read_chunk_rows, run_chunks
 
 __all__ = ['GainMapSpec', 'GainMapResult', 'GainMapError', 'OUTCOMES', 'OUTCOME_RANK',
            'outcome', 'controller_parameters', 'run_gain_map', 'summary_lines', 'run_points',
-           'load_gain_map', 'plot_gain_map', 'METRICS', 'ROW_FIELDS']
+           'load_gain_map', 'plot_gain_map', 'METRICS', 'ROW_FIELDS', 'evaluate_points',
+           'scheduled_gains']
 
 #: Outcomes from best to worst (the worst case over an envelope takes the highest rank).
 OUTCOMES = ('steady', 'drifting', 'periodic', 'chaotic', 'diverged')
@@ -375,42 +376,54 @@ def _settle_time(t: np.ndarray, w: np.ndarray, w_eq: float, band: float,
 SIM_SHARE = 0.6
 
 
-def run_points(spec_dict: dict[str, Any], indices: Sequence[int], *,
-               batched: bool | None = None, step_factor: float = 1.0,
-               progress: Callable[[float], None] | None = None) -> list[dict[str, Any]]:
-    """The rows of the points ``indices`` of the gain map ``spec_dict`` (one Dask task).
+def scheduled_gains(controller: str, gains: dict[str, Any], params: ModelParameters
+                    ) -> dict[str, Any]:
+    """``gains`` with the controller's :attr:`~fohssv_sim.control.Controller.scheduling`
+    parameters (e.g. the ``scheduled`` law's ``speed``) set from the scenario's ``params``."""
+    from ..control import load
 
-    ``batched``: None = batched when the controller is affine, else point by point; False
-    forces the per-point :func:`~fohssv_sim.simulate.simulate` loop (the benchmark's and the
-    tests' reference). ``step_factor``: the model's step times this (the half-step check).
-    Deterministic: any scheduler gives the same rows.
+    follow = getattr(load(controller), 'scheduling', {})
+    if not follow:
+        return gains
+    return {**gains, **{c: getattr(params, m) for c, m in follow.items()}}
+
+
+def evaluate_points(spec: Any, params: list[ModelParameters], ctls: list[Any],
+                    eq_keys: Sequence[Any], *, batched: bool | None = None,
+                    settle_to_final: bool = False,
+                    progress: Callable[[float], None] | None = None) -> list[dict[str, Any]]:
+    """Run and score closed loops: point j is the model ``params[j]`` under ``ctls[j]``.
+
+    ``spec``: the run settings (attributes ``duration``, ``transient``, ``control_period``,
+    ``settle_band``, ``eq_tol``, ``rel_tol`` and ``every(step)``, as :class:`GainMapSpec`).
+    Points with equal ``eq_keys[j]`` share the closed-loop equilibrium (same law, same V:
+    alpha does not move it), found once. ``batched``: None = one batched solver call when
+    every law is affine, else point by point. ``settle_to_final``: when no equilibrium is
+    known (a controller with internal states) settle to the run's last w instead of NaN.
+    Returns one row per point with the metric columns of the module docstring (``outcome``
+    ... ``path``).
     """
     from ..coefficients import coefficients
     from ..planing import planing_exact_array, planing_smooth_array
 
-    spec = GainMapSpec.from_dict(spec_dict)
-    info = [spec.point(i) for i in indices]
-    params = [spec.params_for(a, v, step_factor) for _, _, _, a, v in info]
-    ctls = [spec.controller_for(ix, iy) for _, ix, iy, _, _ in info]
     if batched is None:
         batched = all(c.affine() is not None for c in ctls)
     # progress: the runs are the first SIM_SHARE of the chunk, the equilibria the rest
     sim_report = None if progress is None else (lambda f: progress(SIM_SHARE * f))
     t, states, dc, failed = _simulate_points(spec, params, ctls, batched, sim_report)
-    eq_cache: dict[tuple[int, float], tuple[float, float, float]] = {}
-    for j, (pair, _, _, _, v) in enumerate(info):
-        if (pair, v) not in eq_cache:
-            eq_cache[pair, v] = _equilibrium(params[j], ctls[j])
+    eq_cache: dict[Any, tuple[float, float, float]] = {}
+    for j, key in enumerate(eq_keys):
+        if key not in eq_cache:
+            eq_cache[key] = _equilibrium(params[j], ctls[j])
         if progress is not None:
-            progress(SIM_SHARE + (1.0 - SIM_SHARE) * (j + 1) / len(info))
+            progress(SIM_SHARE + (1.0 - SIM_SHARE) * (j + 1) / len(eq_keys))
     win = t >= spec.transient - 1e-12
     rows = []
-    for j, (i, (pair, ix, iy, a, v)) in enumerate(zip(indices, info)):
-        alpha_c, w_eq, dc_eq = eq_cache[pair, v]
+    for j, key in enumerate(eq_keys):
+        alpha_c, w_eq, dc_eq = eq_cache[key]
         x = states[j]
-        row = {'point': i, 'pair': pair, 'ix': ix, 'iy': iy, 'x': spec.x_values[ix],
-               'y': spec.y_values[iy], 'alpha': a, 'speed': v, 'alpha_c': alpha_c,
-               'eq_w': w_eq, 'eq_dc': dc_eq, 'step': params[j].step,
+        v = params[j].speed
+        row = {'alpha_c': alpha_c, 'eq_w': w_eq, 'eq_dc': dc_eq, 'step': params[j].step,
                'path': 'batched' if batched else 'per-point'}
         bad = bool(failed[j]) or not np.isfinite(x).all() or bool(
             np.any(np.abs(x[:, 1]) > v) or np.any(np.abs(x[:, 2]) > math.pi / 2))
@@ -426,13 +439,39 @@ def run_points(spec_dict: dict[str, Any], indices: Sequence[int], *,
         fp_law = planing_smooth_array if params[j].planing_form == 'smooth' else \
             planing_exact_array
         fp = np.abs(fp_law(x[:, 1], c))
+        w_ref = float(x[-1, 1]) if settle_to_final and math.isnan(w_eq) else w_eq
         row.update(outcome=outcome(cls.kind), label=cls.label, kind=cls.kind,
                    period=cls.period, k01=cls.k01, amplitude=cls.amplitude, failed=False,
                    peak_fp=float(fp.max()), peak_fp_window=float(fp[win].max()),
-                   settle_time=_settle_time(t, x[:, 1], w_eq, spec.settle_band,
+                   settle_time=_settle_time(t, x[:, 1], w_ref, spec.settle_band,
                                            spec.transient),
                    effort_rms=float(np.sqrt(np.mean(dc[j] ** 2))))
         rows.append(row)
+    return rows
+
+
+def run_points(spec_dict: dict[str, Any], indices: Sequence[int], *,
+               batched: bool | None = None, step_factor: float = 1.0,
+               progress: Callable[[float], None] | None = None) -> list[dict[str, Any]]:
+    """The rows of the points ``indices`` of the gain map ``spec_dict`` (one Dask task).
+
+    ``batched``: None = batched when the controller is affine, else point by point; False
+    forces the per-point :func:`~fohssv_sim.simulate.simulate` loop (the benchmark's and the
+    tests' reference). ``step_factor``: the model's step times this (the half-step check).
+    Deterministic: any scheduler gives the same rows.
+    """
+    spec = GainMapSpec.from_dict(spec_dict)
+    info = [spec.point(i) for i in indices]
+    params = [spec.params_for(a, v, step_factor) for _, _, _, a, v in info]
+    ctls = [_controller(spec.controller, scheduled_gains(spec.controller,
+                                                         spec.gains_for(ix, iy), p))
+            for (_, ix, iy, _, _), p in zip(info, params)]
+    scored = evaluate_points(spec, params, ctls, [(pair, v) for pair, _, _, _, v in info],
+                             batched=batched, progress=progress)
+    rows = []
+    for i, (pair, ix, iy, a, v), row in zip(indices, info, scored):
+        rows.append({'point': i, 'pair': pair, 'ix': ix, 'iy': iy, 'x': spec.x_values[ix],
+                     'y': spec.y_values[iy], 'alpha': a, 'speed': v, **row})
     return rows
 
 

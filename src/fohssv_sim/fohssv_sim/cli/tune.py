@@ -1,0 +1,196 @@
+"""``fohssv tune``: the best worst case of a controller over a V-alpha envelope (see
+:mod:`fohssv_sim.analysis.tune`).
+
+Thin: parses the options into a :class:`~fohssv_sim.analysis.tune.TuneSpec`, runs it, prints,
+draws, writes the winner's parameters file. All logic is in :mod:`fohssv_sim.analysis.tune`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+from pathlib import Path
+from typing import Any
+
+from .common import (
+    CliError,
+    add_common_options,
+    assignments,
+    model_params,
+    output_dir,
+    parse_range,
+)
+from .sweep import ProgressPrinter, dask_options
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        'tune', help='search controller parameters for the best worst case over a V-alpha '
+        'envelope (differential evolution on Dask); writes the winner as a --params-file',
+        description='Global search (scipy differential evolution) over numeric parameters of '
+        'a controller for the best worst case over the envelope --envelope-speeds x '
+        '--envelope-alphas. Score, lexicographic: every scenario steady first, then (affine '
+        'laws) the Matignon margin min(alpha_c - alpha), then the --objective metric. Each '
+        'generation runs as batched solver calls on Dask (chunks in OUT/generations/, '
+        'rerunning the same command resumes). Writes OUT/winner.yaml (ros2 run '
+        'fohssv_controller controller --ros-args --params-file OUT/winner.yaml), '
+        'OUT/envelope.png/.svg, OUT/history.png/.svg and OUT/tune.json.')
+    add_common_options(p)
+    p.add_argument('--tune', action='append', metavar='NAME=LOW:HIGH[:log][,...]',
+                   help='tuned parameter and its bounds (repeatable or comma-separated); '
+                   ':log searches log10 of the value, e.g. depth_weight=1e2:1e6:log')
+    p.add_argument('--envelope-speeds', metavar='VALUES', help='V of the envelope in m/s, '
+                   'start:stop:step or a,b,c, e.g. 60:120:20')
+    p.add_argument('--envelope-alphas', metavar='VALUES', help='alpha of the envelope, e.g. '
+                   '0.7:1:0.1')
+    p.add_argument('--objective', default='peak-fp', metavar='NAME',
+                   help='last level of the score: peak-fp (default), settle or effort')
+    p.add_argument('--budget', type=int, default=60,
+                   help='candidate evaluations at most (default 60)')
+    p.add_argument('--population', type=int, default=0, help='candidates per generation '
+                   '(default: 5 per tuned parameter, at most budget/4, at least 5)')
+    p.add_argument('--seed', type=int, default=1, help='seed of the search (default 1)')
+    p.add_argument('--min-margin', type=float, default=0.02, help='Matignon margin '
+                   'min(alpha_c - alpha) counted as enough (default 0.02)')
+    p.add_argument('--model', help='model (default: the model parameter, fractional)')
+    p.add_argument('--duration', type=float, default=2.0, help='s per run (default 2)')
+    p.add_argument('--transient', type=float, default=1.5,
+                   help='s before the classification window (default 1.5)')
+    p.add_argument('--control-period', type=float, default=1e-4,
+                   help='zero-order hold period in s (default 1e-4, the plant\'s)')
+    p.add_argument('--settle-band', type=float, default=0.02,
+                   help='settled when |w - w*| <= band * max(|w*|, 0.1 m/s) (default 0.02)')
+    dask_options(p, 128, 'one batched solver call')
+    p.add_argument('--check-step', action='store_true',
+                   help='re-run the winner at half the step; flag (and do not score) the '
+                   'scenarios whose outcome changes')
+    p.set_defaults(func=cmd_tune, out=None)
+
+
+def parse_bounds(items: list[str]) -> tuple[Any, ...]:
+    """``NAME=LOW:HIGH[:log]`` items (each possibly comma-separated) as Bounds."""
+    from ..analysis.tune import Bound
+
+    out = []
+    for text in ','.join(items).split(','):
+        text = text.strip()
+        if '=' not in text:
+            raise CliError(f'--tune {text!r} must look like NAME=LOW:HIGH or '
+                           'NAME=LOW:HIGH:log')
+        name, rng = (s.strip() for s in text.split('=', 1))
+        parts = rng.split(':')
+        log = len(parts) == 3 and parts[2].strip() == 'log'
+        try:
+            if len(parts) != 2 + log:
+                raise ValueError
+            low, high = float(parts[0]), float(parts[1])
+        except ValueError:
+            raise CliError(f'--tune {text!r} must look like NAME=LOW:HIGH or '
+                           'NAME=LOW:HIGH:log') from None
+        out.append(Bound(name, low, high, log))
+    return tuple(out)
+
+
+def _envelope(text: str | None, option: str) -> tuple[float, ...]:
+    if text is None or not text.strip():
+        return ()
+    return tuple(round(float(v), 12) for v in parse_range(text, option))
+
+
+def build_spec(args: argparse.Namespace):
+    from ..analysis.tune import TuneError, TuneSpec
+
+    if not args.tune:
+        raise CliError('nothing to tune: give --tune NAME=LOW:HIGH[,NAME=LOW:HIGH...]')
+    over = {'model': args.model} if args.model else {}
+    values = model_params(args, **over).to_dict()
+    values.pop('fractional_order', None)
+    values.pop('speed', None)
+    if args.control_period is not None and args.control_period < 0:
+        raise CliError(f'--control-period={args.control_period} s must be >= 0')
+    spec = TuneSpec(
+        controller=args.controller, bounds=parse_bounds(args.tune),
+        envelope_speeds=_envelope(args.envelope_speeds, '--envelope-speeds'),
+        envelope_alphas=_envelope(args.envelope_alphas, '--envelope-alphas'),
+        gains=assignments(args.gain or [], '--gain'), base=values, objective=args.objective,
+        budget=args.budget, population=args.population, seed=args.seed,
+        min_margin=args.min_margin, duration=args.duration, transient=args.transient,
+        control_period=args.control_period or None, settle_band=args.settle_band,
+        chunk_size=args.chunk_size, check_step=args.check_step)
+    try:
+        spec.validate()
+    except TuneError as e:
+        raise CliError(str(e)) from None
+    return spec
+
+
+def winner_yaml(record: dict[str, Any], args: argparse.Namespace) -> str:
+    """The winner's parameters as a ``--params-file`` of the generic controller node."""
+    from ..analysis.tune import TuneSpec, describe_score
+    from ..control import load
+    from ..params import field_specs
+    from ..ros.docs import parameters_yaml
+
+    spec = TuneSpec.from_dict(record['spec'])
+    cls = load(spec.controller)
+    base = model_params(args)
+    gains = spec.gains_for(record['winner']['values'], base)
+    params = cls.Parameters(**gains)
+    follow = getattr(cls, 'scheduling', {})
+    rows = [dataclasses.replace(s, default=getattr(params, s.name))
+            for s in field_specs(cls.Parameters)]
+    vals = ', '.join(f'{k}={v:.6g}' for k, v in record['winner']['values'].items())
+    env = (f'V {list(spec.envelope_speeds)} m/s x alpha {list(spec.envelope_alphas)}')
+    header = (f'Winner of fohssv tune --controller {spec.controller} over {env}: {vals}.\n'
+              f"Score: {describe_score(record['winner']['score'], spec)}.\n"
+              f'Run it: ros2 run fohssv_controller controller --ros-args --params-file '
+              f'winner.yaml')
+    for c, m in follow.items():
+        header += (f'\n{c} follows the plant\'s {m} (here {getattr(base, m):g}); for another '
+                   f'plant {m} add -p {c}:=VALUE after the --params-file.')
+    text = parameters_yaml(header, rows)
+    return text.replace('  ros__parameters:\n',
+                        f"  ros__parameters:\n    controller: '{spec.controller}'\n", 1)
+
+
+def cmd_tune(args: argparse.Namespace) -> int:
+    from ..analysis.tune import TuneError, plot_envelope, plot_history, run_tune, summary_lines
+
+    spec = build_spec(args)
+    out: Path = output_dir(args.out or Path('reports') / 'tune')
+    n = len(spec.scenarios())
+    print(f'tune {spec.controller}: {len(spec.bounds)} parameter(s) '
+          f"({', '.join(b.text() for b in spec.bounds)}), {n} scenario(s), population "
+          f'{spec.population_size} x {spec.generations} generation(s) (budget {spec.budget}), '
+          f'objective {spec.objective}, {spec.duration:g} s runs -> {out}', flush=True)
+    progress = ProgressPrinter('points')
+    check = ProgressPrinter('step check: points at half step')
+
+    def generation(g: dict[str, Any]) -> None:
+        progress.end()
+        b = g['best_so_far']
+        margin = b.get('margin')
+        m = '' if margin is None or (isinstance(margin, float) and math.isnan(margin)) \
+            else f', margin {margin:.4g}'
+        print(f"generation {g['generation'] + 1}/{spec.generations}: best so far worst "
+              f"{b['outcome']}, {b['not_steady']}/{n} not steady{m}, metric {b['metric']:.4g}"
+              f" ({g['computed_chunks']} chunks computed, {g['reused_chunks']} reused)",
+              flush=True)
+
+    try:
+        result = run_tune(spec, out, scheduler=args.scheduler, workers=args.workers,
+                          progress=progress, on_generation=generation, check_progress=check)
+    except TuneError as e:
+        raise CliError(str(e)) from None
+    progress.end()
+    check.end()
+    for line in summary_lines(result):
+        print(line)
+    (out / 'winner.yaml').write_text(winner_yaml(result.record, args))
+    written = plot_envelope(result.record, out / 'envelope') + plot_history(
+        result.record, out / 'history')
+    print(f"winner: {out / 'winner.yaml'}; figures: "
+          + ', '.join(str(p) for p in written if p.suffix == '.png')
+          + f"; record: {out / 'tune.json'}")
+    return 0

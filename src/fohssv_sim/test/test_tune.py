@@ -1,0 +1,148 @@
+"""``fohssv tune`` (issue 24): the score's order, resume to the same winner, the scheduled law,
+and bad input refused in one line. The search on a real graph: tests/test_graph_tune.py."""
+
+import json
+import math
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+from ament_index_python.packages import get_package_prefix
+
+from fohssv_controller.scheduled import Scheduled
+from fohssv_controller.state_feedback import StateFeedback
+from fohssv_sim.analysis.tune import Bound, TuneError, TuneSpec, run_tune, score
+from fohssv_sim.params import ParameterError
+
+FOHSSV = Path(get_package_prefix('fohssv_sim')) / 'lib' / 'fohssv_sim' / 'fohssv'
+
+SMALL = dict(controller='state_feedback', bounds=(Bound('pitch_rate_gain', -1.0, -0.1),
+                                                  Bound('vertical_velocity_gain', 0.0, 0.3)),
+             envelope_speeds=(75.0, 90.0), envelope_alphas=(0.85,), duration=0.1,
+             transient=0.05, budget=10, population=5, seed=7, chunk_size=4)
+
+
+def _row(outcome='steady', alpha_c=0.9, alpha=0.85, peak_fp=30.0):
+    return {'outcome': outcome, 'alpha_c': alpha_c, 'alpha': alpha, 'peak_fp': peak_fp}
+
+
+def test_score_orders_lexicographically():
+    spec = TuneSpec(**SMALL)
+    # classes first, then the margin's shortfall below min_margin, then the metric
+    ranked = [
+        [_row(peak_fp=10.0), _row(alpha_c=0.871, peak_fp=20.0)],        # margin 0.021: ties
+        [_row(peak_fp=25.0), _row(alpha_c=0.95, peak_fp=25.0)],
+        [_row(alpha_c=0.86, peak_fp=1.0), _row(peak_fp=1.0)],           # margin 0.01 < 0.02
+        [_row(alpha_c=0.80, peak_fp=1.0), _row(peak_fp=1.0)],           # Matignon-unstable
+        [_row('periodic', peak_fp=1.0), _row(alpha_c=2.0, peak_fp=1.0)],
+        [_row('periodic'), _row('periodic')],
+        [_row('chaotic'), _row()],
+        [_row('diverged', peak_fp=math.inf), _row()]]
+    values = [score(rows, spec, affine=True)['value'] for rows in ranked]
+    assert values == sorted(values) and len(set(values)) == len(values)
+    s = score(ranked[0], spec, affine=True)
+    assert s['margin'] == pytest.approx(0.021) and s['metric'] == 20.0
+    assert s['not_steady'] == 0 and s['outcome'] == 'steady'
+    # without a linearisation the margin is not a level: the metric decides
+    no_lin = score(ranked[3], spec, affine=False)
+    assert no_lin['margin'] is None and no_lin['value'] < score(ranked[0], spec, True)['value']
+
+
+def test_scheduled_law_interpolates_its_table_and_is_eq31_by_default():
+    x = [0.01, 0.3, 0.02, -0.1]
+    for v in (50.0, 75.0, 130.0):
+        assert Scheduled(speed=v).command(0.0, x) == StateFeedback().command(0.0, x)
+    law = Scheduled(speed=90.0, pitch_rate_gain_2=-0.5, pitch_rate_gain_3=-1.0,
+                    vertical_velocity_gain_3=0.2)          # rows at 80 and 100 m/s
+    ref = StateFeedback(pitch_rate_gain=-0.75, vertical_velocity_gain=0.1)
+    assert law.command(0.0, x) == pytest.approx(ref.command(0.0, x), abs=1e-15)
+    assert law.affine()[0][1] == pytest.approx([15.0, 0.1, -30.0, -0.75])
+    assert Scheduled(speed=200.0, pitch_rate_gain_4=-2.0).gains_at(200.0)[3] == -2.0
+    with pytest.raises(ParameterError, match='speed_3=70.0 is not above speed_2=80.0'):
+        Scheduled(speed_3=70.0)
+
+
+@pytest.fixture(scope='module')
+def client():
+    from dask.distributed import Client, LocalCluster
+
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                      dashboard_address=None) as cluster, Client(cluster) as c:
+        yield c
+
+
+def test_interrupted_search_resumes_to_the_same_winner(tmp_path, client):
+    spec = TuneSpec(**SMALL)
+    full = run_tune(spec, tmp_path / 'full', client=client)
+    rec = full.record
+    assert len(rec['generations']) == 2 and full.computed_chunks == 6   # 10 points / 4
+    # interrupted in the second generation: one chunk written, the rest not; no final record
+    part = tmp_path / 'part'
+    shutil.copytree(tmp_path / 'full', part)
+    gen1 = part / 'generations' / 'gen_0001' / 'chunks'
+    for f in sorted(gen1.glob('chunk_*.csv'))[1:]:
+        f.unlink()
+    side = json.loads((part / 'tune.json').read_text())
+    side['generations'] = side['generations'][:1]
+    side.pop('winner')
+    side['status'] = 'running'
+    (part / 'tune.json').write_text(json.dumps(side))
+    again = run_tune(spec, part, client=client)
+    assert (again.computed_chunks, again.reused_chunks) == (2, 4)
+    assert again.winner['values'] == rec['winner']['values']
+    assert again.winner['score'] == json.loads((tmp_path / 'full' / 'tune.json').read_text())[
+        'winner']['score']
+    assert [g['best_value'] for g in again.record['generations']] == [
+        g['best_value'] for g in rec['generations']]
+    with pytest.raises(TuneError, match='holds a different search'):
+        run_tune(TuneSpec(**{**SMALL, 'seed': 8}), part, client=client)
+
+
+def run(*args):
+    return subprocess.run([str(FOHSSV), 'tune', *args], capture_output=True, text=True,
+                          timeout=120)
+
+
+ENVELOPE = ('--envelope-speeds', '75', '--envelope-alphas', '0.85')
+
+
+@pytest.mark.parametrize('args, text', [
+    (('--tune', 'pitch_gainz=-1:0', *ENVELOPE), "state_feedback has no parameter "
+     "'pitch_gainz'; its parameters: depth_gain, max_cavitator_deflection"),
+    (('--controller', 'lqr', '--tune', 'depth_weight=-5:10', *ENVELOPE),
+     'lqr parameter depth_weight=-5 is outside its allowed range [0, 1e+12] 1/m^2'),
+    (('--tune', 'pitch_rate_gain=-1:0', '--envelope-speeds', '75', '--envelope-alphas', ''),
+     'the envelope is empty'),
+    (('--tune', 'pitch_rate_gain=-1:0', '--budget', '0', *ENVELOPE), 'budget=0 must be >= 1'),
+])
+def test_bad_input_exits_2_with_one_line(tmp_path, args, text):
+    """The installed command, as a user runs it."""
+    r = run(*args, '--out', str(tmp_path / 'bad'))
+    assert r.returncode == 2, (args, r.stderr)
+    assert text in r.stderr and 'Traceback' not in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert not (tmp_path / 'bad').exists()
+
+
+@pytest.mark.parametrize('args, text', [
+    (('--controller', 'fractional_pid', '--tune', 'derivative_order=0.5:1.5'),
+     'fractional_pid parameter derivative_order=1.5 is outside its allowed range (0, 1]'),
+    (('--tune', 'pitch_rate_gain=0:-1'), 'need finite bounds LOW < HIGH'),
+    (('--tune', 'depth_gain=-1:10:log'), 'a log-scaled bound needs LOW > 0'),
+    (('--tune', 'pitch_rate_gain=-1:0', '--objective', 'fast'), "objective 'fast' is not one"),
+    (('--tune', 'pitch_rate_gain=-1:0', '--budget', '4'), 'below one generation of 5'),
+    (('--controller', 'scheduled', '--tune', 'speed=60:120'), 'follows the model parameter'),
+    (('--tune', 'pitch_rate_gain=-1:0', '--gain', 'pitch_rate_gain=-1'), 'is tuned; do not'),
+    (('--envelope-alphas', '0.85'), 'nothing to tune'),
+])
+def test_more_bad_input_is_refused_in_one_line(tmp_path, capsys, args, text):
+    from fohssv_sim.cli import main
+
+    full = list(args) + ([] if '--envelope-speeds' in args else ['--envelope-speeds', '75'])
+    if '--envelope-alphas' not in full:
+        full += ['--envelope-alphas', '0.85']
+    assert main(['tune', *full, '--out', str(tmp_path / 'bad')]) == 2
+    err = capsys.readouterr().err
+    assert text in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / 'bad').exists()

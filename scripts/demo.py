@@ -11,15 +11,27 @@ Recording (``--recorder``): ``plant`` (default) is in-plant recording, the plant
 ``node`` is the recorder node, a third process subscribed over DDS, which the loop must wait
 for (``pace_to_subscribers``). Then (unless ``--no-baseline``) the same loop runs once more
 unrecorded, and the demo prints both loop times and their ratio: what recording costs. A loop
-time runs from the plant's first sample to its bag closed (recorded) or its last sample
+time runs from the plant's first sample to its bag closed (recorded) or to its summary
 (unrecorded), as the plant's log lines arrive.
 
     python scripts/demo.py [--model fractional] [--duration 2.0] [--controller state_feedback]
                            [--bag runs/demo-...] [--recorder plant|node] [--no-baseline]
-                           [--hosted]
+                           [--hosted] [--viewer [PORT]]
 
 ``--hosted`` (``make demo DEMO_ARGS=--hosted``): the plant hosts the controller itself
 (``controller:=NAME`` on the plant): no controller process, no DDS in the loop.
+
+``--viewer`` (``make demo DEMO_ARGS=--viewer``) also starts the Foxglove viewer on
+ws://localhost:8765 (or PORT) and starts the run once a Foxglove client has subscribed (at
+most ``--viewer-wait`` s later), so the run is watched from t = 0.
+
+ROS domain: ``ROS_DOMAIN_ID`` when it is exported, else ``FOHSSV_DEMO_DOMAIN``, else
+1 + pid % 200 (a domain of its own); the first line printed names it. Discovery stays on this
+machine (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``).
+
+The run ends as the launch file's does (fohssv_sim.closed_loop.EXIT_RULE): when the plant
+exits 0, or when any node exits non-zero: then the demo prints that node's exit code and last
+line, stops the others, removes the bag if nothing was recorded, and exits with that code.
 """
 
 from __future__ import annotations
@@ -27,6 +39,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -42,11 +56,19 @@ from fohssv_sim.bag import BagError, load_run
 from fohssv_sim.closed_loop import (
     DEFAULT_CONTROLLER,
     DEFAULT_DURATION,
+    DEFAULT_VIEWER_PORT,
     DEMO_PLANT,
+    ExitVerdict,
     NodeSpec,
     closed_loop,
+    exit_verdict,
+    reason_line,
     ros_args,
+    viewer,
 )
+
+#: The plant's line when its first sample goes out, and when its in-plant bag is closed.
+STARTED, CLOSED, SUMMARY = 'starting at t = 0', 'in-plant recording: closed', 'summary: {'
 
 
 def _exe(package: str, name: str) -> str:
@@ -84,67 +106,210 @@ def in_plant(nodes: tuple[NodeSpec, ...], bag: Path | None
                                               {**ctl.parameters, 'min_command_subscribers': 1}))
 
 
-class Loop:
-    """A plant and a controller process; the plant's lines with their arrival times."""
+def demo_domain(environ: dict[str, str]) -> int:
+    """The ROS domain of the demo: ``ROS_DOMAIN_ID`` when exported (as every ROS tool honours
+    it), else ``FOHSSV_DEMO_DOMAIN``, else 1 + pid % 200 (a domain of its own, so that two demos
+    on one machine do not meet)."""
+    for name in ('ROS_DOMAIN_ID', 'FOHSSV_DEMO_DOMAIN'):
+        value = environ.get(name, '').strip()
+        if value:
+            return int(value)
+    return 1 + os.getpid() % 200
 
-    def __init__(self, plant: NodeSpec, ctl: NodeSpec | None, env: dict[str, str],
-                 echo: str) -> None:
-        self.wall0 = time.monotonic()
-        self.ctl = None if ctl is None else subprocess.Popen(
-            command(ctl), env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-            start_new_session=True)
-        self.plant = subprocess.Popen(command(plant), env=env, stdout=subprocess.PIPE,
-                                      stderr=subprocess.STDOUT, text=True,
-                                      start_new_session=True)
-        self.lines: list[tuple[float, str]] = []
-        self.echo = echo
-        self.reader = threading.Thread(target=self._pump, daemon=True)
-        self.reader.start()
+
+class Started:
+    """A node process of the demo; its output is read by a thread (``echo``: printed with that
+    prefix as it comes; each line kept with its arrival time) or written to ``log``;
+    ``last_line()`` for the exit rule (the line that says why it exited)."""
+
+    def __init__(self, spec: NodeSpec, env: dict[str, str], *, log: Path | None = None,
+                 echo: str | None = None) -> None:
+        self.log, self.echo = log, echo
+        if log is not None:
+            with open(log, 'w') as out:
+                self.proc = subprocess.Popen(command(spec), env=env, stdout=out,
+                                             stderr=subprocess.STDOUT, text=True,
+                                             start_new_session=True)
+        else:
+            self.proc = subprocess.Popen(command(spec), env=env, stdout=subprocess.PIPE,
+                                         stderr=subprocess.STDOUT, text=True,
+                                         start_new_session=True)
+        self.lines: list[str] = []
+        self.times: list[float] = []
+        self.exited_at: float | None = None
+        self.reader = None
+        if self.proc.stdout is not None:
+            self.reader = threading.Thread(target=self._pump, daemon=True)
+            self.reader.start()
 
     def _pump(self) -> None:
-        for line in self.plant.stdout:
-            self.lines.append((time.monotonic(), line))
-            if self.echo:
+        for line in self.proc.stdout:
+            self.times.append(time.monotonic())
+            self.lines.append(line)
+            if self.echo is not None:
                 print(self.echo + line.rstrip(), flush=True)
 
-    def wait(self, timeout: float) -> int:
-        """The plant's exit code (SIGINT after ``timeout`` s); the controller is stopped."""
-        try:
-            code = self.plant.wait(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            self.plant.send_signal(signal.SIGINT)
-            code = self.plant.wait(timeout=30)
-            print(f'demo: the plant did not finish within {timeout:g} s', file=sys.stderr)
-        self.wall = time.monotonic() - self.wall0
-        self.reader.join(timeout=5)
-        if self.ctl is not None:
-            self.ctl.send_signal(signal.SIGINT)
-            try:
-                self.ctl.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                self.ctl.kill()
-        return code
+    def text(self) -> str:
+        return self.log.read_text() if self.log is not None else ''.join(self.lines)
 
-    def controller_output(self) -> str:
-        """What the controller process printed ('' when the plant hosts the law)."""
-        return '' if self.ctl is None else self.ctl.stdout.read()
+    def last_line(self) -> str:
+        """Why it exited: its last error line, else its last line."""
+        if self.reader is not None:
+            self.reader.join(timeout=2)
+        return reason_line(self.text().splitlines())
 
     def at(self, words: str) -> float:
-        """When the first plant line holding ``words`` arrived (nan: none)."""
-        return next((t for t, line in self.lines if words in line), float('nan'))
-
-    def loop_time(self) -> float:
-        """First sample to bag closed (in-plant recorded) or to the run's summary."""
-        end = self.at('in-plant recording: closed')
-        if end != end:
-            end = self.at('summary: {')
-        return end - self.at('starting at t = 0')
+        """When its first line holding ``words`` arrived (nan: none)."""
+        return next((t for t, line in zip(self.times, self.lines) if words in line),
+                    float('nan'))
 
     def summary(self) -> dict:
-        for _, line in self.lines:
-            if 'summary: {' in line:
+        for line in self.lines:
+            if SUMMARY in line:
                 return json.loads(line.split('summary: ', 1)[1])
         return {}
+
+
+def supervise(nodes: dict[str, Started], timeout: float) -> tuple[str, ExitVerdict]:
+    """Wait until a node's exit ends the run (fohssv_sim.closed_loop.EXIT_RULE: the plant's
+    exit 0, or any node's non-zero exit); after ``timeout`` s the plant gets SIGINT (a clean
+    stop) and the run ends with its exit."""
+    deadline = time.monotonic() + timeout
+    interrupted = False
+    while True:
+        for name, node in nodes.items():
+            code = node.proc.poll()
+            if code is None:
+                continue
+            if node.exited_at is None:
+                node.exited_at = time.monotonic()
+            verdict = exit_verdict(name, code, name == 'plant', node.last_line())
+            if verdict.ends_run:
+                return name, verdict
+        if not interrupted and time.monotonic() > deadline and 'plant' in nodes:
+            print(f'demo: the plant did not finish within {timeout:g} s; stopping it',
+                  file=sys.stderr)
+            nodes['plant'].proc.send_signal(signal.SIGINT)
+            interrupted = True
+        time.sleep(0.05)
+
+
+def _stop(proc: subprocess.Popen, grace: float) -> int:
+    if proc.poll() is None:
+        # every node stops cleanly on SIGTERM as on SIGINT (the recorder drains and closes the
+        # bag); one still importing its modules ends quietly, without a KeyboardInterrupt
+        proc.send_signal(signal.SIGTERM)
+    try:
+        return proc.wait(timeout=grace)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return proc.wait()
+
+
+def stop_all(nodes: dict[str, Started], wait_recorder: bool) -> dict[str, int]:
+    """Stop what still runs; the exit codes. After a complete run the recorder node closes
+    the bag by itself once it holds everything the plant's run_end lists (exit 6 naming any
+    loss): it is waited for (30 s) before it gets SIGTERM, and when it exited is noted."""
+    codes = {}
+    recorder = nodes.get('recorder')
+    if recorder is not None and wait_recorder:
+        try:
+            recorder.proc.wait(timeout=30)
+            recorder.exited_at = recorder.exited_at or time.monotonic()
+        except subprocess.TimeoutExpired:
+            pass
+    for name in ('plant', 'controller', 'recorder', 'viewer'):
+        if name in nodes:
+            codes[name] = _stop(nodes[name].proc, 60 if name == 'recorder' else 10)
+    for node in nodes.values():
+        if node.reader is not None:
+            node.reader.join(timeout=5)
+    return codes
+
+
+def remove_if_empty(bag: Path, started: bool) -> None:
+    """A failed start leaves a bag without a sample (the recorder node marks its bag
+    ``fohssv.empty``; the plant's own writer opened the bag before the run began): remove it
+    and its logs rather than leave an empty run behind."""
+    meta = bag / 'metadata.yaml'
+    if bag.exists() and (not started or (meta.exists() and 'fohssv.empty' in meta.read_text())):
+        shutil.rmtree(bag)
+        for log in bag.parent.glob(f'{bag.name}.*.log'):
+            log.unlink(missing_ok=True)
+        print(f'demo: removed the empty bag {bag} (no message was recorded)', file=sys.stderr)
+
+
+def start_viewer(args: argparse.Namespace, bag: Path, env: dict[str, str]
+                 ) -> Started | bool | None:
+    """The viewer of ``--viewer``, once it serves and a client subscribed (or
+    ``--viewer-wait`` passed); None (after saying why) if it exited; False without
+    ``--viewer``."""
+    if args.viewer is None:
+        return False
+    view = Started(viewer(args.viewer), env, log=bag.parent / f'{bag.name}.viewer.log')
+    said = False
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        text = view.text()
+        if view.proc.poll() is not None:
+            print(f'demo: the viewer exited: {text}', file=sys.stderr)
+            return None
+        if 'Foxglove clients: ' in text:
+            break
+        served = re.search(r'serving Foxglove on ws://[^:]+:(\d+)', text)
+        if served and not said:
+            said = True
+            deadline = time.monotonic() + args.viewer_wait
+            print(f'demo: Foxglove viewer on ws://localhost:{served.group(1)}: in Foxglove, '
+                  'Open connection -> Foxglove WebSocket -> that URL, Layout -> Import from '
+                  'file docs/foxglove/fohssv_layout.json; the run starts when it connects '
+                  f'(at most {args.viewer_wait:g} s)', flush=True)
+        time.sleep(0.05)
+    return view
+
+
+def run_loop(nodes: tuple[NodeSpec, ...], args: argparse.Namespace, bag: Path | None,
+             env: dict[str, str], extra: dict[str, Started] | None = None, echo: str = ''
+             ) -> tuple[int, dict[str, Started], float]:
+    """One run of the loop under the exit rule: the recorder node first when ``nodes`` has
+    one (``--recorder node``), else the plant recording to ``bag`` itself (None:
+    unrecorded). Returns (the demo's exit code, the processes, the loop time: first sample to
+    bag closed, or to the plant's summary when unrecorded)."""
+    procs: dict[str, Started] = dict(extra or {})
+    with_node = args.recorder == 'node' and bag is not None
+    if with_node:
+        plant, ctl, rec = nodes if len(nodes) == 3 else (nodes[0], None, nodes[1])
+        procs['recorder'] = Started(rec, env, log=bag.parent / f'{bag.name}.recorder.log')
+        deadline = time.monotonic() + 60
+        while 'recording to' not in procs['recorder'].text() and time.monotonic() < deadline:
+            if procs['recorder'].proc.poll() is not None:
+                break      # supervise() reports it
+            time.sleep(0.05)
+    else:
+        plant, ctl = in_plant(nodes, bag)
+    if 'recorder' not in procs or procs['recorder'].proc.poll() is None:
+        if ctl is not None:
+            procs['controller'] = Started(ctl, env)
+        procs['plant'] = Started(plant, env, echo=echo)
+    name, verdict = supervise(procs, args.timeout)
+    codes = stop_all(procs, wait_recorder=not verdict.failed)
+    main_plant = procs.get('plant')
+    started = main_plant is not None and main_plant.at(STARTED) == main_plant.at(STARTED)
+    if verdict.failed:
+        print(f'demo: {verdict.message}', file=sys.stderr)
+        if bag is not None:
+            remove_if_empty(bag, started)
+        code = procs[name].proc.returncode
+        return (code if 0 < code < 128 else 1), procs, float('nan')
+    if codes.get('recorder', 0) != 0:
+        print(f"demo: recorder exited with code {codes['recorder']}: "
+              f"{procs['recorder'].last_line()}", file=sys.stderr)
+        return 1, procs, float('nan')
+    if with_node:
+        end = procs['recorder'].exited_at or time.monotonic()
+    else:
+        end = main_plant.at(CLOSED) if bag is not None else main_plant.at(SUMMARY)
+    return 0, procs, end - main_plant.at(STARTED)
 
 
 def parser() -> argparse.ArgumentParser:
@@ -165,6 +330,12 @@ def parser() -> argparse.ArgumentParser:
                          'no controller process')
     ap.add_argument('--no-baseline', dest='baseline', action='store_false',
                     help='skip the unrecorded run that measures what recording costs')
+    ap.add_argument('--viewer', type=int, nargs='?', const=DEFAULT_VIEWER_PORT, default=None,
+                    metavar='PORT', help='also start the Foxglove viewer on ws://localhost:PORT '
+                    f'(default {DEFAULT_VIEWER_PORT}; 0 = a free port)')
+    ap.add_argument('--viewer-wait', type=float, default=120.0, metavar='S',
+                    help='with --viewer: wall seconds to wait for a Foxglove client before '
+                    'the run starts anyway (default 120)')
     return ap
 
 
@@ -178,109 +349,32 @@ def dominant_frequency(t: np.ndarray, x: np.ndarray, pad: int = 16) -> float:
     return float(freqs[int(np.argmax(spec))])
 
 
-def _with_recorder_node(nodes, env, bag: Path, timeout: float) -> tuple[int, Loop, float]:
-    """The loop recorded by the recorder node (a third process): (exit code, the loop, when
-    the recorder had closed the bag)."""
-    plant, ctl, rec = nodes if len(nodes) == 3 else (nodes[0], None, nodes[1])
-    rec_log = bag.parent / f'{bag.name}.recorder.log'
-    with open(rec_log, 'w') as log:
-        recorder = subprocess.Popen(command(rec), env=env, stdout=log,
-                                    stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    deadline = time.monotonic() + 60
-    while 'recording to' not in rec_log.read_text() and time.monotonic() < deadline:
-        if recorder.poll() is not None:
-            print(f'demo: the recorder exited: {rec_log.read_text()}', file=sys.stderr)
-            return 1, None, 0.0
-        time.sleep(0.05)
-    closed: list[float] = []
-    watcher = threading.Thread(target=lambda: (recorder.wait(), closed.append(time.monotonic())),
-                               daemon=True)
-    watcher.start()
-    loop = Loop(plant, ctl, env, '  plant: ')
-    code = loop.wait(timeout)
-    try:
-        # the recorder closes the bag by itself once it holds everything the plant's
-        # run_end lists (exit 6 naming any loss); SIGINT only if it does not
-        rec_code = recorder.wait(timeout=30)
-    except subprocess.TimeoutExpired:
-        recorder.send_signal(signal.SIGINT)   # drains, then closes the bag properly
-        try:
-            rec_code = recorder.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            recorder.kill()
-            rec_code = -9
-    watcher.join(timeout=5)
-    if code != 0:
-        print(f'demo: plant exited with code {code}', file=sys.stderr)
-        print(loop.controller_output(), file=sys.stderr)
-        return 1, loop, 0.0
-    if rec_code != 0:
-        print(f'demo: recorder exited with code {rec_code}: {rec_log.read_text()}',
-              file=sys.stderr)
-        return 1, loop, 0.0
-    return 0, loop, closed[0] if closed else time.monotonic()
+def _describe(args: argparse.Namespace, domain: int) -> str:
+    law = (f'controller {args.controller!r} hosted in the plant' if args.hosted else
+           f'controller {args.controller!r} as a node')
+    rec = ('in-plant recording (record:=BAG)' if args.recorder == 'plant' else
+           'the recorder node records it')
+    procs = 1 + (not args.hosted) + (args.recorder == 'node')
+    return (f'demo: plant ({args.model}, alpha={args.alpha:g}, V={args.speed:g} m/s, x(0)=0, '
+            f'lockstep, {args.duration:g} s), {law}; {rec}; {procs} process(es), '
+            f'ROS_DOMAIN_ID={domain}')
 
 
-def main() -> int:
-    args = parser().parse_args()
-    stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%SZ')
-    bag = args.bag or Path('runs') / f'demo-{stamp}'
-    if bag.exists():
-        print(f'demo: {bag} exists already; choose another --bag', file=sys.stderr)
-        return 2
-
-    domain = int(os.environ.get('FOHSSV_DEMO_DOMAIN', 1 + os.getpid() % 200))
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-               PYTHONUNBUFFERED='1')
-    # plant, controller, recorder: the launch file's nodes and parameters (closed_loop.py:
-    # the settings that make the bag complete are explained there)
-    nodes = specs(args, bag)
-    if args.hosted:
-        print(f'demo: the plant hosts controller {args.controller!r} (no controller process)',
-              flush=True)
-    how = ('the plant records its own run (in-plant, record:=BAG), two processes'
-           if args.recorder == 'plant' else 'the recorder node records it, three processes')
-    print(f'demo: plant ({args.model}, alpha={args.alpha:g}, V={args.speed:g} m/s, x(0)=0, '
-          f'lockstep, {args.duration:g} s) and controller {args.controller!r}; {how}; '
-          f'ROS_DOMAIN_ID={domain}', flush=True)
-    print(f'demo: recording to {bag}', flush=True)
-    bag.parent.mkdir(parents=True, exist_ok=True)
-    if args.recorder == 'plant':
-        loop = Loop(*in_plant(nodes, bag), env, '  plant: ')
-        code = loop.wait(args.timeout)
-        if code != 0:
-            print(f'demo: plant exited with code {code}', file=sys.stderr)
-            print(loop.controller_output(), file=sys.stderr)
-            return 1
-        recorded = loop.loop_time()
-    else:
-        code, loop, closed = _with_recorder_node(nodes, env, bag, args.timeout)
-        if code != 0:
-            return code
-        recorded = closed - loop.at('starting at t = 0')
-    baseline = None
-    if args.baseline:
-        print('demo: the same loop once more, unrecorded (what recording costs)', flush=True)
-        base = Loop(*in_plant(nodes, None), env, '')
-        if base.wait(args.timeout) == 0:
-            baseline = base.loop_time()
-        else:
-            print('demo: the unrecorded loop failed: ' + ''.join(x for _, x in base.lines[-3:]),
-                  file=sys.stderr)
-    wall, summary = loop.wall, loop.summary()
+def _report(args: argparse.Namespace, bag: Path, plant: Started, wall: float,
+            recorded: float, baseline: float | None) -> int:
+    summary = plant.summary()
     try:
         run = load_run(bag)   # the summary comes from the bag, not from memory
     except BagError as e:
         print(f'demo: {e}', file=sys.stderr)
         return 1
-
     t, w = run.t, run.state[:, 1]
     half = t >= t[-1] / 2
     freq = dominant_frequency(t[half], w[half])
     amp = 0.5 * (w[half].max() - w[half].min())
     print()
     print(f'closed loop through ROS 2: {args.model}, alpha={args.alpha:g}, V={args.speed:g} '
-          f'm/s, controller {args.controller}')
+          f'm/s, controller {args.controller}{" (hosted)" if args.hosted else ""}')
     print(f'  integration step        {summary.get("step", float("nan")):g} s '
           f'({summary.get("solver", "?")})')
     print(f'  control period (ZOH)    {summary.get("control_period", float("nan")):g} s')
@@ -296,9 +390,46 @@ def main() -> int:
     if baseline is not None:
         print(f'  recording cost          recorded loop {recorded:.2f} s / unrecorded lockstep '
               f'loop {baseline:.2f} s = {recorded / baseline:.2f} ({args.recorder} recording;'
-              ' first sample to bag closed / to last sample)')
+              ' first sample to bag closed / to the summary)')
     print(f'  plots:                  fohssv plot {bag}')
     return 0
+
+
+def main() -> int:
+    args = parser().parse_args()
+    stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%SZ')
+    bag = args.bag or Path('runs') / f'demo-{stamp}'
+    if bag.exists():
+        print(f'demo: {bag} exists already; choose another --bag', file=sys.stderr)
+        return 2
+
+    domain = demo_domain(os.environ)
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+               PYTHONUNBUFFERED='1')
+    # the launch file's nodes and parameters (closed_loop.py: the settings that make the bag
+    # complete are explained there)
+    nodes = specs(args, bag)
+    print(_describe(args, domain), flush=True)
+    print(f'demo: recording to {bag}', flush=True)
+    bag.parent.mkdir(parents=True, exist_ok=True)
+    wall0 = time.monotonic()
+    view = start_viewer(args, bag, env)          # False without --viewer
+    if view is None:
+        return 1
+    code, procs, recorded = run_loop(nodes, args, bag, env,
+                                     {'viewer': view} if view else None, echo='  plant: ')
+    wall = time.monotonic() - wall0
+    if code != 0:
+        return code
+    baseline = None
+    if args.baseline:
+        print('demo: the same loop once more, unrecorded (what recording costs)', flush=True)
+        base_code, _, base_time = run_loop(nodes, args, None, env)
+        if base_code == 0:
+            baseline = base_time
+        else:
+            print('demo: the unrecorded loop failed', file=sys.stderr)
+    return _report(args, bag, procs['plant'], wall, recorded, baseline)
 
 
 if __name__ == '__main__':

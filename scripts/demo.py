@@ -17,6 +17,7 @@ most ``--viewer-wait`` s later), so the run is watched from t = 0.
 from __future__ import annotations
 
 import argparse
+import atexit
 import json
 import os
 import re
@@ -92,6 +93,7 @@ def start_viewer(args: argparse.Namespace, bag: Path, env: dict[str, str]
     with open(log, 'w') as out:
         proc = subprocess.Popen(command(viewer(args.viewer)), env=env, stdout=out,
                                 stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    atexit.register(interrupt, proc)     # whatever ends the demo (Ctrl-C while it waits too)
     said = False
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:

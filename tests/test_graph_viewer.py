@@ -189,8 +189,7 @@ def test_make_demo_with_viewer_waits_for_a_client_and_serves_the_run(tmp_path):
         if client is not None:
             client.close()
         if demo.poll() is None:
-            demo.kill()
-            demo.wait(timeout=10)
+            rosproc.stop(demo, signal.SIGINT, timeout=30)     # the demo stops its viewer
     text = out.read_text()
     assert demo.returncode == 0, text
     assert 'closed loop through ROS 2' in text

@@ -37,6 +37,7 @@ line, stops the others, removes the bag if nothing was recorded, and exits with 
 from __future__ import annotations
 
 import argparse
+import atexit
 import json
 import os
 import re
@@ -69,6 +70,16 @@ from fohssv_sim.closed_loop import (
 
 #: The plant's line when its first sample goes out, and when its in-plant bag is closed.
 STARTED, CLOSED, SUMMARY = 'starting at t = 0', 'in-plant recording: closed', 'summary: {'
+#: Every node process the demo started: whatever ends the demo (Ctrl-C included), those still
+#: running get SIGTERM (a clean stop: the bag is closed) at exit.
+_STARTED: list[subprocess.Popen] = []
+
+
+@atexit.register
+def _stop_leftovers() -> None:
+    for proc in _STARTED:
+        if proc.poll() is None:
+            _stop(proc, 30)
 
 
 def _exe(package: str, name: str) -> str:
@@ -134,6 +145,7 @@ class Started:
             self.proc = subprocess.Popen(command(spec), env=env, stdout=subprocess.PIPE,
                                          stderr=subprocess.STDOUT, text=True,
                                          start_new_session=True)
+        _STARTED.append(self.proc)
         self.lines: list[str] = []
         self.times: list[float] = []
         self.exited_at: float | None = None

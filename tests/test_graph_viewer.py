@@ -189,8 +189,7 @@ def test_make_demo_with_viewer_waits_for_a_client_and_serves_the_run(tmp_path):
         if client is not None:
             client.close()
         if demo.poll() is None:
-            demo.kill()
-            demo.wait(timeout=10)
+            rosproc.stop(demo, signal.SIGINT, timeout=30)     # the demo stops its viewer
     text = out.read_text()
     assert demo.returncode == 0, text
     assert 'closed loop through ROS 2' in text
@@ -212,3 +211,42 @@ def test_a_port_in_use_gives_one_line_and_exit_1():
     assert code == 1 and len(lines) == 1 and 'Traceback' not in out, out
     assert lines[0].startswith(f'viewer: error: cannot serve Foxglove on 127.0.0.1:{port}: ')
     assert 'in use' in lines[0]
+
+
+@pytest.mark.graph
+def test_the_views_are_decimated_to_the_viewer_rate(tmp_path):
+    """A lockstep closed loop without a recorder (0.3 s: 31 views, tens a wall second at
+    the loop's usual speed, a few under heavy load) seen at ``rate`` 1: the client gets at
+    most one view a second (plus the first), the newest at each tick."""
+    env = rosproc.ros_env()
+    vlog = tmp_path / 'viewer.log'
+    viewer = rosproc.start('fohssv_sim', 'viewer', ['--ros-args', '-p', 'port:=0', '-p',
+                                                    'rate:=1.0'], env=env, log=vlog)
+    ctl = plant = client = None
+    try:
+        found = rosproc.wait_for(lambda: re.search(
+            r'serving Foxglove on ws://127\.0\.0\.1:(\d+)', vlog.read_text()), 60,
+            what='the viewer')
+        client = FoxgloveClient(f'ws://127.0.0.1:{found.group(1)}')
+        client.wait(lambda: len(client.channels) == len(TOPICS), 10, 'the channels')
+        client.subscribe(['/state'])
+        ctl = rosproc.start('fohssv_controller', 'state_feedback', [], env=env)
+        plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+            model='delay-free', duration=0.3), env=env)
+        client.wait(lambda: plant.poll() is not None, 120, 'the end of the run')
+        assert plant.returncode == 0, rosproc.output(plant)
+        client.drain(1.0)
+        assert rosproc.stop(viewer, signal.SIGINT) == 0, vlog.read_text()
+    finally:
+        if client is not None:
+            client.close()
+        stop_all(*(p for p in (plant, ctl) if p is not None))
+        rosproc.stop(viewer)
+    states = client.messages('/state')
+    received, sent = map(int, re.search(r'(\d+) views received, (\d+) sent',
+                                        vlog.read_text()).groups())
+    span = states[-1].arrived - states[0].arrived
+    assert 2 <= sent == len(states) <= 1.0 * span + 2, (sent, span)
+    assert 25 <= received <= 31 and sent < received, (received, sent)
+    stamps = [r.log_time for r in states]
+    assert stamps == sorted(set(stamps))

@@ -61,7 +61,7 @@ def bad_parameter_cases(tmp):
          'or a plugin name of group fohssv.controllers'),
         ('plant', ['-p', 'controller:=pid'],
          "unknown controller 'pid'; valid controllers (fohssv.controllers entry points): "
-         'fractional_pid, lqr, state_feedback'),
+         'fractional_pid, lqr, scheduled, state_feedback'),
         ('plant', ['-p', 'controller:=state_feedback', '-p',
                    'controller.max_cavitator_deflection:=3.0'],
          'controller.max_cavitator_deflection=3.0 is outside the allowed range (0, 1.5708] rad'),

@@ -271,7 +271,9 @@ def test_demo_ends_when_a_node_fails_at_start(tmp_path, args, node, words):
     line = next(x for x in out.stderr.splitlines() if x.startswith('demo: ') and 'exited' in x)
     assert line.startswith(f'demo: {node} exited with code 2: ') and words in line, line
     assert 'Traceback' not in out.stdout + out.stderr
-    assert not bag.exists() and f'removed the empty bag {bag}' in out.stderr
+    # in-plant recording: the plant's writer creates the bag only for a run that starts (or
+    # the demo removes the empty one it left)
+    assert not bag.exists()
     assert list((tmp_path / 'runs').iterdir()) == []
 
 

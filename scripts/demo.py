@@ -116,7 +116,8 @@ def supervise(nodes: dict[str, Started], timeout: float) -> tuple[str, ExitVerdi
             code = node.proc.poll()
             if code is None:
                 continue
-            verdict = exit_verdict(name, code, name == 'plant', node.last_line())
+            verdict = exit_verdict(name, code, name == 'plant',
+                                   node.last_line() if code else '')
             if verdict.ends_run:
                 return name, verdict
         if not interrupted and time.monotonic() > deadline and 'plant' in nodes:

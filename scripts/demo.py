@@ -74,6 +74,9 @@ def demo_domain(environ: dict[str, str]) -> int:
     for name in ('ROS_DOMAIN_ID', 'FOHSSV_DEMO_DOMAIN'):
         value = environ.get(name, '').strip()
         if value:
+            if not value.isdigit() or not 0 <= int(value) <= 232:
+                raise ValueError(f'{name}={value!r} is not a ROS domain: an integer in '
+                                 '[0, 232] (Fast DDS)')
             return int(value)
     return 1 + os.getpid() % 200
 
@@ -201,7 +204,11 @@ def main() -> int:
         print(f'demo: {bag} exists already; choose another --bag', file=sys.stderr)
         return 2
 
-    domain = demo_domain(os.environ)
+    try:
+        domain = demo_domain(os.environ)
+    except ValueError as e:
+        print(f'demo: {e}', file=sys.stderr)
+        return 2
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                PYTHONUNBUFFERED='1')
     # plant, controller, recorder: the launch file's nodes and parameters (closed_loop.py:

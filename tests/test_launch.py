@@ -252,3 +252,12 @@ def test_a_signal_while_a_node_still_imports_ends_it_quietly(tmp_path, executabl
     code = rosproc.wait_exit(proc, 30)
     out = rosproc.output(proc)
     assert code == 0 and 'Traceback' not in out and 'KeyboardInterrupt' not in out, out
+
+
+def test_demo_domain_honours_ros_domain_id_then_its_own_variable():
+    demo = _demo()
+    assert demo.demo_domain({'ROS_DOMAIN_ID': '115', 'FOHSSV_DEMO_DOMAIN': '7'}) == 115
+    assert demo.demo_domain({'ROS_DOMAIN_ID': ' ', 'FOHSSV_DEMO_DOMAIN': '7'}) == 7
+    assert 1 <= demo.demo_domain({}) <= 200
+    with pytest.raises(ValueError, match="ROS_DOMAIN_ID='abc' is not a ROS domain"):
+        demo.demo_domain({'ROS_DOMAIN_ID': 'abc'})

@@ -124,6 +124,9 @@ def demo_domain(environ: dict[str, str]) -> int:
     for name in ('ROS_DOMAIN_ID', 'FOHSSV_DEMO_DOMAIN'):
         value = environ.get(name, '').strip()
         if value:
+            if not value.isdigit() or not 0 <= int(value) <= 232:
+                raise ValueError(f'{name}={value!r} is not a ROS domain: an integer in '
+                                 '[0, 232] (Fast DDS)')
             return int(value)
     return 1 + os.getpid() % 200
 
@@ -195,7 +198,8 @@ def supervise(nodes: dict[str, Started], timeout: float) -> tuple[str, ExitVerdi
                 continue
             if node.exited_at is None:
                 node.exited_at = time.monotonic()
-            verdict = exit_verdict(name, code, name == 'plant', node.last_line())
+            verdict = exit_verdict(name, code, name == 'plant',
+                                   node.last_line() if code else '')
             if verdict.ends_run:
                 return name, verdict
         if not interrupted and time.monotonic() > deadline and 'plant' in nodes:
@@ -415,7 +419,11 @@ def main() -> int:
         print(f'demo: {bag} exists already; choose another --bag', file=sys.stderr)
         return 2
 
-    domain = demo_domain(os.environ)
+    try:
+        domain = demo_domain(os.environ)
+    except ValueError as e:
+        print(f'demo: {e}', file=sys.stderr)
+        return 2
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                PYTHONUNBUFFERED='1')
     # the launch file's nodes and parameters (closed_loop.py: the settings that make the bag

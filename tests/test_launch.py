@@ -285,3 +285,32 @@ def test_the_reason_line_is_the_last_error_else_the_last_line():
         'recorder: error: 3 message(s) lost')
     assert cl.reason_line(['started', 'stopping cleanly  ', '']) == 'stopping cleanly'
     assert cl.reason_line([]) == ''
+
+
+@pytest.mark.parametrize('executable', [('fohssv_sim', 'plant'), ('fohssv_controller',
+                                                                  'controller')])
+def test_a_signal_while_a_node_still_imports_ends_it_quietly(tmp_path, executable):
+    """What a launch shutting down at start does to a node that is still importing rclpy and
+    numba (the other node failed first): SIGINT ends it with exit 0 and no traceback."""
+    import signal
+
+    proc = rosproc.start(*executable, ['--ros-args', '-p', 'duration:=0.01']
+                         if executable[1] == 'plant' else [], env=rosproc.ros_env())
+    maps = Path(f'/proc/{proc.pid}/maps')
+    # rclpy's extension is loaded by the node's module, which the entry point imports: the
+    # imports are under way (numba, the node's modules) when it appears
+    rosproc.wait_for(lambda: '_rclpy_pybind11' in maps.read_text(), 60, interval=0.005,
+                     what='rclpy being imported')
+    proc.send_signal(signal.SIGINT)
+    code = rosproc.wait_exit(proc, 30)
+    out = rosproc.output(proc)
+    assert code == 0 and 'Traceback' not in out and 'KeyboardInterrupt' not in out, out
+
+
+def test_demo_domain_honours_ros_domain_id_then_its_own_variable():
+    demo = _demo()
+    assert demo.demo_domain({'ROS_DOMAIN_ID': '115', 'FOHSSV_DEMO_DOMAIN': '7'}) == 115
+    assert demo.demo_domain({'ROS_DOMAIN_ID': ' ', 'FOHSSV_DEMO_DOMAIN': '7'}) == 7
+    assert 1 <= demo.demo_domain({}) <= 200
+    with pytest.raises(ValueError, match="ROS_DOMAIN_ID='abc' is not a ROS domain"):
+        demo.demo_domain({'ROS_DOMAIN_ID': 'abc'})

@@ -686,7 +686,7 @@ def reference_gains(s: GainMapSpec) -> tuple[tuple[float, float], str] | None:
     paper = {s.gain_x, s.gain_y} <= eq31 and all(
         specs[k].default == v for k, v in s.gains.items() if k in eq31)
     text = "the paper's gains (eq. 31" if paper else 'default gains ('
-    return (float(x0), float(y0)), f'{text}: {s.gain_x} = {x0:g}, {s.gain_y} = {y0:g})'
+    return (float(x0), float(y0)), f'{text}: {x0:g}, {y0:g})'
 
 
 def _boundary(ax: Any, result: GainMapResult, margin: np.ndarray, what: str,
@@ -774,9 +774,12 @@ def plot_gain_map(result: GainMapResult, stem: Path, *, worst: bool = False,
         ax.set_ylabel(gain_label(s.controller, s.gain_y))
         ax.set_title(titled(f'{title}, {head}\n{_caption(result)}' + (
             f'\n{note}' if note else ''), label), fontsize=7)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=7, loc='upper center', bbox_to_anchor=(0.5, -0.12), ncol=3)
-        fig.tight_layout()
+        handles, names = ax.get_legend_handles_labels()
+        # below the plot, on the figure: centred under the axes it was cut at the edges when a
+        # colour bar narrows them
+        fig.tight_layout(rect=(0, 0.03 * ((len(names) + 1) // 2) + 0.02 if names else 0, 1, 1))
+        if names:
+            fig.legend(handles, names, fontsize=7, loc='lower center', ncol=2, frameon=False)
         paths = [stem.parent / f'{stem.name}_{name}.png', stem.parent / f'{stem.name}_{name}.svg']
         save(fig, paths, dpi=120)
         plt.close(fig)

@@ -85,7 +85,7 @@ def test_unknown_controller_lists_the_valid_ones():
     code, out = finish(proc, 30)
     assert code == 2, out
     assert ("unknown controller 'pid'; valid controllers (fohssv.controllers entry points): "
-            'fractional_pid, lqr, state_feedback') in out
+            'fractional_pid, lqr, scheduled, state_feedback') in out
 
 
 def _first_state_to_controller(probe: Probe) -> None:

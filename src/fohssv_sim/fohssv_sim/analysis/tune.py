@@ -539,7 +539,7 @@ class _Generations:
             if c in errors:
                 f[c] = _invalid_value(spec)
                 entries.append({'candidate': c, 'values': v, 'valid': False,
-                                'error': errors[c], 'score': f[c]})
+                                'error': errors[c], 'value': f[c]})
                 continue
             rs = sorted(by_c.get(c, []), key=lambda r: r['scenario'])
             self.rows[g, c] = rs

@@ -787,7 +787,8 @@ def plot_envelope(record: dict[str, Any], stem: Path, label: str = '') -> list[P
                         label='outcome changes at half step (not scored)')
     ax.set_xlabel('V (m/s)')
     ax.set_ylabel('α')
-    vals = ', '.join(f'{k}={v:.4g}' for k, v in w['values'].items())
+    items = [f'{k}={v:.4g}' for k, v in w['values'].items()]
+    vals = '\n'.join(', '.join(items[i:i + 3]) for i in range(0, len(items), 3))
     ax.set_title(titled(
         f'winner of fohssv tune {spec.controller} over the envelope\n{vals}\n'
         f"{record['model']} model, solver {record['solver']}, step {record['step']:g} s, "

@@ -649,6 +649,9 @@ def run_tune(spec: TuneSpec, out: Path, *, scheduler: str | None = None, workers
             seed=spec.seed, tol=0.0, atol=0.0, polish=False, updating='deferred',
             vectorized=True)
         best = gens.best
+        if best is None:
+            first = next(c for g in record['generations'] for c in g['candidates'])
+            raise TuneError(f"no candidate builds the controller, e.g. {first['error']}")
         winner_rows = gens.rows[best['generation'], best['candidate']]
         record['winner'] = {**{k: best[k] for k in ('generation', 'candidate', 'values')},
                             'gains': {**spec.gains, **best['values']},

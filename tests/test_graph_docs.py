@@ -16,7 +16,7 @@ def test_plant_yaml_is_generated_from_the_tables():
     assert (ROOT / 'src/fohssv_sim/config/plant.yaml').read_text() == docs.plant_yaml()
 
 
-@pytest.mark.parametrize('name', ['state_feedback', 'lqr', 'fractional_pid'])
+@pytest.mark.parametrize('name', ['state_feedback', 'lqr', 'fractional_pid', 'scheduled'])
 def test_controller_yaml_is_generated_from_the_tables(name):
     path = ROOT / f'src/fohssv_controller/config/{name}.yaml'
     assert path.read_text() == docs.controller_yaml(name)

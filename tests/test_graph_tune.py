@@ -106,7 +106,7 @@ def _graph_run(yaml_file: Path, speed: float) -> tuple[str, float, str]:
     assert np.allclose(np.diff(states[:, 0]), 1e-4)
     t, w = states[:, 0], states[:, 2]
     win = t >= TRANSIENT - 1e-12
-    cls, _ = classify(t[win], w[win], eq_tol=1e-6, rel_tol=1e-3)
+    cls, _ = classify(t[win], w[win], rel_tol=1e-3)
     return outcome(cls.kind), float(np.max(np.abs(forces[:, 1]))), out
 
 

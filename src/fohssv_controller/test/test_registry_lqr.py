@@ -21,7 +21,8 @@ def test_builtins_are_registered():
 
 def test_unknown_name_lists_the_valid_ones():
     with pytest.raises(registry.UnknownController, match=r"unknown controller 'pid'; valid "
-                       r'controllers \(fohssv.controllers entry points\): .*lqr, state_feedback'):
+                       r'controllers \(fohssv.controllers entry points\): .*lqr, scheduled, '
+                       r'state_feedback'):
         registry.load('pid')
 
 

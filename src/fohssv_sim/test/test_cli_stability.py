@@ -46,7 +46,7 @@ def test_stability_reports_alpha_c_of_the_eigenvalue_formula_and_draws_the_wedge
 
 def test_bad_input_is_one_line_and_exit_2(tmp_path):
     for args, text in [(('--set', 'speed=-1'), 'speed=-1.0 is outside'),
-                       (('--controller', 'pid'), 'lqr, state_feedback'),
+                       (('--controller', 'pid'), 'lqr, scheduled, state_feedback'),
                        (('--gain', 'depth_gain'), 'name=value'),
                        (('--alpha', '1.5'), '(0, 1]'),
                        (('--speeds', '90:75:1'), 'start:stop:step')]:

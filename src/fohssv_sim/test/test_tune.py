@@ -95,6 +95,11 @@ def test_interrupted_search_resumes_to_the_same_winner(tmp_path, client):
         'winner']['score']
     assert [g['best_value'] for g in again.record['generations']] == [
         g['best_value'] for g in rec['generations']]
+    # a larger budget continues the same search: two generations read back, one more run
+    more = run_tune(TuneSpec(**{**SMALL, 'budget': 15}), part, client=client)
+    assert (more.computed_chunks, more.reused_chunks) == (3, 6)
+    assert [g['best_value'] for g in more.record['generations'][:2]] == [
+        g['best_value'] for g in rec['generations']]
     with pytest.raises(TuneError, match='holds a different search'):
         run_tune(TuneSpec(**{**SMALL, 'seed': 8}), part, client=client)
 

@@ -395,7 +395,7 @@ def evaluate_points(spec: Any, params: list[ModelParameters], ctls: list[Any],
     """Run and score closed loops: point j is the model ``params[j]`` under ``ctls[j]``.
 
     ``spec``: the run settings (attributes ``duration``, ``transient``, ``control_period``,
-    ``settle_band``, ``eq_tol``, ``rel_tol`` and ``every(step)``, as :class:`GainMapSpec`).
+    ``settle_band``, ``steady_rtol``, ``rel_tol`` and ``every(step)``, as :class:`GainMapSpec`).
     Points with equal ``eq_keys[j]`` share the closed-loop equilibrium (same law, same V:
     alpha does not move it), found once. ``batched``: None = one batched solver call when
     every law is affine, else point by point. ``settle_to_final``: when no equilibrium is

@@ -60,7 +60,7 @@ from .gainmap import (
     evaluate_points,
     scheduled_gains,
 )
-from .orbits import METHOD
+from .orbits import METHOD, STEADY_RTOL
 from .sweep import chunk_path, read_chunk_rows, run_chunks
 
 __all__ = ['OBJECTIVES', 'Bound', 'TuneSpec', 'TuneError', 'TuneResult', 'score',
@@ -142,7 +142,7 @@ class TuneSpec:
     settle_band: float = 0.02
     chunk_size: int = 128
     check_step: bool = False
-    eq_tol: float = 1e-6
+    steady_rtol: float = STEADY_RTOL
     rel_tol: float = 1e-3
     mutation: tuple[float, float] = (0.5, 1.0)
     recombination: float = 0.7
@@ -539,7 +539,7 @@ class _Generations:
             if c in errors:
                 f[c] = _invalid_value(spec)
                 entries.append({'candidate': c, 'values': v, 'valid': False,
-                                'error': errors[c], 'score': f[c]})
+                                'error': errors[c], 'value': f[c]})
                 continue
             rs = sorted(by_c.get(c, []), key=lambda r: r['scenario'])
             self.rows[g, c] = rs
@@ -649,6 +649,9 @@ def run_tune(spec: TuneSpec, out: Path, *, scheduler: str | None = None, workers
             seed=spec.seed, tol=0.0, atol=0.0, polish=False, updating='deferred',
             vectorized=True)
         best = gens.best
+        if best is None:
+            first = next(c for g in record['generations'] for c in g['candidates'])
+            raise TuneError(f"no candidate builds the controller, e.g. {first['error']}")
         winner_rows = gens.rows[best['generation'], best['candidate']]
         record['winner'] = {**{k: best[k] for k in ('generation', 'candidate', 'values')},
                             'gains': {**spec.gains, **best['values']},
@@ -787,7 +790,8 @@ def plot_envelope(record: dict[str, Any], stem: Path, label: str = '') -> list[P
                         label='outcome changes at half step (not scored)')
     ax.set_xlabel('V (m/s)')
     ax.set_ylabel('α')
-    vals = ', '.join(f'{k}={v:.4g}' for k, v in w['values'].items())
+    items = [f'{k}={v:.4g}' for k, v in w['values'].items()]
+    vals = '\n'.join(', '.join(items[i:i + 3]) for i in range(0, len(items), 3))
     ax.set_title(titled(
         f'winner of fohssv tune {spec.controller} over the envelope\n{vals}\n'
         f"{record['model']} model, solver {record['solver']}, step {record['step']:g} s, "

@@ -170,6 +170,10 @@ def cmd_tune(args: argparse.Namespace) -> int:
     def generation(g: dict[str, Any]) -> None:
         progress.end()
         b = g['best_so_far']
+        if b is None:
+            print(f"generation {g['generation'] + 1}/{spec.generations}: no candidate built "
+                  'the controller', flush=True)
+            return
         margin = b.get('margin')
         m = '' if margin is None or (isinstance(margin, float) and math.isnan(margin)) \
             else f', margin {margin:.4g}'

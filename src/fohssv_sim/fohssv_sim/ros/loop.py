@@ -217,18 +217,22 @@ class Profile:
     calls: list[int] = field(default_factory=lambda: [0] * len(PROFILE_PARTS))
     worst: list[int] = field(default_factory=lambda: [0] * len(PROFILE_PARTS))
 
+    last: list[int] = field(default_factory=lambda: [0] * len(PROFILE_PARTS))
+
     def add(self, part: int, ns: int) -> None:
         self.ns[part] += ns
         self.calls[part] += 1
+        self.last[part] = ns
         if ns > self.worst[part]:
             self.worst[part] = ns
 
     def add_more(self, part: int, ns: int) -> None:
         """More cost of the last call of ``part``, paid at a later sample (a view's messages
-        go out one per sample): the mean is per call, the worst per sample."""
+        go out one per sample): mean and worst are per call, all its pieces together."""
         self.ns[part] += ns
-        if ns > self.worst[part]:
-            self.worst[part] = ns
+        self.last[part] += ns
+        if self.last[part] > self.worst[part]:
+            self.worst[part] = self.last[part]
 
     def summary(self) -> dict[str, dict[str, float]]:
         """Per part that ran (``command_callback`` with an external controller,

@@ -338,9 +338,11 @@ class CommandLag:
         return self.total / self.count if self.count else 0.0
 
     def lagging(self) -> bool:
-        """True when the newest commands lag by more than the limit (or ever did by more
-        than twice it): a loss of the vehicle now is probably the lag's doing."""
-        return self.over_since is not None or self.worst > 2.0 * self.limit
+        """True when the newest commands lag by more than the limit, or some lagged by more
+        than it or by 1 ms of simulated time or more (eq. 31 loses the delay-free vehicle at
+        about 3 ms): a loss of the vehicle may then be the lag's doing."""
+        return (self.over_since is not None or self.worst > self.limit
+                or self.worst * self.period >= 1e-3)
 
     def summary(self) -> dict[str, float]:
         return {'command_lag_mean': self.mean, 'command_lag_worst': self.worst,

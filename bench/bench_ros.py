@@ -99,10 +99,29 @@ def _stop(proc: subprocess.Popen) -> str:
 RESULT_CODES = {0: 'completed', 1: 'simulation failed', 6: 'command lag'}
 
 
+#: The plant's exit code when another publisher of state shares its domain (a test or
+#: benchmark of someone else on this machine): the run is repeated on another domain.
+EXIT_SECOND_PLANT = 5
+
+
 def run_plant(domains: Domains, plant_params: dict, timeout: float) -> dict:
     """One plant run with the eq. 31 law: through the controller node, or hosted when
     ``plant_params`` names a ``controller``; returns the plant's summary, with the controller
-    node's CPU time per sample from the plant's start (peers matched) to its end."""
+    node's CPU time per sample from the plant's start (peers matched) to its end. A run that
+    met another graph on its domain (exit 5) is repeated on the next domain (3 tries)."""
+    for _ in range(2):
+        try:
+            return _run_plant(domains, plant_params, timeout)
+        except SecondPlant as exc:
+            print(f'          ({exc}; again on another domain)', flush=True)
+    return _run_plant(domains, plant_params, timeout)
+
+
+class SecondPlant(RuntimeError):
+    """The plant met another publisher of state on its domain."""
+
+
+def _run_plant(domains: Domains, plant_params: dict, timeout: float) -> dict:
     env = domains.env()
     args = ['--ros-args']
     for k, v in plant_params.items():
@@ -136,6 +155,8 @@ def run_plant(domains: Domains, plant_params: dict, timeout: float) -> dict:
             _stop(ctl)
     text = ''.join(lines)
     found = [ln for ln in lines if 'summary: {' in ln]
+    if code == EXIT_SECOND_PLANT:
+        raise SecondPlant(f"another graph on ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}")
     if code not in RESULT_CODES or not found:
         raise RuntimeError(f'plant exited {code}:\n{text[-2000:]}')
     s = json.loads(found[-1].split('summary: ', 1)[1])
@@ -324,9 +345,9 @@ def case_margin(domains: Domains, sim_time: float) -> list[dict]:
     return runs
 
 
-#: Control periods the external-node search tries, shortest first (multiples of the FOM's
-#: 2e-5 s step): 10 kHz down to 1 kHz.
-RATE_LADDER = (1e-4, 1.4e-4, 2e-4, 3e-4, 5e-4, 1e-3)
+#: Control periods the external-node search tries, shortest first: 10 kHz down to 1 kHz
+#: (multiples of the FOM's 2e-5 s step that divide the default view_period 0.01 s).
+RATE_LADDER = (1e-4, 2e-4, 4e-4, 5e-4, 1e-3)
 
 
 def case_external_rate(domains: Domains, sim_time: float) -> dict:

@@ -140,6 +140,8 @@ def test_hosted_parameters_change_at_run_time_and_the_commands_follow(tmp_path):
     plant = _realtime_hosted(env, log, duration=60.0, initial_state=[0.05, 0.0, 0.0, 0.0])
     try:
         probe.wait(lambda: len(probe.commands) >= 20, 60, 'hosted commands')
+        # a request sent before the services are discovered is never answered: wait first
+        rosproc.wait_for(probe.params.services_are_ready, 60, what='the parameter services')
         got = probe.result(probe.params.get_parameters(
             ['controller.depth_gain', 'controller.pitch_gain'])).values
         assert [v.double_value for v in got] == [15.0, -30.0]
@@ -181,7 +183,7 @@ def test_a_second_command_publisher_stops_a_hosted_plant(tmp_path):
     try:
         rosproc.wait_for(lambda: 'peers matched' in log.read_text(), 60, what='the start')
         probe = Probe(domain)             # publishes command: a second controller
-        code = rosproc.wait_exit(plant, 30)
+        code = rosproc.wait_exit(plant, 60)
     finally:
         stop_all(plant)
         if probe is not None:

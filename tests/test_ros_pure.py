@@ -21,7 +21,9 @@ from fohssv_sim.ros.bag_options import (
 )
 from fohssv_sim.ros.docs import ros_type_name
 from fohssv_sim.ros.loop import (
+    CommandLag,
     CommandRejected,
+    HostedLaw,
     Pacer,
     SampledPlant,
     answered_time,
@@ -37,7 +39,56 @@ from fohssv_sim.ros.options import (
 )
 from fohssv_sim.ros.ros_params import _coerce, descriptor, python_value, ros_type
 
+
 # -- loop.py ----------------------------------------------------------------------------------
+def test_command_lag_stops_only_when_the_lag_stays_above_the_limit():
+    """Lag in control periods, counted by hand: a command answering sample k while the plant
+    is at sample n lags n - k. Limit 3: a burst of 4 commands over the limit spanning less
+    than 3 periods passes; a run over it spanning 3 periods stops at its end."""
+    T = 1e-3
+    lag = CommandLag(limit=3.0, period=T)
+    # answered at once (lag 0), then a burst: samples 10..13 answered at plant samples 14..16
+    assert not any(lag.add(n * T, n * T) for n in range(10))
+    burst = [(14, 10), (15, 11), (16, 12)]       # lags 4, 4, 4 over plant samples 14..16
+    assert [lag.add(n * T, k * T) for n, k in burst] == [False, False, False]
+    assert not lag.add(17 * T, 16 * T)           # lag 1: back under the limit, run over
+    assert lag.worst == pytest.approx(4.0) and lag.over == 3
+    # a sustained run: lag 5 from plant sample 20 on; it has lasted 3 periods at sample 23
+    assert [lag.add(n * T, (n - 5) * T) for n in (20, 21, 22)] == [False] * 3
+    assert lag.add(23 * T, 18 * T)
+    assert lag.over_since == pytest.approx(20 * T) and lag.over_least == pytest.approx(5.0)
+    assert lag.count == 10 + 3 + 1 + 4
+    assert lag.mean == pytest.approx((3 * 4 + 1 + 4 * 5) / 18)
+    assert lag.lagging()
+    assert lag.summary()['command_lag_worst'] == pytest.approx(5.0)
+
+
+@pytest.mark.parametrize('name', ['state_feedback', 'lqr', 'fractional_pid'])
+def test_hosted_law_gives_the_controllers_own_commands(name):
+    """The scalar form of an affine law (eq. 31) and the per-sample call of any other give
+    exactly what the plugin's own command() gives, clamped, sample after sample."""
+    from fohssv_sim import control
+
+    law = HostedLaw(control.make(name))
+    ref = control.make(name)
+    assert law.affine == (name == 'state_feedback')
+    for k in range(50):
+        t = k * 1e-4
+        x = (0.01 * math.sin(k), 0.5 * math.cos(0.3 * k), 0.02 * k, -0.1 * k)
+        assert law.command(t, x) == ref.command(t, list(x))
+    big = (100.0, 0.0, 0.0, 0.0)                       # eq. 31 asks 1500 rad: clamped
+    assert law.command(50e-4, big) == ref.command(50e-4, list(big))
+
+
+def test_hosted_affine_law_refuses_a_non_finite_output():
+    from fohssv_sim import control
+
+    law = HostedLaw(control.make('state_feedback'))
+    with pytest.raises(control.NonFiniteCommand, match=r'state_feedback: non-finite output '
+                       r'at t=0\.5 s'):
+        law.command(0.5, (math.inf, 0.0, 0.0, 0.0))
+
+
 
 
 def test_check_command_passes_a_good_command_and_rejects_with_the_reason():

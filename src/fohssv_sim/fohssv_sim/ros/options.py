@@ -207,10 +207,12 @@ NODE_PARAMETERS: tuple[ParameterSpec, ...] = (
        'rejected (the last good command is kept)', low=0.0, high=math.pi / 2, high_open=False,
        needs_reset=False),
     _P('min_state_subscribers', '-', 1, '-', 'matched subscribers of state (controllers, '
-       'recorders) to wait for before the first sample', low=0.0, low_open=False, high=1000.0,
+       'recorders) to wait for before the first sample; a hosted controller counts as one',
+       low=0.0, low_open=False, high=1000.0,
        high_open=False),
     _P('min_command_publishers', '-', 1, '-', 'matched publishers of command to wait for '
-       'before the first sample', low=0.0, low_open=False, high=1000.0, high_open=False),
+       'before the first sample; a hosted controller counts as one', low=0.0, low_open=False,
+       high=1000.0, high_open=False),
     _P('start_timeout', '-', 0.0, 's', 'wall time to wait for those matches; 0 = wait until '
        'they are there (the plant logs what it waits for every 5 s); when a positive timeout '
        'expires the plant exits with code 4 (both modes)', low=0.0, low_open=False,

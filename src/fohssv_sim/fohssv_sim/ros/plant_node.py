@@ -856,11 +856,11 @@ class PlantNode(Node):
         if self.hosted is not None or self.pacer is None or not lag.count:
             return ''
         text = (f'; command lag: now {lag.last:.1f}, mean {lag.mean:.1f}, worst '
-                f'{lag.worst:.1f} control periods (max_command_lag='
-                f'{self.options.max_command_lag:g})')
+                f'{lag.worst:.1f} control periods (worst {lag.worst * lag.period * 1e3:.3g} ms '
+                f'of simulated time; max_command_lag={self.options.max_command_lag:g})')
         if lag.lagging():
-            text += (': the commands were late, so the loop was probably lost to their lag, '
-                     f'not to the model ({self._cost_text()}); ' + self._remedies())
+            text += (': the commands were late, and the loop may have been lost to their lag '
+                     f'rather than to the model ({self._cost_text()}); ' + self._remedies())
         return text
 
     def _stale(self, t: float, now: float) -> None:

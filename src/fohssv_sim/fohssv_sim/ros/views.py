@@ -12,12 +12,14 @@ that stays the control interface:
   id 0 the body and id 1 the cavity, as ellipsoids.
 
 Frames, signs and units: :mod:`fohssv_sim.contract` (z up, so -z, -w, -Fp, pitch as a
-rotation of -theta about y). The messages are made once and only their numbers are written
-when a view is due (the plant's per-sample path pays one integer test otherwise); rclpy
-serializes them at ``publish``. Measured with ``profile:=1`` (``publish_views``; realtime
-delay-free plant at 1e-4 s, no view subscriber): 131 us per view for all four topics and both
-markers, 1.3 us per sample at the default view_period; the sample that carries a view is that
-much later (well inside the 1 ms deadline tolerance).
+rotation of -theta about y). Each message is serialized once, by rclpy's own serializer, and
+only its stamp and numbers are written into the bytes when a view is due (offsets found by
+probing, checked by a round trip: :class:`_Serialized`), so a view costs five raw publishes
+instead of five conversions of message objects (the markers' were most of the 342-440 us a
+view took in one sample). The five messages then go out one per sample, each with the due
+sample's stamp and numbers, so no sample carries more than one of them and the plant's
+per-sample path pays one attribute test otherwise. Measured: ``profile:=1``,
+``publish_views`` (mean per view, worst per view) and ``bench/bench_ros.py``.
 """
 
 from __future__ import annotations

@@ -21,8 +21,9 @@ each case is one function, so a case can be added without touching the others):
 * highest external-node rate (:func:`case_external_rate`): the shortest control period at
   which the FOM with the controller node holds real time for 10 s (misses <= 1 %, no lag
   stop), searched over a ladder of periods;
-* in-plant recording (:func:`case_inplant_recording`): the slot for recorded against
-  unrecorded hosted runs (issue 20, item 2);
+* in-plant recording (:func:`case_inplant_recording`): the hosted plant at 1e-4 s in real
+  time recorded in-plant against unrecorded, each model, with the bag's message counts; and
+  the demo's lockstep loop recorded in-plant against unrecorded (issue 20, item 2);
 * profile (:func:`case_profile`): short real-time runs per model at 1e-4 s with the plant's
   ``profile:=1``, hosted and external: the plant's cost per sample of each part (mean us);
 * SCHED_FIFO (:func:`case_fifo`): the 1e-3 s external runs under ``realtime_priority``, where

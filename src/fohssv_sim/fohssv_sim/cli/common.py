@@ -287,10 +287,21 @@ def parse_range(text: str, name: str, *, low: float | None = None,
             try:
                 _PARAMETER_SPECS[parameter].validate(float(v))
             except ParameterError as e:
-                raise CliError(f'{name}: {e}') from None
-        number(f'{name} value', float(v), unit=unit, low=low, high=high, low_open=low_open,
-               high_open=high_open)
+                raise CliError(f'{name}: {_rounded_refusal(parameter, float(v)) or e}'
+                               ) from None
+        number(f'{name} value', float(f'{v:.12g}') if math.isfinite(v) else float(v),
+               unit=unit, low=low, high=high, low_open=low_open, high_open=high_open)
     return values
+
+
+def _rounded_refusal(parameter: str, v: float) -> str:
+    """The table's refusal of ``v`` shown to 12 digits (a grid's 1.2000000000000002 as
+    1.2), or '' if the rounded value would pass."""
+    try:
+        _PARAMETER_SPECS[parameter].validate(float(f'{v:.12g}'))
+    except ParameterError as e:
+        return str(e)
+    return ''
 
 
 # -- sizes, processes, schedulers ---------------------------------------------------------

@@ -42,7 +42,7 @@ __all__ = ['EXIT_OK', 'EXIT_BAD_BAG', 'EXIT_USAGE', 'EXIT_INTERRUPTED', 'EXIT_IN
            'check_grid', 'check_chunk_memory', 'check_workers', 'check_chunk_size',
            'check_scheduler', 'computing', 'safe_name', 'job_name', 'job_folder',
            'claim_output', 'output_file', 'REPORTS', 'JOB_FILE', 'out_given',
-           'resolve_output']
+           'resolve_output', 'refuse_both']
 
 
 #: Exit codes of every subcommand: 0 done; 1 a bag that is missing, unreadable or not sound
@@ -154,6 +154,21 @@ def _check_coefficients(params: ModelParameters, given: dict[str, Any]) -> None:
     if not finite:
         raise CliError(f'the model cannot be evaluated at {shown}: a coefficient is not '
                        'finite (docs/model.md §3); give smaller values')
+
+
+def refuse_both(args: argparse.Namespace, parameter: str, option: str, given: bool,
+                why: str = '') -> None:
+    """Refuse ``--set <parameter>=...`` together with ``option`` (``given``: the option was
+    given, or the command sweeps that parameter anyway): one of the two explicit values
+    would be silently dropped.
+
+    Raises:
+        CliError: both given.
+    """
+    values = assignments(args.set or [], '--set')
+    if given and parameter in values:
+        raise CliError(f'--set {parameter}={values[parameter]!r} and {option} both set '
+                       f"{parameter}{why}; give it once")
 
 
 # -- numbers and ranges -----------------------------------------------------------------

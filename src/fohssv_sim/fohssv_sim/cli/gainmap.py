@@ -26,6 +26,7 @@ from .common import (
     output_dir,
     parameter_type,
     parse_range,
+    refuse_both,
 )
 from .sweep import check_dask_options, dask_options, run_on_dask
 
@@ -86,7 +87,10 @@ def _axis(text: str, option: str) -> tuple[str, tuple[float, ...]]:
 def build_spec(args: argparse.Namespace):
     from ..analysis.gainmap import GainMapError, GainMapSpec
 
-    over = {'model': args.model} if args.model else {}
+    refuse_both(args, 'fractional_order', '--alpha', args.alpha is not None)
+    refuse_both(args, 'speed', '--speed', args.speed is not None)
+    refuse_both(args, 'model', '--model', args.model is not None)
+    over = {'model': args.model} if args.model is not None else {}
     base = model_params(args, **over)
     values = base.to_dict()
     alpha = values.pop('fractional_order') if args.alpha is None else args.alpha

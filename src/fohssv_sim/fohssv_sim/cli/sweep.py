@@ -29,6 +29,7 @@ from .common import (
     out_given,
     output_dir,
     parse_range,
+    refuse_both,
 )
 
 DEFAULT_ALPHAS = '0.6:1.0:0.02'
@@ -140,6 +141,12 @@ def _check_sizes(args: argparse.Namespace, base, n_points: int) -> None:
 
 
 def build_spec(args: argparse.Namespace):
+    refuse_both(args, 'fractional_order', '--alpha', args.alpha is not None or args.kind != 'V',
+                f' (an {args.kind} sweep sets alpha from --alpha, default {DEFAULT_ALPHAS})'
+                if args.kind != 'V' else '')
+    refuse_both(args, 'speed', '--speed', args.speed is not None or args.kind != 'alpha',
+                f' (a {args.kind} sweep sets V from --speed, default {DEFAULT_SPEEDS})'
+                if args.kind != 'alpha' else '')
     base = model_params(args)   # validates --set / --preset
     check_chunk_size(args.chunk_size)
     check_dask_options(args)

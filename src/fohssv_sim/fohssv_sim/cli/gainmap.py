@@ -28,7 +28,7 @@ from .common import (
     parse_range,
     refuse_both,
 )
-from .sweep import check_dask_options, dask_options, run_on_dask
+from .sweep import check_dask_options, dask_options, refuse_other_job, run_on_dask
 
 
 def register(sub) -> None:
@@ -144,7 +144,9 @@ def cmd_gainmap(args: argparse.Namespace) -> int:
     from ..analysis.gainmap import plot_gain_map, run_gain_map, summary_lines
 
     spec = build_spec(args)
-    out: Path = output_dir(args.out if out_given(args) else default_folder(spec))
+    out: Path = args.out if out_given(args) else default_folder(spec)
+    refuse_other_job(out, 'gainmap.json', spec.to_dict())
+    output_dir(out)
     print(f'gainmap {spec.controller}: {spec.gain_x} ({len(spec.x_values)}) x {spec.gain_y} '
           f'({len(spec.y_values)}), {len(spec.scenarios())} scenario(s), {spec.n_points} '
           f'points, {spec.duration:g} s each -> {out}', flush=True)

@@ -54,6 +54,21 @@ def run_on_dask(run, spec, out: Path, args: argparse.Namespace):
     return result
 
 
+def refuse_other_job(out: Path, sidecar: str, spec_dict: dict) -> None:
+    """Refuse (before anything is printed or started) a folder whose sidecar records a
+    different job; :func:`.sweep.run_chunks` checks the same again."""
+    import json
+
+    path = out / sidecar
+    try:
+        old = json.loads(path.read_text()).get('spec') if path.exists() else spec_dict
+    except (OSError, ValueError, AttributeError):
+        old = None
+    if old != json.loads(json.dumps(spec_dict)):
+        raise CliError(f'{out} holds a different job (see {path}); choose another --out or '
+                       'delete that folder')
+
+
 def check_dask_options(args: argparse.Namespace) -> None:
     """--workers in range, and a scheduler that answers at --scheduler (before any work)."""
     check_workers(args.workers)
@@ -186,7 +201,9 @@ def default_folder(kind: str, spec) -> Path:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     spec = build_spec(args)
-    out: Path = output_dir(args.out if out_given(args) else default_folder(args.kind, spec))
+    out: Path = args.out if out_given(args) else default_folder(args.kind, spec)
+    refuse_other_job(out, 'sweep.json', spec.to_dict())
+    output_dir(out)
     n = len(spec.points())
     print(f'sweep {args.kind}: {n} points, {len(spec.alphas)} alpha x {len(spec.speeds)} V, '
           f'transient {spec.transient:g} s, window {spec.window:g} s -> {out}', flush=True)

@@ -11,9 +11,12 @@ the value given, the allowed range and the unit, exit 2):
 * :func:`check_size`, :func:`check_run_steps`, :func:`check_grid`, :func:`check_chunk_memory`,
   :func:`check_workers`, :func:`check_chunk_size`, :func:`check_scheduler`: the limits
   (:data:`LIMITS`) on sizes, simulated time, processes and the scheduler address.
-* :func:`safe_name`, :func:`job_folder`, :func:`job_name`, :func:`claim_output`,
-  :func:`output_file`: output folders named after the command and its job, never writing
-  outside the folder or over a different job's output.
+* :func:`refuse_both`: a value given by ``--set`` and by its own option is refused.
+* :func:`computing`: arithmetic failures on the user's values become one-line errors.
+* :func:`resolve_output` (``--out`` or ``reports/<command>/<job>``; :func:`out_given`,
+  :func:`job_name`, :func:`job_folder`), :func:`claim_output` (``job.json``),
+  :func:`output_file`, :func:`safe_name`: output folders named after the command and its job,
+  never writing outside the folder or over a different job's output.
 """
 
 from __future__ import annotations

@@ -58,6 +58,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'tests'))
 
 from test_graph_startup import NODES, bad_parameter_cases  # noqa: E402
+
+sys.path.insert(0, str(ROOT / 'src' / 'fohssv_sim' / 'test'))
+from test_cli_bad_input import catalogue as cli_catalogue  # noqa: E402
 from test_graph_support import Probe, plant_args  # noqa: E402
 
 from fohssv_sim.bag import BagError, load_run  # noqa: E402
@@ -256,6 +259,32 @@ def parameter_cases(tmp: Path) -> list[Case]:
         cases.append(Case('parameters', f'{node} {" ".join(args)}',
                           _parameter_run(package, exe, args, words, i), quick=first))
     return cases
+
+
+def cli_parameter_cases(tmp: Path) -> list[Case]:
+    """The CLI's start-up catalogue (src/fohssv_sim/test/test_cli_bad_input.py): every bad
+    option of every subcommand, through the installed ``fohssv`` (one line, exit 2; 1 for
+    a missing bag). The first row of each subcommand is in --quick."""
+    tmp.mkdir(parents=True, exist_ok=True)
+    seen: set[str] = set()
+    cases = []
+    for argv, code, words in cli_catalogue(tmp):
+        command = argv[0] if argv else ''
+        cases.append(Case('parameters', f'fohssv {" ".join(argv)}'[:160],
+                          _cli_run(argv, code, words), quick=command not in seen))
+        seen.add(command)
+    return cases
+
+
+def _cli_run(argv: list[str], code: int, words: str) -> Callable[[Path], Outcome]:
+    def run(tmp: Path) -> Outcome:
+        got, out = cli(argv, tmp)
+        result = handled(got, out, code, words)
+        if result.ok and (tmp / 'reports').exists():
+            return Outcome('handled', False, 'reports/ written for a refused command',
+                           output=out)
+        return result
+    return run
 
 
 def _parameter_run(package, exe, args, words, i) -> Callable[[Path], Outcome]:
@@ -830,7 +859,8 @@ def main(argv: list[str] | None = None) -> int:
     started = time.monotonic()
     with tempfile.TemporaryDirectory(prefix='fohssv-faults-') as tmpdir:
         root = Path(tmpdir)
-        cases = (parameter_cases(root / 'catalogue') + command_cases() + bag_cases()
+        cases = (parameter_cases(root / 'catalogue') + cli_parameter_cases(root / 'cli')
+                 + command_cases() + bag_cases()
                  + fault_cases() + loss_cases(a.quick))
         if a.quick:
             cases = [c for c in cases if c.quick]

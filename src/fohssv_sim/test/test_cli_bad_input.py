@@ -97,6 +97,10 @@ def catalogue(tmp: Path) -> list[tuple[list[str], int, str]]:
          'the equilibrium search failed at V = 75 m/s with state_feedback(depth_gain=1e+308'),
         (['stability', '--gain', 'depth_gain'], 2, "--gain 'depth_gain' must look like name=value"),
         (['stability', '--preset', 'nope'], 2, "preset='nope' is unknown"),
+        (['stability', '--alpha', '0.8', '--set', 'fractional_order=0.7'], 2,
+         '--set fractional_order=0.7 and --alpha both set fractional_order; give it once'),
+        (['stability', '--speed', '80', '--set', 'speed=75'], 2,
+         '--set speed=75.0 and --speed both set speed'),
         (['stability', '--out', afile], 2, f'--out {afile}: exists and is not a folder'),
         (['stability', '--bogus'], 2, 'unrecognized arguments: --bogus'),
         # -- sweep --
@@ -148,6 +152,10 @@ def catalogue(tmp: Path) -> list[tuple[list[str], int, str]]:
         (['sweep', 'alpha', '--controller', 'fractional_pid', *quick], 2,
          '--controller fractional_pid is not an affine state feedback'),
         (['sweep', 'alpha', '--state', 'x'], 2, "argument --state: invalid choice: 'x'"),
+        (['sweep', 'V', '--set', 'speed=80'], 2,
+         '--set speed=80.0 and --speed both set speed (a V sweep sets V from --speed'),
+        (['sweep', 'alpha', '--set', 'fractional_order=0.9'], 2,
+         '--set fractional_order=0.9 and --alpha both set fractional_order (an alpha sweep'),
         (['sweep', 'alpha', '--alpha', '0.9', *quick, '--out', str(other)], 2,
          f'{other} holds a different job'),
         # -- gainmap --
@@ -181,6 +189,8 @@ def catalogue(tmp: Path) -> list[tuple[list[str], int, str]]:
         ([*gm, '--scheduler', nobody], 2, 'no Dask scheduler answers there'),
         ([*gm, '--check-step', '-1'], 2, '--check-step=-1 is outside the allowed range [0, inf)'),
         ([*gm, '--set', 'speed=1e308'], 2, 'the model cannot be evaluated at speed=1e+308'),
+        ([*gm, '--speed', '80', '--set', 'speed=75'], 2,
+         '--set speed=75.0 and --speed both set speed'),
         # -- plot --
         (['plot'], 2, 'the following arguments are required: bags'),
         (['plot', bag, '--name', '../../escape'], 2,

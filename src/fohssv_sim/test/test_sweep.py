@@ -184,7 +184,8 @@ def test_same_results_with_the_local_default_and_an_explicit_cluster(tmp_path):
 
 
 def test_sweep_rejects_bad_input_in_one_line(tmp_path):
-    for args, text in [(['--alpha', '0.5:1.2:0.1'], 'outside (0, 1]'),
+    for args, text in [(['--alpha', '0.5:1.2:0.1'],
+                        'fractional_order=1.1 is outside the allowed range (0, 1]'),
                        (['--set', 'length=-1'], 'length=-1.0'),
                        (['--window', '0'], '--window')]:
         r = subprocess.run([str(FOHSSV), 'sweep', 'alpha', *args, '--out', str(tmp_path)],

@@ -8,17 +8,23 @@ statistics equal the messages counted; metadata indexes point at metadata record
 name existing ``ros2msg``/``ros2idl`` schemas and ``cdr`` encoding; every message decodes
 with ``mcap_ros2``'s decoder. For ``metadata.yaml``: every field ``ros2 bag info`` reads, and its
 counts, start and duration equal the MCAP's. Pure: no rclpy.
+
+Streamed: the file is read record by record and seeked to each indexed record, so the memory
+a check needs is bounded by the largest chunk (plus the summary), not the bag's size: a
+one-hour 10 kHz bag checks like a one-second one.
 """
 
 from __future__ import annotations
 
 import io
+import os
 import struct
 import sys
 import zlib
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
@@ -54,39 +60,61 @@ class CheckReport:
         return not self.problems
 
 
-def _record_at(data: bytes, offset: int, opcode: int):
-    """The record with ``opcode`` at ``offset`` (raises ValueError if it is not there)."""
-    if offset < 0 or offset + 9 > len(data) or data[offset] != opcode:
-        raise ValueError(f'no {Opcode(opcode).name} record at byte {offset}')
-    length = struct.unpack_from('<Q', data, offset + 1)[0]
-    body = data[offset + 9:offset + 9 + length]
-    if len(body) != length:
-        raise ValueError(f'{Opcode(opcode).name} record at byte {offset} runs past the end')
-    reader = StreamReader(io.BytesIO(data[offset:offset + 9 + length]), skip_magic=True,
-                          emit_chunks=True)
-    return next(iter(reader.records)), 9 + length
+class _File:
+    """An MCAP file opened for seeking reads (the check never holds the whole file)."""
+
+    def __init__(self, f, size: int) -> None:
+        self.f, self.size = f, size
+
+    def record_at(self, offset: int, opcode: int):
+        """The record with ``opcode`` at ``offset`` (raises ValueError if it is not there)."""
+        if offset < 0 or offset + 9 > self.size:
+            raise ValueError(f'no {Opcode(opcode).name} record at byte {offset}')
+        self.f.seek(offset)
+        head = self.f.read(9)
+        if head[0] != opcode:
+            raise ValueError(f'no {Opcode(opcode).name} record at byte {offset}')
+        length = struct.unpack_from('<Q', head, 1)[0]
+        if offset + 9 + length > self.size:
+            raise ValueError(f'{Opcode(opcode).name} record at byte {offset} runs past the end')
+        reader = StreamReader(io.BytesIO(head + self.f.read(length)), skip_magic=True,
+                              emit_chunks=True)
+        return next(iter(reader.records)), 9 + length
+
+    def crc32(self, start: int, end: int) -> int:
+        """CRC-32 of bytes [start, end), read in blocks of 1 MiB."""
+        self.f.seek(start)
+        crc, left = 0, max(0, end - start)
+        while left:
+            block = self.f.read(min(left, 1 << 20))
+            if not block:
+                break
+            crc = zlib.crc32(block, crc)
+            left -= len(block)
+        return crc
 
 
-def _check_summary_crc(data: bytes, footer: Footer, name: str, p: list[str]) -> None:
+def _check_summary_crc(data: _File, footer: Footer, name: str, p: list[str]) -> None:
     """The footer's CRC of the summary section (0 = not written): it covers the summary from
     ``summary_start`` up to the footer's ``summary_offset_start`` field (MCAP spec)."""
     if footer.summary_start == 0 or footer.summary_crc == 0:
         return
-    footer_at = len(data) - 8 - (1 + 8 + 20)         # magic, then opcode, length, 20 bytes
-    crc = zlib.crc32(data[footer.summary_start:footer_at + 1 + 8 + 16])
+    footer_at = data.size - 8 - (1 + 8 + 20)         # magic, then opcode, length, 20 bytes
+    crc = data.crc32(footer.summary_start, footer_at + 1 + 8 + 16)
     if crc != footer.summary_crc:
         p.append(f'{name}: summary CRC mismatch (footer {footer.summary_crc:#010x}, summary '
                  f'section {crc:#010x}); run: python -m fohssv_sim.bag repair')
 
 
-def _read_records(data: bytes, name: str, p: list[str]) -> int | None:
+def _read_records(data: _File, name: str, p: list[str]) -> int | None:
     """Read every record in order with CRC checks: the number of messages, or None (a
     problem recorded) when the file is unreadable, truncated or has no footer."""
     stream_msgs = 0
     try:
         first = True
-        saw_footer = False
-        for rec in StreamReader(io.BytesIO(data), validate_crcs=True).records:
+        saw_footer: Footer | None = None
+        data.f.seek(0)
+        for rec in StreamReader(data.f, validate_crcs=True).records:
             if first:
                 first = False
                 if not isinstance(rec, Header):
@@ -96,8 +124,7 @@ def _read_records(data: bytes, name: str, p: list[str]) -> int | None:
             if isinstance(rec, Message):
                 stream_msgs += 1
             elif isinstance(rec, Footer):
-                saw_footer = True
-                _check_summary_crc(data, rec, name, p)
+                saw_footer = rec      # its CRC is checked after the stream (that seeks)
     except (McapError, ValueError, struct.error) as exc:
         p.append(f'{name}: unreadable or truncated ({type(exc).__name__}: {exc}); '
                  'run: python -m fohssv_sim.bag repair')
@@ -105,6 +132,7 @@ def _read_records(data: bytes, name: str, p: list[str]) -> int | None:
     if not saw_footer:
         p.append(f'{name}: no footer')
         return None
+    _check_summary_crc(data, saw_footer, name, p)
     return stream_msgs
 
 
@@ -119,12 +147,12 @@ def _check_channels(summary, name: str, p: list[str]) -> None:
             p.append(f'{name}: channel {chan.topic} encoding {chan.message_encoding!r} != cdr')
 
 
-def _check_message_index(data: bytes, raw: bytes, cid: int, off: int, count: int, where: str,
+def _check_message_index(data: _File, raw: bytes, cid: int, off: int, count: int, where: str,
                          p: list[str]) -> None:
     """The message index of channel ``cid`` at ``off`` lists the ``count`` messages of the
     chunk (uncompressed records ``raw``), each at its offset with its log time."""
     try:
-        mi, _ = _record_at(data, off, Opcode.MESSAGE_INDEX)
+        mi, _ = data.record_at(off, Opcode.MESSAGE_INDEX)
     except ValueError as exc:
         p.append(f'{where}: {exc}')
         return
@@ -146,23 +174,27 @@ def _check_message_index(data: bytes, raw: bytes, cid: int, off: int, count: int
             return
 
 
-def _check_chunk(data: bytes, i: int, ci, name: str, p: list[str]
-                 ) -> tuple[Counter, list[Message]]:
+def _check_chunk(data: _File, i: int, ci, name: str, p: list[str], decodes: _Decodes
+                 ) -> tuple[Counter, tuple[int, int] | None]:
     """Chunk ``i`` matches its chunk index ``ci`` (length, times, message indexes): the
-    per-channel counts and the messages of the chunk (none if it could not be read)."""
+    per-channel counts and the first and last log times of its messages (None if it holds
+    none or could not be read)."""
     where = f'{name}: chunk {i} at byte {ci.chunk_start_offset}'
     try:
-        chunk, length = _record_at(data, ci.chunk_start_offset, Opcode.CHUNK)
+        chunk, length = data.record_at(ci.chunk_start_offset, Opcode.CHUNK)
     except ValueError as exc:
         p.append(f'{where}: {exc}')
-        return Counter(), []
+        return Counter(), None
     assert isinstance(chunk, Chunk)
     if length != ci.chunk_length:
         p.append(f'{where}: length {length} != index {ci.chunk_length}')
     inner = [r for r in breakup_chunk(chunk, validate_crc=True) if isinstance(r, Message)]
+    decodes.chunk(inner)
+    span = None
     if inner:
         lo = min(m.log_time for m in inner)
         hi = max(m.log_time for m in inner)
+        span = (lo, hi)
         if (lo, hi) != (ci.message_start_time, ci.message_end_time):
             p.append(f'{where}: message times [{lo}, {hi}] != index '
                      f'[{ci.message_start_time}, {ci.message_end_time}]')
@@ -172,7 +204,7 @@ def _check_chunk(data: bytes, i: int, ci, name: str, p: list[str]
                  f' but messages on {sorted(per_chan)}')
     for cid, off in ci.message_index_offsets.items():
         _check_message_index(data, chunk.data, cid, off, per_chan.get(cid, 0), where, p)
-    return per_chan, inner
+    return per_chan, span
 
 
 def _check_statistics(stats, summary, counts: Counter, indexed: int, stream_msgs: int,
@@ -189,10 +221,10 @@ def _check_statistics(stats, summary, counts: Counter, indexed: int, stream_msgs
         p.append(f'{name}: statistics times differ from the messages\'')
 
 
-def _check_metadata_indexes(data: bytes, summary, stats, name: str, p: list[str]) -> None:
+def _check_metadata_indexes(data: _File, summary, stats, name: str, p: list[str]) -> None:
     for mi in summary.metadata_indexes:
         try:
-            rec, length = _record_at(data, mi.offset, Opcode.METADATA)
+            rec, length = data.record_at(mi.offset, Opcode.METADATA)
         except ValueError as exc:
             p.append(f'{name}: metadata index: {exc}')
             continue
@@ -203,27 +235,56 @@ def _check_metadata_indexes(data: bytes, summary, stats, name: str, p: list[str]
                  f'{len(summary.metadata_indexes)}')
 
 
-def _check_decodes(reader, name: str, p: list[str]) -> None:
-    topic = '?'
-    try:
-        for _schema, chan, _msg, _decoded in reader.iter_decoded_messages(log_time_order=False):
-            topic = chan.topic
-    except Exception as exc:  # noqa: BLE001 - any decoder failure is a finding
-        p.append(f'{name}: a message after one on {topic} does not decode with mcap_ros2 '
-                 f'({type(exc).__name__}: {exc})')
+class _Decodes:
+    """Every message decodes with ``mcap_ros2``'s decoder, checked chunk by chunk as the
+    chunks are read (mcap's own ``iter_decoded_messages(log_time_order=False)`` reads every
+    chunk before it yields a message: the whole file in memory). The first failure is the
+    finding."""
+
+    def __init__(self, summary, name: str, p: list[str]) -> None:
+        self.summary, self.name, self.p = summary, name, p
+        self.factory = DecoderFactory()
+        self.decoders: dict[int, Any] = {}
+        self.failed = False
+        self.topic = '?'
+
+    def chunk(self, messages: list[Message]) -> None:
+        if self.failed:
+            return
+        try:
+            for m in messages:
+                decode = self.decoders.get(m.channel_id)
+                chan = self.summary.channels[m.channel_id]
+                if decode is None:
+                    schema = self.summary.schemas.get(chan.schema_id)
+                    decode = self.factory.decoder_for(chan.message_encoding, schema)
+                    if decode is None:
+                        raise ValueError(f'no decoder for {chan.message_encoding!r}')
+                    self.decoders[m.channel_id] = decode
+                decode(m.data)
+                self.topic = chan.topic
+        except Exception as exc:  # noqa: BLE001 - any decoder failure is a finding
+            self.failed = True
+            self.p.append(f'{self.name}: a message after one on {self.topic} does not decode '
+                          f'with mcap_ros2 ({type(exc).__name__}: {exc})')
 
 
 def _check_mcap(path: Path, report: CheckReport) -> tuple[Counter, int, int] | None:
+    with path.open('rb') as f:
+        return _check_open_mcap(_File(f, os.fstat(f.fileno()).st_size), path.name, report)
+
+
+def _check_open_mcap(data: _File, name: str, report: CheckReport
+                     ) -> tuple[Counter, int, int] | None:
     p = report.problems
-    data = path.read_bytes()
-    name = path.name
     stream_msgs = _read_records(data, name, p)
     if stream_msgs is None:
         return None
-    report.facts.append(f'{name}: {len(data)} bytes, every record read, chunk and data CRCs '
+    report.facts.append(f'{name}: {data.size} bytes, every record read, chunk and data CRCs '
                         'valid')
     try:
-        reader = make_reader(io.BytesIO(data), decoder_factories=[DecoderFactory()])
+        data.f.seek(0)
+        reader = make_reader(data.f, decoder_factories=[DecoderFactory()])
         summary = reader.get_summary()
     except (McapError, ValueError, struct.error) as exc:
         p.append(f'{name}: summary unreadable ({exc})')
@@ -236,16 +297,16 @@ def _check_mcap(path: Path, report: CheckReport) -> tuple[Counter, int, int] | N
     counts: Counter = Counter()
     times: list[int] = []
     indexed = 0
+    decodes = _Decodes(summary, name, p)
     for i, ci in enumerate(summary.chunk_indexes):
-        per_chan, inner = _check_chunk(data, i, ci, name, p)
+        per_chan, span = _check_chunk(data, i, ci, name, p, decodes)
         counts.update(per_chan)
-        indexed += len(inner)
-        if inner:
-            times += [min(m.log_time for m in inner), max(m.log_time for m in inner)]
-    t_min, t_max = (min(times), max(times)) if times else (None, None)
+        indexed += sum(per_chan.values())
+        if span is not None:
+            times = [min([span[0], *times[:1]]), max([span[1], *times[1:]])]
+    t_min, t_max = (times[0], times[1]) if times else (None, None)
     _check_statistics(stats, summary, counts, indexed, stream_msgs, (t_min, t_max), name, p)
     _check_metadata_indexes(data, summary, stats, name, p)
-    _check_decodes(reader, name, p)
     report.facts.append(f'{name}: {indexed} messages in {len(summary.chunk_indexes)} indexed '
                         f'chunks, {len(summary.channels)} channels, '
                         f'{len(summary.metadata_indexes)} metadata records, all decode')

@@ -11,9 +11,12 @@ the value given, the allowed range and the unit, exit 2):
 * :func:`check_size`, :func:`check_run_steps`, :func:`check_grid`, :func:`check_chunk_memory`,
   :func:`check_workers`, :func:`check_chunk_size`, :func:`check_scheduler`: the limits
   (:data:`LIMITS`) on sizes, simulated time, processes and the scheduler address.
-* :func:`safe_name`, :func:`job_folder`, :func:`job_name`, :func:`claim_output`,
-  :func:`output_file`: output folders named after the command and its job, never writing
-  outside the folder or over a different job's output.
+* :func:`refuse_both`: a value given by ``--set`` and by its own option is refused.
+* :func:`computing`: arithmetic failures on the user's values become one-line errors.
+* :func:`resolve_output` (``--out`` or ``reports/<command>/<job>``; :func:`out_given`,
+  :func:`job_name`, :func:`job_folder`), :func:`claim_output` (``job.json``),
+  :func:`output_file`, :func:`safe_name`: output folders named after the command and its job,
+  never writing outside the folder or over a different job's output.
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ __all__ = ['EXIT_OK', 'EXIT_BAD_BAG', 'EXIT_USAGE', 'EXIT_INTERRUPTED', 'EXIT_IN
            'check_grid', 'check_chunk_memory', 'check_workers', 'check_chunk_size',
            'check_scheduler', 'computing', 'safe_name', 'job_name', 'job_folder',
            'claim_output', 'output_file', 'REPORTS', 'JOB_FILE', 'out_given',
-           'resolve_output']
+           'resolve_output', 'refuse_both']
 
 
 #: Exit codes of every subcommand: 0 done; 1 a bag that is missing, unreadable or not sound
@@ -154,6 +157,21 @@ def _check_coefficients(params: ModelParameters, given: dict[str, Any]) -> None:
     if not finite:
         raise CliError(f'the model cannot be evaluated at {shown}: a coefficient is not '
                        'finite (docs/model.md §3); give smaller values')
+
+
+def refuse_both(args: argparse.Namespace, parameter: str, option: str, given: bool,
+                why: str = '') -> None:
+    """Refuse ``--set <parameter>=...`` together with ``option`` (``given``: the option was
+    given, or the command sweeps that parameter anyway): one of the two explicit values
+    would be silently dropped.
+
+    Raises:
+        CliError: both given.
+    """
+    values = assignments(args.set or [], '--set')
+    if given and parameter in values:
+        raise CliError(f'--set {parameter}={values[parameter]!r} and {option} both set '
+                       f"{parameter}{why}; give it once")
 
 
 # -- numbers and ranges -----------------------------------------------------------------
@@ -287,10 +305,21 @@ def parse_range(text: str, name: str, *, low: float | None = None,
             try:
                 _PARAMETER_SPECS[parameter].validate(float(v))
             except ParameterError as e:
-                raise CliError(f'{name}: {e}') from None
-        number(f'{name} value', float(v), unit=unit, low=low, high=high, low_open=low_open,
-               high_open=high_open)
+                raise CliError(f'{name}: {_rounded_refusal(parameter, float(v)) or e}'
+                               ) from None
+        number(f'{name} value', float(f'{v:.12g}') if math.isfinite(v) else float(v),
+               unit=unit, low=low, high=high, low_open=low_open, high_open=high_open)
     return values
+
+
+def _rounded_refusal(parameter: str, v: float) -> str:
+    """The table's refusal of ``v`` shown to 12 digits (a grid's 1.2000000000000002 as
+    1.2), or '' if the rounded value would pass."""
+    try:
+        _PARAMETER_SPECS[parameter].validate(float(f'{v:.12g}'))
+    except ParameterError as e:
+        return str(e)
+    return ''
 
 
 # -- sizes, processes, schedulers ---------------------------------------------------------

@@ -26,8 +26,9 @@ from .common import (
     output_dir,
     parameter_type,
     parse_range,
+    refuse_both,
 )
-from .sweep import check_dask_options, dask_options, run_on_dask
+from .sweep import check_dask_options, dask_options, refuse_other_job, run_on_dask
 
 
 def register(sub) -> None:
@@ -86,7 +87,10 @@ def _axis(text: str, option: str) -> tuple[str, tuple[float, ...]]:
 def build_spec(args: argparse.Namespace):
     from ..analysis.gainmap import GainMapError, GainMapSpec
 
-    over = {'model': args.model} if args.model else {}
+    refuse_both(args, 'fractional_order', '--alpha', args.alpha is not None)
+    refuse_both(args, 'speed', '--speed', args.speed is not None)
+    refuse_both(args, 'model', '--model', args.model is not None)
+    over = {'model': args.model} if args.model is not None else {}
     base = model_params(args, **over)
     values = base.to_dict()
     alpha = values.pop('fractional_order') if args.alpha is None else args.alpha
@@ -140,7 +144,9 @@ def cmd_gainmap(args: argparse.Namespace) -> int:
     from ..analysis.gainmap import plot_gain_map, run_gain_map, summary_lines
 
     spec = build_spec(args)
-    out: Path = output_dir(args.out if out_given(args) else default_folder(spec))
+    out: Path = args.out if out_given(args) else default_folder(spec)
+    refuse_other_job(out, 'gainmap.json', spec.to_dict())
+    output_dir(out)
     print(f'gainmap {spec.controller}: {spec.gain_x} ({len(spec.x_values)}) x {spec.gain_y} '
           f'({len(spec.y_values)}), {len(spec.scenarios())} scenario(s), {spec.n_points} '
           f'points, {spec.duration:g} s each -> {out}', flush=True)

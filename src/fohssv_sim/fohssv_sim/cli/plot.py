@@ -50,10 +50,14 @@ def register(sub) -> None:
 
 
 def _delegate(what: str, argv: list[str]) -> int:
+    if what == 'check' and argv in (['-h'], ['--help']):
+        print('usage: fohssv check BAG: structural check (CRCs, indexes, summary, '
+              'metadata.yaml); exit 0 sound, 1 not (each problem on its own line), 2 usage')
+        return 0
     return bag_main([what, *argv])
 
 
-def _output(args: argparse.Namespace, runs) -> Path:
+def _output(args: argparse.Namespace) -> Path:
     """The output folder, claimed for this job (the bags, --skip, --namespace) under the
     key ``plot:<name>``; its figures are never silently overwritten by another job's."""
     name = safe_name(args.name)
@@ -86,7 +90,7 @@ def cmd_plot(args: argparse.Namespace) -> int:
                            f'portrait (its states end at t = {run.t[-1]:.6g} s)')
         if run.recovery:
             print(f'{run.path}: {run.recovery}')
-    out = _output(args, runs)
+    out = _output(args)
     stem = out / args.name
     plot_time_responses(runs, figure_paths(stem.parent / f'{stem.name}_time'))
     plot_phase_portrait(runs, figure_paths(stem.parent / f'{stem.name}_phase'), args.skip)

@@ -21,6 +21,7 @@ from .common import (
     output_file,
     parameter_type,
     parse_range,
+    refuse_both,
     resolve_output,
 )
 
@@ -45,6 +46,8 @@ def register(sub) -> None:
 
 def _inputs(args: argparse.Namespace):
     """Parameters, controller, alpha and the --speeds values, all checked before any work."""
+    refuse_both(args, 'speed', '--speed', args.speed is not None)
+    refuse_both(args, 'fractional_order', '--alpha', args.alpha is not None)
     params = model_params(args, speed=args.speed) if args.speed is not None else \
         model_params(args)
     gains = assignments(args.gain or [], '--gain')

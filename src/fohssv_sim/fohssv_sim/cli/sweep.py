@@ -29,6 +29,7 @@ from .common import (
     out_given,
     output_dir,
     parse_range,
+    refuse_both,
 )
 
 DEFAULT_ALPHAS = '0.6:1.0:0.02'
@@ -51,6 +52,21 @@ def run_on_dask(run, spec, out: Path, args: argparse.Namespace):
     progress.end()
     check.end()
     return result
+
+
+def refuse_other_job(out: Path, sidecar: str, spec_dict: dict) -> None:
+    """Refuse (before anything is printed or started) a folder whose sidecar records a
+    different job; :func:`.sweep.run_chunks` checks the same again."""
+    import json
+
+    path = out / sidecar
+    try:
+        old = json.loads(path.read_text()).get('spec') if path.exists() else spec_dict
+    except (OSError, ValueError, AttributeError):
+        old = None
+    if old != json.loads(json.dumps(spec_dict)):
+        raise CliError(f'{out} holds a different job (see {path}); choose another --out or '
+                       'delete that folder')
 
 
 def check_dask_options(args: argparse.Namespace) -> None:
@@ -140,6 +156,12 @@ def _check_sizes(args: argparse.Namespace, base, n_points: int) -> None:
 
 
 def build_spec(args: argparse.Namespace):
+    refuse_both(args, 'fractional_order', '--alpha', args.alpha is not None or args.kind != 'V',
+                f' (an {args.kind} sweep sets alpha from --alpha, default {DEFAULT_ALPHAS})'
+                if args.kind != 'V' else '')
+    refuse_both(args, 'speed', '--speed', args.speed is not None or args.kind != 'alpha',
+                f' (a {args.kind} sweep sets V from --speed, default {DEFAULT_SPEEDS})'
+                if args.kind != 'alpha' else '')
     base = model_params(args)   # validates --set / --preset
     check_chunk_size(args.chunk_size)
     check_dask_options(args)
@@ -179,7 +201,9 @@ def default_folder(kind: str, spec) -> Path:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     spec = build_spec(args)
-    out: Path = output_dir(args.out if out_given(args) else default_folder(args.kind, spec))
+    out: Path = args.out if out_given(args) else default_folder(args.kind, spec)
+    refuse_other_job(out, 'sweep.json', spec.to_dict())
+    output_dir(out)
     n = len(spec.points())
     print(f'sweep {args.kind}: {n} points, {len(spec.alphas)} alpha x {len(spec.speeds)} V, '
           f'transient {spec.transient:g} s, window {spec.window:g} s -> {out}', flush=True)

@@ -17,7 +17,10 @@ from .common import (
     CliError,
     add_common_options,
     assignments,
+    job_folder,
+    job_name,
     model_params,
+    out_given,
     output_dir,
     parse_range,
 )
@@ -158,7 +161,11 @@ def cmd_tune(args: argparse.Namespace) -> int:
     from ..analysis.tune import TuneError, plot_envelope, plot_history, run_tune, summary_lines
 
     spec = build_spec(args)
-    out: Path = output_dir(args.out or Path('reports') / 'tune')
+    # reports/tune/<controller>-<hash of the search> unless --out: a rerun of the same search
+    # (any budget) resumes there; a different search gets its own folder (tune.json refuses
+    # a folder that holds another one)
+    out: Path = output_dir(args.out if out_given(args) else job_folder(
+        'tune', job_name(spec.controller, spec.identity())))
     n = len(spec.scenarios())
     print(f'tune {spec.controller}: {len(spec.bounds)} parameter(s) '
           f"({', '.join(b.text() for b in spec.bounds)}), {n} scenario(s), population "

@@ -1,5 +1,6 @@
 """In-plant recording without ROS (fohssv_sim.bag.inplant): the shared-memory ring, the
-recorder's log-time rule, and the writer process end to end (a real process, a real bag).
+log-time rule of every recorded bag (bag.writer.LogTimes), and the writer process end to
+end (a real process, a real bag).
 
 Messages are serialized by rosbags' typestore (not by the code under test); the expected
 log times follow the rule docs/recording.md states, computed from the decoded messages."""
@@ -26,7 +27,6 @@ from fohssv_sim import contract
 from fohssv_sim.bag import load_run, scan
 from fohssv_sim.bag.check import check
 from fohssv_sim.bag.inplant import (
-    LogTimes,
     Ring,
     TopicSpec,
     WriterConfig,
@@ -34,7 +34,7 @@ from fohssv_sim.bag.inplant import (
     read_reply,
     send,
 )
-from fohssv_sim.bag.writer import typestore
+from fohssv_sim.bag.writer import LogTimes, typestore
 
 TS = typestore()
 INF = QosTime(9223372036, 854775807)

@@ -40,7 +40,6 @@ Pure module: no rclpy.
 from __future__ import annotations
 
 import json
-import math
 import mmap
 import os
 import pickle
@@ -56,9 +55,9 @@ from datetime import datetime, timezone
 from typing import Any, BinaryIO
 
 from .. import contract
-from .writer import DEFAULT_CHUNK_SIZE, RunWriter, source_info, typestore
+from .writer import DEFAULT_CHUNK_SIZE, LogTimes, RunWriter, source_info
 
-__all__ = ['Ring', 'LogTimes', 'TopicSpec', 'WriterConfig', 'send', 'read_reply',
+__all__ = ['Ring', 'TopicSpec', 'WriterConfig', 'send', 'read_reply',
            'main', 'DEFAULT_RING_BYTES', 'MIN_RING_BYTES', 'EXIT_LOST', 'EXIT_INTERRUPTED',
            'EMPTY_KEY']
 
@@ -72,12 +71,13 @@ EXIT_LOST = 6
 EXIT_INTERRUPTED = 7
 #: Run-metadata key of a bag closed without any message (as the recorder node marks it).
 EMPTY_KEY = 'fohssv.empty'
-#: Wall seconds between two looks at an empty ring (and at the control pipe).
-_IDLE = 0.002
+#: Wall seconds between two looks at an empty ring (and at the control pipe): the writer
+#: wakes at most this often, each time writing everything the ring holds, so it takes the
+#: CPU in few, long turns instead of interrupting the loop's processes at every sample.
+_IDLE = 0.01
 _HEADER = 64                       # head, tail, lost, waits (u64), rest spare
 _RECORD = struct.Struct('<IHH')    # payload length, topic index, spare
 _WRAP = 0xFFFFFFFF                 # record length meaning "continue at the ring's start"
-_CDR_LE = b'\x00\x01'
 _LEN = struct.Struct('<I')
 _PAD = (b'', b'\x00', b'\x00\x00', b'\x00\x00\x00')
 
@@ -208,83 +208,6 @@ class Ring:
         self._buf.release()
         self._map.close()
         os.close(self.fd)
-
-
-class LogTimes:
-    """The recorder's log times (ns) from the raw CDR of a message (``docs/recording.md``):
-    ``round(data[0] * 1e9)`` for the Float64MultiArray topics (the previous log time when
-    ``data[0]`` is not a time), the stamp for ``/clock``, ``header.stamp`` for the typed views
-    (the previous log time when it is negative)."""
-
-    def __init__(self) -> None:
-        self.last = 0
-        self._offsets: dict[tuple[int, bytes], int] = {}
-        self._ts = typestore()
-
-    def array(self, raw: bytes | memoryview) -> int:
-        t = self._first(raw)
-        log = round(t * 1e9) if math.isfinite(t) and 0 <= t < 9e9 else self.last
-        self.last = log
-        return log
-
-    def clock(self, raw: bytes | memoryview) -> int:
-        if raw[:2] == _CDR_LE and len(raw) >= 12:
-            sec, nanosec = struct.unpack_from('<iI', raw, 4)
-        else:
-            c = self._ts.deserialize_cdr(bytes(raw), contract.CLOCK.type).clock
-            sec, nanosec = c.sec, c.nanosec
-        return sec * 1_000_000_000 + nanosec
-
-    def stamped(self, raw: bytes | memoryview, msgtype: str) -> int:
-        if raw[:2] == _CDR_LE and len(raw) >= 12:
-            sec, nanosec = struct.unpack_from('<iI', raw, 4)
-        else:
-            stamp = self._ts.deserialize_cdr(bytes(raw), msgtype).header.stamp
-            sec, nanosec = stamp.sec, stamp.nanosec
-        log = sec * 1_000_000_000 + nanosec
-        return log if log >= 0 else self.last
-
-    def _first(self, raw: bytes | memoryview) -> float:
-        """``data[0]`` of a Float64MultiArray (NaN when empty); the offset is found once per
-        layout (the length and the first 12 bytes fix it for a one-dimension layout)."""
-        key = (len(raw), bytes(raw[:12]))
-        at = self._offsets.get(key)
-        if at is None:
-            at = self._locate(raw)
-            if at is None:
-                data = self._ts.deserialize_cdr(bytes(raw), contract.FLOAT64_ARRAY).data
-                return float(data[0]) if len(data) else math.nan
-            if struct.unpack_from('<I', raw, 4)[0] <= 1:
-                self._offsets[key] = at
-        return struct.unpack_from('<d', raw, at)[0] if at >= 0 else math.nan
-
-    @staticmethod
-    def _locate(raw: bytes | memoryview) -> int | None:
-        """Offset of ``data[0]`` in a little-endian CDR Float64MultiArray (-1: no data);
-        None when the bytes are not one (the typestore then decodes them)."""
-        try:
-            if raw[:2] != _CDR_LE:
-                return None
-            pos = 4
-            (ndim,) = struct.unpack_from('<I', raw, pos)
-            pos += 4
-            for _ in range(ndim):
-                (slen,) = struct.unpack_from('<I', raw, pos)
-                pos += 4 + slen
-                pos = 4 + ((pos - 4 + 3) & ~3)
-                pos += 8                                 # size, stride
-            pos = 4 + ((pos - 4 + 3) & ~3)
-            pos += 4                                     # data_offset
-            (count,) = struct.unpack_from('<I', raw, pos)
-            pos += 4
-            if count == 0:
-                return -1
-            pos = 4 + ((pos - 4 + 7) & ~7)
-            if pos + 8 * count != len(raw):
-                return None
-            return pos
-        except struct.error:
-            return None
 
 
 @dataclass(frozen=True)
@@ -460,12 +383,28 @@ def _serve(session: _Session, control: _Control, flush_period: float) -> str | N
             return None
 
 
+def _yield_to_the_loop() -> None:
+    """Run the writer as a batch job (SCHED_BATCH, nice 10 where permitted): a woken plant or
+    controller process then never waits for the writer's turn on a core; the writer takes the
+    CPU they leave (in lockstep the plant waits for it when the ring is full, in real time a
+    starved writer's loss is reported)."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
+    except (AttributeError, OSError):
+        pass
+    try:
+        os.nice(10)
+    except OSError:
+        pass
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """The writer process: ``python -m fohssv_sim.bag.inplant RING_FD RING_BYTES``."""
     argv = sys.argv[1:] if argv is None else list(argv)
     # a terminal's Ctrl-C reaches the whole process group: the plant ends the recording
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    _yield_to_the_loop()
     out = sys.stdout.buffer
     ring = Ring(int(argv[0]), int(argv[1]))
     control = _Control(sys.stdin.fileno())

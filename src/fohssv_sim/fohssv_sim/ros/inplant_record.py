@@ -2,11 +2,12 @@
 every published message and every taken command into the ring, end the bag with the run.
 
 The writer and the ring are :mod:`fohssv_sim.bag.inplant` (pure); this module only knows the
-plant's publishers. :func:`start` is the plant's one hook at construction: it checks ``record``
-(:func:`check_record`), starts the writer, and wraps the ``publish`` of the plant's
-``state``, ``planing_force``, ``/clock`` and view publishers so that each message published
-is also put into the ring: the bytes DDS gets (a view message object is serialized by the tap
-and published as those bytes). :meth:`InPlantRecording.command` takes the raw bytes of each
+plant's message writers and publishers. :func:`start` is the plant's one hook at construction:
+it checks ``record`` (:func:`check_record`), starts the writer, and wraps the ``payload`` of
+the plant's serialized ``state``, ``planing_force`` and ``/clock`` messages and the
+``publish`` of its view publishers, so that each message is also put into the ring: the bytes
+DDS gets (a view message object is serialized by the tap and published as those bytes).
+:meth:`InPlantRecording.command` takes the raw bytes of each
 command the plant takes while running, :meth:`InPlantRecording.end` the run_end JSON, and
 :meth:`InPlantRecording.finish` waits for the writer to close the bag.
 
@@ -30,7 +31,6 @@ from .. import contract
 from ..bag.inplant import Ring, TopicSpec, WriterConfig, kind_of, read_reply, send
 from .options import NODE_PARAMETER_BY_NAME, PlantOptions
 from .qos import offered_qos
-from .wire import raw_publish
 
 __all__ = ['InPlantRecording', 'start', 'check_record', 'EXIT_RECORD_LOST']
 
@@ -69,7 +69,8 @@ def check_record(options: PlantOptions) -> Path | None:
 class InPlantRecording:
     """The writer process of one plant and the ring that feeds it (module docstring)."""
 
-    def __init__(self, node: Any, path: Path, topics: list[tuple[Any, contract.Topic]]) -> None:
+    def __init__(self, node: Any, path: Path, topics: list[tuple[str, contract.Topic]]
+                 ) -> None:
         self.node = node
         self.path = path
         self.lockstep = node.options.mode == 'lockstep'
@@ -82,12 +83,12 @@ class InPlantRecording:
         self._ended = False
         specs = []
         self._index: dict[str, int] = {}
-        for pub, topic in topics:
-            name = pub.topic_name if hasattr(pub, 'topic_name') else pub
-            if name in self._index:
-                continue
-            self._index[name] = len(specs)
-            specs.append(TopicSpec(name, topic.type, (offered_qos(topic),), kind_of(topic.type)))
+        for name, topic in topics:
+            if name not in self._index:
+                self._index[name] = len(specs)
+                specs.append(TopicSpec(name, topic.type, (offered_qos(topic),),
+                                       kind_of(topic.type)))
+        self.command_index = -1
         self.config = WriterConfig(str(path), tuple(specs), {
             'fohssv.plant_node': node.get_fully_qualified_name().lstrip('/'),
             'fohssv.record_buffer_bytes': str(self.ring.capacity)})
@@ -116,16 +117,20 @@ class InPlantRecording:
             return None
 
     # -- the per-sample path ----------------------------------------------------------------
+    def index(self, topic_name: str) -> int:
+        """The ring's record index of a recorded topic."""
+        return self._index[topic_name]
+
     def tap(self, pub: Any) -> None:
-        """Put every message ``pub`` publishes into the ring too (``pub.publish`` wrapped)."""
+        """Put every message ``pub`` publishes into the ring too (``pub.publish`` wrapped). A
+        message object is serialized here and its bytes published: what DDS sends is then
+        what the bag holds (the serializer leaves alignment padding undefined)."""
         index = self._index[pub.topic_name]
-        publish = raw_publish(pub)
+        publish = pub.publish
         put = self.ring.put
         full = self._full
 
         def publish_recorded(msg: Any) -> None:
-            # a message object is serialized here and its bytes published: what DDS sends is
-            # then what the bag holds (the serializer leaves alignment padding undefined)
             data = msg if isinstance(msg, (bytes, bytearray)) else serialize_message(msg)
             publish(data)
             if not put(index, data):
@@ -133,14 +138,27 @@ class InPlantRecording:
 
         pub.publish = publish_recorded
 
+    def tap_payload(self, writer: Any, topic_name: str) -> None:
+        """Put every message a serialized-message writer (``wire.ArrayWriter``,
+        ``ClockWriter``) makes into the ring: its ``payload`` wrapped, so the bytes are
+        recorded whichever call publishes them."""
+        index = self._index[topic_name]
+        payload = writer.payload
+        put = self.ring.put
+        full = self._full
+
+        def payload_recorded(*args: Any) -> bytes:
+            data = payload(*args)
+            if not put(index, data):
+                full(index, data)
+            return data
+
+        writer.payload = payload_recorded
+
     def command(self, raw: bytes) -> None:
         """A command the plant took while running (the raw bytes it received)."""
-        if not self.ring.put(self._command, raw):
-            self._full(self._command, raw)
-
-    @property
-    def _command(self) -> int:
-        return self._index[self.node.command_topic]
+        if not self.ring.put(self.command_index, raw):
+            self._full(self.command_index, raw)
 
     def _full(self, index: int, data: bytes) -> None:
         """The ring is full: lockstep waits for the writer (it paces the run), real time
@@ -247,27 +265,45 @@ class InPlantRecording:
                 'record_waits': self.waits, 'record_wait_time': self.wait_seconds}
 
 
+def _command_name(node: Any) -> str:
+    """The plant's command topic: the one it subscribes to (an external controller) or, with
+    a hosted controller, the one it publishes on."""
+    for attr in ('command_sub', 'command_pub'):
+        endpoint = getattr(node, attr, None)
+        if endpoint is not None:
+            return endpoint.topic_name
+    return node.resolve_topic_name(contract.COMMAND.name)
+
+
 def start(node: Any) -> InPlantRecording | None:
-    """The plant's hook: an :class:`InPlantRecording` of ``node`` when ``record`` is set
-    (its publishers tapped), else None.
+    """The plant's hook: an :class:`InPlantRecording` of ``node`` when ``record`` is set, else
+    None. What the plant publishes is recorded where its bytes are made: the serialized
+    ``state``, ``planing_force``, ``/clock`` (and a hosted law's ``command``) messages by their
+    writers' ``payload`` (whatever call then publishes them), the views by their publishers'
+    ``publish``; the commands the plant takes by :meth:`InPlantRecording.command`.
 
     Raises:
-        ParameterError: a bad ``record`` (exit 2 at start).
-        OSError: the writer could not create the bag.
+        ParameterError: a bad ``record``, or a bag the writer cannot create (exit 2).
     """
     path = check_record(node.options)
     if path is None:
         return None
-    pubs = [(node.state_pub, contract.STATE), (node.force_pub, contract.PLANING_FORCE),
-            (node.command_pub or node.command_topic, contract.COMMAND),
-            (node.clock_pub, contract.CLOCK)]
+    command = _command_name(node)
+    made = [(node.state_pub.topic_name, contract.STATE, node._state_out),   # noqa: SLF001
+            (node.force_pub.topic_name, contract.PLANING_FORCE, node._force_out),  # noqa: SLF001
+            (command, contract.COMMAND, getattr(node, '_command_out', None)),
+            (node.clock_pub.topic_name, contract.CLOCK, node._clock_out)]   # noqa: SLF001
     views = getattr(node, 'views', None)
-    if views is not None:
-        pubs += list(zip(views.publishers, contract.VIEW_TOPICS, strict=True))
-    rec = InPlantRecording(node, path, pubs)
-    for pub, _ in pubs:
-        if not isinstance(pub, str):
-            rec.tap(pub)
+    published = [] if views is None else list(zip(views.publishers, contract.VIEW_TOPICS,
+                                                   strict=True))
+    rec = InPlantRecording(node, path, [(name, topic) for name, topic, _ in made]
+                           + [(pub.topic_name, topic) for pub, topic in published])
+    for name, _, writer in made:
+        if writer is not None:
+            rec.tap_payload(writer, name)
+    for pub, _ in published:
+        rec.tap(pub)
+    rec.command_index = rec.index(command)
     params = {}
     for name, param in node._parameters.items():   # noqa: SLF001 - every declared parameter
         value = param.value

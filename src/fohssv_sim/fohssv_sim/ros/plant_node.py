@@ -255,14 +255,6 @@ class PlantNode(Node):
         self._log_retry = LogLimiter(self.get_logger(), 5, level='warning')
         # record:=PATH: the plant writes its own bag (inplant_record.py); None when off
         self.record = start_recording(self)
-        if self.record is not None:
-            # the tapped publishers copy each message into the ring as they send it; /clock
-            # and command are then always written (the bag holds them: _refresh_matched)
-            self._send_state = self.state_pub.publish
-            self._send_force = self.force_pub.publish
-            self._send_clock = self.clock_pub.publish
-            if self.command_pub is not None:
-                self._send_command = self.command_pub.publish
 
         self.running = False
         self.rejected = 0

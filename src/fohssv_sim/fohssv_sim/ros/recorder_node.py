@@ -49,8 +49,6 @@ published (the bag is closed and readable; the line names the topics and counts)
 
 from __future__ import annotations
 
-import math
-import struct
 import sys
 import time
 from datetime import datetime, timezone
@@ -67,7 +65,7 @@ from rclpy.task import Future
 from std_msgs.msg import String
 
 from .. import contract
-from ..bag.writer import RunWriter, source_info, typestore
+from ..bag.writer import LogTimes, RunWriter, source_info
 from .bag_options import (
     RECORDED,
     RECORDER_PARAMETERS,
@@ -105,7 +103,6 @@ EXIT_OS_ERROR = 1
 #: After a signal: stop draining once nothing arrived for this long (s).
 _DRAIN_QUIET = 0.5
 
-_CDR_LE = b'\x00\x01'
 
 
 def _namespace(name: str) -> str:
@@ -168,7 +165,7 @@ class Recorder(Node):
         self.end_timeout = self.options.end_timeout
         self.bag_path = new_bag_path(self.options)
 
-        self._ts = typestore()
+        self._times = LogTimes()
         self.closed = False
         self.done = Future()          # set when the run ended and the bag holds it (or not)
         self.exit_code = 0
@@ -189,7 +186,6 @@ class Recorder(Node):
     def _start(self) -> None:
         o = self.options
         topics = o.recorded()
-        self._last_log = 0
         self.subscriptions_ = []
         self._deferred = None
         wait_commands = o.command_publishers
@@ -294,32 +290,23 @@ class Recorder(Node):
 
     # -- messages ---------------------------------------------------------------------------
     def _callback(self, topic: contract.Topic, name: str):
-        """The callback writing ``topic``'s messages under ``name`` (the resolved name the
-        recorder subscribed to, in whatever namespace it was given)."""
+        """The writer of ``topic``'s raw messages under ``name`` (the resolved name the
+        recorder subscribed to, in whatever namespace it was given); log times by the one rule
+        (:class:`~fohssv_sim.bag.writer.LogTimes`, shared with in-plant recording)."""
         write = self.writer.write
+        times = self._times
         if topic.type == contract.CLOCK.type:
             def on_clock(raw: bytes) -> None:
-                c = self._ts.deserialize_cdr(raw, topic.type).clock
-                write(name, c.sec * 1_000_000_000 + c.nanosec, raw)
+                write(name, times.clock(raw), raw)
             return on_clock
         if topic.type != contract.FLOAT64_ARRAY:
             # the typed views start with a std_msgs/Header: the stamp is the log time
-            def on_stamped(raw: bytes) -> None:
-                if raw[:2] == _CDR_LE and len(raw) >= 12:
-                    sec, nanosec = struct.unpack_from('<iI', raw, 4)
-                else:
-                    stamp = self._ts.deserialize_cdr(raw, topic.type).header.stamp
-                    sec, nanosec = stamp.sec, stamp.nanosec
-                log = sec * 1_000_000_000 + nanosec
-                write(name, log if log >= 0 else self._last_log, raw)
+            def on_stamped(raw: bytes, _type: str = topic.type) -> None:
+                write(name, times.stamped(raw, _type), raw)
             return on_stamped
 
         def on_array(raw: bytes) -> None:
-            data = self._ts.deserialize_cdr(raw, topic.type).data
-            t = float(data[0]) if len(data) else math.nan
-            log = round(t * 1e9) if math.isfinite(t) and 0 <= t < 9e9 else self._last_log
-            self._last_log = log
-            write(name, log, raw)
+            write(name, times.array(raw), raw)
         return on_array
 
     # -- end of run -------------------------------------------------------------------------

@@ -179,6 +179,7 @@ class Player(Node):
         self._clock_due: int | None = None   # the last /clock published (ns)
         self._wait_start = time.monotonic()
         self._minimums_since: float | None = None
+        self._settled_since: float | None = None
         self._wait_timer = self.create_timer(0.01, self._check_subscribers)
 
     def _check_subscribers(self) -> None:
@@ -217,8 +218,15 @@ class Player(Node):
             return True
         pubs = [*self.pubs.values(), self.end_pub] + (
             [self.clock_pub] if self.clock_pub is not None else [])
-        return all(p.get_subscription_count() >= self.count_subscribers(p.topic_name)
-                   for p in pubs)
+        if not all(p.get_subscription_count() >= self.count_subscribers(p.topic_name)
+                   for p in pubs):
+            self._settled_since = None
+            return False
+        # settled for 0.3 s: a recorder creating its readers one after the other is seen
+        # whole, not between two of them (its volatile /clock reader would miss the start)
+        if self._settled_since is None:
+            self._settled_since = now
+        return now - self._settled_since >= 0.3
 
     def pacing_wait(self) -> float | None:
         """Seconds until the next message is due; None before the start and after the end."""

@@ -206,6 +206,11 @@ class Recorder(Node):
     def _start(self) -> None:
         o = self.options
         topics = o.recorded()
+        # run_end first: a player (or plant) that sees this recorder's data readers then sees
+        # its run_end reader too and keeps its run_end until it is taken (issue 22.6)
+        names = [self.resolve_topic_name(n) for n, _ in topics]
+        self._sources = {ns: _Source(self, ns, [n for n in names if _namespace(n) == ns])
+                         for ns in _namespaces(names, self.get_namespace())}
         self._last_log = 0
         self.subscriptions_ = []
         self._deferred = None
@@ -250,9 +255,6 @@ class Recorder(Node):
         # always heard (a drain after a signal waits for what it lists); it ends the recording
         # only with stop_at_run_end
         self._stop_at_end = o.stop_at_run_end
-        self._sources = {ns: _Source(self, ns, [n for n in self.topic_names
-                                                if _namespace(n) == ns])
-                         for ns in _namespaces(self.topic_names, self.get_namespace())}
         self._watch_timer = self.create_timer(0.1, self._watch_sources, clock=steady)
         state = self.resolve_topic_name(contract.STATE.name)
         self._rivals = (SecondPublisherWarning(self, state) if state in self.topic_names

@@ -3,8 +3,10 @@
 Two modes (parameter ``mode``):
 
 * ``republish`` (default): publish the bag's contract topics on their recorded names, the
-  serialized CDR bytes exactly as recorded, in recorded order, paced by the log time (the
-  simulation time) at ``rate`` x real time, with ``/clock`` at every new log time.
+  serialized CDR bytes exactly as recorded, in recorded order, paced by the high-water mark
+  of the log times (the simulation time) at ``rate`` x real time, with ``/clock`` whenever
+  that mark moves (never back, but at a reset recorded in the run:
+  :func:`~fohssv_sim.bag.replay.replay_timeline`).
   ``rate = 0`` plays as fast as the subscribers allow: it waits for them, publishes with
   reliable keep-all, transient-local history (a publish blocks while a keep-all subscriber's
   queue is full and is retried, never dropped; a transient-local subscriber gets every

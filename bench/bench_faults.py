@@ -19,7 +19,7 @@ Categories (each case on a ROS_DOMAIN_ID of its own, from ``tests/rosproc.py``):
   readable after ``fohssv repair``), a controller killed mid-lockstep (the plant ends with
   exit 3 naming it), SIGINT to each node during a run (exit 0, no traceback);
 * reliability (issue 21): the graph tests of each class it fixed, run as cases: 40 bad states
-  to a controller (alive; 20 lines, then one a second), one recorder for two namespaced
+  to a controller (alive; 20 lines, then one a second), a plugin that raises, one recorder for two namespaced
   vehicles, two publishers of one topic (both run_ends: exit 0; one: exit 7, unchecked),
   publishers gone without run_end (exit 7), SIGINT to a recorded lockstep plant (bag, run_end
   and summary agree), recorder and player started together, a full filesystem (one line,
@@ -735,6 +735,9 @@ def reliability_cases() -> list[Case]:
              g('test_graph_controllers',
                'test_controller_survives_many_bad_states_and_throttles_their_lines'),
              quick=True),
+        Case('reliability', 'a plugin whose update raises: counted, rate-limited',
+             g('test_graph_controllers',
+               'test_a_plugin_that_raises_is_logged_rate_limited_and_the_node_lives', 'tmp')),
         Case('reliability', 'one recorder, two namespaced vehicles',
              g('test_graph_recorder_sources',
                'test_one_recorder_records_two_namespaced_vehicles', 'tmp')),

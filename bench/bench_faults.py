@@ -20,7 +20,8 @@ Categories (each case on a ROS_DOMAIN_ID of its own, from ``tests/rosproc.py``):
   exit 3 naming it), SIGINT to each node during a run (exit 0, no traceback);
 * reliability (issue 21): the graph tests of each class it fixed, run as cases: 40 bad states
   to a controller (alive; 20 lines, then one a second), a plugin that raises, one recorder
-  for two namespaced vehicles, two publishers of one topic (both run_ends: exit 0; one: exit 7, unchecked),
+  for two namespaced vehicles, two publishers of one topic (both run_ends: exit 0; one:
+  exit 7, unchecked),
   publishers gone without run_end (exit 7), SIGINT to a recorded lockstep plant (bag, run_end
   and summary agree), recorder and player started together, a full filesystem (one line,
   exit 1, the bag repairs; needs root), a plant's UDP sockets on loopback only;

@@ -18,6 +18,13 @@ Categories (each case on a ROS_DOMAIN_ID of its own, from ``tests/rosproc.py``):
 * faults: a second plant on the domain (exit 5), a recorder killed mid-run (the bag is
   readable after ``fohssv repair``), a controller killed mid-lockstep (the plant ends with
   exit 3 naming it), SIGINT to each node during a run (exit 0, no traceback);
+* reliability (issue 21): the graph tests of each class it fixed, run as cases: 40 bad states
+  to a controller (alive; 20 lines, then one a second), a plugin that raises, one recorder
+  for two namespaced vehicles, two publishers of one topic (both run_ends: exit 0; one:
+  exit 7, unchecked),
+  publishers gone without run_end (exit 7), SIGINT to a recorded lockstep plant (bag, run_end
+  and summary agree), recorder and player started together, a full filesystem (one line,
+  exit 1, the bag repairs; needs root), a plant's UDP sockets on loopback only;
 * loss: a lockstep closed loop recorded with the demo's settings, and a rate-0 ``player``
   replay into a recorder, each also with two busy processes (``yes > /dev/null``) on the
   machine. After the plant (player) has finished, the recorder gets ``STOP_GRACE`` s to stop
@@ -83,7 +90,7 @@ ALONE = {'min_state_subscribers': 0, 'min_command_publishers': 0}
 #: for 0.25 s of simulated time, 2.5 s of wall time).
 REALTIME = {'model': 'delay-free', 'mode': 'realtime', 'control_period': 1e-3,
             'real_time_factor': 0.1}
-CATEGORIES = ('parameters', 'commands', 'bags', 'faults', 'loss')
+CATEGORIES = ('parameters', 'commands', 'bags', 'faults', 'loss', 'reliability')
 #: Probe nodes live in this process: one at a time.
 _PROBE_LOCK = threading.Lock()
 
@@ -711,6 +718,83 @@ def fault_cases() -> list[Case]:
     ]
 
 
+# -- reliability (issue 21): the graph tests of each class, run as cases -------------------
+
+def _graph_test(module: str, name: str, *args, kind: str = 'survived', **kwargs
+                ) -> Callable[[Path], Outcome]:
+    """A case that runs the graph test ``module.name`` (real processes over DDS, see the
+    test's docstring for what it asserts): ok when it passes; a skip (e.g. no root for the
+    tmpfs) is reported as such and not counted as a failure."""
+    def run(tmp: Path) -> Outcome:
+        import importlib
+
+        import pytest
+        func = getattr(importlib.import_module(module), name)
+        try:
+            func(*[tmp if a == 'tmp' else a for a in args], **kwargs)
+        except pytest.skip.Exception as exc:
+            return Outcome(kind, True, f'skipped: {exc}')
+        except AssertionError as exc:
+            return Outcome(kind, False, 'assertion failed', output=str(exc)[-4000:])
+        return Outcome(kind, True, f'{module}.{name} passed')
+    return run
+
+
+def _full_disk(tmp: Path) -> Outcome:
+    """The full-disk test with its tmpfs (root only), outside pytest's fixtures."""
+    import pytest
+    from test_graph_full_disk import test_a_full_disk_ends_in_one_line_and_the_bag_repairs
+    disk = tmp / 'disk'
+    disk.mkdir()
+    if os.geteuid() != 0 or subprocess.run(['mount', '-t', 'tmpfs', '-o', 'size=200k', 'tmpfs',
+                                            str(disk)], capture_output=True).returncode:
+        return Outcome('handled', True, 'skipped: needs root for a small tmpfs')
+    try:
+        test_a_full_disk_ends_in_one_line_and_the_bag_repairs(disk, tmp)
+    except (AssertionError, pytest.fail.Exception) as exc:
+        return Outcome('handled', False, 'assertion failed', output=str(exc)[-4000:])
+    finally:
+        subprocess.run(['umount', '-l', str(disk)], capture_output=True)
+    return Outcome('handled', True, 'one line, exit 1, the bag repairs and checks')
+
+
+def reliability_cases() -> list[Case]:
+    g = _graph_test
+    return [
+        Case('reliability', '40 bad states to a controller: alive, 20 lines then 1/s',
+             g('test_graph_controllers',
+               'test_controller_survives_many_bad_states_and_throttles_their_lines'),
+             quick=True),
+        Case('reliability', 'a plugin whose update raises: counted, rate-limited',
+             g('test_graph_controllers',
+               'test_a_plugin_that_raises_is_logged_rate_limited_and_the_node_lives', 'tmp')),
+        Case('reliability', 'one recorder, two namespaced vehicles',
+             g('test_graph_recorder_sources',
+               'test_one_recorder_records_two_namespaced_vehicles', 'tmp')),
+        Case('reliability', 'two publishers of state, both run_ends: checked, exit 0',
+             g('test_graph_recorder_sources',
+               'test_two_publishers_of_a_topic_need_two_run_ends', 'tmp', True)),
+        Case('reliability', 'two publishers of state, one run_end: unchecked, exit 7',
+             g('test_graph_recorder_sources',
+               'test_two_publishers_of_a_topic_need_two_run_ends', 'tmp', False,
+               kind='handled')),
+        Case('reliability', 'publishers gone without run_end: recorder exit 7',
+             g('test_graph_recorder_sources',
+               'test_publishers_gone_without_run_end_end_the_recording_with_exit_7', 'tmp',
+               kind='handled'), quick=True),
+        Case('reliability', 'SIGINT to a recorded lockstep plant: bag = run_end = summary',
+             g('test_graph_run_end',
+               'test_after_sigint_a_lockstep_plant_steps_and_publishes_nothing', 'tmp')),
+        Case('reliability', 'three recorder/player pairs started at once',
+             g('test_player', 'test_a_recorder_started_together_with_the_player_gets_its_'
+               'run_end', 'tmp')),
+        Case('reliability', 'recording into a full filesystem', _full_disk),
+        Case('reliability', 'a plant binds UDP on loopback only',
+             g('test_graph_transport', 'test_a_plant_binds_udp_on_loopback_only'),
+             quick=True),
+    ]
+
+
 # -- loss ----------------------------------------------------------------------------------
 
 def _stop_recorder(recorder: subprocess.Popen) -> tuple[int | None, str]:
@@ -861,7 +945,7 @@ def main(argv: list[str] | None = None) -> int:
         root = Path(tmpdir)
         cases = (parameter_cases(root / 'catalogue') + cli_parameter_cases(root / 'cli')
                  + command_cases() + bag_cases()
-                 + fault_cases() + loss_cases(a.quick))
+                 + fault_cases() + reliability_cases() + loss_cases(a.quick))
         if a.quick:
             cases = [c for c in cases if c.quick]
         if a.only:

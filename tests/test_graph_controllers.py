@@ -210,3 +210,55 @@ def test_controller_survives_many_bad_states_and_throttles_their_lines():
     assert 20 <= len(lines) < 40, out
     assert '(20 dropped) [logged one by one up to here' in lines[19]
     assert 'answered 2 state(s), dropped 40' in out
+
+
+_RAISING = '''
+import sys
+sys.path.insert(0, {examples!r})
+from pitch_damper import PitchDamper
+
+
+class Raising(PitchDamper):
+    name = 'raising'
+
+    def update(self, t, state):
+        if t > 0.0:
+            raise RuntimeError('a bug in the plugin')
+        return super().update(t, state)
+
+
+from fohssv_controller.ros.controller_node import main
+main(default_controller=Raising)
+'''
+
+
+def test_a_plugin_that_raises_is_logged_rate_limited_and_the_node_lives(tmp_path):
+    """Issue 21, class 1: a plugin whose ``update`` raised logged one ERROR per sample (10 000
+    a second). 60 states it raises for: counted, 20 lines one by one then at most one a
+    second; the state at t = 0 (which it answers) and the node's final line still come."""
+    import subprocess
+
+    script = tmp_path / 'raising.py'
+    script.write_text(_RAISING.format(examples=str(EXAMPLES)))
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    probe = Probe(domain)
+    ctl = subprocess.Popen([sys.executable, str(script)], env=env, stdout=subprocess.PIPE,
+                           stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    rosproc.STARTED.append(ctl)
+    try:
+        _first_state_to_controller(probe)
+        probe.wait(lambda: any(c[0] == 0.0 for c in probe.commands), 20, 'the answer at t=0')
+        for k in range(60):
+            probe.publish_state([0.1 + k * 1e-3, 0.0, 0.0, 0.0, 0.0])
+        probe.wait(lambda: probe.node.count_publishers('command') > 0, 5, 'the node')
+        import time
+        time.sleep(1.0)
+        alive = ctl.poll() is None
+    finally:
+        out = stop_all(ctl)
+        probe.close()
+    assert alive, out
+    lines = [ln for ln in out.splitlines() if 'raised RuntimeError: a bug in the plugin' in ln]
+    assert 20 <= len(lines) < 60, out
+    assert 'answered 1 state(s), dropped 0, withheld 0 (non-finite law output), 60 raised' in out

@@ -9,6 +9,8 @@ operations in the same order).
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from ament_index_python.packages import get_package_share_directory
@@ -106,6 +108,13 @@ def test_reset_service_returns_to_t0_and_replays_the_run():
     t = probe.state_array()[:, 0]
     back = np.flatnonzero(np.diff(t) < 0)
     assert len(back) == 1 and t[back[0] + 1] == 0.0
+    # issue 21.2 / 22.8: the rates divide the whole run's samples by the whole run's time
+    # (the probe saw back[0] advances before the reset: t = 0 and back[0] steps)
+    line = next(ln for ln in out.splitlines() if 'summary: {' in ln)
+    s = json.loads(line.split('summary: ', 1)[1])
+    assert s['resets'] == 1 and s['samples_total'] == s['samples'] + back[0], s
+    assert s['samples_per_second'] * s['wall_time'] == pytest.approx(s['samples_total'])
+    assert s['cpu_per_sample_us'] * s['samples_total'] == pytest.approx(s['cpu_time'] * 1e6)
     # after the reset the run starts over and is again the batch run
     after = probe.state_array()[back[0] + 1:]
     after = after[after[:, 0] <= 0.1 + 1e-9]

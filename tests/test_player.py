@@ -330,3 +330,66 @@ def test_commands_mode_refuses_a_plant_that_does_not_match_the_recording(tmp_pat
     assert code == 0, out
     assert 'does not match the recording: control_period' in out and 'replaying anyway' in out
 
+
+
+def _interleaved_bag(path, n: int) -> None:
+    """A bag as a recorder writes a loop in arrival order: the command answering t_k after
+    the state t_(k+1) (the log times of the file step back at every other message)."""
+    from fohssv_sim import contract
+    from fohssv_sim.bag.synthetic import float64_array
+    from fohssv_sim.bag.writer import RunWriter
+
+    w = RunWriter(path).open()
+    w.add_topic('/state', contract.STATE.type)
+    w.add_topic('/command', contract.COMMAND.type)
+    ts = [k * 1e-4 for k in range(n)]
+    for k, t in enumerate(ts):
+        w.write('/state', round(t * 1e9), float64_array(contract.STATE, [t, 0.0, 0.0, 0.0, 0.0]))
+        if k:
+            p = ts[k - 1]
+            w.write('/command', round(p * 1e9), float64_array(contract.COMMAND, [p, 0.0, 0.0]))
+    w.close()
+
+
+def test_replayed_clock_never_steps_back_on_an_interleaved_bag(tmp_path, listener):
+    """Issue 21.2: /clock stepped back about 2000 times per simulated second (it followed the
+    log time of each message in file order). Every recorded time once, in order."""
+    domain, lis = listener
+    bag = tmp_path / 'interleaved'
+    _interleaved_bag(bag, 300)
+    log = tmp_path / 'player.log'
+    proc = _player(rosproc.ros_env(domain), f'bag_path:={bag}', 'rate:=0.0',
+                   'min_subscribers:=0', log=log)
+    assert rosproc.wait_exit(proc, 60) == 0, log.read_text()
+    rosproc.wait_for(lambda: len(lis.clock) >= 300, 10, what='/clock')
+    assert lis.clock == [round(k * 1e-4 * 1e9) for k in range(300)]
+
+
+def test_a_recorder_started_together_with_the_player_gets_its_run_end(tmp_path):
+    """Issue 22.6: started at the same moment, the recorder could miss the player's run_end
+    and never stop. Three pairs started at once: every recorder stops by itself with exit 0
+    and the whole bag."""
+    bag = tmp_path / 'source'
+    _interleaved_bag(bag, 200)
+    pairs = []
+    for i in range(3):
+        env = rosproc.ros_env()
+        out, log = tmp_path / f'copy{i}', tmp_path / f'rec{i}.log'
+        rec = _start('fohssv_sim', 'recorder', ['--ros-args', '-p', f'bag_path:={out}', '-p',
+                                                'plant_node:=none'], env, log=log)
+        ply = _player(env, f'bag_path:={bag}', 'rate:=0.0', log=tmp_path / f'ply{i}.log')
+        pairs.append((rec, ply, out, log))
+    try:
+        for rec, ply, out, log in pairs:
+            assert rosproc.wait_exit(rec, 120) == 0, log.read_text()
+            assert rosproc.wait_exit(ply, 60) == 0
+            run = scan(out)
+            counts = {}
+            for cid, _, _ in run.messages:
+                counts[run.channels[cid].topic] = counts.get(run.channels[cid].topic, 0) + 1
+            assert counts.get('/state') == 200 and counts.get('/command') == 199, counts
+    finally:
+        for rec, ply, _, _ in pairs:
+            for p in (rec, ply):
+                if p.poll() is None:
+                    rosproc.stop(p)

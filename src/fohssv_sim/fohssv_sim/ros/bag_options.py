@@ -52,7 +52,8 @@ RECORDER_PARAMETERS: tuple[ParameterSpec, ...] = (
        'even between flushes', low=1024.0, low_open=False),
     FlagSpec('stop_at_run_end', '-', True, '-', 'close the bag and exit once the run_end of '
              'the run (plant or player) arrived and every message it lists is in the bag '
-             '(exit 6 naming what is missing after end_timeout)'),
+             '(exit 6 naming what is missing after end_timeout; exit 7 when a publisher of '
+             'the recorded topics left or stayed silent without its run_end)'),
     _P('end_timeout', '-', 10.0, 's', 'wall time without a new message after which the '
        'messages a run_end lists that are not in the bag count as lost, and a drain after a '
        'signal ends (a backlog still being written is waited for)', low=0.0, high=3600.0,
@@ -82,7 +83,8 @@ PLAYER_PARAMETERS: tuple[ParameterSpec, ...] = (
        'fails without them, rate > 0 starts anyway) or for the plant (commands)', low=0.0,
        low_open=False),
     _P('end_timeout', '-', 5.0, 's', 'wall time to wait for subscribers to acknowledge the '
-       'last messages', low=0.0, low_open=False),
+       'last messages, and for the readers of run_end to leave (a recorder leaves once it '
+       'has it)', low=0.0, low_open=False),
     _P('end_linger', '-', 1.0, 's', 'wall time the player keeps its publishers after the '
        'last message while anything subscribes: a reader drops what it has not taken yet '
        'when the writer goes away', low=0.0, low_open=False),

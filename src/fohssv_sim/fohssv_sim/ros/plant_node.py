@@ -1022,7 +1022,9 @@ class PlantNode(Node):
         """Wait until subscribers acknowledged what was published (reliable topics): at most
         ``timeout`` s in all, and not after a signal beyond ``signals``."""
         deadline = time.monotonic() + timeout
-        for pub in self._sample_pubs:
+        # run_end first: a recorder busy with a backlog must receive it before this writer
+        # goes away (seen under load: the bag complete, the run_end never heard, exit 7)
+        for pub in (self.end_pub, *self._sample_pubs):
             left = deadline - time.monotonic()
             if left <= 0 or STOP.count != signals:
                 return

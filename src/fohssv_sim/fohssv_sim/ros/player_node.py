@@ -3,8 +3,10 @@
 Two modes (parameter ``mode``):
 
 * ``republish`` (default): publish the bag's contract topics on their recorded names, the
-  serialized CDR bytes exactly as recorded, in recorded order, paced by the log time (the
-  simulation time) at ``rate`` x real time, with ``/clock`` at every new log time.
+  serialized CDR bytes exactly as recorded, in recorded order, paced by the high-water mark
+  of the log times (the simulation time) at ``rate`` x real time, with ``/clock`` whenever
+  that mark moves (never back, but at a reset recorded in the run:
+  :func:`~fohssv_sim.bag.replay.replay_timeline`).
   ``rate = 0`` plays as fast as the subscribers allow: it waits for them, publishes with
   reliable keep-all, transient-local history (a publish blocks while a keep-all subscriber's
   queue is full and is retried, never dropped; a transient-local subscriber gets every
@@ -179,6 +181,7 @@ class Player(Node):
         self._clock_due: int | None = None   # the last /clock published (ns)
         self._wait_start = time.monotonic()
         self._minimums_since: float | None = None
+        self._settled_since: float | None = None
         self._wait_timer = self.create_timer(0.01, self._check_subscribers)
 
     def _check_subscribers(self) -> None:
@@ -217,8 +220,15 @@ class Player(Node):
             return True
         pubs = [*self.pubs.values(), self.end_pub] + (
             [self.clock_pub] if self.clock_pub is not None else [])
-        return all(p.get_subscription_count() >= self.count_subscribers(p.topic_name)
-                   for p in pubs)
+        if not all(p.get_subscription_count() >= self.count_subscribers(p.topic_name)
+                   for p in pubs):
+            self._settled_since = None
+            return False
+        # settled for 0.3 s: a recorder creating its readers one after the other is seen
+        # whole, not between two of them (its volatile /clock reader would miss the start)
+        if self._settled_since is None:
+            self._settled_since = now
+        return now - self._settled_since >= 0.3
 
     def pacing_wait(self) -> float | None:
         """Seconds until the next message is due; None before the start and after the end."""

@@ -39,12 +39,21 @@
   (The plant lists the commands it received; ``/clock`` is keep-last 1 and not listed.)
 * A second publisher of ``state`` (two plants on one domain and namespace) is reported once as
   a warning naming the nodes (the plants themselves refuse to run beside each other).
+* Namespaces: topics given in other namespaces (``/a/state``) are written under their own
+  names; ``run_end`` is heard in every namespace recorded (one recorder, two vehicles).
+  Completeness is claimed only when checked: every publisher seen on a recorded sample topic
+  owes a run_end (two players of one topic: the sum of both is compared); when one never comes
+  within ``end_timeout`` of silence, or the publishers are gone without any run_end (the
+  plant died), the bag is closed with exit 7.
+* A full disk (an OS error while writing): one line naming it and ``fohssv repair``, exit 1.
 
 Exit codes: 0 bag closed (end of run with nothing lost, or SIGINT/SIGTERM), 1 the bag cannot
-be created (an OS error), 2 invalid arguments or parameters (one line: a wrong type, a value
+be created or written (an OS error: a full disk), 2 invalid arguments or parameters (one
+line: a wrong type, a value
 out of range, an unknown parameter name, ``bag_path`` that exists already; see
 :mod:`.startup`), 6 messages lost: the bag misses messages the run's ``run_end`` says were
-published (the bag is closed and readable; the line names the topics and counts).
+published (the bag is closed and readable; the line names the topics and counts),
+7 completeness not checked: a publisher of the recorded topics left without its ``run_end``.
 """
 
 from __future__ import annotations
@@ -186,6 +195,12 @@ class Recorder(Node):
     def _start(self) -> None:
         o = self.options
         topics = o.recorded()
+        # run_end first: a player (or plant) that sees this recorder's data readers then sees
+        # its run_end reader too and keeps its run_end until it is taken (issue 22.6)
+        names = [self.resolve_topic_name(n) for n, _ in topics]
+        self._sources = {ns: _Source(self, ns, [n for n in names if _namespace(n) == ns])
+                         for ns in _namespaces(names, self.get_namespace())}
+        self._last_log = 0
         self.subscriptions_ = []
         self._deferred = None
         wait_commands = o.command_publishers
@@ -229,9 +244,6 @@ class Recorder(Node):
         # always heard (a drain after a signal waits for what it lists); it ends the recording
         # only with stop_at_run_end
         self._stop_at_end = o.stop_at_run_end
-        self._sources = {ns: _Source(self, ns, [n for n in self.topic_names
-                                                if _namespace(n) == ns])
-                         for ns in _namespaces(self.topic_names, self.get_namespace())}
         self._watch_timer = self.create_timer(0.1, self._watch_sources, clock=steady)
         state = self.resolve_topic_name(contract.STATE.name)
         self._rivals = (SecondPublisherWarning(self, state) if state in self.topic_names

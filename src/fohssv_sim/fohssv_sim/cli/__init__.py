@@ -20,13 +20,13 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from . import gainmap, plot, report, stability, sweep
+from . import fit, gainmap, plot, report, stability, sweep
 from .common import EXIT_INTERRUPTED, CliError, load_controller, parse_range
 
 __all__ = ['main', 'build_parser', 'load_controller', 'parse_range']
 
 #: The subcommand modules, in the order of ``fohssv --help``; each has ``register(sub)``.
-COMMANDS = (stability, plot, sweep, gainmap, report)
+COMMANDS = (stability, plot, sweep, gainmap, report, fit)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -203,7 +203,14 @@ def cmd_fit(args: argparse.Namespace) -> int:
         return _cmd_reference(args)
     if args.bag is None:
         raise CliError('give a BAG to fit, or --reference delayed --speeds VALUES')
-    from ..analysis.fit import FitError, bag_sha256, base_from_run, data_from_run, write_outputs
+    from ..analysis.fit import (
+        FitError,
+        Problem,
+        bag_sha256,
+        base_from_run,
+        data_from_run,
+        write_outputs,
+    )
     from ..bag import BagError, load_run
 
     names = _names(args.names)
@@ -226,15 +233,13 @@ def cmd_fit(args: argparse.Namespace) -> int:
     if window is None and args.objective == 'cycle':
         window = (float(data.t[-1]) / 2, float(data.t[-1]))
     spec = _spec(args, names, base, window, args.controller, args.horizon or 'auto')
+    try:
+        Problem(spec, data)     # an empty window, no drive: refused before any file or Dask
+    except FitError as e:
+        raise CliError(str(e)) from None
     sha = bag_sha256(args.bag)
     data.source['sha256'] = sha
     out = output_dir(args.out or DEFAULT_OUT / Path(args.bag).resolve().name)
-    from ..analysis.fit import Problem
-
-    try:
-        Problem(spec, data)               # an empty window, no drive: refused before Dask
-    except FitError as e:
-        raise CliError(str(e)) from None
     print(f"fit {','.join(names)} of {args.bag} ({data.n_periods} control periods of "
           f'{data.control_period:g} s, step {base.step:g} s, '
           f"{'closed loop: ' + args.controller if args.controller else 'open loop'}, "

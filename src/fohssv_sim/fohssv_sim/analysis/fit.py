@@ -25,9 +25,10 @@ run is *reproduced* when it is at most ``threshold`` (default 0.05).
 V = 75, faster with planing contacts): replaying recorded commands through a model whose
 parameters differ by 1e-6 departs from the data within tens of milliseconds of tail-slap.
 A trajectory fit over a long window would have a basin far narrower than any population.
-So (``horizon='auto'``) the fit grows its horizon: stage 0 fits the first 1/2^S of the window,
-each later stage doubles it, warm-started from the previous stage; it stops at the first stage
-whose best fit is not reproduced and reports the last reproduced horizon with its fit
+So (``horizon='auto'``) the fit grows its horizon: stage 0 fits the first 1/2^S of the window
+(halved while even that is not reproduced, down to 20 samples), each later stage doubles it,
+warm-started from the previous stage, and bisects back towards the last reproduced horizon
+where a stage is not reproduced; it reports the last reproduced horizon with its fit
 (``horizon_end``). ``horizon='full'`` fits the whole window in one stage.
 
 **Global, then local.** Each stage evaluates a population (stage 0: a Latin hypercube over the
@@ -771,8 +772,11 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
                 break
             upto = min(m, 2 * upto)
             continue
-        if best is None:
-            break
+        if best is None:                     # not even the first horizon: halve it
+            if upto <= min(m, 20):
+                break
+            upto = max(min(m, 20), upto // 2)
+            continue
         nxt = (best[2] + upto) // 2          # bisect towards the last reproduced horizon
         if nxt - best[2] < min_step:
             break
@@ -1093,7 +1097,7 @@ def write_reference(results: Sequence[tuple[float, FitResult, FitData]], out: Pa
           f"[{r['interval'][0]:.4f}, {r['interval'][1]:.4f}]", f"{r['residual']:.3g}",
           'yes' if r['reproduces'] else 'no') for r in rows])
     head = (f"FOM closed loop vs delayed closed loop, {spec.objective} objective over "
-            f"[{first.window[0]:g}, {first.window[1]:g}] s; {_caption(first)}")
+            f"[{first.window[0]:g}, {first.window[1]:g}] s;\n{_caption(first)}")
     (out / 'reference.md').write_text(f'{head}\n\n{table}\n')
     (out / 'reference.json').write_text(json.dumps(
         {'rows': rows, 'spec': spec.to_dict(), 'settings': first.settings,

@@ -772,6 +772,9 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
                 break
             upto = min(m, 2 * upto)
             continue
+        growing = spec.horizon == 'auto' and spec.objective == 'trajectory'
+        if not growing:
+            break
         if best is None:                     # not even the first horizon: halve it
             if upto <= min(m, 20):
                 break

@@ -656,7 +656,6 @@ class FitResult:
     window: tuple[float, float]
     stages: list[dict[str, Any]]
     profile: dict[str, Any]
-    best_not_reproduced: dict[str, Any] | None
     fitted_states: np.ndarray
     data_states: np.ndarray
     t: np.ndarray
@@ -836,7 +835,7 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
                        jacobian_intervals=jac_iv, profile_interval=piv, residual=res,
                        reproduces=bool(reproduced), horizon_end=t_end,
                        window=(problem.window[0], float(data.t[problem.index[-1]])),
-                       stages=stages, profile=profile, best_not_reproduced=None,
+                       stages=stages, profile=profile,
                        fitted_states=fitted, data_states=data.states, t=data.t,
                        params=params,
                        settings={'model': 'fractional', 'solver': params.solver,
@@ -903,7 +902,7 @@ def _profile(problem: Problem, ev: Evaluator, local: _Local, spec: FitSpec,
     ssr_min = min(float(r @ r), 2.0 * float(np.nanmin(fine_cost)))
     level = ssr_min + s2 * float(chi2.ppf(0.95, 1))
     interval = _profile_interval(fine, 2 * fine_cost, level)
-    scale = max(problem.index[:upto].size * (4 if spec.objective == 'trajectory' else 4), 1)
+    scale = 4 * upto if spec.objective == 'trajectory' else 4     # entries of a residual row
     return {'name': spec.names[j], 'index': j, 'coarse': coarse.tolist(),
             'coarse_residual': np.sqrt(2 * coarse_cost / scale).tolist(),
             'fine': fine.tolist(), 'fine_residual': np.sqrt(2 * fine_cost / scale).tolist(),

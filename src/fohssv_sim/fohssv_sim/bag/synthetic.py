@@ -14,7 +14,8 @@ import numpy as np
 from .. import contract
 from .writer import RunWriter, typestore
 
-__all__ = ['METADATA', 'float64_array', 'clock', 'trajectory', 'write_bag', 'edit_metadata']
+__all__ = ['METADATA', 'float64_array', 'clock', 'trajectory', 'write_bag', 'edit_metadata',
+           'write_simulation']
 
 METADATA = {'fohssv.version': '0.1.0', 'fohssv.plant_parameters': {'V': 75.0, 'model':
                                                                     'delay-free'}}
@@ -82,3 +83,29 @@ def edit_metadata(bag: Path, **fields) -> None:
     data['rosbag2_bagfile_information'].update(fields)
     with meta.open('w') as f:
         yaml.dump(data, f)
+
+
+def write_simulation(path: Path, result, plant_parameters: dict, *, commands: bool = True
+                     ) -> Path:
+    """Write an in-process run (:class:`fohssv_sim.simulate.SimulationResult` sampled every
+    control period) as the recorder would record it from the lockstep plant: state, Fp and
+    /clock at every sample, the command answering each sample but the last (``commands=False``
+    leaves the command topic out), and ``plant_parameters`` as ``fohssv.plant_parameters``."""
+    w = RunWriter(path).open()
+    for topic in contract.TOPICS:
+        if topic is contract.COMMAND and not commands:
+            continue
+        name = topic.name if topic.name.startswith('/') else '/' + topic.name
+        w.add_topic(name, topic.type)
+    w.add_metadata({'fohssv.version': '0.1.0',
+                    'fohssv.plant_parameters': plant_parameters})
+    t, x, fp, u = result.t, result.state, result.planing_force, result.inputs
+    for i in range(t.size):
+        ns = round(t[i] * 1e9)
+        w.write('/clock', ns, clock(ns))
+        w.write('/state', ns, float64_array(contract.STATE, [t[i], *x[i]]))
+        w.write('/planing_force', ns, float64_array(contract.PLANING_FORCE, [t[i], fp[i]]))
+        if commands and i < t.size - 1:
+            w.write('/command', ns, float64_array(contract.COMMAND, [t[i], *u[i]]))
+    w.close()
+    return Path(path)

@@ -23,7 +23,7 @@ import os
 import sys
 from collections.abc import Sequence
 
-from . import gainmap, plot, report, stability, sweep, tune
+from . import fit, gainmap, plot, report, stability, sweep, tune
 from .common import (
     EXIT_INTERNAL,
     EXIT_INTERRUPTED,
@@ -36,7 +36,7 @@ from .common import (
 __all__ = ['main', 'build_parser', 'load_controller', 'parse_range']
 
 #: The subcommand modules, in the order of ``fohssv --help``; each has ``register(sub)``.
-COMMANDS = (stability, plot, sweep, gainmap, report, tune)
+COMMANDS = (stability, plot, sweep, gainmap, report, tune, fit)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,299 @@
+"""``fohssv fit BAG --fit NAME[,NAME...]`` and ``fohssv fit --reference delayed --speeds ...``:
+identify model parameters from a run (see :mod:`fohssv_sim.analysis.fit`).
+
+Thin: parses the options into a :class:`~fohssv_sim.analysis.fit.FitSpec`, runs it on Dask,
+prints one line per stage and the result, writes fit.json, the params YAML and the figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from .common import BagInputError, CliError, assignments, output_dir, parse_range
+from .sweep import dask_options
+
+DEFAULT_OUT = Path('reports') / 'fit'
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        'fit', help='identify the fractional order (and other model parameters) from a '
+        'recorded run, or the alpha that best reproduces the delayed model',
+        description='Estimates the named model parameters so that the FOM, driven by the '
+        "bag's recorded commands (open loop, held at the recorded times) or closed by "
+        '--controller, reproduces the recorded states: a population on Dask, then '
+        'scipy.optimize.least_squares; intervals from the Jacobian and a profile over alpha; '
+        'the residual against --threshold, or "no value of alpha in [a, b] reproduces this '
+        'run". Writes fit.json, fit_params.yaml (plant --ros-args --params-file) and the '
+        'figures. With --reference delayed: the alpha whose FOM closed loop best reproduces '
+        'the delayed closed loop at each speed of --speeds.')
+    p.add_argument('bag', nargs='?', type=Path, help='rosbag2 folder (or .mcap file)')
+    p.add_argument('--fit', dest='names', metavar='NAME[,NAME...]',
+                   help='model parameters to estimate (default with --reference: '
+                   'fractional_order)')
+    p.add_argument('--bounds', action='append', metavar='NAME=LO:HI',
+                   help='search range of a fitted parameter (repeatable; default its allowed '
+                   'range, a decade either side of the run\'s value where it is unbounded)')
+    p.add_argument('--objective', default='trajectory', choices=('trajectory', 'cycle'),
+                   help='trajectory: weighted least squares on z, w, theta, q; cycle: '
+                   'frequency, amplitude, mean and class of w (periodic or chaotic runs)')
+    p.add_argument('--window', metavar='T0:T1', help='time window in s (default: the whole '
+                   'run; the second half for --objective cycle)')
+    p.add_argument('--horizon', choices=('auto', 'full'), default=None,
+                   help="auto: grow the fitted horizon from 1/16 of the window, doubling, "
+                   "bisecting where the replay departs (default for bags); full: the whole "
+                   'window at once (default with --reference)')
+    p.add_argument('--controller', help='close the loop with this controller plugin instead '
+                   'of replaying the recorded commands (default with --reference: '
+                   'state_feedback, eq. 31)')
+    p.add_argument('--gain', action='append', metavar='NAME=VALUE',
+                   help='controller parameter (repeatable)')
+    p.add_argument('--set', action='append', metavar='NAME=VALUE',
+                   help="model parameter overriding the bag's (repeatable)")
+    p.add_argument('--preset', default='resolved', help="'resolved' (default) or "
+                   "'paper-literal'")
+    p.add_argument('--weights', metavar='z=1,w=1,theta=1,q=1',
+                   help='weights of the states in the trajectory objective (default all 1)')
+    p.add_argument('--threshold', type=float, default=0.05,
+                   help='acceptance threshold of the residual (RMS in standard deviations of '
+                   'each state, or relative feature errors; default 0.05)')
+    p.add_argument('--population', type=int, default=64,
+                   help='points of the global stage (default 64)')
+    p.add_argument('--starts', type=int, default=2,
+                   help='best population points that start least_squares (default 2)')
+    p.add_argument('--seed', type=int, default=0, help='seed of the Latin hypercube')
+    p.add_argument('--profile-points', type=int, default=41,
+                   help='alpha values of the coarse profile over the bounds (default 41)')
+    p.add_argument('--no-step-check', dest='step_check', action='store_false',
+                   help='skip the refit at half the step (whose shift widens the intervals)')
+    p.add_argument('--control-period', type=float, help='s (default: the bag\'s recorded '
+                   'plant parameter; 1e-4 with --reference)')
+    p.add_argument('--namespace', help="the vehicle's namespace when the bag holds several")
+    p.add_argument('--reference', choices=('delayed',), help='fit the FOM to the delayed '
+                   'model\'s closed loop instead of a bag')
+    p.add_argument('--speeds', metavar='VALUES', help='with --reference: V in m/s, '
+                   'start:stop:step or a,b,c (e.g. 70:90:2.5)')
+    p.add_argument('--duration', type=float, default=1.0,
+                   help='with --reference: s per run from x(0) = 0 (default 1)')
+    p.add_argument('--out', type=Path, help=f'output folder (default {DEFAULT_OUT}/<bag '
+                   f'name>, or {DEFAULT_OUT}/reference-delayed)')
+    dask_options(p, 16, 'one batched compiled call')
+    p.set_defaults(func=cmd_fit)
+
+
+def _names(text: str | None) -> tuple[str, ...]:
+    from ..analysis.fit import FitError, check_names
+
+    names = tuple(n.strip() for n in (text or '').split(',') if n.strip())
+    try:
+        return check_names(names)
+    except FitError as e:
+        raise CliError(str(e)) from None
+
+
+def _bounds(items: list[str] | None) -> dict[str, tuple[float, float]]:
+    out = {}
+    for item in items or []:
+        if '=' not in item or ':' not in item.split('=', 1)[1]:
+            raise CliError(f'--bounds {item!r} must look like NAME=LO:HI, e.g. '
+                           'fractional_order=0.6:1')
+        name, rng = item.split('=', 1)
+        try:
+            lo, hi = (float(v) for v in rng.split(':'))
+        except ValueError:
+            raise CliError(f'--bounds {item!r}: LO and HI must be numbers') from None
+        out[name.strip()] = (lo, hi)
+    return out
+
+
+def _window(text: str | None) -> tuple[float, float] | None:
+    if not text:
+        return None
+    try:
+        a, b = (float(v) for v in text.split(':'))
+    except ValueError:
+        raise CliError(f'--window {text!r} must look like T0:T1 (seconds)') from None
+    if not (0 <= a < b):
+        raise CliError(f'--window {text!r}: need 0 <= T0 < T1 (seconds)')
+    return a, b
+
+
+def _weights(text: str | None) -> tuple[float, float, float, float]:
+    if not text:
+        return (1.0, 1.0, 1.0, 1.0)
+    w = assignments(text.split(','), '--weights')
+    bad = sorted(set(w) - {'z', 'w', 'theta', 'q'})
+    if bad or any(not isinstance(v, float) for v in w.values()):
+        raise CliError(f'--weights {text!r}: give z=, w=, theta=, q= numbers')
+    return tuple(float(w.get(n, 1.0)) for n in ('z', 'w', 'theta', 'q'))
+
+
+def _spec(args: argparse.Namespace, names, base, window, controller, horizon):
+    from ..analysis.fit import FitError, FitSpec, resolve_bounds
+
+    try:
+        bounds = resolve_bounds(names, _bounds(args.bounds), base)
+        gains = assignments(args.gain or [], '--gain')
+        spec = FitSpec(names=names, bounds=bounds, base=base.to_dict(),
+                       objective=args.objective, window=window, controller=controller,
+                       gains=gains, weights=_weights(args.weights), threshold=args.threshold,
+                       horizon=horizon, population=args.population, starts=args.starts,
+                       seed=args.seed, profile_points=args.profile_points,
+                       chunk_size=args.chunk_size, step_check=args.step_check)
+        spec.validate()
+    except FitError as e:
+        raise CliError(str(e)) from None
+    return spec
+
+
+class _Dask:
+    """One Dask client for every population job of the command (a local cluster unless
+    --scheduler), closed at the end."""
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.args = args
+        self.client = self.cluster = None
+
+    def __enter__(self):
+        import os
+
+        from dask.distributed import Client, LocalCluster
+
+        if self.args.scheduler:
+            self.client = Client(self.args.scheduler, timeout='20s')
+        else:
+            n = self.args.workers or os.cpu_count() or 1
+            self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                        dashboard_address=None)
+            self.client = Client(self.cluster)
+        return self.client
+
+    def __exit__(self, *exc: Any) -> None:
+        import logging
+
+        # the nanny's 'still alive after 4 s, killing' at close is not news to the user
+        logging.getLogger('distributed').setLevel(logging.ERROR)
+        if self.client is not None:
+            self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
+
+
+def _run(spec, data, out: Path, client, sidecar: dict[str, Any]):
+    from ..analysis.fit import FitError, run_fit
+    from ..analysis.sweep import ProgressPrinter
+
+    progress = ProgressPrinter('points')
+    try:
+        result = run_fit(spec, data, out, client=client, progress=progress,
+                         log=lambda s: (progress.end(), print(s, flush=True)),
+                         sidecar=sidecar)
+    except FitError as e:
+        raise CliError(str(e)) from None
+    except ValueError as e:          # a folder holding another job (run_chunks)
+        raise CliError(str(e)) from None
+    progress.end()
+    return result
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    if args.reference:
+        return _cmd_reference(args)
+    if args.bag is None:
+        raise CliError('give a BAG to fit, or --reference delayed --speeds VALUES')
+    from ..analysis.fit import (
+        FitError,
+        Problem,
+        bag_sha256,
+        base_from_run,
+        data_from_run,
+        write_outputs,
+    )
+    from ..bag import BagError, load_run
+
+    names = _names(args.names)
+    window = _window(args.window)
+    try:
+        run = load_run(args.bag, namespace=args.namespace)
+    except BagError as e:
+        raise BagInputError(str(e)) from None
+    if run.t.size == 0:
+        raise BagInputError(f'{args.bag}: no state messages to fit')
+    try:
+        base = base_from_run(run, assignments(args.set or [], '--set'), args.preset)
+        data = data_from_run(run, base, args.control_period)
+    except FitError as e:
+        raise CliError(str(e)) from None
+    if args.controller is None and data.inputs is None:
+        raise CliError(f'{args.bag}: no command messages, so the recorded commands cannot '
+                       'drive the model; give --controller NAME to close the loop with a '
+                       'plugin')
+    if window is None and args.objective == 'cycle':
+        window = (float(data.t[-1]) / 2, float(data.t[-1]))
+    spec = _spec(args, names, base, window, args.controller, args.horizon or 'auto')
+    try:
+        Problem(spec, data)     # an empty window, no drive: refused before any file or Dask
+    except FitError as e:
+        raise CliError(str(e)) from None
+    sha = bag_sha256(args.bag)
+    data.source['sha256'] = sha
+    out = output_dir(args.out or DEFAULT_OUT / Path(args.bag).resolve().name)
+    print(f"fit {','.join(names)} of {args.bag} ({data.n_periods} control periods of "
+          f'{data.control_period:g} s, step {base.step:g} s, '
+          f"{'closed loop: ' + args.controller if args.controller else 'open loop'}, "
+          f'{spec.objective} objective) -> {out}', flush=True)
+    with _Dask(args) as client:
+        result = _run(spec, data, out, client, {'bag_sha256': sha})
+    paths = write_outputs(result, out, {'bag': str(args.bag), 'bag_sha256': sha})
+    print(result.message)
+    print('wrote ' + ', '.join(str(p) for p in paths if p.suffix != '.svg'))
+    return 0
+
+
+def _cmd_reference(args: argparse.Namespace) -> int:
+    from ..analysis.fit import FitError, reference_data, write_reference
+    from .common import model_params
+
+    if args.bag is not None:
+        raise CliError('--reference fits the delayed model, not a bag: drop BAG')
+    if not args.speeds:
+        raise CliError('--reference delayed needs --speeds VALUES (m/s), e.g. 70:90:2.5')
+    speeds = [float(v) for v in parse_range(args.speeds, '--speeds')]
+    if any(v <= 0 for v in speeds):
+        raise CliError(f'--speeds {args.speeds}: every V must be > 0 m/s')
+    names = _names(args.names or 'fractional_order')
+    if not args.duration > 0:
+        raise CliError(f'--duration {args.duration:g} s must be > 0')
+    window = _window(args.window)
+    if window is None and args.objective == 'cycle':
+        window = (args.duration / 2, args.duration)
+    controller = args.controller or 'state_feedback'
+    cp = args.control_period or 1e-4
+    out = output_dir(args.out or DEFAULT_OUT / 'reference-delayed')
+    overrides = assignments(args.set or [], '--set')
+    overrides.pop('model', None)
+    jobs = []
+    for v in speeds:
+        fom = model_params(args, **{**overrides, 'speed': v, 'model': 'fractional'})
+        spec = _spec(args, names, fom, window, controller, args.horizon or 'full')
+        try:
+            data = reference_data(fom, controller, spec.gains, args.duration, cp)
+        except FitError as e:
+            raise CliError(str(e)) from None
+        jobs.append((v, spec, data))
+    print(f'fit {",".join(names)}: FOM vs delayed closed loop ({controller}, control period '
+          f'{cp:g} s, {args.duration:g} s from x(0) = 0, {args.objective} objective) at '
+          f'{len(speeds)} speeds -> {out}', flush=True)
+    results = []
+    with _Dask(args) as client:
+        for v, spec, data in jobs:
+            print(f'V = {v:g} m/s (tau = L/V = {data.source["tau"]:.6g} s)', flush=True)
+            sub = output_dir(out / f'V{v:g}')
+            result = _run(spec, data, sub, client, {'reference': 'delayed', 'speed': v})
+            results.append((v, result, data))
+            print('  ' + result.message, flush=True)
+    paths = write_reference(results, out)
+    print('wrote ' + ', '.join(str(p) for p in paths if p.suffix != '.svg'))
+    return 0

@@ -1,0 +1,71 @@
+"""`fohssv fit` (issue 23) on bags written from in-process runs: the population kernel against
+the plant stepped period by period, and bad input refused in one line with exit 2."""
+
+import subprocess
+from pathlib import Path
+
+import numpy as np
+from ament_index_python.packages import get_package_prefix
+
+from fohssv_sim.analysis.population import run_population, run_population_reference
+from fohssv_sim.bag.synthetic import write_simulation
+from fohssv_sim.control import make
+from fohssv_sim.models import AffineLaw
+from fohssv_sim.params import ModelParameters
+from fohssv_sim.simulate import simulate
+
+FOHSSV = Path(get_package_prefix('fohssv_sim')) / 'lib' / 'fohssv_sim' / 'fohssv'
+
+
+def run(*args):
+    return subprocess.run([str(FOHSSV), *args], capture_output=True, text=True, timeout=300)
+
+
+def _bag(path: Path, commands: bool = True, duration: float = 0.02) -> Path:
+    p = ModelParameters(fractional_order=0.81)
+    r = simulate(p, make('state_feedback'), duration, control_period=1e-4, sample_every=5)
+    write_simulation(path, r, {**p.to_dict(), 'control_period': 1e-4, 'duration': duration,
+                               'initial_state': [0.0] * 4}, commands=commands)
+    return path
+
+
+def test_population_equals_the_plant_stepped_period_by_period():
+    """One compiled call for points differing in alpha, V and the planing offset gives the
+    numbers of make_plant + Plant.advance per period, open loop and closed loop, bit for bit;
+    a point that blows up is marked failed in both."""
+    ps = [ModelParameters(fractional_order=a, speed=v, planing_offset=w)
+          for a, v, w in [(0.81, 75.0, 1.9), (0.7, 80.0, 'consistent'), (1.0, 75.0, 2.5),
+                          (0.3, 75.0, 1.9)]]
+    rng = np.random.default_rng(3)
+    inputs = rng.uniform(-0.02, 0.02, (400, 2))
+    law = AffineLaw.from_controller(make('state_feedback')).packed
+    for kw in ({'inputs': inputs}, {'law': law}):
+        got = run_population(ps, 400, 5, duration=1.0, **kw)
+        ref = run_population_reference(ps, 400, 5, duration=1.0, **kw)
+        assert np.array_equal(got.failed, ref.failed)
+        assert np.array_equal(got.states, ref.states, equal_nan=True)
+    r = simulate(ps[0], make('state_feedback'), 0.04, control_period=1e-4, sample_every=5)
+    got = run_population(ps[:1], 400, 5, law=law, duration=0.04)
+    assert np.array_equal(got.states[0], r.state)        # the batch runner's closed loop
+
+
+def test_bad_input_is_one_line_and_exit_2(tmp_path):
+    bag = _bag(tmp_path / 'run')
+    silent = _bag(tmp_path / 'no_commands', commands=False)
+    cases = [((str(silent), '--fit', 'fractional_order'), 'no command messages'),
+             ((str(bag), '--fit', 'model'), "--fit model: not numeric"),
+             ((str(bag), '--fit', 'fractional_order,drag'), '--fit drag: not a model parameter'),
+             ((str(bag), '--fit', 'step'), '--fit step: a solver setting'),
+             ((str(bag), '--fit', 'fractional_order', '--bounds', 'fractional_order=0.5:1.5'),
+              '1.5 is outside the allowed range (0, 1]'),
+             ((str(bag), '--fit', 'fractional_order', '--bounds', 'speed=60:80'),
+              '--bounds speed: not among the fitted names'),
+             ((str(bag), '--fit', 'fractional_order', '--window', '5:6'),
+              '--window 5:6 s holds 0 state sample(s)')]
+    for args, text in cases:
+        out = run('fit', *args, '--out', str(tmp_path / 'out'))
+        assert out.returncode == 2, (args, out.stderr)
+        assert text in out.stderr and 'Traceback' not in out.stderr, (args, out.stderr)
+        assert len(out.stderr.strip().splitlines()) == 1, out.stderr
+    out = run('fit', str(tmp_path / 'missing'), '--fit', 'fractional_order')
+    assert out.returncode == 1 and 'no such file' in out.stderr     # a bag error, as `check`

@@ -976,6 +976,7 @@ class PlantNode(Node):
         if self.finished.done():
             return
         self.exit_code = code
+        self.flush_views()      # the summary counts a view's last messages too
         self.get_logger().info('summary: ' + json.dumps(self.summary()))
         self.running = False
         if self._timer is not None:
@@ -983,6 +984,12 @@ class PlantNode(Node):
             self._timer = None
         self.finished.set_result(code)
         self.announce_end(f'exit code {code}', code)
+
+    def flush_views(self) -> None:
+        """Publish a view's last messages, if pending (before the summary and run_end)."""
+        if self.views is not None and self.views.pending:
+            with contextlib.suppress(Exception):   # the context may be going down (a signal)
+                self.views.flush()
 
     def announce_end(self, reason: str, code: int) -> None:
         """Publish :data:`~fohssv_sim.contract.RUN_END` once: the messages sent on each
@@ -997,8 +1004,7 @@ class PlantNode(Node):
                      self.command_topic: self.received if self.hosted is None
                      else self.commands_sent}
         if self.views is not None:
-            with contextlib.suppress(Exception):   # the context may be going down (a signal)
-                self.views.flush()                  # a view's last messages, if pending
+            self.flush_views()
             n = self.views.published
             for pub in self.views.publishers:
                 published[pub.topic_name] = 2 * n if pub is self.views.marker_pub else n
@@ -1046,6 +1052,7 @@ class PlantNode(Node):
 
 
 def _interrupted(node: PlantNode) -> None:
+    node.flush_views()
     summary = json.dumps(node.summary())
     # the announced end is the end: nothing is stepped or published after it (the linger
     # spins the executor, and a lockstep command arriving then would advance the run)

@@ -475,18 +475,25 @@ def run_points(spec_dict: dict[str, Any], indices: Sequence[int], *,
     return rows
 
 
-def _decode(r: dict[str, str]) -> dict[str, Any]:
+def decode_row(r: dict[str, str], ints: Sequence[str], strs: Sequence[str] = _STR
+               ) -> dict[str, Any]:
+    """A chunk row read back as text: ``ints`` as int, ``strs`` as str, ``failed`` as bool,
+    every other column as float (the gain map's and the tuner's rows)."""
     out: dict[str, Any] = {}
     for k, v in r.items():
-        if k in _INT:
+        if k in ints:
             out[k] = int(v)
-        elif k in _STR:
+        elif k in strs:
             out[k] = v
         elif k == 'failed':
             out[k] = v == 'True'
         else:
             out[k] = float(v)
     return out
+
+
+def _decode(r: dict[str, str]) -> dict[str, Any]:
+    return decode_row(r, _INT)
 
 
 # -- the map -----------------------------------------------------------------------------

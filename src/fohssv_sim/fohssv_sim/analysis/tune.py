@@ -57,6 +57,7 @@ from .gainmap import (
     OUTCOME_RANK,
     OUTCOMES,
     controller_parameters,
+    decode_row,
     evaluate_points,
     scheduled_gains,
 )
@@ -358,17 +359,7 @@ def run_candidates(job: dict[str, Any], indices: Sequence[int], *,
 
 
 def _decode(r: dict[str, str]) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for k, v in r.items():
-        if k in _INT:
-            out[k] = int(v)
-        elif k in _STR:
-            out[k] = v
-        elif k == 'failed':
-            out[k] = v == 'True'
-        else:
-            out[k] = float(v)
-    return out
+    return decode_row(r, _INT, _STR)
 
 
 def _chunks(spec: TuneSpec, n_candidates: int, step_factor: float) -> list[list[int]]:

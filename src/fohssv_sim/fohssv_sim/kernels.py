@@ -23,6 +23,17 @@ step for step (``test/test_kernels.py``). Each kernel returns the number of step
 than asked when a state turned non-finite; that state is left in ``bad`` and the arrays hold
 the last finite step.
 
+**Sampled drivers.** Each ``*_sampled`` function runs ``periods`` control periods of ``hold``
+steps in one call with an affine law sampled at the start of each period and held over it
+(zero-order hold: what the plant does with a hosted affine controller, one sample per
+period). After each period it writes the sample ``[z, w, theta, q, Fp, delta_f, delta_c]`` to a
+row of ``out`` and stops early -- returning ``(samples written, status, steps of the last
+period)`` -- at a non-finite state (status 1, nothing written for that period), at a sample
+outside the physical bounds (status 2) or at a command that is non-finite or beyond the plant's
+deflection limits (status 3; its two columns are not written). The caller handles those
+samples the slow way, so the results equal one kernel call per period with the law evaluated
+in Python (``test/test_kernels.py``).
+
 Compiled on first use and cached on disk (``cache=True``, next to this file or in numba's
 user cache); :func:`warm_up` compiles all kernels (a few seconds the first time, well under
 a second from the cache). Without numba everything still runs, interpreted.
@@ -46,7 +57,8 @@ except ImportError:  # pragma: no cover - numba is pinned in requirements.txt
 
 __all__ = ['AVAILABLE', 'KernelCoefficients', 'jitable', 'eq17', 'planing_force_law',
            'planing_exact', 'planing_delayed', 'planing_smooth', 'hermite_delayed',
-           'delay_free_run', 'delayed_run', 'fom_soe_run', 'pack_law', 'warm_up']
+           'delay_free_run', 'delayed_run', 'fom_soe_run', 'delay_free_sampled',
+           'delayed_sampled', 'fom_soe_sampled', 'pack_law', 'warm_up']
 
 #: True when the kernels run compiled (numba importable).
 AVAILABLE = numba is not None
@@ -412,6 +424,104 @@ def fom_soe_run(x, x0, n, nsteps, cv, smooth, law, continuous, H, W, fill, eps_k
             return i
         x[0], x[1], x[2], x[3] = zn, wn, tn, qn
     return nsteps
+
+# -- sampled drivers: an affine law at every control instant, held over the period -------------
+
+@jitable
+def _sampled_command(law, x, held, fmax, cmax):
+    """u = clamp(K x + u0) at a sample into ``held`` (a held-input law); False when it is
+    non-finite or beyond the plant's limits. Summed as the eq. 31 controller's ``update``;
+    finiteness is checked before the clamp (as :class:`fohssv_sim.ros.loop.HostedLaw` does)."""
+    uf = (law[0] * x[0] + law[1] * x[1] + law[2] * x[2] + law[3] * x[3]) + law[8]
+    uc = (law[4] * x[0] + law[5] * x[1] + law[6] * x[2] + law[7] * x[3]) + law[9]
+    if not (math.isfinite(uf) and math.isfinite(uc)):
+        return False
+    uf = _clamp(uf, law[10])
+    uc = _clamp(uc, law[11])
+    if abs(uf) > fmax or abs(uc) > cmax:
+        return False
+    held[8] = uf
+    held[9] = uc
+    return True
+
+
+@jitable
+def _in_bounds(x, wmax, pmax):
+    return -wmax <= x[1] <= wmax and -pmax <= x[2] <= pmax
+
+
+@jitable
+def _sample_row(out, p, x, fp):
+    out[p, 0], out[p, 1], out[p, 2], out[p, 3] = x[0], x[1], x[2], x[3]
+    out[p, 4] = fp
+
+
+@_njit
+def delay_free_sampled(x, hold, periods, h, cv, smooth, law, held, limits, bad, out):
+    """``periods`` periods of :func:`delay_free_run` with ``law`` sampled (module docstring);
+    ``held`` is the held-input law array (its u0 = the command in force), ``limits`` =
+    [max |delta_f|, max |delta_c|, max |w|, max |theta|]."""
+    c = _coefficients(cv)
+    for p in range(periods):
+        taken = delay_free_run(x, hold, h, cv, smooth, held, False, bad)
+        if taken < hold:
+            return p, 1, taken
+        fp = planing_smooth(x[1], c) if smooth else planing_exact(x[1], c)
+        _sample_row(out, p, x, fp)
+        if not _in_bounds(x, limits[2], limits[3]):
+            return p + 1, 2, hold
+        if not _sampled_command(law, x, held, limits[0], limits[1]):
+            return p + 1, 3, hold
+        out[p, 5], out[p, 6] = held[8], held[9]
+    return periods, 0, hold
+
+
+@_njit
+def delayed_sampled(x, n, hold, periods, h, cv, hx, hf, lag, tau, x_init, paper, law, held,
+                    limits, bad, out):
+    """``periods`` periods of :func:`delayed_run` from step ``n`` with ``law`` sampled (see
+    :func:`delay_free_sampled`); Fp at a sample from the history, as the model computes it."""
+    c = _coefficients(cv)
+    for p in range(periods):
+        m = n + p * hold
+        taken = delayed_run(x, m, hold, h, cv, hx, hf, lag, tau, x_init, paper, held, False,
+                            bad)
+        if taken < hold:
+            return p, 1, taken
+        if tau == 0.0:
+            zd, wd, thd = x[0], x[1], x[2]
+        else:
+            zd, wd, thd, _ = hermite_delayed(hx, hf, m + hold, 0.0, lag, h, x_init)
+        fp = planing_delayed(x[0], x[2], zd, wd, thd, c, 'paper' if paper else 'geometric')
+        _sample_row(out, p, x, fp)
+        if not _in_bounds(x, limits[2], limits[3]):
+            return p + 1, 2, hold
+        if not _sampled_command(law, x, held, limits[0], limits[1]):
+            return p + 1, 3, hold
+        out[p, 5], out[p, 6] = held[8], held[9]
+    return periods, 0, hold
+
+
+@_njit
+def fom_soe_sampled(x, x0, n, hold, periods, cv, smooth, law, held, limits, H, W, fill, eps_k,
+                    ET, a0_coef, a0_small, alpha, cp, cc, last_f, bad, out):
+    """``periods`` periods of :func:`fom_soe_run` from step ``n`` with ``law`` sampled (see
+    :func:`delay_free_sampled`)."""
+    c = _coefficients(cv)
+    for p in range(periods):
+        taken = fom_soe_run(x, x0, n + p * hold, hold, cv, smooth, held, False, H, W, fill,
+                            eps_k, ET, a0_coef, a0_small, alpha, cp, cc, last_f, bad)
+        if taken < hold:
+            return p, 1, taken
+        fp = planing_smooth(x[1], c) if smooth else planing_exact(x[1], c)
+        _sample_row(out, p, x, fp)
+        if not _in_bounds(x, limits[2], limits[3]):
+            return p + 1, 2, hold
+        if not _sampled_command(law, x, held, limits[0], limits[1]):
+            return p + 1, 3, hold
+        out[p, 5], out[p, 6] = held[8], held[9]
+    return periods, 0, hold
+
 
 
 def warm_up() -> None:

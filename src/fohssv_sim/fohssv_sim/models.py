@@ -147,6 +147,7 @@ class Plant:
         self.duration = duration
         self._cv = np.array(self.coefficients.kernel, dtype=float)
         self._law = pack_law()                 # the held input, set per call
+        self._held = pack_law()                # the same for advance_sampled
         self._xa = np.zeros(4)                 # the state as the kernels advance it
         self._bad = np.zeros(4)
         self.reset()
@@ -229,6 +230,51 @@ class Plant:
             self.n += 1
             self.status = 'running'
 
+    def advance_sampled(self, law: AffineLaw, held: Sequence[float], hold: int, periods: int,
+                        limits: np.ndarray, out: np.ndarray) -> tuple[int, int]:
+        """Up to ``periods`` control periods of ``hold`` steps in one compiled call, the
+        affine ``law`` sampled at the end of each period and held over the next (zero-order
+        hold), starting with the command ``held`` in force: the samples a plant hosting the
+        law publishes, written to rows of ``out`` as ``[z, w, theta, q, Fp, delta_f,
+        delta_c]`` (kernels.py, "Sampled drivers"). ``limits`` = [max |delta_f|, max
+        |delta_c|, max |w|, max |theta|].
+
+        Returns ``(samples, status)``: status 0 all done; 1 the state turned non-finite in
+        period ``samples`` (the plant holds the last finite step; :meth:`raise_failure`
+        raises what :meth:`advance` would); 2 the last sample is outside ``limits``; 3 the
+        law's command at the last sample is non-finite or beyond the limits (its columns are
+        not written). ``(0, -1)`` when this plant has no compiled kernel (then step it with
+        :meth:`advance`).
+        """
+        if self.status == 'failed':
+            raise RuntimeError('the plant failed earlier; call reset() before stepping again')
+        if not self._use_kernel or periods <= 0:
+            return 0, -1
+        h = self._held
+        h[8] = held[0]
+        h[9] = held[1]
+        done, status, last, xa = self._run_sampled(law.packed, h, hold, periods, limits, out)
+        self._x = tuple(xa.tolist())
+        self.n += done * hold + (last if status == 1 else 0)
+        self.status = 'running'
+        if status == 1:
+            self.status = 'failed'
+            self._failure = self._bad.tolist(), _show((h[8], h[9]))
+        return done, status
+
+    def raise_failure(self) -> None:
+        """Raise the FloatingPointError of the non-finite state :meth:`advance_sampled`
+        met (the text :meth:`advance` gives)."""
+        bad, shown = self._failure
+        self.status = 'running'
+        self._failed(bad, shown)
+
+    def _run_sampled(self, law: np.ndarray, held: np.ndarray, hold: int, periods: int,
+                     limits: np.ndarray, out: np.ndarray) -> tuple[int, int, int, np.ndarray]:
+        """The model's ``*_sampled`` kernel: (samples, status, steps of the last period, the
+        state array)."""
+        raise NotImplementedError
+
     def _state_array(self) -> np.ndarray:
         """The state as the integer models' kernels advance it (refreshed after interpreted
         steps or a reset)."""
@@ -244,7 +290,11 @@ class Plant:
         """
         start = time.perf_counter()
         if self._use_kernel:
-            type(self)(self.params, engine=self.engine, duration=1.0).advance((0.0, 0.0), 1)
+            scratch = type(self)(self.params, engine=self.engine, duration=1.0)
+            scratch.advance((0.0, 0.0), 1)
+            scratch.advance_sampled(AffineLaw(np.zeros((2, 4))), (0.0, 0.0), 1, 1,
+                                    np.array([1.0, 1.0, self.params.speed, MAX_PITCH]),
+                                    np.zeros((1, 7)))
         return time.perf_counter() - start
 
     def _failed(self, x: Sequence[float], shown: str) -> None:
@@ -349,6 +399,11 @@ class DelayFreeModel(Plant):
         return kernels.delay_free_run(xa, steps, self.h, self._cv, self._smooth, law,
                                       continuous, self._bad), xa
 
+    def _run_sampled(self, law, held, hold, periods, limits, out):
+        xa = self._state_array()
+        return (*kernels.delay_free_sampled(xa, hold, periods, self.h, self._cv, self._smooth,
+                                            law, held, limits, self._bad, out), xa)
+
     @property
     def planing_force(self) -> float:
         return self._fp(self._x[1], self.coefficients)
@@ -414,6 +469,13 @@ class DelayedModel(Plant):
                                    self._lag, self.tau, self._x_init, self._form == 'paper',
                                    law, continuous, self._bad), xa
 
+    def _run_sampled(self, law, held, hold, periods, limits, out):
+        xa = self._state_array()
+        return (*kernels.delayed_sampled(xa, self.n, hold, periods, self.h, self._cv, self._hx,
+                                         self._hf, self._lag, self.tau, self._x_init,
+                                         self._form == 'paper', law, held, limits, self._bad,
+                                         out), xa)
+
     @property
     def planing_force(self) -> float:
         return self._force(self._x, self._delayed(0.0, self._x))
@@ -476,6 +538,20 @@ class FractionalModel(Plant):
         if st.n > hist.horizon:
             hist.check_horizon(st.n)
         return taken, x
+
+    def _run_sampled(self, law, held, hold, periods, limits, out):
+        st = self._stepper
+        x = st.live_state()
+        a = self._kernel_args
+        done, status, last = kernels.fom_soe_sampled(
+            x, self._x0a, st.n, hold, periods, self._cv, self._smooth, law, held, limits, *a,
+            out)
+        st.advanced(done * hold + (last if status == 1 else 0), self._last_f,
+                    failed=status == 1)
+        hist = st.history
+        if st.n > hist.horizon:
+            hist.check_horizon(st.n)
+        return done, status, last, x
 
     def rhs(self, t: float, x: np.ndarray, u: Sequence[float]) -> np.ndarray:
         """Right-hand side f(t, x, u) of D^alpha x = f (eq. 26)."""

@@ -160,3 +160,77 @@ def test_engine_is_checked():
         make_plant(ModelParameters(), engine='fast')
     assert 'interpreted' in make_plant(ModelParameters(solver='abm')).describe()
     assert 'compiled' in make_plant(ModelParameters()).describe()
+
+
+# -- sampled drivers (advance_sampled): the hosted plant's bursts ------------------------------
+
+X_PLANING = (0.0, 4.0, 0.0, 0.0)   # far enough beyond contact for the exact planing force too
+
+
+def _per_period(model, law, periods, hold, limits, x0=X_PLANING):
+    """The reference: one compiled call per period with the command held, the law evaluated
+    in Python after each sample (what the hosted plant did per sample), the bounds and the
+    deflection limits checked there. Rows [z, w, theta, q, Fp, df, dc] and the status."""
+    plant = make_plant(ModelParameters(model=model), x0, duration=1.0)
+    u, rows = (0.0, 0.0), []
+    for _ in range(periods):
+        plant.advance(u, hold)
+        x = plant.x
+        row = [*x, plant.planing_force, math.nan, math.nan]
+        rows.append(row)
+        if not (abs(x[1]) <= limits[2] and abs(x[2]) <= limits[3]):
+            return np.array(rows), 2
+        uf, uc = law(0.0, x)
+        if not (abs(uf) <= limits[0] and abs(uc) <= limits[1]):
+            return np.array(rows), 3
+        row[5:7] = u = (uf, uc)
+    return np.array(rows), 0
+
+
+def _sampled(model, law, periods, hold, limits, burst, x0=X_PLANING):
+    plant = make_plant(ModelParameters(model=model), x0, duration=1.0)
+    out, rows, held = np.full((burst, 7), math.nan), [], (0.0, 0.0)
+    while len(rows) < periods:
+        done, status = plant.advance_sampled(law, held, hold, min(burst, periods - len(rows)),
+                                             np.asarray(limits, dtype=float), out)
+        rows.extend(out[:done].tolist())
+        out[:] = math.nan
+        if status:
+            return np.array(rows), status
+        held = rows[-1][5:7]
+    return np.array(rows), 0
+
+
+@pytest.mark.parametrize('model', MODELS)
+def test_sampled_bursts_equal_one_call_per_period_bit_for_bit(model):
+    """The hosted plant's bursts (an affine law sampled and held inside the kernel) give the
+    very numbers of one kernel call per control period with eq. 31 evaluated in Python, for
+    bursts of 1, 7 and 64 periods (the burst boundaries fall at different samples)."""
+    law = AffineLaw.from_controller(StateFeedback())
+    limits = (1.0, 1.0, 75.0, math.pi / 2)
+    ref, status = _per_period(model, law, 400, 5, limits)
+    assert status == 0 and np.max(np.abs(ref[:, 4])) > 1.0      # planing branches taken
+    for burst in (1, 7, 64):
+        got, status = _sampled(model, law, 400, 5, limits, burst)
+        assert status == 0
+        assert np.array_equal(got, ref, equal_nan=True), (burst, np.nanmax(np.abs(got - ref)))
+
+
+@pytest.mark.parametrize('model', MODELS)
+def test_sampled_bursts_stop_where_the_per_period_path_stops(model):
+    """A destabilising law leaves the physical bounds (status 2) and a law beyond the
+    plant's deflection limits is refused (status 3) at the same sample, with the same rows,
+    as the per-period path."""
+    unstable = AffineLaw(np.array([[0.0, 0.0, 0.0, 0.0], [0.0, 2.0, 40.0, 2.0]]))
+    ref, status = _per_period(model, unstable, 5000, 5, (1e9, 1e9, 75.0, math.pi / 2))
+    assert status == 2
+    got, st = _sampled(model, unstable, 5000, 5, (1e9, 1e9, 75.0, math.pi / 2), 64)
+    assert st == 2 and np.array_equal(got, ref, equal_nan=True)
+    law = AffineLaw.from_controller(StateFeedback())
+    limits = (1e-4, 1e-4, 75.0, math.pi / 2)    # eq. 31 soon asks for more than this
+    ref, status = _per_period(model, law, 400, 5, limits)
+    assert status == 3 and len(ref) < 400
+    got, st = _sampled(model, law, 400, 5, limits, 64)
+    assert st == 3 and len(got) == len(ref)
+    assert np.array_equal(got[:, :5], ref[:, :5])
+    assert np.array_equal(got[:-1], ref[:-1], equal_nan=True)

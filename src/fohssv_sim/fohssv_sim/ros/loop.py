@@ -21,6 +21,7 @@ import math
 import time
 from collections.abc import MutableSequence, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 from ..contract import COMMAND, ContractError, decode
 from ..control import Controller, NonFiniteCommand
@@ -135,6 +136,37 @@ class SampledPlant:
         w_max = self._w_max
         if not (-w_max <= x[1] <= w_max and -MAX_PITCH <= x[2] <= MAX_PITCH):
             check_state(plant)                  # raises StateOutOfBounds
+
+    def advance_burst(self, law: AffineLaw, periods: int, limits: Any, out: Any
+                      ) -> tuple[int, int]:
+        """Up to ``periods`` control periods in one compiled call with the affine ``law``
+        sampled at each new sample and held over the next period, starting with
+        :attr:`command` (:meth:`fohssv_sim.models.Plant.advance_sampled`: rows of ``out``,
+        the ``(samples, status)`` it returns, ``(0, -1)`` without a compiled kernel). The
+        same numbers as :meth:`advance` per period with the law's command taken after each
+        sample. :attr:`samples` and :attr:`command` are left to the caller, who takes the
+        rows one by one (:meth:`took`)."""
+        return self.plant.advance_sampled(law, self.command, self.hold, periods, limits, out)
+
+    def took(self, command: tuple[float, float]) -> None:
+        """One sample of a burst taken by the caller: count it; ``command`` is now held."""
+        self.samples += 1
+        self.command = command
+
+    def samples_until(self, duration: float) -> int:
+        """Samples from now until :meth:`reached` ``duration`` (at least 1; a large number
+        when ``duration`` is 0, open-ended)."""
+        if duration <= 0.0:
+            return 1 << 30
+        plant = self.plant
+        n0, hold, h = plant.n, self.hold, plant.h
+        end = duration - 1e-9 * self.control_period
+        m = max(1, int((end / h - n0) / hold))
+        while m > 1 and (n0 + (m - 1) * hold) * h >= end:
+            m -= 1
+        while (n0 + m * hold) * h < end:
+            m += 1
+        return m
 
     def reached(self, duration: float) -> bool:
         """True when ``duration`` > 0 and the current sample is at or past it."""
@@ -280,6 +312,8 @@ class HostedLaw:
         self.name = controller.name or type(controller).__name__
         law = AffineLaw.from_controller(controller)
         self.affine = law is not None
+        #: the law as the compiled kernels run it (None unless affine)
+        self.law: AffineLaw | None = law
         self.command = (_affine_command(self.name, law) if law is not None
                         else controller.command)
 

@@ -224,9 +224,11 @@ NODE_PARAMETERS: tuple[ParameterSpec, ...] = (
        "else it waits up to 10 s (a stalled subscriber is then left behind with a warning); "
        "0 = off: the loop runs at the controller's pace",
        low=0.0, low_open=False, high=1900.0, high_open=False),
-    _P('realtime_priority', '-', 0, '-', 'realtime mode: SCHED_FIFO priority (1-99) of the '
-       "plant's pacing thread, as real-time ROS 2 nodes use; needs CAP_SYS_NICE or an rtprio "
-       'limit (the plant warns and runs normally without it); 0 = the normal scheduler',
+    _P('realtime_priority', '-', 50, '-', 'realtime mode: SCHED_FIFO priority (1-99) of the '
+       "plant's pacing thread, as ros2_control's controller manager runs its loop (its "
+       'thread_priority, also 50 by default); needs CAP_SYS_NICE or an rtprio limit (the '
+       'plant says so in one line and runs with the normal scheduler without it); 0 = the '
+       'normal scheduler',
        low=0.0, low_open=False, high=99.0, high_open=False),
     TextSpec('controller', '-', '', '-', "the controller law: '' (default) = an external "
              'controller node over command; else the name of a controller plugin (entry point '

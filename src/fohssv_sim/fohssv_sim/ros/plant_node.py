@@ -54,12 +54,14 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import math
 import sys
 import time
 from collections.abc import Mapping
 from time import monotonic, perf_counter_ns, sleep
 from typing import Any
 
+import numpy as np
 import rclpy
 from rclpy.duration import Duration
 from rclpy.node import Node
@@ -71,6 +73,7 @@ from std_srvs.srv import Trigger
 from .. import control
 from ..contract import CLOCK, COMMAND, PLANING_FORCE, RUN_END, STATE, run_end_text
 from ..control import NonFiniteCommand
+from ..models import MAX_PITCH, check_state
 from ..params import PARAMETERS, ModelParameters, ParameterError, ParameterSpec, field_specs
 from .inplant_record import EXIT_RECORD_LOST
 from .inplant_record import start as start_recording
@@ -125,6 +128,8 @@ CONTROLLER_PREFIX = 'controller.'
 #: With a hosted controller: the wall time (s) one chunk of samples runs before the executor
 #: is spun again (services, parameters, the graph checks, signals).
 _CHUNK = 0.005
+#: Lockstep with a hosted law: samples per compiled call (between looks at the clock).
+_FREE_BURST = 32
 #: A sample DDS refused to take for :data:`_PUBLISH_RETRY` s (retried every millisecond).
 EXIT_PUBLISH_FAILED = 9
 _PUBLISH_RETRY = 1.0
@@ -260,6 +265,11 @@ class PlantNode(Node):
         self.rejected = 0
         self.stale = 0                            # realtime: of those, stale or future
         self.ignored = 0
+        self._burst_wait = 0.0                    # hosted realtime: see _start_run
+        # hosted: the rows a burst of samples is computed into (SampledPlant.advance_burst)
+        # and [max |delta_f|, max |delta_c|, max |w|, max |theta|] (the last two fixed)
+        self._rows = np.zeros((max(_FREE_BURST, 64), 7))
+        self._limits = np.array([0.0, 0.0, self.model.speed, MAX_PITCH])
         self._awaiting: float | None = None       # lockstep: t of the state awaiting a command
         self._published_wall = 0.0                # lockstep: when that state went out
         self._last_command_t: float | None = None  # t of the last command received
@@ -470,6 +480,11 @@ class PlantNode(Node):
             batch = max(1, round(tick / wall_period))
             pacer = Pacer(period=wall_period, tolerance=tick, max_batch=2 * batch,
                           max_backlog=10 * batch)
+            # hosted: one wake-up per burst of samples, due half a tick apart at most (each
+            # sample published within half the deadline tolerance; 5 at the defaults)
+            if self.hosted is not None:
+                self._burst_wait = (max(1, int(tick / (2.0 * wall_period) + 1e-9)) - 1
+                                    ) * wall_period
             pacer.begin(time.monotonic())
             self._publish()
             pacer.published(time.monotonic())
@@ -483,6 +498,11 @@ class PlantNode(Node):
     def _publish(self) -> None:
         self.sent += 1
         self.sim.write_sample(self._state_data, self._force_data)
+        self._send_sample(self.sim.samples)
+
+    def _send_sample(self, sample: int) -> None:
+        """Publish sample number ``sample``, written into the state and force messages: state,
+        planing_force, /clock and the views when due."""
         # a failed publish (rclpy's RCLError 'Failed to publish' under load) is retried,
         # and ends the run with exit 9 (summary, run_end) if DDS keeps refusing it
         try:
@@ -495,7 +515,7 @@ class PlantNode(Node):
         except Exception as exc:  # noqa: BLE001
             self._retry_publish(self._send_force, self.force_pub.topic_name,
                                 self._force_out.payload(), exc)
-        if self._clock_wanted and self.sim.samples % self._clock_every == 0:
+        if self._clock_wanted and sample % self._clock_every == 0:
             try:
                 self._send_clock(self._clock_out.payload(round(self._state_data[0] * 1e9)))
             except Exception as exc:  # noqa: BLE001 - keep-last 1: the next one replaces it
@@ -503,7 +523,7 @@ class PlantNode(Node):
         views = self.views
         if views is not None:     # a view's messages go out one per sample (views.py)
             try:
-                if self.sim.samples % self._view_every == 0:
+                if sample % self._view_every == 0:
                     views.publish(self._state_data, self._force_data[1])
                 elif views.pending:
                     views.publish_next()
@@ -587,6 +607,90 @@ class PlantNode(Node):
             return False
         if self.hosted is not None:
             self._control()
+        return True
+
+    def _advance_burst(self, periods: int) -> bool:
+        """Hosted affine law: up to ``periods`` samples (and their commands) in one compiled
+        call, then each published as :meth:`_advance` and :meth:`_control` would, in order:
+        the same numbers, messages and counts, one Python call into the kernel instead of one
+        per sample. Plugins that are not affine, the interpreted engine and ``profile:=1`` take
+        the per-sample path. False when the run ended."""
+        sim = self.sim
+        law = self.hosted.law
+        if law is None or self.profile is not None:
+            return self._advance_each(periods)
+        o = self.options
+        periods = min(periods, sim.samples_until(o.duration), len(self._rows))
+        every = o.pace_to_subscribers if self.pacer is None else 0
+        if every:
+            periods = min(periods, every - sim.samples % every)
+        limits = self._limits
+        limits[0], limits[1] = o.max_fin_deflection, o.max_cavitator_deflection
+        limits[2] = self.model.speed
+        plant = sim.plant
+        n0 = plant.n
+        try:
+            done, status = sim.advance_burst(law, periods, limits, self._rows)
+        except FloatingPointError as exc:    # raised by the SOE history's own checks
+            self._fail(EXIT_DIVERGED, f'simulation failed: {exc}{self._lag_note()}')
+            return False
+        if status < 0:                       # no compiled kernel
+            return self._advance_each(periods)
+        rows, hold, h = self._rows, sim.hold, plant.h
+        state, force, pacer = self._state_data, self._force_data, self.pacer
+        end = o.duration - 1e-9 * o.control_period if o.duration > 0.0 else math.inf
+        last = done - 1
+        for j in range(done):
+            row = rows[j]
+            if j == last and status == 2:   # outside the physical bounds: as advance() raises
+                sim.samples += 1
+                try:
+                    check_state(plant)
+                except FloatingPointError as exc:
+                    self._fail(EXIT_DIVERGED, f'simulation failed: {exc}{self._lag_note()}')
+                return False
+            t = (n0 + (j + 1) * hold) * h
+            state[0] = force[0] = t
+            state[1], state[2], state[3], state[4] = row[0], row[1], row[2], row[3]
+            force[1] = row[4]
+            self.sent += 1
+            try:
+                self._send_sample(sim.samples + 1)
+            except PublishFailed as exc:
+                sim.samples += 1
+                self._fail(EXIT_PUBLISH_FAILED, str(exc))
+                return False
+            if pacer is not None:
+                pacer.published(monotonic())
+            if t >= end:
+                sim.samples += 1
+                self._finish(f'duration {o.duration:g} s reached')
+                return False
+            if j == last and status == 3:   # the law's command needs the slow path
+                sim.samples += 1
+                self._control()
+                break
+            df, dc = row[5], row[6]
+            sim.took((df, dc))
+            self._publish_command(t, df, dc)
+        if status == 1:                      # the next period turned non-finite
+            try:
+                plant.raise_failure()
+            except FloatingPointError as exc:
+                self._fail(EXIT_DIVERGED, f'simulation failed: {exc}{self._lag_note()}')
+            return False
+        if every and sim.samples % every == 0:
+            self._keep_subscribers_up()
+        return True
+
+    def _advance_each(self, periods: int) -> bool:
+        """``periods`` samples one at a time (:meth:`_advance`); False when the run ended."""
+        every = self.options.pace_to_subscribers if self.pacer is None else 0
+        for _ in range(periods):
+            if not self._advance():
+                return False
+            if every and self.sim.samples % every == 0:
+                self._keep_subscribers_up()
         return True
 
     # -- hosted controller: the law in the loop, every sample --------------------------------
@@ -739,14 +843,18 @@ class PlantNode(Node):
         now = monotonic()
         end = now + _CHUNK
         pacer = self.pacer
-        every = self.options.pace_to_subscribers if pacer is None else 0
+        burst_wait = self._burst_wait
         while now < end:
-            if pacer is not None and not pacer.due(now):
-                sleep(pacer.next_due() - now)
-            elif not self._advance():
+            if pacer is None:
+                due = _FREE_BURST
+            else:
+                due = pacer.due(now)
+                if not due:     # asleep until a burst is due (one wake-up per burst)
+                    sleep(pacer.next_due() + burst_wait - now)
+                    now = monotonic()
+                    continue
+            if not self._advance_burst(due):
                 return
-            elif every and self.sim.samples % every == 0:
-                self._keep_subscribers_up()
             now = monotonic()
 
     def _refresh_matched(self) -> None:

@@ -179,8 +179,10 @@ def set_realtime_priority(priority: int) -> str | None:
         return None
     if not hasattr(os, 'sched_setscheduler'):
         return 'SCHED_FIFO is not available on this platform'
+    # children (the in-plant writer is started before, but any later one) do not inherit it
+    policy = os.SCHED_FIFO | getattr(os, 'SCHED_RESET_ON_FORK', 0)
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        os.sched_setscheduler(0, policy, os.sched_param(priority))
     except OSError as exc:
         return f'SCHED_FIFO priority {priority} not permitted ({exc.strerror})'
     return None

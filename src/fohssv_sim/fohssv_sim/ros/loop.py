@@ -302,9 +302,11 @@ class HostedLaw:
     :meth:`fohssv_sim.control.Controller.command` clamps; it raises
     :class:`~fohssv_sim.control.NonFiniteCommand` for a non-finite output. A law that says
     it is affine (``Controller.affine()``, e.g. eq. 31) is evaluated as a scalar expression
-    of its gains, a fraction of a microsecond; any other plugin (LQR, fractional PID, your
-    own) through its ``command`` per sample, exactly as the controller node would call it.
-    ``affine`` tells which.
+    of its gains, a fraction of a microsecond, and :attr:`law` is then the
+    :class:`~fohssv_sim.models.AffineLaw` the plant runs inside the compiled kernel for a
+    burst of samples (:meth:`SampledPlant.advance_burst`); any other plugin (fractional PID,
+    your own) through its ``command`` per sample, exactly as the controller node would call
+    it. ``affine`` tells which.
     """
 
     def __init__(self, controller: Controller) -> None:
@@ -322,7 +324,8 @@ class HostedLaw:
         self.controller.reset()
 
     def describe(self) -> str:
-        how = 'affine, a scalar expression' if self.affine else 'its command() per sample'
+        how = ('affine, inside the compiled kernel' if self.affine
+               else 'its command() per sample')
         return f'{self.controller.describe()} hosted in the loop ({how})'
 
 

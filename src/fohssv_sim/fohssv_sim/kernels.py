@@ -451,9 +451,17 @@ def _in_bounds(x, wmax, pmax):
 
 
 @jitable
-def _sample_row(out, p, x, fp):
+def _take_sample(out, p, x, fp, law, held, limits):
+    """Row ``p`` of ``out`` for the sample ``x`` (and ``fp``), and the law's command for it
+    into ``held``: 0, or the status that stops the burst (2 out of bounds, 3 no command)."""
     out[p, 0], out[p, 1], out[p, 2], out[p, 3] = x[0], x[1], x[2], x[3]
     out[p, 4] = fp
+    if not _in_bounds(x, limits[2], limits[3]):
+        return 2
+    if not _sampled_command(law, x, held, limits[0], limits[1]):
+        return 3
+    out[p, 5], out[p, 6] = held[8], held[9]
+    return 0
 
 
 @_njit
@@ -467,12 +475,9 @@ def delay_free_sampled(x, hold, periods, h, cv, smooth, law, held, limits, bad, 
         if taken < hold:
             return p, 1, taken
         fp = planing_smooth(x[1], c) if smooth else planing_exact(x[1], c)
-        _sample_row(out, p, x, fp)
-        if not _in_bounds(x, limits[2], limits[3]):
-            return p + 1, 2, hold
-        if not _sampled_command(law, x, held, limits[0], limits[1]):
-            return p + 1, 3, hold
-        out[p, 5], out[p, 6] = held[8], held[9]
+        status = _take_sample(out, p, x, fp, law, held, limits)
+        if status:
+            return p + 1, status, hold
     return periods, 0, hold
 
 
@@ -493,12 +498,9 @@ def delayed_sampled(x, n, hold, periods, h, cv, hx, hf, lag, tau, x_init, paper,
         else:
             zd, wd, thd, _ = hermite_delayed(hx, hf, m + hold, 0.0, lag, h, x_init)
         fp = planing_delayed(x[0], x[2], zd, wd, thd, c, 'paper' if paper else 'geometric')
-        _sample_row(out, p, x, fp)
-        if not _in_bounds(x, limits[2], limits[3]):
-            return p + 1, 2, hold
-        if not _sampled_command(law, x, held, limits[0], limits[1]):
-            return p + 1, 3, hold
-        out[p, 5], out[p, 6] = held[8], held[9]
+        status = _take_sample(out, p, x, fp, law, held, limits)
+        if status:
+            return p + 1, status, hold
     return periods, 0, hold
 
 
@@ -514,12 +516,9 @@ def fom_soe_sampled(x, x0, n, hold, periods, cv, smooth, law, held, limits, H, W
         if taken < hold:
             return p, 1, taken
         fp = planing_smooth(x[1], c) if smooth else planing_exact(x[1], c)
-        _sample_row(out, p, x, fp)
-        if not _in_bounds(x, limits[2], limits[3]):
-            return p + 1, 2, hold
-        if not _sampled_command(law, x, held, limits[0], limits[1]):
-            return p + 1, 3, hold
-        out[p, 5], out[p, 6] = held[8], held[9]
+        status = _take_sample(out, p, x, fp, law, held, limits)
+        if status:
+            return p + 1, status, hold
     return periods, 0, hold
 
 

@@ -2,9 +2,10 @@
 
 A source in the test process keeps publishing states (as a plant paced by the recorder does:
 it runs on while the recorder reads), so messages never stop arriving. Before the bound the
-recorder drained until the run ended; now it closes after ``drain_timeout`` with one line
-saying so and naming what is missing, exit 0 without a run_end and 6 when a run_end lists more
-than the bag holds; the bag is readable either way.
+recorder drained until the run ended; now, with no run_end heard, it closes after
+``drain_timeout`` with one line saying so and where the bag ends, exit 0, the bag readable.
+(Once a run_end is heard the run has ended and its backlog is written in full:
+test_graph_run_end.py's drain at the end of a run, under load.)
 """
 
 from __future__ import annotations
@@ -16,10 +17,9 @@ import time
 import pytest
 import rclpy
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from std_msgs.msg import Float64MultiArray, String
+from std_msgs.msg import Float64MultiArray
 from test_graph_support import stop_all
 
-from fohssv_sim import contract
 from fohssv_sim.bag import load_run
 
 import rosproc
@@ -29,9 +29,7 @@ pytestmark = pytest.mark.graph
 DRAIN = 1.0
 
 
-@pytest.mark.parametrize('announced', [False, True], ids=['no run_end', 'run_end'])
-def test_a_drain_after_sigint_ends_at_drain_timeout_while_messages_keep_coming(
-        tmp_path, announced):
+def test_a_drain_after_sigint_ends_at_drain_timeout_while_messages_keep_coming(tmp_path):
     domain = rosproc.unique_domain_id()
     bag, log = tmp_path / 'bag', tmp_path / 'recorder.log'
     rec = rosproc.start('fohssv_sim', 'recorder', [
@@ -45,11 +43,8 @@ def test_a_drain_after_sigint_ends_at_drain_timeout_while_messages_keep_coming(
         state = node.create_publisher(Float64MultiArray, 'state', QoSProfile(
             history=HistoryPolicy.KEEP_LAST, depth=2000, reliability=ReliabilityPolicy.RELIABLE,
             durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        end = node.create_publisher(String, 'run_end', QoSProfile(
-            depth=1, reliability=ReliabilityPolicy.RELIABLE,
-            durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        rosproc.wait_for(lambda: state.get_subscription_count() >= 1
-                         and end.get_subscription_count() >= 1, 90, what='the recorder')
+        rosproc.wait_for(lambda: state.get_subscription_count() >= 1, 90,
+                         what='the recorder')
 
         def publish() -> None:            # 1 kHz until the test ends
             k = 0
@@ -64,11 +59,6 @@ def test_a_drain_after_sigint_ends_at_drain_timeout_while_messages_keep_coming(
         source = threading.Thread(target=publish, daemon=True)
         source.start()
         rosproc.wait_for(lambda: 'recording to' in log.read_text(), 60, what='the bag')
-        if announced:       # a run_end that lists far more than will ever arrive
-            end.publish(String(data=contract.run_end_text('plant', 'test', 0, 100.0,
-                                                          {'/state': 10**6})))
-            rosproc.wait_for(lambda: 'run_end from the plant' in log.read_text(), 30,
-                             what='the run_end at the recorder')
         time.sleep(0.5)
         rec.send_signal(signal.SIGINT)
         signalled = time.monotonic()
@@ -85,11 +75,6 @@ def test_a_drain_after_sigint_ends_at_drain_timeout_while_messages_keep_coming(
     assert 'Traceback' not in text
     # bounded: the drain's second, plus closing the bag and the process's exit
     assert took < DRAIN + 10, (took, text)
-    if announced:
-        assert code == 6, text
-        assert 'the bag misses messages the run_end lists (/state ' in cut[0], text
-        assert 'of 1000000' in cut[0] and 'message(s) lost' in text, text
-    else:
-        assert code == 0, text
-        assert 'no run_end heard' in cut[0] and 'the bag ends at t=' in cut[0], text
+    assert code == 0, text
+    assert 'no run_end heard' in cut[0] and 'the bag ends at t=' in cut[0], text
     assert load_run(bag).topics['/state'] > 0              # closed and readable

@@ -310,7 +310,10 @@ def _parameter_run(package, exe, args, words, i) -> Callable[[Path], Outcome]:
 
 def _command_case(plant: dict, answer_for: Callable, expect: dict) -> Callable[[Path], Outcome]:
     """A plant run whose controller is a probe answering with ``answer_for(probe)(t, x)``;
-    the plant must finish (exit 0, summary t = duration) with the counts in ``expect``."""
+    the plant must finish (exit 0, summary t = duration) with the counts in ``expect``. In
+    real time a starved probe (a loaded machine) may instead make the plant stop with the
+    command-lag exit 6 and its line, as documented, before the late commands lose the
+    vehicle: that is handled too; a divergence (exit 1) is a failure."""
     def run(tmp: Path) -> Outcome:
         with _PROBE_LOCK:
             procs = Procs(tmp)
@@ -325,6 +328,10 @@ def _command_case(plant: dict, answer_for: Callable, expect: dict) -> Callable[[
         out = procs.log('plant')
         s = summary(out)
         got = {k: s.get(k) for k in expect}
+        if (plant.get('mode') == 'realtime' and code == plant_node.EXIT_COMMAND_LAG
+                and 'command lag: ' in out and not crashed(out)):
+            return Outcome('handled', True, f"exit {code} (the probe was starved: command lag) "
+                           f"at t={s.get('t')} s, {got}")
         ok = (code == 0 and not crashed(out) and got == expect
               and math.isclose(s.get('t', -1), plant['duration'], rel_tol=1e-9))
         return Outcome('survived', ok, f"exit {code}, ran to t={s.get('t')} s, {got}",
@@ -392,7 +399,9 @@ def command_cases() -> list[Case]:
         return answer_for
 
     ls = {'model': 'delay-free', 'duration': 0.02, **ALONE}
-    rt = {**REALTIME, 'duration': 0.3, 'max_command_age': 0.5}
+    # max_command_lag 5 periods (5 ms of simulated time): a starved probe stops the run
+    # (exit 6) before its late answers lose the vehicle (at the default 20 they did, exit 1)
+    rt = {**REALTIME, 'duration': 0.3, 'max_command_age': 0.5, 'max_command_lag': 5}
     return [
         Case('commands', 'lockstep: NaN, +inf and -inf deflections', _command_case(
             ls, lockstep({3: lambda t, p: [t, math.nan, 0.0], 4: lambda t, p: [t, 0.0, math.inf],
@@ -666,7 +675,8 @@ def _sigint_recorder(after: float, tmp: Path) -> Outcome:
         started = procs.wait_line('plant', 'peers matched', 60)
         time.sleep(after)
         running = p['plant'].poll() is None
-        code = rosproc.stop(p['recorder'])
+        # the plant is paced by the recorder and runs on: the drain ends at drain_timeout
+        code = rosproc.stop(p['recorder'], timeout=30)
         plant = wait(p['plant'], 300)
     finally:
         procs.close()

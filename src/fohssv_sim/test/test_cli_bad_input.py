@@ -12,6 +12,7 @@ installed console script, as a user runs it.
 from __future__ import annotations
 
 import json
+import math
 import os
 import socket
 import subprocess
@@ -296,3 +297,25 @@ def test_output_names_never_leave_the_folder(tmp_path):
     with pytest.raises(CliError, match='symbolic link'):
         output_file(tmp_path / 'out', 'run_summary.json')
     assert outside.read_text() == 'keep'
+
+
+@pytest.mark.parametrize('gain', ['depth_gain=1e308', 'pitch_gain=-1e308'])
+def test_an_absurd_gain_in_a_gain_map_task_is_mapped_not_a_traceback(gain):
+    """Issue 21: ``fohssv gainmap --gain depth_gain=1e308`` ended in exit 70 with a Dask
+    worker's traceback: the equilibrium search of a point went where 1e308 z overflows, and
+    NonFiniteCommand escaped the task. A gain in its allowed range (-inf, inf) is run: the
+    task (what each Dask worker calls, run here in-process) classifies every point from its
+    run and leaves the linearisation NaN where it cannot be found."""
+    from fohssv_sim.analysis.gainmap import GainMapSpec, run_points
+
+    name, value = gain.split('=')
+    spec = GainMapSpec(controller='state_feedback', gain_x='pitch_rate_gain',
+                       x_values=(-0.4, -0.2), gain_y='vertical_velocity_gain',
+                       y_values=(0.0,), gains={name: float(value)}, duration=0.05,
+                       transient=0.01)
+    spec.validate()
+    rows = run_points(spec.to_dict(), list(range(spec.n_points)))
+    assert len(rows) == 2
+    assert all(r['outcome'] in ('steady', 'periodic', 'chaotic', 'diverged', 'drifting')
+               for r in rows), rows
+    assert all(math.isnan(r['alpha_c']) for r in rows), rows

@@ -310,13 +310,18 @@ class GainMapSpec:
 # -- one chunk ---------------------------------------------------------------------------
 def _equilibrium(params: ModelParameters, ctl: Any) -> tuple[float, float, float]:
     """(alpha_c, w*, delta_c*) of the closed-loop equilibrium nearest the cavity centre,
-    NaNs when none is found; alpha_c NaN for a controller with internal states."""
+    NaNs when none is found or the search fails (a law whose command overflows on the way,
+    e.g. ``--gain depth_gain=1e308``: the point's run is still classified); alpha_c NaN for
+    a controller with internal states."""
     from ..equilibria import find_equilibria
 
     stateless = getattr(ctl, 'stateless', True)
     if not stateless:
         return math.nan, math.nan, math.nan
-    eqs = find_equilibria(params, ctl)
+    try:
+        eqs = find_equilibria(params, ctl)
+    except FloatingPointError:       # NonFiniteCommand in the search: no linearisation here
+        return math.nan, math.nan, math.nan
     if not eqs:
         return math.nan, math.nan, math.nan
     e = min(eqs, key=lambda e: abs(e.state[1]))

@@ -254,6 +254,11 @@ class RunWriter:
     def topics(self) -> tuple[str, ...]:
         return tuple(self._connections)
 
+    @property
+    def newest(self) -> int | None:
+        """The latest log time written (ns); None before the first message."""
+        return self._bag.max_timestamp if any(self.counts.values()) else None
+
     def write(self, topic: str, log_time: int, data: bytes | memoryview) -> None:
         """Write one serialized (CDR) message of ``topic`` at ``log_time`` (ns).
 

@@ -58,6 +58,11 @@ RECORDER_PARAMETERS: tuple[ParameterSpec, ...] = (
        'messages a run_end lists that are not in the bag count as lost, and a drain after a '
        'signal ends (a backlog still being written is waited for)', low=0.0, high=3600.0,
        high_open=False),
+    _P('drain_timeout', '-', 10.0, 's', 'wall time a drain after SIGINT/SIGTERM lasts at most '
+       'while no run_end was heard: then the bag is closed even while messages still arrive '
+       '(a plant paced by this recorder runs on while it is read), with one line saying so; '
+       "after a run_end the drain writes the ended run's backlog", low=0.0, high=3600.0,
+       high_open=False),
 )
 
 #: The player's parameters.

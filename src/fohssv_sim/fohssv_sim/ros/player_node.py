@@ -324,12 +324,15 @@ class Player(Node):
                and any(pub.get_subscription_count() > 0 for pub in pubs)):
             executor.spin_once(timeout_sec=0.05)
         # run_end too: a recorder that has not taken it yet would lose it with this writer;
-        # a recorder leaves once it has it (bounded by end_timeout)
+        # a recorder leaves once it has it (bounded by end_timeout). A reader the graph lists
+        # but that has not matched yet (a recorder started together with the player) is
+        # waited for as well: it gets the transient-local run_end once it matches.
         end = getattr(self, 'end_pub', None)
         if end is not None and end in pubs:
             deadline = time.monotonic() + self.options.end_timeout
             while (rclpy.ok() and STOP.received is None and time.monotonic() < deadline
-                   and end.get_subscription_count() > 0):
+                   and (end.get_subscription_count() > 0
+                        or self.count_subscribers(end.topic_name) > 0)):
                 executor.spin_once(timeout_sec=0.05)
         return unacked
 

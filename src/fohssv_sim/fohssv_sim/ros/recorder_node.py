@@ -24,8 +24,11 @@
   messages received in the last ``flush_period`` (plus one callback); SIGINT/SIGTERM close the
   bag completely (summary, index, metadata.yaml) after draining what the readers already
   hold (until the bag holds what a received ``run_end`` lists, else until nothing arrived
-  for 0.5 s; it gives up once nothing arrived for ``end_timeout`` s, or at a second
-  signal). ``python -m fohssv_sim.bag repair`` rebuilds a killed recorder's bag.
+  for 0.5 s and for at most ``drain_timeout`` s, 10 by default: a lockstep plant paced by the
+  recorder runs on while the recorder reads, so without a run_end messages may never stop
+  arriving; a drain cut there says so in one line; it gives up once nothing arrived for
+  ``end_timeout`` s, or at a second signal). ``python -m fohssv_sim.bag repair`` rebuilds a
+  killed recorder's bag.
 * End of run (``stop_at_run_end``, default true): the plant (and the player after a replay)
   publishes ``run_end`` once, with the number of messages it sent on each topic. The recorder
   stores it in the run metadata (``fohssv.run_end``), waits until its bag holds that many
@@ -47,7 +50,8 @@
   plant died), the bag is closed with exit 7.
 * A full disk (an OS error while writing): one line naming it and ``fohssv repair``, exit 1.
 
-Exit codes: 0 bag closed (end of run with nothing lost, or SIGINT/SIGTERM), 1 the bag cannot
+Exit codes: 0 bag closed (end of run with nothing lost, or SIGINT/SIGTERM, also when
+``drain_timeout`` cut the drain of a run that announced no end), 1 the bag cannot
 be created or written (an OS error: a full disk), 2 invalid arguments or parameters (one
 line: a wrong type, a value
 out of range, an unknown parameter name, ``bag_path`` that exists already; see
@@ -424,12 +428,24 @@ class Recorder(Node):
 
     def drain(self, executor: Any) -> None:
         """After a signal: take what the readers already hold. Once a run_end arrived, until
-        the bag holds what it lists; before, until nothing arrived for 0.5 s. Either way it
-        ends when nothing arrived for ``end_timeout`` s, or at a further signal."""
+        the bag holds what it lists (the run ended: its backlog is finite and is written while
+        it keeps arriving); before, until nothing arrived for 0.5 s, and for at most
+        ``drain_timeout`` s: a plant paced by this recorder (lockstep,
+        ``pace_to_subscribers``) runs on while the recorder reads, so without a run_end
+        messages may never stop arriving. Either way it ends when nothing arrived for
+        ``end_timeout`` s, or at a further signal. Cut by ``drain_timeout``, one line says so
+        and where the bag ends (exit 0: the run went on past the stop asked for)."""
         signals = STOP.count
-        self._progress = (sum(self.writer.counts.values()), time.monotonic())
+        start = time.monotonic()
+        written = sum(self.writer.counts.values())
+        self._progress = (written, start)
+        cut = False
         while rclpy.ok() and STOP.count == signals:
             if self._expected is not None and not self.missing():
+                break
+            if (self._expected is None
+                    and time.monotonic() - start >= self.options.drain_timeout):
+                cut = True
                 break
             executor.spin_once(timeout_sec=0.02)
             if self._stalled():
@@ -438,6 +454,18 @@ class Recorder(Node):
                 break
         if self.missing():
             self.exit_code = EXIT_LOST
+        if cut:
+            self._report_cut(time.monotonic() - start, sum(self.writer.counts.values()) - written)
+
+    def _report_cut(self, waited: float, taken: int) -> None:
+        """The one line of a drain cut by ``drain_timeout`` (no run_end was heard)."""
+        newest = self.writer.newest
+        end = 'holds no message' if newest is None else f'ends at t={newest * 1e-9:.6g} s'
+        print(f'recorder: warning: drain_timeout={self.options.drain_timeout:g} s reached after '
+              f'the signal with messages still arriving ({taken} written in {waited:.1f} s) and '
+              f'no run_end heard: the run went on, and the bag {end} (what was published after '
+              f'that is not in it); closing {self.bag_path} (exit 0)', file=sys.stderr,
+              flush=True)
 
     def report_loss(self) -> None:
         """One line naming each topic the run_end lists with fewer messages in the bag."""

@@ -1,0 +1,80 @@
+"""Issue 21: after SIGINT the recorder's drain is bounded (``drain_timeout``).
+
+A source in the test process keeps publishing states (as a plant paced by the recorder does:
+it runs on while the recorder reads), so messages never stop arriving. Before the bound the
+recorder drained until the run ended; now, with no run_end heard, it closes after
+``drain_timeout`` with one line saying so and where the bag ends, exit 0, the bag readable.
+(Once a run_end is heard the run has ended and its backlog is written in full:
+test_graph_run_end.py's drain at the end of a run, under load.)
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+
+import pytest
+import rclpy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64MultiArray
+from test_graph_support import stop_all
+
+from fohssv_sim.bag import load_run
+
+import rosproc
+
+pytestmark = pytest.mark.graph
+
+DRAIN = 1.0
+
+
+def test_a_drain_after_sigint_ends_at_drain_timeout_while_messages_keep_coming(tmp_path):
+    domain = rosproc.unique_domain_id()
+    bag, log = tmp_path / 'bag', tmp_path / 'recorder.log'
+    rec = rosproc.start('fohssv_sim', 'recorder', [
+        '--ros-args', '-p', f'bag_path:={bag}', '-p', 'plant_node:=none', '-p',
+        'topics:=[state]', '-p', f'drain_timeout:={DRAIN}', '-p', 'stop_at_run_end:=false'],
+        env=rosproc.ros_env(domain), log=log)
+    ctx = rosproc.init_context(domain)
+    node = rclpy.create_node('plant', context=ctx)
+    stop = threading.Event()
+    try:
+        state = node.create_publisher(Float64MultiArray, 'state', QoSProfile(
+            history=HistoryPolicy.KEEP_LAST, depth=2000, reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        rosproc.wait_for(lambda: state.get_subscription_count() >= 1, 90,
+                         what='the recorder')
+
+        def publish() -> None:            # 1 kHz until the test ends
+            k = 0
+            while not stop.is_set():
+                try:
+                    state.publish(Float64MultiArray(data=[k * 1e-4, 0.0, 0.0, 0.0, 0.0]))
+                    k += 1
+                except Exception:  # noqa: BLE001, S110 - RCLError: the reader is behind
+                    pass
+                time.sleep(0.001)
+
+        source = threading.Thread(target=publish, daemon=True)
+        source.start()
+        rosproc.wait_for(lambda: 'recording to' in log.read_text(), 60, what='the bag')
+        time.sleep(0.5)
+        rec.send_signal(signal.SIGINT)
+        signalled = time.monotonic()
+        code = rosproc.wait_exit(rec, 30)
+        took = time.monotonic() - signalled
+    finally:
+        stop.set()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+        stop_all(rec)
+    text = log.read_text()
+    cut = [ln for ln in text.splitlines() if 'drain_timeout=1 s reached' in ln]
+    assert len(cut) == 1 and 'messages still arriving' in cut[0], text
+    assert 'Traceback' not in text
+    # bounded: the drain's second, plus closing the bag and the process's exit
+    assert took < DRAIN + 10, (took, text)
+    assert code == 0, text
+    assert 'no run_end heard' in cut[0] and 'the bag ends at t=' in cut[0], text
+    assert load_run(bag).topics['/state'] > 0              # closed and readable

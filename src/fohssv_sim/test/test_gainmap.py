@@ -121,7 +121,7 @@ def test_interrupted_map_resumes_to_the_same_rows(tmp_path, client):
 
 def run(*args):
     return subprocess.run([str(FOHSSV), 'gainmap', *args], capture_output=True, text=True,
-                          timeout=180)
+                          timeout=600)   # a hang guard: 180 s ran out at load 36
 
 
 def run_in_process(capfd, *args) -> tuple[int, str]:

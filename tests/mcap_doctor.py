@@ -1,22 +1,28 @@
-"""Run ``pymcap-cli doctor`` (pinned test dependency) on an MCAP file and parse its findings."""
+"""Run ``pymcap-cli doctor`` (pinned test dependency) on an MCAP file and parse its findings.
+
+The doctor command's function runs in this process (``pymcap_cli.cmd.doctor_cmd.doctor``,
+what ``pymcap-cli doctor`` calls, writing its JSONL to stdout): the command-line tool's start
+(cyclopts, rich and every other command's imports) cost more than the check of a test bag.
+"""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
-import subprocess
-import sys
 from pathlib import Path
-
-DOCTOR = Path(sys.executable).parent / 'pymcap-cli'
 
 
 def doctor(mcap: Path) -> tuple[dict, list[dict]]:
     """(summary, findings) of ``pymcap-cli doctor --format jsonl mcap``."""
-    out = subprocess.run([str(DOCTOR), 'doctor', '--format', 'jsonl', str(mcap)],
-                         capture_output=True, text=True, timeout=120)
-    lines = [json.loads(line) for line in out.stdout.splitlines() if line.startswith('{')]
+    from pymcap_cli.cmd.doctor_cmd import doctor as doctor_command
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = doctor_command(str(mcap), format='jsonl')
+    lines = [json.loads(line) for line in out.getvalue().splitlines() if line.startswith('{')]
     summary = [r for r in lines if r.get('type') == 'summary']
-    assert len(summary) == 1, f'doctor exit {out.returncode}: {out.stdout}{out.stderr}'
+    assert len(summary) == 1, f'doctor exit {code}: {out.getvalue()}{err.getvalue()}'
     return summary[0], [r for r in lines if r.get('type') == 'finding']
 
 

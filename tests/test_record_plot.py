@@ -11,12 +11,10 @@ import json
 import math
 import re
 import signal
-import subprocess
 import time
 from pathlib import Path
 
 import numpy as np
-from ament_index_python.packages import get_package_prefix
 from test_graph_support import batch_samples, finish, plant_args, stop_all
 
 from fohssv_controller.state_feedback import StateFeedback
@@ -28,7 +26,6 @@ from fohssv_sim.bag.writer import typestore
 
 import rosproc
 
-FOHSSV = Path(get_package_prefix('fohssv_sim')) / 'lib' / 'fohssv_sim' / 'fohssv'
 DURATION = 0.3
 ROOT = Path(__file__).resolve().parents[1]
 LAYOUT = ROOT / 'docs' / 'foxglove' / 'fohssv_layout.json'
@@ -128,7 +125,7 @@ def _assert_layout_names_what_the_bag_has(msgs: dict[str, list]) -> None:
         assert isinstance(value, float), (path, value)
 
 
-def test_recorded_closed_loop_equals_batch_run_and_plots(tmp_path):
+def test_recorded_closed_loop_equals_batch_run_and_plots(tmp_path, capfd):
     env = rosproc.ros_env()
     bag = tmp_path / 'run'
     log = tmp_path / 'recorder.log'
@@ -165,9 +162,13 @@ def test_recorded_closed_loop_equals_batch_run_and_plots(tmp_path):
     _assert_views_equal_the_samples(run, msgs)
     _assert_layout_names_what_the_bag_has(msgs)
 
-    out = subprocess.run([str(FOHSSV), 'plot', str(bag), '--out', str(tmp_path / 'fig')],
-                         capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0, out.stderr
+    # `fohssv plot` in-process (cli.main: the parser and command the installed script calls;
+    # test_cli_plot runs the script itself)
+    from fohssv_sim.cli import main
+
+    capfd.readouterr()
+    code = main(['plot', str(bag), '--out', str(tmp_path / 'fig')])
+    assert code == 0, capfd.readouterr().err
     s = json.loads((tmp_path / 'fig' / 'run_summary.json').read_text())[str(bag)]
     half = ref[:, 0] >= DURATION / 2
     assert s['samples'] == len(ref)

@@ -1,5 +1,9 @@
 """Missing, empty, truncated and non-bag paths: a clear BagError naming the path, and from the
-command line a one-line error with a non-zero exit, never a traceback. Pure: no rclpy."""
+command line a one-line error with a non-zero exit, never a traceback. Pure: no rclpy.
+
+The command line's cases run in-process through ``fohssv_sim.bag.__main__.main`` (what
+``python -m fohssv_sim.bag`` calls); one bad bag and the usage error also run as
+``python -m fohssv_sim.bag``, as a user runs it."""
 
 from __future__ import annotations
 
@@ -10,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from fohssv_sim.bag import BagError, load_run
+from fohssv_sim.bag.__main__ import main as bag_main
 from fohssv_sim.bag.synthetic import write_bag
 
 
@@ -62,30 +67,41 @@ def test_load_run_raises_a_clear_bag_error(bad, case):
     assert words in str(info.value) and path.name in str(info.value)
 
 
-def test_cli_exits_non_zero_with_one_line_and_no_traceback(bad):
+def _bag_cli(argv: list[str], capfd) -> tuple[int, str, str]:
+    """``python -m fohssv_sim.bag ARGV`` in this process: (exit code, stdout, stderr)."""
+    capfd.readouterr()
+    code = bag_main([str(a) for a in argv])
+    out = capfd.readouterr()
+    return code, out.out, out.err
+
+
+def test_cli_exits_non_zero_with_one_line_and_no_traceback(bad, capfd):
+    path, words = bad['header_cut']
+    proc = subprocess.run([sys.executable, '-m', 'fohssv_sim.bag', 'info', str(path)],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 1 and 'Traceback' not in proc.stderr + proc.stdout
+    assert proc.stderr.startswith('error: ') and words in proc.stderr, proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr
     for command in ('info', 'check', 'repair'):
         for case, (path, words) in bad.items():
-            proc = subprocess.run([sys.executable, '-m', 'fohssv_sim.bag', command, str(path)],
-                                  capture_output=True, text=True, timeout=60)
-            assert proc.returncode == 1, (command, case, proc.stdout, proc.stderr)
-            assert 'Traceback' not in proc.stderr + proc.stdout
-            lines = proc.stderr.strip().splitlines()
+            code, stdout, stderr = _bag_cli([command, path], capfd)
+            assert code == 1, (command, case, stdout, stderr)
+            assert 'Traceback' not in stderr + stdout
+            lines = stderr.strip().splitlines()
             if command == 'check' and not lines:
                 # a readable file with problems: they are listed, the verdict is last
-                assert 'problem: ' in proc.stdout and 'problem(s)' in proc.stdout, (
-                    case, proc.stdout)
+                assert 'problem: ' in stdout and 'problem(s)' in stdout, (case, stdout)
                 continue
             assert len(lines) == 1 and lines[0].startswith('error: ') and words in lines[0], (
-                command, case, proc.stderr)
+                command, case, stderr)
 
 
-def test_cli_on_a_good_bag(bad):
+def test_cli_on_a_good_bag(bad, capfd):
     good = bad['missing'][0].parent / 'good'
     for command in ('info', 'check'):
-        proc = subprocess.run([sys.executable, '-m', 'fohssv_sim.bag', command, str(good)],
-                              capture_output=True, text=True, timeout=60)
-        assert proc.returncode == 0, proc.stderr
-    assert 'OK' in proc.stdout
+        code, stdout, stderr = _bag_cli([command, good], capfd)
+        assert code == 0, stderr
+    assert 'OK' in stdout
     proc = subprocess.run([sys.executable, '-m', 'fohssv_sim.bag'], capture_output=True,
                           text=True, timeout=60)
     assert proc.returncode == 2 and 'usage' in proc.stderr

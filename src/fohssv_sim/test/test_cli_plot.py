@@ -1,4 +1,9 @@
-"""`fohssv plot` on a real bag holding a simulated run (rosbag2 + MCAP written and read back)."""
+"""`fohssv plot` on a real bag holding a simulated run (rosbag2 + MCAP written and read back).
+
+The overlay test and one bad bag run the installed ``fohssv`` script, as a user runs it; the
+other commands run in-process through :func:`fohssv_sim.cli.main` (the same parser and
+commands: a new interpreter importing numpy, numba, scipy and matplotlib for each would cost
+more than the command itself)."""
 
 import json
 import subprocess
@@ -16,6 +21,18 @@ from fohssv_sim.params import ModelParameters
 from fohssv_sim.simulate import simulate
 
 FOHSSV = Path(get_package_prefix('fohssv_sim')) / 'lib' / 'fohssv_sim' / 'fohssv'
+
+
+def fohssv(argv, capfd) -> tuple[int, str]:
+    """``fohssv ARGV`` in this process: (exit code, stderr)."""
+    from fohssv_sim.cli import main
+
+    capfd.readouterr()
+    try:
+        code = main([str(a) for a in argv])
+    except SystemExit as e:      # argparse's own exits (usage errors)
+        code = e.code
+    return code, capfd.readouterr().err
 
 
 def record(path, run, params):
@@ -57,35 +74,37 @@ def test_plot_overlays_bags_and_summarises_them(tmp_path):
     assert abs(s['w_dominant_frequency_hz'] - f_peaks) <= s['frequency_resolution_hz']
 
 
-def test_plot_bad_bags_exit_1_like_check_without_traceback(tmp_path):
+def test_plot_bad_bags_exit_1_like_check_without_traceback(tmp_path, capfd):
     """A missing or unreadable bag: one line and exit 1 from plot, check and repair alike
-    (2 is for bad options)."""
+    (2 is for bad options); the first case through the installed script too."""
     (tmp_path / 'empty').mkdir()
     (tmp_path / 'junk.mcap').write_bytes(b'not an mcap file at all')
+    script = subprocess.run([str(FOHSSV), 'plot', str(tmp_path / 'junk.mcap'), '--out',
+                             str(tmp_path)], capture_output=True, text=True, timeout=60)
+    assert script.returncode == 1 and len(script.stderr.strip().splitlines()) == 1, (
+        script.stderr)
+    assert 'Traceback' not in script.stderr and str(tmp_path / 'junk.mcap') in script.stderr
     for bad in ('missing', 'empty', 'junk.mcap'):
         for command in (['plot', str(tmp_path / bad), '--out', str(tmp_path)],
                         ['check', str(tmp_path / bad)], ['repair', str(tmp_path / bad)]):
-            out = subprocess.run([str(FOHSSV), *command], capture_output=True, text=True,
-                                 timeout=60)
-            assert out.returncode == 1, (command, out.stderr)
-            assert 'Traceback' not in out.stderr and str(tmp_path / bad) in out.stderr
-            assert len(out.stderr.strip().splitlines()) == 1, out.stderr
+            code, err = fohssv(command, capfd)
+            assert code == 1, (command, err)
+            assert 'Traceback' not in err and str(tmp_path / bad) in err
+            assert len(err.strip().splitlines()) == 1, err
 
 
-def test_plot_out_an_existing_file_is_one_line_and_exit_2(tmp_path):
+def test_plot_out_an_existing_file_is_one_line_and_exit_2(tmp_path, capfd):
     p = ModelParameters(model='delay-free')
     record(tmp_path / 'a', simulate(p, StateFeedback(), 0.05, sample_every=10), p)
     (tmp_path / 'taken.png').write_bytes(b'mine')
-    out = subprocess.run([str(FOHSSV), 'plot', str(tmp_path / 'a'), '--out',
-                          str(tmp_path / 'taken.png')], capture_output=True, text=True,
-                         timeout=60)
-    assert out.returncode == 2, out.stderr
-    assert 'exists and is not a folder' in out.stderr and 'Traceback' not in out.stderr
-    assert len(out.stderr.strip().splitlines()) == 1
+    code, err = fohssv(['plot', tmp_path / 'a', '--out', tmp_path / 'taken.png'], capfd)
+    assert code == 2, err
+    assert 'exists and is not a folder' in err and 'Traceback' not in err
+    assert len(err.strip().splitlines()) == 1
     assert (tmp_path / 'taken.png').read_bytes() == b'mine'
 
 
-def test_plot_a_bag_with_two_namespaces_by_namespace(tmp_path):
+def test_plot_a_bag_with_two_namespaces_by_namespace(tmp_path, capfd):
     """Two vehicles in one bag: without --namespace the error names both namespaces; with it
     the one named plots, and its summary is that vehicle's run (not the first one's)."""
     runs = {}
@@ -104,16 +123,12 @@ def test_plot_a_bag_with_two_namespaces_by_namespace(tmp_path):
             w.write(f'{ns}/command', ns_t, float64_array(contract.COMMAND,
                                                          [t, *run.inputs[i]]))
     w.close()
-    out = subprocess.run([str(FOHSSV), 'plot', str(tmp_path / 'two'), '--out',
-                          str(tmp_path / 'fig')], capture_output=True, text=True, timeout=60)
-    assert out.returncode == 1 and 'one of /v1, /v2' in out.stderr and '--namespace' in (
-        out.stderr), out.stderr
+    code, err = fohssv(['plot', tmp_path / 'two', '--out', tmp_path / 'fig'], capfd)
+    assert code == 1 and 'one of /v1, /v2' in err and '--namespace' in err, err
     for ns, run in list(runs.items())[1:]:      # the second vehicle (the first is the default)
         fig = tmp_path / f'fig{ns.strip("/")}'
-        out = subprocess.run([str(FOHSSV), 'plot', str(tmp_path / 'two'), '--namespace', ns,
-                              '--out', str(fig)], capture_output=True, text=True,
-                             timeout=120)
-        assert out.returncode == 0, out.stderr
+        code, err = fohssv(['plot', tmp_path / 'two', '--namespace', ns, '--out', fig], capfd)
+        assert code == 0, err
         s = json.loads((fig / 'run_summary.json').read_text())[str(tmp_path / 'two')]
         assert s['samples'] == run.t.size
 

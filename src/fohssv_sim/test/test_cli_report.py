@@ -17,7 +17,7 @@ QUICK = 'quick (not converged)'
 
 def test_quick_report_has_every_claim_with_independent_numbers(tmp_path):
     out = subprocess.run([str(FOHSSV), 'report', '--quick', '--out', str(tmp_path),
-                          '--workers', '2'], capture_output=True, text=True, timeout=600)
+                          '--workers', '1'], capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr
     rows = json.loads((tmp_path / 'claims.json').read_text())
     claims = [r['claim'] for r in rows]

@@ -183,14 +183,22 @@ def test_same_results_with_the_local_default_and_an_explicit_cluster(tmp_path):
     assert read_chunks(a) == read_chunks(b)
 
 
-def test_sweep_rejects_bad_input_in_one_line(tmp_path):
+def test_sweep_rejects_bad_input_in_one_line(tmp_path, capfd):
+    """In-process through the CLI's ``main`` (the installed script is run by the other
+    tests here and by test_cli_bad_input's sample)."""
+    from fohssv_sim.cli import main
+
     for args, text in [(['--alpha', '0.5:1.2:0.1'],
                         'fractional_order=1.1 is outside the allowed range (0, 1]'),
                        (['--set', 'length=-1'], 'length=-1.0'),
                        (['--window', '0'], '--window')]:
-        r = subprocess.run([str(FOHSSV), 'sweep', 'alpha', *args, '--out', str(tmp_path)],
-                           capture_output=True, text=True, timeout=60)
-        assert r.returncode == 2 and text in r.stderr and 'Traceback' not in r.stderr
+        capfd.readouterr()
+        try:
+            code = main(['sweep', 'alpha', *args, '--out', str(tmp_path)])
+        except SystemExit as e:      # argparse's own exits (usage errors)
+            code = e.code
+        err = capfd.readouterr().err
+        assert code == 2 and text in err and 'Traceback' not in err, err
 
 
 def test_progress_counts_points_inside_a_chunk_and_writes_lines_to_a_pipe(tmp_path):

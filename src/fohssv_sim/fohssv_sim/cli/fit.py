@@ -80,6 +80,9 @@ def register(sub) -> None:
     p.add_argument('--out', type=Path, help=f'output folder (default {DEFAULT_OUT}/<bag '
                    f'name>, or {DEFAULT_OUT}/reference-delayed)')
     dask_options(p, 16, 'one batched compiled call')
+    p.add_argument('--processes', action='store_true',
+                   help='local Dask workers as processes (default: threads of this process; '
+                   'the compiled kernel runs outside the GIL)')
     p.set_defaults(func=cmd_fit)
 
 
@@ -164,8 +167,12 @@ class _Dask:
         if self.args.scheduler:
             self.client = Client(self.args.scheduler, timeout='20s')
         else:
+            # worker threads in this process: the compiled kernel releases the GIL, and
+            # threads need no start-up, imports or numba cache loads of their own, nor the
+            # problem pickled to them (measured: bench/bench_fit.py --scheduler-kind)
             n = self.args.workers or os.cpu_count() or 1
-            self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+            self.cluster = LocalCluster(n_workers=n, threads_per_worker=1,
+                                        processes=self.args.processes,
                                         dashboard_address=None)
             self.client = Client(self.cluster)
         return self.client

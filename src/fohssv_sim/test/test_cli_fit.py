@@ -1,6 +1,9 @@
 """`fohssv fit` (issue 23) on bags written from in-process runs: the population kernel against
 the plant stepped period by period, and bad input refused in one line with exit 2."""
 
+import hashlib
+import json
+import re
 import subprocess
 from pathlib import Path
 
@@ -69,3 +72,24 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
         assert len(out.stderr.strip().splitlines()) == 1, out.stderr
     out = run('fit', str(tmp_path / 'missing'), '--fit', 'fractional_order')
     assert out.returncode == 1 and 'no such file' in out.stderr     # a bag error, as `check`
+
+
+def test_default_output_folder_is_named_after_the_job_and_claimed(tmp_path):
+    """Like every command: reports/fit/<bag>-<hash of the job>, with job.json naming the
+    bag's sha256; a folder holding another fit job is refused (exit 2), not overwritten."""
+    bag = _bag(tmp_path / 'run')
+    fast = ('--population', '8', '--profile-points', '5', '--no-step-check', '--workers', '1')
+    r = subprocess.run([str(FOHSSV), 'fit', str(bag), '--fit', 'fractional_order', *fast],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    folders = list((tmp_path / 'reports' / 'fit').iterdir())
+    assert len(folders) == 1 and re.fullmatch(r'run-[0-9a-f]{8}', folders[0].name), folders
+    assert str(Path('reports') / 'fit' / folders[0].name) in r.stdout
+    sha = hashlib.sha256(b''.join(f.read_bytes() for f in sorted(bag.glob('*.mcap'))))
+    job = json.loads((folders[0] / 'job.json').read_text())
+    assert job['fit']['bag_sha256'] == sha.hexdigest()
+    assert json.loads((folders[0] / 'fit.json').read_text())['bag_sha256'] == sha.hexdigest()
+    other = run('fit', str(bag), '--fit', 'fractional_order', '--window', '0:0.01', *fast,
+                '--out', str(folders[0]))
+    assert other.returncode == 2 and 'holds a different fit job' in other.stderr, other.stderr
+    assert len(other.stderr.strip().splitlines()) == 1

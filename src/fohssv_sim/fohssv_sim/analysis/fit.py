@@ -31,12 +31,20 @@ warm-started from the previous stage, and bisects back towards the last reproduc
 where a stage is not reproduced; it reports the last reproduced horizon with its fit
 (``horizon_end``). ``horizon='full'`` fits the whole window in one stage.
 
-**Global, then local.** Each stage evaluates a population (stage 0: a Latin hypercube over the
-bounds; later stages: the current estimate and, per parameter, a line of values over its
-bounds through it) in batched compiled calls (:mod:`.population`) on Dask, through the sweeps'
-chunk machinery (:func:`.sweep.run_chunks`: chunk CSV files under ``out/population/``, resume,
-progress per point). The best ``starts`` points start ``scipy.optimize.least_squares`` (trf,
-within the bounds; the Jacobian by forward differences, all p + 1 points in one batched call).
+**Global, then local.** Each stage evaluates a population (until a horizon is reproduced: a
+Latin hypercube over the bounds; later stages: the current estimate and, per parameter the last
+stage could not see, a line of values over its bounds through it) in batched compiled calls
+(:mod:`.population`, one per chunk) on Dask, through the sweeps' chunk machinery
+(:func:`.sweep.run_chunks`: chunk CSV files under ``out/population/``, resume, progress per
+point). The best ``starts`` points (later stages: the best one, normally the warm start) start
+``scipy.optimize.least_squares`` (trf, within the bounds, ending at a relative step of
+:data:`LOCAL_TOL`; the Jacobian by forward differences: each new point is simulated with its p
+perturbed points in one batched call split over ``threads``, so the Jacobian least_squares asks
+for at an accepted point is already there).
+
+**Cost** (``bench/bench_fit.py``): the kernel's ~1.2 us per step and point; a one-parameter
+fit of a 2 s bag simulates about 120 full-length points (the coarse and fine profiles and the
+half-step check are most of it once the horizon grows warm-started).
 
 **Uncertainty.** At the estimate, the Jacobian interval x +- t_{0.975, N-p} sigma with
 cov = s^2 (J^T J)^-1, s^2 = sum r^2 / (N - p); and a profile of the objective over alpha (or the
@@ -694,6 +702,9 @@ class FitResult:
     params: ModelParameters
     settings: dict[str, Any]
     message: str = ''
+    #: cycle objective: the features (frequency, amplitude, mean, class of w) of the run and
+    #: of the fitted FOM over the window
+    cycle: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {'values': self.values, 'intervals': self.intervals,
@@ -704,7 +715,7 @@ class FitResult:
                 'window': list(self.window), 'horizon_end': self.horizon_end,
                 'stages': self.stages, 'profile': self.profile,
                 'parameters': self.params.to_dict(), 'settings': self.settings,
-                'spec': self.spec.to_dict()}
+                'cycle': self.cycle, 'spec': self.spec.to_dict()}
 
 
 def _jacobian_interval(local: _Local, x: np.ndarray, r: np.ndarray, bounds: np.ndarray,
@@ -894,6 +905,11 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
                                  'dof': dof, 's2': s2, 'population_points': ev.points,
                                  'step_check': check,
                                  'source': data.source})
+    if spec.objective == 'cycle':
+        sel = problem.index
+        result.cycle = {'data': problem.features,
+                        'fitted': cycle_features(data.t[sel], fitted[sel, 1])
+                        if np.isfinite(fitted[sel, 1]).all() else None}
     result.message = summary_line(result)
     return result
 

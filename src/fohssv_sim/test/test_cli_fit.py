@@ -24,6 +24,21 @@ def run(*args):
     return subprocess.run([str(FOHSSV), *args], capture_output=True, text=True, timeout=300)
 
 
+def run_main(*args):
+    """The command's own entry point (``fohssv_sim.cli.main``, what the console script calls)
+    in this process: the refusals come before any work, so a process start per case would
+    only add its imports. Returns (exit status, stderr)."""
+    import contextlib
+    import io
+
+    from fohssv_sim.cli import main
+
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        code = main(list(args))
+    return code, err.getvalue()
+
+
 def _bag(path: Path, commands: bool = True, duration: float = 0.02) -> Path:
     p = ModelParameters(fractional_order=0.81)
     r = simulate(p, make('state_feedback'), duration, control_period=1e-4, sample_every=5)
@@ -65,13 +80,16 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
               '--bounds speed: not among the fitted names'),
              ((str(bag), '--fit', 'fractional_order', '--window', '5:6'),
               '--window 5:6 s holds 0 state sample(s)')]
-    for args, text in cases:
-        out = run('fit', *args, '--out', str(tmp_path / 'out'))
-        assert out.returncode == 2, (args, out.stderr)
-        assert text in out.stderr and 'Traceback' not in out.stderr, (args, out.stderr)
-        assert len(out.stderr.strip().splitlines()) == 1, out.stderr
-    out = run('fit', str(tmp_path / 'missing'), '--fit', 'fractional_order')
-    assert out.returncode == 1 and 'no such file' in out.stderr     # a bag error, as `check`
+    for args, text in cases[1:]:
+        code, err = run_main('fit', *args, '--out', str(tmp_path / 'out'))
+        assert code == 2, (args, err)
+        assert text in err and 'Traceback' not in err, (args, err)
+        assert len(err.strip().splitlines()) == 1, err
+    out = run('fit', *cases[0][0], '--out', str(tmp_path / 'out'))    # one through the script
+    assert out.returncode == 2 and cases[0][1] in out.stderr, out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1 and 'Traceback' not in out.stderr
+    code, err = run_main('fit', str(tmp_path / 'missing'), '--fit', 'fractional_order')
+    assert code == 1 and 'no such file' in err     # a bag error, as `check`
 
 
 def test_default_output_folder_is_named_after_the_job_and_claimed(tmp_path):
@@ -89,10 +107,10 @@ def test_default_output_folder_is_named_after_the_job_and_claimed(tmp_path):
     job = json.loads((folders[0] / 'job.json').read_text())
     assert job['fit']['bag_sha256'] == sha.hexdigest()
     assert json.loads((folders[0] / 'fit.json').read_text())['bag_sha256'] == sha.hexdigest()
-    other = run('fit', str(bag), '--fit', 'fractional_order', '--window', '0:0.01', *fast,
-                '--out', str(folders[0]))
-    assert other.returncode == 2 and 'holds a different fit job' in other.stderr, other.stderr
-    assert len(other.stderr.strip().splitlines()) == 1
+    code, err = run_main('fit', str(bag), '--fit', 'fractional_order', '--window', '0:0.01',
+                         *fast, '--out', str(folders[0]))
+    assert code == 2 and 'holds a different fit job' in err, err
+    assert len(err.strip().splitlines()) == 1
 
 
 def test_cycle_features_of_an_exact_waveform():

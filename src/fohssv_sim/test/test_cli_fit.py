@@ -24,18 +24,20 @@ def run(*args):
     return subprocess.run([str(FOHSSV), *args], capture_output=True, text=True, timeout=300)
 
 
-def run_main(*args):
+def run_main(*args, stdout: list | None = None):
     """The command's own entry point (``fohssv_sim.cli.main``, what the console script calls)
-    in this process: the refusals come before any work, so a process start per case would
-    only add its imports. Returns (exit status, stderr)."""
+    in this process (a process start per case would only add its imports). Returns (exit
+    status, stderr); ``stdout`` (a list) receives what it printed."""
     import contextlib
     import io
 
     from fohssv_sim.cli import main
 
-    err = io.StringIO()
-    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+    err, out = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
         code = main(list(args))
+    if stdout is not None:
+        stdout.append(out.getvalue())
     return code, err.getvalue()
 
 
@@ -92,17 +94,18 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
     assert code == 1 and 'no such file' in err     # a bag error, as `check`
 
 
-def test_default_output_folder_is_named_after_the_job_and_claimed(tmp_path):
+def test_default_output_folder_is_named_after_the_job_and_claimed(tmp_path, monkeypatch):
     """Like every command: reports/fit/<bag>-<hash of the job>, with job.json naming the
     bag's sha256; a folder holding another fit job is refused (exit 2), not overwritten."""
     bag = _bag(tmp_path / 'run')
     fast = ('--population', '8', '--profile-points', '5', '--no-step-check', '--workers', '1')
-    r = subprocess.run([str(FOHSSV), 'fit', str(bag), '--fit', 'fractional_order', *fast],
-                       cwd=tmp_path, capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
+    monkeypatch.chdir(tmp_path)
+    printed: list[str] = []
+    code, err = run_main('fit', str(bag), '--fit', 'fractional_order', *fast, stdout=printed)
+    assert code == 0, err
     folders = list((tmp_path / 'reports' / 'fit').iterdir())
     assert len(folders) == 1 and re.fullmatch(r'run-[0-9a-f]{8}', folders[0].name), folders
-    assert str(Path('reports') / 'fit' / folders[0].name) in r.stdout
+    assert str(Path('reports') / 'fit' / folders[0].name) in printed[0]
     sha = hashlib.sha256(b''.join(f.read_bytes() for f in sorted(bag.glob('*.mcap'))))
     job = json.loads((folders[0] / 'job.json').read_text())
     assert job['fit']['bag_sha256'] == sha.hexdigest()

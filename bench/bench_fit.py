@@ -2,6 +2,7 @@
 """Benchmark of ``fohssv fit`` (issue 23): a one-parameter fit of a 2 s bag at h = 2e-5 s.
 
     python bench/bench_fit.py --out bench/results/fit.json [--quick] [--workers N]
+                                [--processes-too]
 
 The bag: the FOM at alpha = 0.81, V = 75 m/s, solver 'soe', step 2e-5 s, under the eq. 31
 state feedback with a zero-order hold of 1e-4 s, 2 s from x(0) = 0 (20 000 control periods,
@@ -10,11 +11,14 @@ state feedback with a zero-order hold of 1e-4 s, 2 s from x(0) = 0 (20 000 contr
 fractional_order --controller state_feedback`` (closed loop: an open-loop replay of a 2 s
 tail-slap run departs from the data within ~0.1 s, so the open-loop fit stops its horizon
 there; see the README), default population, profile and step check, on a local Dask cluster
-of ``--workers`` processes, the installed console script timed from start to exit (cluster
-start-up included).
+of ``--workers`` threads (the default; ``--processes-too`` also runs it with ``--processes``,
+side by side), the installed console script timed from start to exit (cluster start-up, imports
+and the numba cache load included), wall and CPU seconds (user + system of the command and its
+worker processes: the figure that does not depend on what else loads the machine).
 
 Rows, side by side in one run:
-  fit          wall seconds of the whole command (target <= 60 s on 2 cores);
+  fit          wall seconds of the whole command (target <= 60 s on 2 cores), and its CPU
+               seconds (CPU / cores is the wall time on an otherwise idle machine);
   population   one batched compiled call (:func:`fohssv_sim.analysis.population.run_population`)
                of 8 points over the 2 s, in this process;
   per point    the same 8 points through the plant contract period by period
@@ -50,11 +54,21 @@ from benchutil import finish, target  # noqa: E402
 ALPHA = 0.81
 
 
+def _children_cpu() -> float:
+    """User + system CPU seconds of the waited-for children (and theirs) so far."""
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--out', type=Path, default=Path('bench/results/fit.json'))
     ap.add_argument('--quick', action='store_true', help='a 0.5 s bag')
     ap.add_argument('--workers', type=int, default=os.cpu_count() or 1)
+    ap.add_argument('--processes-too', action='store_true',
+                    help='also time the fit with --processes (local Dask worker processes)')
     args = ap.parse_args(argv)
 
     from ament_index_python.packages import get_package_prefix
@@ -88,31 +102,47 @@ def main(argv: list[str] | None = None) -> int:
         serial = time.perf_counter() - t0
 
         exe = Path(get_package_prefix('fohssv_sim')) / 'lib' / 'fohssv_sim' / 'fohssv'
-        out = Path(tmp) / 'fit'
-        t0 = time.perf_counter()
-        cmd = subprocess.run([str(exe), 'fit', str(bag), '--fit', 'fractional_order',
-                              '--controller', 'state_feedback', '--workers',
-                              str(args.workers), '--out', str(out)],
-                             capture_output=True, text=True)
-        wall = time.perf_counter() - t0
-        print(cmd.stdout[-2000:])
-        if cmd.returncode != 0:
-            print(cmd.stderr[-3000:], file=sys.stderr)
-            return 1
-        d = json.loads((out / 'fit.json').read_text())
+        runs = {}
+        for kind in ('threads', 'processes') if args.processes_too else ('threads',):
+            out = Path(tmp) / f'fit-{kind}'
+            c0 = _children_cpu()
+            t0 = time.perf_counter()
+            cmd = subprocess.run([str(exe), 'fit', str(bag), '--fit', 'fractional_order',
+                                  '--controller', 'state_feedback', '--workers',
+                                  str(args.workers), '--out', str(out)]
+                                 + (['--processes'] if kind == 'processes' else []),
+                                 capture_output=True, text=True)
+            runs[kind] = (time.perf_counter() - t0, _children_cpu() - c0)
+            print(cmd.stdout[-2500:])
+            if cmd.returncode != 0:
+                print(cmd.stderr[-3000:], file=sys.stderr)
+                return 1
+            if kind == 'threads':
+                d = json.loads((out / 'fit.json').read_text())
+        wall, cpu = runs['threads']
     alpha = d['values']['fractional_order']
     res = {'machine': platform.machine(), 'cpus': os.cpu_count(), 'workers': args.workers,
            'load_avg_start': load0, 'duration': duration, 'step': p.step,
-           'fit_wall_s': wall, 'alpha': alpha, 'interval': d['intervals']['fractional_order'],
+           'fit_wall_s': wall, 'fit_cpu_s': cpu, 'alpha': alpha,
+           'fit_processes_wall_s': runs.get('processes', (None, None))[0],
+           'fit_processes_cpu_s': runs.get('processes', (None, None))[1],
+           'interval': d['intervals']['fractional_order'],
            'residual': d['residual'], 'stages': d['stages'],
            'population_8_points_s': batched, 'per_point_8_points_s': serial,
            'batched_speedup': serial / batched, 'targets': []}
-    print(f'fit of a {duration:g} s bag (1 parameter, h = {p.step:g} s): {wall:.1f} s wall; '
+    print(f'fit of a {duration:g} s bag (1 parameter, h = {p.step:g} s, {args.workers} worker '
+          f'threads): {wall:.1f} s wall, {cpu:.1f} s CPU (load {load0[0]:.1f} at the start); '
           f'alpha = {alpha:.6g} {d["intervals"]["fractional_order"]}')
+    if 'processes' in runs:
+        pw, pc = runs['processes']
+        print(f'the same with --processes: {pw:.1f} s wall, {pc:.1f} s CPU '
+              f'(threads / processes CPU: {cpu / pc:.2f})')
     print(f'8 points over {duration:g} s: batched {batched:.2f} s, per point through the plant '
           f'{serial:.2f} s (x{serial / batched:.1f})')
     target(res['targets'], f'one-parameter fit of a {duration:g} s bag, wall s', wall, '<=',
            60.0)
+    target(res['targets'], f'the same, CPU s / {os.cpu_count()} cores (idle-machine wall)',
+           cpu / (os.cpu_count() or 1), '<=', 60.0)
     target(res['targets'], 'batched population vs per-point plant (speed-up)',
            serial / batched, '>=', 1.0)
     finish(res, 'Targets of issue #23 (from this run)', args.out, width=48)

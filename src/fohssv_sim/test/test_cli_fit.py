@@ -1,6 +1,9 @@
 """`fohssv fit` (issue 23) on bags written from in-process runs: the population kernel against
 the plant stepped period by period, and bad input refused in one line with exit 2."""
 
+import hashlib
+import json
+import re
 import subprocess
 from pathlib import Path
 
@@ -19,6 +22,23 @@ FOHSSV = Path(get_package_prefix('fohssv_sim')) / 'lib' / 'fohssv_sim' / 'fohssv
 
 def run(*args):
     return subprocess.run([str(FOHSSV), *args], capture_output=True, text=True, timeout=300)
+
+
+def run_main(*args, stdout: list | None = None):
+    """The command's own entry point (``fohssv_sim.cli.main``, what the console script calls)
+    in this process (a process start per case would only add its imports). Returns (exit
+    status, stderr); ``stdout`` (a list) receives what it printed."""
+    import contextlib
+    import io
+
+    from fohssv_sim.cli import main
+
+    err, out = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
+        code = main(list(args))
+    if stdout is not None:
+        stdout.append(out.getvalue())
+    return code, err.getvalue()
 
 
 def _bag(path: Path, commands: bool = True, duration: float = 0.02) -> Path:
@@ -49,7 +69,7 @@ def test_population_equals_the_plant_stepped_period_by_period():
     assert np.array_equal(got.states[0], r.state)        # the batch runner's closed loop
 
 
-def test_bad_input_is_one_line_and_exit_2(tmp_path, capfd):
+def test_bad_input_is_one_line_and_exit_2(tmp_path):
     bag = _bag(tmp_path / 'run')
     silent = _bag(tmp_path / 'no_commands', commands=False)
     cases = [((str(silent), '--fit', 'fractional_order'), 'no command messages'),
@@ -62,20 +82,102 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capfd):
               '--bounds speed: not among the fitted names'),
              ((str(bag), '--fit', 'fractional_order', '--window', '5:6'),
               '--window 5:6 s holds 0 state sample(s)')]
-    # the rows in-process through the CLI's main (the parser and command the installed script
-    # calls: a new interpreter each would cost more than the refusal); the missing bag below
-    # runs the installed script
-    from fohssv_sim.cli import main
-
-    for args, text in cases:
-        capfd.readouterr()
-        try:
-            code = main(['fit', *args, '--out', str(tmp_path / 'out')])
-        except SystemExit as e:      # argparse's own exits (usage errors)
-            code = e.code
-        err = capfd.readouterr().err
+    for args, text in cases[1:]:
+        code, err = run_main('fit', *args, '--out', str(tmp_path / 'out'))
         assert code == 2, (args, err)
         assert text in err and 'Traceback' not in err, (args, err)
         assert len(err.strip().splitlines()) == 1, err
-    out = run('fit', str(tmp_path / 'missing'), '--fit', 'fractional_order')
-    assert out.returncode == 1 and 'no such file' in out.stderr     # a bag error, as `check`
+    out = run('fit', *cases[0][0], '--out', str(tmp_path / 'out'))    # one through the script
+    assert out.returncode == 2 and cases[0][1] in out.stderr, out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1 and 'Traceback' not in out.stderr
+    code, err = run_main('fit', str(tmp_path / 'missing'), '--fit', 'fractional_order')
+    assert code == 1 and 'no such file' in err     # a bag error, as `check`
+
+
+def test_default_output_folder_is_named_after_the_job_and_claimed(tmp_path, monkeypatch):
+    """Like every command: reports/fit/<bag>-<hash of the job>, with job.json naming the
+    bag's sha256; a folder holding another fit job is refused (exit 2), not overwritten."""
+    bag = _bag(tmp_path / 'run')
+    fast = ('--population', '8', '--profile-points', '5', '--no-step-check', '--workers', '1')
+    monkeypatch.chdir(tmp_path)
+    printed: list[str] = []
+    code, err = run_main('fit', str(bag), '--fit', 'fractional_order', *fast, stdout=printed)
+    assert code == 0, err
+    folders = list((tmp_path / 'reports' / 'fit').iterdir())
+    assert len(folders) == 1 and re.fullmatch(r'run-[0-9a-f]{8}', folders[0].name), folders
+    assert str(Path('reports') / 'fit' / folders[0].name) in printed[0]
+    sha = hashlib.sha256(b''.join(f.read_bytes() for f in sorted(bag.glob('*.mcap'))))
+    job = json.loads((folders[0] / 'job.json').read_text())
+    assert job['fit']['bag_sha256'] == sha.hexdigest()
+    assert json.loads((folders[0] / 'fit.json').read_text())['bag_sha256'] == sha.hexdigest()
+    code, err = run_main('fit', str(bag), '--fit', 'fractional_order', '--window', '0:0.01',
+                         *fast, '--out', str(folders[0]))
+    assert code == 2 and 'holds a different fit job' in err, err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_cycle_features_of_an_exact_waveform():
+    """The cycle detector on w(t) = m + A (sin 2 pi f t + 0.3 sin(4 pi f t + 0.5)): frequency
+    f, mean m and the peak-to-peak of the formula (evaluated densely here), period 1."""
+    from fohssv_sim.analysis.fit import cycle_features
+
+    f, m, a = 131.7, 1.25, 0.4
+    t = np.arange(0, 0.5, 1e-4)
+
+    def w(t):
+        return m + a * (np.sin(2 * np.pi * f * t) + 0.3 * np.sin(4 * np.pi * f * t + 0.5))
+
+    got = cycle_features(t, w(t))
+    dense = w(np.linspace(0, 1 / f, 100_001))
+    assert abs(got['frequency'] - f) / f < 1e-4
+    assert abs(got['amplitude'] - np.ptp(dense)) / np.ptp(dense) < 1e-3
+    assert abs(got['mean'] - m) < 2e-3 * a        # 65.85 periods: the part period's share
+    assert got['label'] == 'periodic-1'
+
+
+def test_cycle_objective_recovers_alpha_and_the_cycle_an_fft_measures(tmp_path):
+    """A 0.6 s closed-loop FOM run (alpha = 0.81): the cycle fit's interval covers 0.81, and
+    the frequency of w it reports for the run and for the fitted FOM is the one a Hann-window
+    FFT of the bag's w (numpy, here, with the peak interpolated) gives; the bag's w repeats
+    after 1/f (period 1, checked on the samples here), as the fit's class says."""
+    from fohssv_sim.analysis.fit import (
+        FitSpec,
+        base_from_run,
+        data_from_run,
+        resolve_bounds,
+        run_fit,
+    )
+    from fohssv_sim.bag import load_run
+
+    bag = _bag(tmp_path / 'run', duration=0.6)
+    run_ = load_run(bag)
+    base = base_from_run(run_)
+    data = data_from_run(run_, base)
+    names = ('fractional_order',)
+    spec = FitSpec(names=names, bounds=resolve_bounds(names, {'fractional_order': (0.7, 1.0)},
+                                                      base),
+                   base=base.to_dict(), objective='cycle', window=(0.3, 0.6),
+                   controller='state_feedback', population=8, profile_points=7,
+                   fine_points=5, step_check=False)
+    res = run_fit(spec, data, tmp_path / 'out')
+    lo, hi = res.intervals['fractional_order']
+    assert res.reproduces and lo <= 0.81 <= hi, res.message
+
+    keep = (run_.t >= 0.3) & (run_.t <= 0.6)
+    t, w = run_.t[keep], run_.state[keep, 1]
+    dt = float(np.median(np.diff(t)))
+    n = 1 << 18                                    # zero padding: 0.04 Hz bins
+    spec_ = np.abs(np.fft.rfft((w - w.mean()) * np.hanning(w.size), n))
+    k = int(np.argmax(spec_[1:])) + 1
+    y0, y1, y2 = np.log(spec_[k - 1:k + 2])
+    f_fft = (k + 0.5 * (y0 - y2) / (y0 - 2 * y1 + y2)) / (n * dt)
+    assert 50 < f_fft < 300                         # a tail-slap cycle, not a drift
+    for side in ('data', 'fitted'):
+        c = res.cycle[side]
+        assert abs(c['frequency'] - f_fft) / f_fft < 5e-3, (side, c, f_fft)
+        assert c['label'] == 'periodic-1', (side, c)
+        assert abs(c['amplitude'] - np.ptp(w)) <= 0.02 * np.ptp(w), (side, c)
+        assert abs(c['mean'] - w.mean()) <= 0.02 * np.ptp(w), (side, c)
+    shifted = np.interp(t + 1 / f_fft, t, w)       # period 1: w(t + T) = w(t)
+    inside = t + 1 / f_fft <= t[-1]
+    assert np.max(np.abs(shifted[inside] - w[inside])) < 0.05 * np.ptp(w)

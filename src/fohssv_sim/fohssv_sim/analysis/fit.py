@@ -31,12 +31,20 @@ warm-started from the previous stage, and bisects back towards the last reproduc
 where a stage is not reproduced; it reports the last reproduced horizon with its fit
 (``horizon_end``). ``horizon='full'`` fits the whole window in one stage.
 
-**Global, then local.** Each stage evaluates a population (stage 0: a Latin hypercube over the
-bounds; later stages: the current estimate and, per parameter, a line of values over its
-bounds through it) in batched compiled calls (:mod:`.population`) on Dask, through the sweeps'
-chunk machinery (:func:`.sweep.run_chunks`: chunk CSV files under ``out/population/``, resume,
-progress per point). The best ``starts`` points start ``scipy.optimize.least_squares`` (trf,
-within the bounds; the Jacobian by forward differences, all p + 1 points in one batched call).
+**Global, then local.** Each stage evaluates a population (until a horizon is reproduced: a
+Latin hypercube over the bounds; later stages: the current estimate and, per parameter the last
+stage could not see, a line of values over its bounds through it) in batched compiled calls
+(:mod:`.population`, one per chunk) on Dask, through the sweeps' chunk machinery
+(:func:`.sweep.run_chunks`: chunk CSV files under ``out/population/``, resume, progress per
+point). The best ``starts`` points (later stages: the best one, normally the warm start) start
+``scipy.optimize.least_squares`` (trf, within the bounds, ending at a relative step of
+:data:`LOCAL_TOL`; the Jacobian by forward differences: each new point is simulated with its p
+perturbed points in one batched call split over ``threads``, so the Jacobian least_squares asks
+for at an accepted point is already there).
+
+**Cost** (``bench/bench_fit.py``): the kernel's ~1.2 us per step and point; a one-parameter
+fit of a 2 s bag simulates about 120 full-length points (the coarse and fine profiles and the
+half-step check are most of it once the horizon grows warm-started).
 
 **Uncertainty.** At the estimate, the Jacobian interval x +- t_{0.975, N-p} sigma with
 cov = s^2 (J^T J)^-1, s^2 = sum r^2 / (N - p); and a profile of the objective over alpha (or the
@@ -398,8 +406,9 @@ class Problem:
             return m
         return min(m, max(20, int(math.ceil(m / 2 ** self.spec.stages))))
 
-    def simulate(self, values: Sequence[Sequence[float]], upto: int):
-        """(PopulationResult, valid mask) of the points ``values`` up to sample ``upto``."""
+    def simulate(self, values: Sequence[Sequence[float]], upto: int, threads: int = 1):
+        """(PopulationResult, valid mask) of the points ``values`` up to sample ``upto``
+        (``threads``: see :func:`.population.run_population`)."""
         params = [self.params_for(v) for v in values]
         valid = np.array([p is not None for p in params])
         n = int(self.index[upto - 1])
@@ -407,18 +416,19 @@ class Problem:
         if not ok:
             return None, valid
         d = self.data
-        kwargs: dict[str, Any] = {'initial_state': d.initial_state, 'duration': d.duration}
+        kwargs: dict[str, Any] = {'initial_state': d.initial_state, 'duration': d.duration,
+                                  'threads': threads}
         if self.law is not None:
             kwargs['law'] = self.law
         else:
             kwargs['inputs'] = d.inputs[:n]
         return run_population(ok, n, self.hold, **kwargs), valid
 
-    def residuals(self, values: Sequence[Sequence[float]], upto: int | None = None
-                  ) -> np.ndarray:
+    def residuals(self, values: Sequence[Sequence[float]], upto: int | None = None,
+                  threads: int = 1) -> np.ndarray:
         """(P, M) residual rows of the points ``values`` over the first ``upto`` samples."""
         upto = self.index.size if upto is None else upto
-        res, valid = self.simulate(values, upto)
+        res, valid = self.simulate(values, upto, threads)
         sel = self.index[:upto]
         if self.spec.objective == 'trajectory':
             M = sel.size * 4
@@ -499,11 +509,12 @@ POP_FIELDS = ('point', 'values', 'cost', 'residual')
 
 
 def population_task(problem: Problem, values: list[list[float]], upto: int,
-                    indices: Sequence[int], progress: Callable[[float], None] | None = None
-                    ) -> list[dict[str, Any]]:
-    """The rows of the points ``indices`` of ``values`` (one Dask task, one batched call)."""
+                    indices: Sequence[int], progress: Callable[[float], None] | None = None,
+                    threads: int = 1) -> list[dict[str, Any]]:
+    """The rows of the points ``indices`` of ``values`` (one Dask task, one batched call;
+    ``threads`` > 1 splits it over threads, in-process only)."""
     pts = [values[i] for i in indices]
-    R = problem.residuals(pts, upto)
+    R = problem.residuals(pts, upto, threads)
     if progress is not None:
         progress(1.0)
     return [{'point': i, 'values': list(map(float, pts[j])), 'cost': 0.5 * float(R[j] @ R[j]),
@@ -521,9 +532,10 @@ class Evaluator:
 
     def __init__(self, problem: Problem, out: Path, client: Any,
                  progress: Callable[[int, int, float], None] | None,
-                 sidecar: dict[str, Any]) -> None:
+                 sidecar: dict[str, Any], threads: int = 1) -> None:
         self.problem, self.out, self.client, self.progress = problem, out, client, progress
         self.sidecar = sidecar
+        self.threads = threads
         self.jobs = 0
         self.points = 0
 
@@ -533,7 +545,8 @@ class Evaluator:
         vals = [list(map(float, v)) for v in values]
         self.points += len(vals)
         if self.client is None:
-            rows = population_task(self.problem, vals, upto, list(range(len(vals))))
+            rows = population_task(self.problem, vals, upto, list(range(len(vals))),
+                                   threads=self.threads)
         else:
             cs = self.problem.spec.chunk_size
             chunks = [list(range(s, min(s + cs, len(vals)))) for s in range(0, len(vals), cs)]
@@ -566,14 +579,17 @@ def _spread(b: np.ndarray, u: np.ndarray) -> np.ndarray:
 
 
 def _lines(bounds: np.ndarray, around: np.ndarray, n: int, seen: np.ndarray) -> np.ndarray:
-    """``around`` and, per parameter, a line of values over its bounds with the others fixed:
-    n values for a parameter the last stage could not see (a zero Jacobian column: e.g. the
-    planing offset before the first contact), n // 4 for the others."""
+    """``around`` and, per parameter the last stage could not see (a zero Jacobian column:
+    e.g. the planing offset before the first contact), a line of n values over its bounds with
+    the others fixed. A parameter it saw is not searched again over its bounds: at a doubled
+    horizon its basin is narrower than any line's spacing, and the warm start is what keeps
+    it (the coarse profile at the end is the last global check)."""
     p = len(bounds)
     pts = [around]
     for j in range(p):
-        k = max(2, n // 4 if seen[j] else n)
-        for v in _spread(bounds[j], np.linspace(0.0, 1.0, k)):
+        if seen[j]:
+            continue
+        for v in _spread(bounds[j], np.linspace(0.0, 1.0, max(2, n))):
             x = around.copy()
             x[j] = v
             pts.append(x)
@@ -581,38 +597,61 @@ def _lines(bounds: np.ndarray, around: np.ndarray, n: int, seen: np.ndarray) -> 
 
 
 # -- local stage ------------------------------------------------------------------------------
-class _Local:
-    """least_squares with the Jacobian from one batched call of p + 1 points."""
+#: Termination of the local stage (scipy's xtol, ftol, gtol): far below any interval, and
+#: reached in a handful of iterations from a population's best point.
+LOCAL_TOL = 1e-10
 
-    def __init__(self, problem: Problem, bounds: np.ndarray, upto: int) -> None:
+
+class _Local:
+    """least_squares with the forward-difference Jacobian: the p perturbed points in one
+    batched call. With ``threads`` > 1 every new point is evaluated together with its p
+    perturbed points (speculatively: least_squares asks for the Jacobian at each accepted
+    point), split over the threads, so an iteration costs one simulation of wall time."""
+
+    def __init__(self, problem: Problem, bounds: np.ndarray, upto: int, threads: int = 1
+                 ) -> None:
         self.problem, self.bounds, self.upto = problem, bounds, upto
+        self.threads = max(1, int(threads))
         rel = 1e-7 if problem.spec.objective == 'trajectory' else 1e-3
         self.h = rel * (bounds[:, 1] - bounds[:, 0])
-        self.cache: dict[tuple, np.ndarray] = {}
+        self.cache: dict[tuple, tuple[np.ndarray, np.ndarray | None]] = {}
         self.evaluations = 0
 
     def _batch(self, pts: list[np.ndarray]) -> np.ndarray:
         self.evaluations += len(pts)
-        return self.problem.residuals(pts, self.upto)
+        return self.problem.residuals(pts, self.upto, self.threads)
 
-    def fun(self, x: np.ndarray) -> np.ndarray:
-        key = tuple(x.tolist())
-        if key not in self.cache:
-            self.cache = {key: self._batch([x])[0]}
-        return self.cache[key]
-
-    def jac(self, x: np.ndarray) -> np.ndarray:
-        steps = []
-        pts = [x]
+    def _perturbed(self, x: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+        steps, pts = [], []
         for j in range(x.size):
             h = self.h[j] if x[j] + self.h[j] <= self.bounds[j, 1] else -self.h[j]
             e = x.copy()
             e[j] += h
             pts.append(e)
             steps.append(h)
-        R = self._batch(pts)
-        self.cache = {tuple(x.tolist()): R[0]}
-        return ((R[1:] - R[0]) / np.array(steps)[:, None]).T
+        return pts, np.array(steps)
+
+    def fun(self, x: np.ndarray) -> np.ndarray:
+        key = tuple(x.tolist())
+        if key not in self.cache:
+            if self.threads > 1:
+                pts, steps = self._perturbed(x)
+                R = self._batch([x, *pts])
+                self.cache = {key: (R[0], ((R[1:] - R[0]) / steps[:, None]).T)}
+            else:
+                self.cache = {key: (self._batch([x])[0], None)}
+        return self.cache[key][0]
+
+    def jac(self, x: np.ndarray) -> np.ndarray:
+        r0 = self.fun(x)
+        key = tuple(x.tolist())
+        J = self.cache[key][1]
+        if J is None:
+            pts, steps = self._perturbed(x)
+            R = self._batch(pts)
+            J = ((R - r0) / steps[:, None]).T
+            self.cache = {key: (r0, J)}
+        return J
 
     def solve(self, x0: np.ndarray, max_nfev: int, fixed: dict[int, float] | None = None):
         from scipy.optimize import least_squares
@@ -632,12 +671,13 @@ class _Local:
             r = least_squares(lambda y: self.fun(full(y)), x0[free],
                               jac=lambda y: self.jac(full(y))[:, free],
                               bounds=(lo[free], hi[free]), x_scale=hi[free] - lo[free],
-                              method='trf', max_nfev=max_nfev)
+                              method='trf', max_nfev=max_nfev, xtol=LOCAL_TOL,
+                              ftol=LOCAL_TOL, gtol=LOCAL_TOL)
             r.x = full(r.x)
             return r
         return least_squares(self.fun, x0, jac=self.jac, bounds=(lo, hi), x_scale=hi - lo,
-                             method='trf', max_nfev=max_nfev, xtol=1e-14, ftol=1e-14,
-                             gtol=1e-14)
+                             method='trf', max_nfev=max_nfev, xtol=LOCAL_TOL, ftol=LOCAL_TOL,
+                             gtol=LOCAL_TOL)
 
 
 # -- the fit ------------------------------------------------------------------------------------
@@ -662,6 +702,9 @@ class FitResult:
     params: ModelParameters
     settings: dict[str, Any]
     message: str = ''
+    #: cycle objective: the features (frequency, amplitude, mean, class of w) of the run and
+    #: of the fitted FOM over the window
+    cycle: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {'values': self.values, 'intervals': self.intervals,
@@ -672,7 +715,7 @@ class FitResult:
                 'window': list(self.window), 'horizon_end': self.horizon_end,
                 'stages': self.stages, 'profile': self.profile,
                 'parameters': self.params.to_dict(), 'settings': self.settings,
-                'spec': self.spec.to_dict()}
+                'cycle': self.cycle, 'spec': self.spec.to_dict()}
 
 
 def _jacobian_interval(local: _Local, x: np.ndarray, r: np.ndarray, bounds: np.ndarray,
@@ -720,20 +763,25 @@ def _profile_interval(grid: np.ndarray, ssr: np.ndarray, level: float) -> list[f
 
 def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
             progress: Callable[[int, int, float], None] | None = None,
-            log: Callable[[str], None] | None = None, sidecar: dict[str, Any] | None = None
-            ) -> FitResult:
+            log: Callable[[str], None] | None = None, sidecar: dict[str, Any] | None = None,
+            threads: int = 0) -> FitResult:
     """Run the fit ``spec`` of ``data``; population jobs go to ``out/population`` on the
-    Dask ``client`` (None: in this process). See the module docstring.
+    Dask ``client`` (None: in this process). See the module docstring. ``threads``: the
+    local stage's (and, without a client, the population's) simulations are split over this
+    many threads (0: one per core); the numbers do not depend on it.
 
     Raises:
         FitError: an invalid spec, an empty window, no commands and no controller.
     """
+    import os
+
     spec.validate()
     say = log or (lambda s: None)
+    threads = threads or os.cpu_count() or 1
     problem = Problem(spec, data)
     bounds = np.array(spec.bounds, dtype=float)
     ev = Evaluator(problem, out / 'population', client, progress,
-                   {**(sidecar or {}), 'fit': spec.to_dict()})
+                   {**(sidecar or {}), 'fit': spec.to_dict()}, threads=threads)
     stages: list[dict[str, Any]] = []
     best = None          # (x, r, upto) of the last reproduced stage
     last = None          # of the last stage run
@@ -742,13 +790,17 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
     min_step = max(5, m // 100)
     seen = np.zeros(len(spec.names), dtype=bool)     # which names the last stage could see
     for s in range(spec.max_stages):
-        started = time.monotonic()
-        pts = (_latin(bounds, spec.population, spec.seed) if last is None
-               else _lines(bounds, (best or last)[0], spec.population, seen))
+        started, cpu = time.monotonic(), time.process_time()
+        # a Latin hypercube until a horizon is reproduced (a halved horizon searches afresh:
+        # its basin is wider); then lines through the estimate for the names not yet seen
+        pts = (_latin(bounds, spec.population, spec.seed) if best is None
+               else _lines(bounds, best[0], spec.population, seen))
         costs = ev.costs(f'stage{s}', pts, upto)
         order = np.argsort(costs, kind='stable')
-        local = _Local(problem, bounds, upto)
-        starts = order[:spec.starts]
+        local = _Local(problem, bounds, upto, threads)
+        # a search afresh starts from the best spec.starts points; later stages from the
+        # warm start (or a better line point)
+        starts = order[:spec.starts if best is None else 1]
         found = [local.solve(pts[j], spec.max_nfev) for j in starts]
         sol = min(found, key=lambda r: r.cost)
         r = local.fun(sol.x)
@@ -760,16 +812,19 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
                        'population': len(pts), 'best_population_cost': float(costs[order[0]]),
                        'values': sol.x.tolist(), 'residual': res, 'reproduced': bool(ok),
                        'nfev': int(sol.nfev), 'evaluations': local.evaluations,
-                       'wall_time': time.monotonic() - started})
+                       'wall_time': time.monotonic() - started,
+                       'cpu_time': time.process_time() - cpu})
         say(f'  stage {s}: horizon {t_end:.6g} s ({upto} samples), residual {res:.3g}'
-            f"{'' if ok else ' (not reproduced)'} in {time.monotonic() - started:.1f} s: "
+            f"{'' if ok else ' (not reproduced)'} in {time.monotonic() - started:.1f} s "
+            f'(CPU {time.process_time() - cpu:.1f} s of this process): '
             + ', '.join(f'{n}={v:.8g}' for n, v in zip(spec.names, sol.x)))
         last = (sol.x, r, upto)
         if ok:
             best = last
             if upto >= m:
                 break
-            upto = min(m, 2 * upto)
+            # doubled, or the whole window when less than half a horizon would be left
+            upto = m if m - 2 * upto < upto // 2 else 2 * upto
             continue
         growing = spec.horizon == 'auto' and spec.objective == 'trajectory'
         if not growing:
@@ -785,8 +840,8 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
         upto = nxt
     reproduced = best is not None
     x, r, upto = best if reproduced else last
-    local = _Local(problem, bounds, upto)
-    started = time.monotonic()
+    local = _Local(problem, bounds, upto, threads)
+    started, cpu = time.monotonic(), time.process_time()
     # the coarse profile over the bounds is also a last global check: a better grid point
     # (the population missed its basin) starts one more local fit
     jp = spec.names.index('fractional_order') if 'fractional_order' in spec.names else 0
@@ -811,15 +866,18 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
     profile = _profile(problem, ev, local, spec, bounds, x, half, s2, upto, coarse,
                        coarse_cost)
     profile['wall_time'] = time.monotonic() - started
+    profile['cpu_time'] = time.process_time() - cpu
     say(f"  profile over {profile['name']}: {len(profile['coarse'])} + "
-        f"{len(profile['fine'])} points in {profile['wall_time']:.1f} s")
+        f"{len(profile['fine'])} points in {profile['wall_time']:.1f} s (CPU "
+        f"{profile['cpu_time']:.1f} s of this process)")
     intervals = {n: list(v) for n, v in jac_iv.items()}
     j0 = profile['index']
     piv = profile.get('interval')
     if piv is not None:
         n0 = spec.names[j0]
         intervals[n0] = [min(jac_iv[n0][0], piv[0]), max(jac_iv[n0][1], piv[1])]
-    check = _step_check(problem, spec, data, bounds, x, upto, say) if spec.step_check else None
+    check = (_step_check(problem, spec, data, bounds, x, upto, say, threads)
+             if spec.step_check else None)
     if check is not None:
         for j, n in enumerate(spec.names):
             d = 2.0 * check['shift'][j]
@@ -827,7 +885,7 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
                             float(min(bounds[j, 1], intervals[n][1] + d))]
     res = problem.norm(r)
     t_end = float(data.t[problem.index[upto - 1]])
-    sim, _ = problem.simulate([x], problem.index.size)
+    sim, _ = problem.simulate([x], problem.index.size)  # the overlay: the whole window
     fitted = sim.states[0] if sim is not None else np.full_like(data.states, np.nan)
     params = problem.params_for(x)
     values = {n: float(v) for n, v in zip(spec.names, x)}
@@ -847,12 +905,18 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
                                  'dof': dof, 's2': s2, 'population_points': ev.points,
                                  'step_check': check,
                                  'source': data.source})
+    if spec.objective == 'cycle':
+        sel = problem.index
+        result.cycle = {'data': problem.features,
+                        'fitted': cycle_features(data.t[sel], fitted[sel, 1])
+                        if np.isfinite(fitted[sel, 1]).all() else None}
     result.message = summary_line(result)
     return result
 
 
 def _step_check(problem: Problem, spec: FitSpec, data: FitData, bounds: np.ndarray,
-                x: np.ndarray, upto: int, say: Callable[[str], None]) -> dict[str, Any] | None:
+                x: np.ndarray, upto: int, say: Callable[[str], None], threads: int = 1
+                ) -> dict[str, Any] | None:
     """Refit at half the step from ``x`` (same horizon): the shift of the estimate is the
     discretisation's share of its uncertainty (the intervals are widened by twice it, a
     Richardson bound for a scheme of order >= 1). None when half the step does not divide the
@@ -865,15 +929,16 @@ def _step_check(problem: Problem, spec: FitSpec, data: FitData, bounds: np.ndarr
         base = problem.base.replace(step=half)
     except ParameterError:
         return None
-    started = time.monotonic()
+    started, cpu = time.monotonic(), time.process_time()
     sub = Problem(dataclasses.replace(spec, base=base.to_dict()), data)
-    local = _Local(sub, bounds, upto)
+    local = _Local(sub, bounds, upto, threads)
     sol = local.solve(x, max(5, spec.max_nfev // 2))
     shift = np.abs(sol.x - x)
     res = sub.norm(local.fun(sol.x))
     say(f'  step check at h = {half:g} s: ' + ', '.join(
         f'{n}={v:.8g} (shift {d:.2g})' for n, v, d in zip(spec.names, sol.x, shift))
-        + f', residual {res:.3g}, in {time.monotonic() - started:.1f} s')
+        + f', residual {res:.3g}, in {time.monotonic() - started:.1f} s (CPU '
+        f'{time.process_time() - cpu:.1f} s)')
     return {'half_step': half, 'values': sol.x.tolist(), 'shift': shift.tolist(),
             'residual': res, 'widening': 'intervals widened by 2 x shift'}
 

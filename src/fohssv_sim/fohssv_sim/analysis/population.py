@@ -153,7 +153,7 @@ def _soe_arrays(params: Sequence[ModelParameters], duration: float | None):
 def run_population(params: Sequence[ModelParameters], n_periods: int, hold: int, *,
                    inputs: np.ndarray | None = None, law: np.ndarray | None = None,
                    continuous: bool = False, initial_state: Sequence[float] = (0, 0, 0, 0),
-                   duration: float | None = None) -> PopulationResult:
+                   duration: float | None = None, threads: int = 1) -> PopulationResult:
     """Run every point of ``params`` for ``n_periods`` periods of ``hold`` steps in one
     compiled call; see the module docstring.
 
@@ -163,6 +163,9 @@ def run_population(params: Sequence[ModelParameters], n_periods: int, hold: int,
         continuous: with ``law``, evaluate it at every solver stage (else held per period).
         duration: the run length the 'soe' horizon is sized for (:func:`soe_options`; None =
             open-ended), as the plant that recorded the data sized it.
+        threads: split the points into this many contiguous slices, one compiled call each,
+            run in parallel threads (the kernel releases the GIL); the same numbers bit for
+            bit, as the points are independent.
 
     Raises:
         ValueError: points that do not form a population (:func:`check_population`), both or
@@ -170,6 +173,20 @@ def run_population(params: Sequence[ModelParameters], n_periods: int, hold: int,
     """
     params = list(params)
     check_population(params)
+    kw = {'inputs': inputs, 'law': law, 'continuous': continuous,
+          'initial_state': initial_state, 'duration': duration}
+    if threads > 1 and len(params) > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        n = min(int(threads), len(params))
+        cuts = np.linspace(0, len(params), n + 1).round().astype(int)
+        with ThreadPoolExecutor(n) as pool:
+            parts = list(pool.map(lambda ab: run_population(
+                params[ab[0]:ab[1]], n_periods, hold, **kw), zip(cuts[:-1], cuts[1:])))
+        return PopulationResult(t=parts[0].t,
+                                states=np.concatenate([r.states for r in parts]),
+                                inputs=np.concatenate([r.inputs for r in parts]),
+                                failed=np.concatenate([r.failed for r in parts]))
     if (inputs is None) == (law is None):
         raise ValueError('give exactly one of inputs (open loop) and law (closed loop)')
     n_periods, hold = int(n_periods), int(hold)

@@ -51,7 +51,7 @@ from .orbits import METHOD, STEADY_RTOL, classify
 
 __all__ = ['SweepSpec', 'SweepResult', 'ChunkedResult', 'run_chunks', 'check_half_step',
            'run_sweep', 'run_chunk', 'load_sweep', 'STATE_INDEX', 'ProgressPrinter',
-           'state_scale']
+           'state_scale', 'WorkersLost', 'LOST_AFTER']
 
 STATE_INDEX = {'z': 0, 'w': 1, 'theta': 2, 'q': 3}
 ROW_FIELDS = ('point', 'alpha', 'speed', 'label', 'kind', 'period', 'k01', 'amplitude',
@@ -302,11 +302,70 @@ def load_sweep(out: Path) -> SweepResult:
     return SweepResult(read_chunk_rows(out, len(side['chunks']), _decode_sweep_row), side)
 
 
+class WorkersLost(RuntimeError):
+    """A chunked job whose Dask workers are gone: none left for ``lost_after`` s while chunks
+    were unfinished, or a chunk that killed the worker running it as often as the scheduler
+    allows (``KilledWorker``). The message is one line: what happened, how many chunks are
+    finished and kept, and that rerunning the same command resumes from them (the CLI exits
+    with :data:`fohssv_sim.cli.common.EXIT_WORKERS_LOST`, 3)."""
+
+
+#: Seconds a chunked job waits with no Dask worker at all before :class:`WorkersLost` (a local
+#: cluster's nanny restarts a killed worker within a few seconds; this is well above that).
+LOST_AFTER = 30.0
+
+
+class _WorkerWatch:
+    """The watchdog of :func:`run_chunks`: polls the scheduler's worker count (at most once a
+    second) while it waits, raises :class:`WorkersLost` when it stays 0 for ``lost_after`` s
+    or a chunk's future failed with ``KilledWorker``."""
+
+    def __init__(self, client: Any, out: Path, n_chunks: int, lost_after: float) -> None:
+        self.client, self.out, self.n_chunks, self.lost_after = client, out, n_chunks, lost_after
+        self.polled = 0.0
+        self.since: float | None = None
+
+    def _finished(self) -> int:
+        return sum(chunk_path(self.out, k).exists() for k in range(self.n_chunks))
+
+    def _lost(self, what: str) -> WorkersLost:
+        return WorkersLost(f'{what}; {self._finished()} of {self.n_chunks} chunks are finished '
+                           f'and kept in {self.out / "chunks"}: rerun the same command to '
+                           'resume from them')
+
+    def check(self, pending: int) -> None:
+        now = time.monotonic()
+        if now - self.polled < 1.0:
+            return
+        self.polled = now
+        try:
+            n = len(self.client.scheduler_info()['workers'])
+        except Exception:   # noqa: BLE001 - the scheduler itself is gone: as no worker
+            n = 0
+        if n:
+            self.since = None
+            return
+        self.since = self.since or now
+        if now - self.since >= self.lost_after:
+            raise self._lost(f'every Dask worker is gone (none for {now - self.since:.0f} s, '
+                             f'{pending} chunk(s) unfinished)')
+
+    def result(self, fut: Any, k: int) -> list[dict[str, Any]]:
+        from distributed import KilledWorker
+
+        try:
+            return fut.result()
+        except KilledWorker as e:
+            raise self._lost(f'chunk {k} killed the Dask worker running it each time it ran '
+                             f'({type(e).__name__}: a crash or out of memory in the task)'
+                             ) from None
+
+
 def run_chunks(out: Path, sidecar_name: str, sidecar: dict[str, Any],
                chunks: list[list[int]], task: Callable[..., list[dict[str, Any]]],
                args: tuple, fields: Sequence[str], *, scheduler: str | None = None,
                workers: int = 0, progress: Callable[[int, int, float], None] | None = None,
-               client: Any = None) -> tuple[int, int]:
+               client: Any = None, lost_after: float = LOST_AFTER) -> tuple[int, int]:
     """Run (or resume) a chunked job on Dask into folder ``out``: the machinery shared by the
     sweeps and the gain maps (:mod:`.gainmap`).
 
@@ -319,11 +378,16 @@ def run_chunks(out: Path, sidecar_name: str, sidecar: dict[str, Any],
     docstring). ``client``: an existing ``dask.distributed.Client`` (then ``scheduler`` and
     ``workers`` are ignored and the client is left open).
 
+    ``lost_after``: seconds with no worker at all before the job ends (:class:`WorkersLost`)
+    instead of waiting for workers that will not come back.
+
     Returns:
         (chunks computed, chunks reused).
 
     Raises:
         ValueError: ``out`` holds a different job (the message says how to proceed).
+        WorkersLost: every worker gone for ``lost_after`` s, or a chunk that kills its
+            worker; the finished chunks are kept (a rerun resumes).
     """
     out.mkdir(parents=True, exist_ok=True)
     side_path = out / sidecar_name
@@ -369,9 +433,17 @@ def run_chunks(out: Path, sidecar_name: str, sidecar: dict[str, Any],
         try:
             futures = {client.submit(_run_task_reporting, task, args, chunks[k], topic, k,
                                      pure=False): k for k in todo}
-            for fut in as_completed(futures):
+            watch = _WorkerWatch(client, out, len(chunks), lost_after)
+            done = as_completed(futures)
+            while not done.is_empty():
+                if not done.has_ready():
+                    with done.thread_condition:
+                        done.thread_condition.wait(timeout=0.5)
+                    watch.check(done.count())
+                    continue
+                fut = next(done)
                 k = futures[fut]
-                write_rows(chunk_path(out, k), fut.result(), fields)
+                write_rows(chunk_path(out, k), watch.result(fut, k), fields)
                 points.update(slot[k], 1.0)
         finally:
             if progress is not None:

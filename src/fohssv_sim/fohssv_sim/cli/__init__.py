@@ -11,7 +11,9 @@ Model parameters are set with ``--set name=value`` (repeatable; names as in the 
 parameter table) and ``--preset paper-literal``; the controller with ``--controller NAME``
 (a plugin of group ``fohssv.controllers``) and ``--gain name=value``. Errors print one line;
 nothing prints a traceback for bad input. Exit status: 0 done, 1 a bag that is missing,
-unreadable or not sound (every bag command alike), 2 any other bad input, 70 an internal
+unreadable or not sound (every bag command alike), 2 any other bad input, 3 the Dask
+workers of a chunked job (sweep, gainmap, tune, fit) all lost (finished chunks kept; rerun to
+resume), 70 an internal
 error (a defect: one line; ``FOHSSV_TRACEBACK=1`` shows the traceback), 130 interrupted.
 Outputs go to ``reports/<command>/<job>`` unless ``--out`` names a folder.
 """
@@ -23,10 +25,12 @@ import os
 import sys
 from collections.abc import Sequence
 
+from ..analysis.sweep import WorkersLost
 from . import fit, gainmap, plot, report, stability, sweep, tune
 from .common import (
     EXIT_INTERNAL,
     EXIT_INTERRUPTED,
+    EXIT_WORKERS_LOST,
     CliError,
     OneLineParser,
     load_controller,
@@ -55,6 +59,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except CliError as e:
         print(f'fohssv {args.command}: error: {e}', file=sys.stderr)
         return e.exit_code
+    except WorkersLost as e:
+        print(f'fohssv {args.command}: error: {e}', file=sys.stderr)
+        return EXIT_WORKERS_LOST
     except KeyboardInterrupt:
         print(f'fohssv {args.command}: interrupted', file=sys.stderr)
         return EXIT_INTERRUPTED

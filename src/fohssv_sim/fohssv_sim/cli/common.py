@@ -38,7 +38,7 @@ from ..control import Controller, UnknownController, make
 from ..params import PARAMETERS, ModelParameters, ParameterError
 
 __all__ = ['EXIT_OK', 'EXIT_BAD_BAG', 'EXIT_USAGE', 'EXIT_INTERRUPTED', 'EXIT_INTERNAL',
-           'CliError',
+           'EXIT_WORKERS_LOST', 'CliError',
            'BagInputError', 'output_dir', 'load_controller', 'assignments', 'model_params',
            'parse_range', 'figure_paths', 'add_common_options', 'OneLineParser', 'LIMITS',
            'number', 'bounded', 'parameter_type', 'check_size', 'check_run_steps',
@@ -50,10 +50,15 @@ __all__ = ['EXIT_OK', 'EXIT_BAD_BAG', 'EXIT_USAGE', 'EXIT_INTERRUPTED', 'EXIT_IN
 
 #: Exit codes of every subcommand: 0 done; 1 a bag that is missing, unreadable or not sound
 #: (``plot``, ``check``, ``repair``, ``info`` alike); 2 any other bad input (options, values,
-#: an ``--out`` that is not a folder); 130 interrupted.
+#: an ``--out`` that is not a folder); 3 the Dask workers of a chunked job lost; 130
+#: interrupted.
 EXIT_OK, EXIT_BAD_BAG, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 #: An internal error (a defect, not bad input): one line, ``FOHSSV_TRACEBACK=1`` re-raises.
 EXIT_INTERNAL = 70
+#: A chunked Dask job whose workers are all gone (or a chunk that kills its worker each time):
+#: one line with the chunks kept; rerunning the same command resumes
+#: (:class:`fohssv_sim.analysis.sweep.WorkersLost`).
+EXIT_WORKERS_LOST = 3
 
 
 class CliError(ValueError):

@@ -11,10 +11,21 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from .common import BagInputError, CliError, assignments, output_dir, parse_range
+from .common import (
+    BagInputError,
+    CliError,
+    assignments,
+    job_folder,
+    output_dir,
+    parse_range,
+    resolve_output,
+)
 from .sweep import dask_options
 
-DEFAULT_OUT = Path('reports') / 'fit'
+#: What a fit writes into its folder (claimed in job.json: a folder holding another fit's
+#: outputs is refused, never overwritten).
+FIT_FILES = ('fit.json', 'fit_params.yaml', 'fit_overlay.png', 'fit_profile.png')
+REFERENCE_FILES = ('reference.json', 'reference.md', 'alpha_tau.png')
 
 
 def register(sub) -> None:
@@ -77,9 +88,14 @@ def register(sub) -> None:
                    'start:stop:step or a,b,c (e.g. 70:90:2.5)')
     p.add_argument('--duration', type=float, default=1.0,
                    help='with --reference: s per run from x(0) = 0 (default 1)')
-    p.add_argument('--out', type=Path, help=f'output folder (default {DEFAULT_OUT}/<bag '
-                   f'name>, or {DEFAULT_OUT}/reference-delayed)')
+    p.add_argument('--out', type=Path, help='output folder (default '
+                   f"{job_folder('fit', 'BAG-HASH')}, or "
+                   f"{job_folder('fit', 'reference-delayed_VLOW-HIGH-HASH')}: named after the "
+                   'job, so rerunning the same fit resumes there; job.json records it)')
     dask_options(p, 16, 'one batched compiled call')
+    p.add_argument('--processes', action='store_true',
+                   help='local Dask workers as processes (default: threads of this process; '
+                   'the compiled kernel runs outside the GIL)')
     p.set_defaults(func=cmd_fit)
 
 
@@ -164,8 +180,12 @@ class _Dask:
         if self.args.scheduler:
             self.client = Client(self.args.scheduler, timeout='20s')
         else:
+            # worker threads in this process: the compiled kernel releases the GIL, and
+            # threads need no start-up, imports or numba cache loads of their own, nor the
+            # problem pickled to them (measured: bench/bench_fit.py --processes-too)
             n = self.args.workers or os.cpu_count() or 1
-            self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+            self.cluster = LocalCluster(n_workers=n, threads_per_worker=1,
+                                        processes=self.args.processes,
                                         dashboard_address=None)
             self.client = Client(self.cluster)
         return self.client
@@ -239,7 +259,10 @@ def cmd_fit(args: argparse.Namespace) -> int:
         raise CliError(str(e)) from None
     sha = bag_sha256(args.bag)
     data.source['sha256'] = sha
-    out = output_dir(args.out or DEFAULT_OUT / Path(args.bag).resolve().name)
+    identity = {'bag_sha256': sha, 'namespace': args.namespace,
+                'control_period': data.control_period, 'fit': spec.to_dict()}
+    out = resolve_output(args, 'fit', Path(args.bag).resolve().name, identity,
+                         files=FIT_FILES)
     print(f"fit {','.join(names)} of {args.bag} ({data.n_periods} control periods of "
           f'{data.control_period:g} s, step {base.step:g} s, '
           f"{'closed loop: ' + args.controller if args.controller else 'open loop'}, "
@@ -271,7 +294,6 @@ def _cmd_reference(args: argparse.Namespace) -> int:
         window = (args.duration / 2, args.duration)
     controller = args.controller or 'state_feedback'
     cp = args.control_period or 1e-4
-    out = output_dir(args.out or DEFAULT_OUT / 'reference-delayed')
     overrides = assignments(args.set or [], '--set')
     overrides.pop('model', None)
     jobs = []
@@ -283,6 +305,10 @@ def _cmd_reference(args: argparse.Namespace) -> int:
         except FitError as e:
             raise CliError(str(e)) from None
         jobs.append((v, spec, data))
+    identity = {'reference': 'delayed', 'speeds': speeds, 'duration': args.duration,
+                'control_period': cp, 'fit': [spec.to_dict() for _v, spec, _d in jobs]}
+    out = resolve_output(args, 'fit', f'reference-delayed_V{speeds[0]:g}-{speeds[-1]:g}',
+                         identity, files=REFERENCE_FILES)
     print(f'fit {",".join(names)}: FOM vs delayed closed loop ({controller}, control period '
           f'{cp:g} s, {args.duration:g} s from x(0) = 0, {args.objective} objective) at '
           f'{len(speeds)} speeds -> {out}', flush=True)

@@ -68,6 +68,9 @@ def test_winner_is_steady_with_the_margin_of_the_equilibria_module(tuned):
     assert abs(w['score']['margin'] - min(margins)) < 1e-9
     assert min(margins) >= rec['spec']['min_margin']     # the Matignon-stable side
     assert 'worst steady, 0/2 scenario(s) not steady' in stdout
+    # progress: a line per generation with the best score so far, elapsed time and ETA
+    assert 'generation 1/2: best so far score ' in stdout and ' s left' in stdout
+    assert 'generation 2/2: best so far score ' in stdout
     for stem in ('envelope', 'history'):
         png = out / f'{stem}.png'
         with Image.open(png) as im:

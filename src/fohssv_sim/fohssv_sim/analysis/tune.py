@@ -31,8 +31,9 @@ with the same winner as an uninterrupted one. The budget is not part of a search
 (:meth:`TuneSpec.identity`): a rerun with a larger budget continues the same search.
 
 **Step check** (``check_step``): the winner is re-run at half the step in every scenario;
-scenarios whose outcome changes are flagged as not converged and left out of the winner's
-reported score (listed, not scored).
+scenarios whose outcome changes, or whose objective metric moves by more than
+:data:`CHECK_RTOL`, are flagged as not converged and left out of the winner's reported score
+(listed, not scored).
 
 Pure: numpy, scipy, dask, matplotlib (Agg); never imports rclpy or the CLI.
 """
@@ -66,7 +67,8 @@ from .sweep import chunk_path, read_chunk_rows, run_chunks
 
 __all__ = ['OBJECTIVES', 'Bound', 'TuneSpec', 'TuneError', 'TuneResult', 'score',
            'run_tune', 'run_candidates', 'load_tune', 'plot_envelope', 'plot_history',
-           'summary_lines', 'ROW_FIELDS', 'MIN_POPULATION']
+           'summary_lines', 'step_flags', 'ROW_FIELDS', 'MIN_POPULATION',
+           'CHECK_RTOL']
 
 #: ``--objective`` names and the row column each takes the worst (largest) of.
 OBJECTIVES = {'peak-fp': 'peak_fp', 'settle': 'settle_time', 'effort': 'effort_rms'}
@@ -74,6 +76,9 @@ OBJECTIVE_TEXT = {'peak-fp': 'peak |Fp| (m²/s²)', 'settle': 'time to settle (s
                   'effort': 'RMS of δc (rad)'}
 #: differential_evolution needs at least 5 members in a given initial population.
 MIN_POPULATION = 5
+#: The step check flags a scenario whose objective metric moves by more than this (relative)
+#: at half the step, as well as one whose outcome changes.
+CHECK_RTOL = 0.01
 
 ROW_FIELDS = ('point', 'candidate', 'scenario', 'alpha', 'speed', 'outcome', 'label', 'kind',
               'period', 'k01', 'amplitude', 'failed', 'peak_fp', 'peak_fp_window',
@@ -664,23 +669,52 @@ def run_tune(spec: TuneSpec, out: Path, *, scheduler: str | None = None, workers
     return TuneResult(record, winner_rows, check_rows, computed, reused)
 
 
+def _relative_change(a: float, b: float) -> float:
+    """|b - a| / |a| (0 when both are equal, infinities included; inf when only one is
+    finite or a is 0 and b is not)."""
+    a, b = _num(a), _num(b)
+    if a == b or (math.isnan(a) and math.isnan(b)):
+        return 0.0
+    if not (math.isfinite(a) and math.isfinite(b)) or a == 0.0:
+        return math.inf
+    return abs(b - a) / abs(a)
+
+
+def step_flags(rows: Sequence[dict[str, Any]], half: Sequence[dict[str, Any]], key: str,
+               rtol: float = CHECK_RTOL) -> tuple[list[dict[str, Any]], list[float]]:
+    """The scenarios not converged in step: ``rows`` at the step and ``half`` at half of it
+    (the same scenarios, in order); flagged where the outcome changes or the metric column
+    ``key`` moves by more than ``rtol`` (relative). Returns (flags, each scenario's
+    relative metric change)."""
+    flagged, changes = [], []
+    for r, h in zip(rows, half):
+        change = _relative_change(r[key], h[key])
+        changes.append(change)
+        if r['outcome'] != h['outcome'] or change > rtol:
+            flagged.append({'scenario': r['scenario'], 'alpha': r['alpha'],
+                            'speed': r['speed'], 'outcome': r['outcome'],
+                            'half_step_outcome': h['outcome'], 'metric': r[key],
+                            'half_step_metric': h[key], 'metric_change': change})
+    return flagged, changes
+
+
 def _check_step(gens: _Generations, best: dict[str, Any], rows: list[dict[str, Any]],
                 record: dict[str, Any]) -> list[dict[str, Any]]:
-    """Re-run the winner at half the step; flag the scenarios whose outcome changes and
-    score it over the others."""
+    """Re-run the winner at half the step; flag the scenarios whose outcome changes or whose
+    objective metric moves by more than :data:`CHECK_RTOL` (:func:`step_flags`), and score
+    it over the others."""
     spec = gens.spec
+    key = OBJECTIVES[spec.objective]
     half, _, _ = gens.run_job(gens.out / 'check_step', [best['values']], 0.5,
                               {'check': 'winner at half step'})
     half.sort(key=lambda r: r['scenario'])
-    flagged = []
-    for r, h in zip(rows, half):
-        if r['outcome'] != h['outcome']:
-            flagged.append({'alpha': r['alpha'], 'speed': r['speed'], 'outcome': r['outcome'],
-                            'half_step_outcome': h['outcome']})
-    keep = [r for r, h in zip(rows, half) if r['outcome'] == h['outcome']]
+    flagged, changes = step_flags(rows, half, key)
+    out = {f['scenario'] for f in flagged}
+    keep = [r for r in rows if r['scenario'] not in out]
     record['check_step'] = {
-        'step': half[0]['step'] if half else None, 'flagged': flagged,
-        'converged_scenarios': len(keep),
+        'step': half[0]['step'] if half else None, 'metric': key, 'metric_rtol': CHECK_RTOL,
+        'flagged': flagged, 'converged_scenarios': len(keep),
+        'max_metric_change': max(changes, default=0.0),
         'score_converged': _public(score(keep, spec, gens._is_affine(best['values']))),
         'half_step': half}
     return half
@@ -728,17 +762,30 @@ def summary_lines(result: TuneResult) -> list[str]:
     lines.append('  ' + describe_score(w['score'], spec))
     chk = rec.get('check_step')
     if chk is not None:
-        if chk['flagged']:
-            lines.append(f"step check (half step {chk['step']:g} s): {len(chk['flagged'])} "
-                         'scenario(s) not converged, flagged and not scored: ' + '; '.join(
-                             f"V={f['speed']:g}, α={f['alpha']:g}: {f['outcome']} -> "
-                             f"{f['half_step_outcome']}" for f in chk['flagged']))
-            lines.append(f"  over the {chk['converged_scenarios']} converged scenario(s): "
-                         + describe_score(chk['score_converged'], spec))
-        else:
-            lines.append(f"step check (half step {chk['step']:g} s): every scenario keeps its "
-                         'outcome')
+        lines.extend(_check_lines(chk, spec))
     return lines
+
+
+def _check_lines(chk: dict[str, Any], spec: TuneSpec) -> list[str]:
+    """The step check's lines of :func:`summary_lines`."""
+    head = (f"step check (half step {chk['step']:g} s; flagged: outcome changes, or "
+            f"{chk.get('metric', 'the metric')} moves by more than "
+            f"{100 * chk.get('metric_rtol', CHECK_RTOL):g} %)")
+    worst = _num(chk.get('max_metric_change', math.nan))
+    if not chk['flagged']:
+        return [f'{head}: every scenario keeps its outcome; largest metric change '
+                f'{100 * worst:.2g} %']
+
+    def one(f: dict[str, Any]) -> str:
+        change = _num(f.get('metric_change', math.nan))
+        moved = '' if math.isnan(change) else f', metric {100 * change:.3g} %'
+        return (f"V={f['speed']:g}, α={f['alpha']:g}: {f['outcome']} -> "
+                f"{f['half_step_outcome']}{moved}")
+
+    return [f"{head}: {len(chk['flagged'])} scenario(s) not converged, flagged and not "
+            'scored: ' + '; '.join(one(f) for f in chk['flagged']),
+            f"  over the {chk['converged_scenarios']} converged scenario(s): "
+            + describe_score(chk['score_converged'], spec)]
 
 
 def plot_envelope(record: dict[str, Any], stem: Path, label: str = '') -> list[Path]:

@@ -157,6 +157,51 @@ def winner_yaml(record: dict[str, Any], args: argparse.Namespace) -> str:
                         f"  ros__parameters:\n    controller: '{spec.controller}'\n", 1)
 
 
+class _Clock:
+    """Elapsed time and the ETA of the remaining generations, from the generations this run
+    computed (those read back from a resumed folder take no time and are not counted)."""
+
+    def __init__(self, generations: int) -> None:
+        import time
+
+        self.time = time.monotonic
+        self.start = self.last = self.time()
+        self.generations = generations
+        self.done = self.computed = 0
+        self.spent = 0.0
+
+    def tick(self, computed: bool) -> tuple[float, float | None]:
+        """(elapsed s, ETA s or None before any generation was computed)."""
+        now = self.time()
+        if computed:
+            self.computed += 1
+            self.spent += now - self.last
+        self.last = now
+        self.done += 1
+        left = self.generations - self.done
+        eta = None if not self.computed else self.spent / self.computed * left
+        return now - self.start, eta
+
+
+def generation_line(g: dict[str, Any], generations: int, n: int, clock: _Clock) -> str:
+    """One line per generation: its number, the best so far (score value and its levels),
+    elapsed time and the ETA of the search (the step check not counted)."""
+    elapsed, eta = clock.tick(g['computed_chunks'] > 0)
+    when = f'{elapsed:.0f} s elapsed, ' + ('ETA unknown' if eta is None else
+                                           f'~{eta:.0f} s left')
+    head = f"generation {g['generation'] + 1}/{generations}"
+    b = g['best_so_far']
+    if b is None:
+        return f'{head}: no candidate built the controller ({when})'
+    margin = b.get('margin')
+    m = '' if margin is None or (isinstance(margin, float) and math.isnan(margin)) \
+        else f', margin {margin:.4g}'
+    metric = b['metric'] if isinstance(b['metric'], float) else float(b['metric'])
+    return (f"{head}: best so far score {b['value']:.6g} (worst {b['outcome']}, "
+            f"{b['not_steady']}/{n} not steady{m}, metric {metric:.4g}); "
+            f"{g['computed_chunks']} chunks computed, {g['reused_chunks']} reused; {when}")
+
+
 def cmd_tune(args: argparse.Namespace) -> int:
     from ..analysis.tune import TuneError, plot_envelope, plot_history, run_tune, summary_lines
 
@@ -173,21 +218,11 @@ def cmd_tune(args: argparse.Namespace) -> int:
           f'objective {spec.objective}, {spec.duration:g} s runs -> {out}', flush=True)
     progress = ProgressPrinter('points')
     check = ProgressPrinter('step check: points at half step')
+    clock = _Clock(spec.generations)
 
     def generation(g: dict[str, Any]) -> None:
         progress.end()
-        b = g['best_so_far']
-        if b is None:
-            print(f"generation {g['generation'] + 1}/{spec.generations}: no candidate built "
-                  'the controller', flush=True)
-            return
-        margin = b.get('margin')
-        m = '' if margin is None or (isinstance(margin, float) and math.isnan(margin)) \
-            else f', margin {margin:.4g}'
-        print(f"generation {g['generation'] + 1}/{spec.generations}: best so far worst "
-              f"{b['outcome']}, {b['not_steady']}/{n} not steady{m}, metric {b['metric']:.4g}"
-              f" ({g['computed_chunks']} chunks computed, {g['reused_chunks']} reused)",
-              flush=True)
+        print(generation_line(g, spec.generations, n, clock), flush=True)
 
     try:
         result = run_tune(spec, out, scheduler=args.scheduler, workers=args.workers,

@@ -533,11 +533,16 @@ class FractionalModel(Plant):
         x = st.live_state()
         taken = kernels.fom_soe_run(x, self._x0a, st.n, steps, self._cv, self._smooth, law,
                                     continuous, *self._kernel_args)
-        st.advanced(taken, self._last_f, failed=taken < steps)
+        self._stepped(taken, failed=taken < steps)
+        return taken, x
+
+    def _stepped(self, steps: int, failed: bool) -> None:
+        """Tell the stepper what a kernel call did (and warn past the SOE horizon)."""
+        st = self._stepper
+        st.advanced(steps, self._last_f, failed=failed)
         hist = st.history
         if st.n > hist.horizon:
             hist.check_horizon(st.n)
-        return taken, x
 
     def _run_sampled(self, law, held, hold, periods, limits, out):
         st = self._stepper
@@ -546,11 +551,7 @@ class FractionalModel(Plant):
         done, status, last = kernels.fom_soe_sampled(
             x, self._x0a, st.n, hold, periods, self._cv, self._smooth, law, held, limits, *a,
             out)
-        st.advanced(done * hold + (last if status == 1 else 0), self._last_f,
-                    failed=status == 1)
-        hist = st.history
-        if st.n > hist.horizon:
-            hist.check_horizon(st.n)
+        self._stepped(done * hold + (last if status == 1 else 0), failed=status == 1)
         return done, status, last, x
 
     def rhs(self, t: float, x: np.ndarray, u: Sequence[float]) -> np.ndarray:

@@ -407,7 +407,7 @@ def run_chunks(out: Path, sidecar_name: str, sidecar: dict[str, Any],
     points = _PointProgress([len(chunks[k]) for k in todo], n_points - sum(
         len(chunks[k]) for k in todo), n_points, progress, start)
     if todo:
-        from dask.distributed import Client, LocalCluster, as_completed
+        from dask.distributed import Client, LocalCluster, wait
 
         cluster = None
         own = client is None
@@ -434,17 +434,18 @@ def run_chunks(out: Path, sidecar_name: str, sidecar: dict[str, Any],
             futures = {client.submit(_run_task_reporting, task, args, chunks[k], topic, k,
                                      pure=False): k for k in todo}
             watch = _WorkerWatch(client, out, len(chunks), lost_after)
-            done = as_completed(futures)
-            while not done.is_empty():
-                if not done.has_ready():
-                    with done.thread_condition:
-                        done.thread_condition.wait(timeout=0.5)
-                    watch.check(done.count())
+            pending = set(futures)
+            while pending:
+                try:    # Dask's public wait, half a second at a time: the watchdog between
+                    finished, pending = wait(pending, timeout=0.5,
+                                             return_when='FIRST_COMPLETED')
+                except TimeoutError:
+                    watch.check(len(pending))
                     continue
-                fut = next(done)
-                k = futures[fut]
-                write_rows(chunk_path(out, k), watch.result(fut, k), fields)
-                points.update(slot[k], 1.0)
+                for fut in finished:
+                    k = futures[fut]
+                    write_rows(chunk_path(out, k), watch.result(fut, k), fields)
+                    points.update(slot[k], 1.0)
         finally:
             if progress is not None:
                 client.unsubscribe_topic(topic)

@@ -130,6 +130,8 @@ CONTROLLER_PREFIX = 'controller.'
 _CHUNK = 0.005
 #: Lockstep with a hosted law: samples per compiled call (between looks at the clock).
 _FREE_BURST = 32
+#: Most samples of one burst (a realtime backlog beyond it is taken in several).
+_BURST_ROWS = 64
 #: A sample DDS refused to take for :data:`_PUBLISH_RETRY` s (retried every millisecond).
 EXIT_PUBLISH_FAILED = 9
 _PUBLISH_RETRY = 1.0
@@ -267,8 +269,9 @@ class PlantNode(Node):
         self.ignored = 0
         self._burst_wait = 0.0                    # hosted realtime: see _start_run
         # hosted: the rows a burst of samples is computed into (SampledPlant.advance_burst)
-        # and [max |delta_f|, max |delta_c|, max |w|, max |theta|] (the last two fixed)
-        self._rows = np.zeros((max(_FREE_BURST, 64), 7))
+        # and [max |delta_f|, max |delta_c|, max |w|, max |theta|] (set at each burst: the
+        # options and the model may change at run time)
+        self._rows = np.zeros((_BURST_ROWS, 7))
         self._limits = np.array([0.0, 0.0, self.model.speed, MAX_PITCH])
         self._awaiting: float | None = None       # lockstep: t of the state awaiting a command
         self._published_wall = 0.0                # lockstep: when that state went out
@@ -593,7 +596,7 @@ class PlantNode(Node):
         try:
             self._step()
         except FloatingPointError as exc:
-            self._fail(EXIT_DIVERGED, f'simulation failed: {exc}{self._lag_note()}')
+            self._diverged(exc)
             return False
         try:
             self._publish()
@@ -608,6 +611,10 @@ class PlantNode(Node):
         if self.hosted is not None:
             self._control()
         return True
+
+    def _diverged(self, exc: Exception) -> None:
+        """End the run: the state turned non-finite or left the physical bounds."""
+        self._fail(EXIT_DIVERGED, f'simulation failed: {exc}{self._lag_note()}')
 
     def _advance_burst(self, periods: int) -> bool:
         """Hosted affine law: up to ``periods`` samples (and their commands) in one compiled
@@ -632,7 +639,7 @@ class PlantNode(Node):
         try:
             done, status = sim.advance_burst(law, periods, limits, self._rows)
         except FloatingPointError as exc:    # raised by the SOE history's own checks
-            self._fail(EXIT_DIVERGED, f'simulation failed: {exc}{self._lag_note()}')
+            self._diverged(exc)
             return False
         if status < 0:                       # no compiled kernel
             return self._advance_each(periods)
@@ -647,7 +654,7 @@ class PlantNode(Node):
                 try:
                     check_state(plant)
                 except FloatingPointError as exc:
-                    self._fail(EXIT_DIVERGED, f'simulation failed: {exc}{self._lag_note()}')
+                    self._diverged(exc)
                 return False
             t = (n0 + (j + 1) * hold) * h
             state[0] = force[0] = t
@@ -677,7 +684,7 @@ class PlantNode(Node):
             try:
                 plant.raise_failure()
             except FloatingPointError as exc:
-                self._fail(EXIT_DIVERGED, f'simulation failed: {exc}{self._lag_note()}')
+                self._diverged(exc)
             return False
         if every and sim.samples % every == 0:
             self._keep_subscribers_up()

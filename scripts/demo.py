@@ -66,6 +66,7 @@ from fohssv_sim.closed_loop import (
     reason_line,
     ros_args,
     viewer,
+    watched,
 )
 
 #: The plant's line when its first sample goes out, and when its in-plant bag is closed.
@@ -436,7 +437,7 @@ def main() -> int:
     view = start_viewer(args, bag, env)          # False without --viewer
     if view is None:
         return 1
-    code, procs, recorded = run_loop(nodes, args, bag, env,
+    code, procs, recorded = run_loop(watched(nodes) if view else nodes, args, bag, env,
                                      {'viewer': view} if view else None, echo='  plant: ')
     wall = time.monotonic() - wall0
     if code != 0:

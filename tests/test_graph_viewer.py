@@ -72,6 +72,7 @@ def _run(tmp_path: Path) -> tuple[FoxgloveClient, str]:
                             ['--ros-args', '-p', 'min_command_subscribers:=2'], env=env)
         plant = rosproc.start('fohssv_sim', 'plant', plant_args(
             model='delay-free', mode='lockstep', duration=DURATION, min_state_subscribers=2,
+            min_view_subscribers=1,
             pace_to_subscribers=512), env=env)
         client.wait(lambda: plant.poll() is not None, 240, 'the end of the run')
         assert plant.returncode == 0, rosproc.output(plant)
@@ -232,7 +233,7 @@ def test_the_views_are_decimated_to_the_viewer_rate(tmp_path):
         client.subscribe(['/state'])
         ctl = rosproc.start('fohssv_controller', 'state_feedback', [], env=env)
         plant = rosproc.start('fohssv_sim', 'plant', plant_args(
-            model='delay-free', duration=0.3), env=env)
+            model='delay-free', duration=0.3, min_view_subscribers=1), env=env)
         client.wait(lambda: plant.poll() is not None, 120, 'the end of the run')
         assert plant.returncode == 0, rosproc.output(plant)
         client.drain(1.0)

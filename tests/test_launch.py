@@ -120,7 +120,10 @@ def test_launch_file_starts_the_viewer_on_request():
                     {'flag': cl.flag})
     assert set(optional) == {'viewer'} and optional['viewer'][0] == 'false'
     assert "if flag(LaunchConfiguration('viewer').perform(context)):" in text
-    assert 'specs = (*specs, viewer())' in text
+    assert 'specs = (*watched(specs), viewer())' in text
+    plant, *rest = cl.watched(cl.closed_loop())     # ... and the plant waits for its readers
+    assert plant.parameters['min_view_subscribers'] == 1
+    assert tuple(rest) == cl.closed_loop()[1:]
 
 
 def test_demo_starts_the_launch_files_list_with_its_defaults(tmp_path):

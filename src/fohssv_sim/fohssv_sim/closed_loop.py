@@ -24,10 +24,10 @@ Pure: no rclpy, no launch.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
-__all__ = ['NodeSpec', 'closed_loop', 'viewer', 'DEMO_PLANT', 'DEFAULT_CONTROLLER',
+__all__ = ['NodeSpec', 'closed_loop', 'viewer', 'watched', 'DEMO_PLANT', 'DEFAULT_CONTROLLER',
            'DEFAULT_DURATION', 'DEFAULT_VIEWER_PORT', 'ros_args', 'flag', 'EXIT_RULE',
            'ExitVerdict', 'exit_verdict', 'reason_line']
 
@@ -102,6 +102,15 @@ def closed_loop(controller: Any = DEFAULT_CONTROLLER, duration: Any = DEFAULT_DU
 def viewer(port: Any = DEFAULT_VIEWER_PORT) -> NodeSpec:
     """The Foxglove viewer (``ros2 run fohssv_sim viewer``) on ws://127.0.0.1:``port``."""
     return NodeSpec('fohssv_sim', 'viewer', 'viewer', {'port': port})
+
+
+def watched(specs: tuple[NodeSpec, ...]) -> tuple[NodeSpec, ...]:
+    """The loop's nodes with the plant waiting for a viewer's readers of its views before the
+    first sample (``min_view_subscribers`` 1: the viewer's readers are volatile, so views
+    published before they match never reach it). The plant is the first node."""
+    plant = specs[0]
+    return (replace(plant, parameters={**plant.parameters, 'min_view_subscribers': 1}),
+            *specs[1:])
 
 
 def _value(v: Any) -> str:

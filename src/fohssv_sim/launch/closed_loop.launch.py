@@ -17,7 +17,7 @@ before any message arrived marks its bag empty (``fohssv.empty`` in metadata.yam
         bag_path:=runs/launched [hosted:=true] [viewer:=true]
 
 ``viewer:=true`` also starts the Foxglove viewer (fohssv_sim.closed_loop.viewer()) on
-ws://localhost:8765; it reads the views, so the loop does not wait for it.
+ws://localhost:8765; the plant then waits for its view readers (min_view_subscribers:=1).
 """
 
 from launch import LaunchDescription
@@ -40,6 +40,7 @@ from fohssv_sim.closed_loop import (
     flag,
     reason_line,
     viewer,
+    watched,
 )
 
 #: Launch arguments: the keyword arguments of closed_loop(), with default, type, meaning.
@@ -98,8 +99,8 @@ def _nodes(context):
     the handlers of the exit rule."""
     specs = closed_loop(**{name: kind(LaunchConfiguration(name).perform(context))
                            for name, (_, kind, _) in ARGUMENTS.items()})
-    if flag(LaunchConfiguration('viewer').perform(context)):
-        specs = (*specs, viewer())
+    if flag(LaunchConfiguration('viewer').perform(context)):   # the plant waits for it
+        specs = (*watched(specs), viewer())
     nodes = [Node(package=s.package, executable=s.executable, name=s.name, output='screen',
                   parameters=[s.parameters]) for s in specs]
     plant = nodes[0]

@@ -213,6 +213,10 @@ NODE_PARAMETERS: tuple[ParameterSpec, ...] = (
     _P('min_command_publishers', '-', 1, '-', 'matched publishers of command to wait for '
        'before the first sample; a hosted controller counts as one', low=0.0, low_open=False,
        high=1000.0, high_open=False),
+    _P('min_view_subscribers', '-', 0, '-', 'matched subscribers of each typed view (pose, '
+       'twist, planing_wrench, vehicle_marker) to wait for before the first sample, e.g. 1 '
+       'for a viewer (its readers are volatile: views published before they match are not '
+       'theirs); 0 = none', low=0.0, low_open=False, high=1000.0, high_open=False),
     _P('start_timeout', '-', 0.0, 's', 'wall time to wait for those matches; 0 = wait until '
        'they are there (the plant logs what it waits for every 5 s); when a positive timeout '
        'expires the plant exits with code 4 (both modes)', low=0.0, low_open=False,
@@ -358,6 +362,7 @@ class PlantOptions:
     max_cavitator_deflection: float = _f('max_cavitator_deflection')
     min_state_subscribers: int = _f('min_state_subscribers')
     min_command_publishers: int = _f('min_command_publishers')
+    min_view_subscribers: int = _f('min_view_subscribers')
     start_timeout: float = _f('start_timeout')
     pace_to_subscribers: int = _f('pace_to_subscribers')
     realtime_priority: int = _f('realtime_priority')

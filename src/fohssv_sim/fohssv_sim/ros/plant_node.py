@@ -361,6 +361,13 @@ class PlantNode(Node):
             return subs + 1, 1
         return subs, self.command_sub.get_publisher_count()
 
+    def _views_matched(self) -> int:
+        """The fewest matched subscribers of any typed view (a large number with views off:
+        nothing to wait for)."""
+        if self.views is None:
+            return 1 << 30
+        return min(p.get_subscription_count() for p in self.views.publishers)
+
     def _listed_matched(self) -> bool:
         """Every subscription the graph lists on the sample topics has matched the plant's
         writer (a recorder or probe whose planing_force reader matches after its state reader
@@ -384,6 +391,10 @@ class PlantNode(Node):
         if subs < o.min_state_subscribers:
             missing.append(f'{o.min_state_subscribers - subs} more state subscriber(s) '
                            '(controllers, recorders)')
+        views = self._views_matched()
+        if views < o.min_view_subscribers:
+            missing.append(f'{o.min_view_subscribers - views} more subscriber(s) of each view '
+                           '(a viewer)')
         what = ' and '.join(missing) or 'the listed subscribers to match'
         return (f'waiting for {what}: command has {pubs}/{o.min_command_publishers} '
                 f'publisher(s), {self.state_pub.topic_name} has {subs}/'
@@ -425,7 +436,8 @@ class PlantNode(Node):
             return    # a timer event queued before _start destroyed the timer: start once
         subs, pubs = self._peers()
         o = self.options
-        if subs >= o.min_state_subscribers and pubs >= o.min_command_publishers:
+        if (subs >= o.min_state_subscribers and pubs >= o.min_command_publishers
+                and self._views_matched() >= o.min_view_subscribers):
             if self._listed_matched():
                 self._start()
                 return

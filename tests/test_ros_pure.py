@@ -21,6 +21,7 @@ from fohssv_sim.ros.bag_options import (
 )
 from fohssv_sim.ros.docs import ros_type_name
 from fohssv_sim.ros.loop import (
+    BurstWait,
     CommandLag,
     CommandRejected,
     HostedLaw,
@@ -147,6 +148,44 @@ def test_pacer_counts_misses_and_slips_when_the_backlog_is_too_long():
     assert p.worst_lateness == pytest.approx(1.5e-3)
     assert p.due(100.1) == 2 and p.slips == 1   # backlog ~98 > 10: moved forward to 2
     assert p.due(p.start - 1.0) == 0
+
+
+
+def _wake_ups(b: BurstWait, overshoot: float, seconds: float, start: float = 0.0) -> float:
+    """Feed ``b`` the wake-ups of ``seconds`` of wall time whose first sample is ``wait`` plus
+    ``overshoot`` late (each wake-up a whole burst apart, as the plant sleeps); the end time."""
+    now = start
+    while now < start + seconds:
+        b.observe(b.wait() + overshoot, now)
+        now += b.wait() + b.period
+    return now
+
+
+def test_burst_wait_is_longest_on_a_machine_that_wakes_the_plant_on_time():
+    b = BurstWait(period=1e-4, tolerance=1e-3)
+    # 0.8 of the 1 ms tolerance less one period: 7 periods, bursts of 8 samples
+    assert b.longest == 7 and b.wait() == pytest.approx(7e-4)
+    _wake_ups(b, 30e-6, 5.0)                       # 30 us late wake-ups: 0.73 ms < 0.85 ms
+    assert b.periods == 7 and b.near_misses == 0
+    # one sample per wake-up when the tolerance is a single period
+    assert BurstWait(period=1e-4, tolerance=1e-4).longest == 0
+
+
+def test_burst_wait_shortens_for_slow_wake_ups_and_grows_back():
+    b = BurstWait(period=1e-4, tolerance=1e-3)
+    # every wake-up 0.5 ms late: first samples published wait + 0.5 ms after they were due;
+    # under the 0.85 ms near-miss limit for waits of up to 3 periods (0.8 ms), over it from 4
+    now = _wake_ups(b, 0.5e-3, 10.0)
+    assert b.periods in (3, 4) and b.near_misses > 0
+    # the machine is quick again: back to the longest wait, one period per quiet window
+    _wake_ups(b, 20e-6, 3.0, start=now)
+    assert b.periods == 7
+
+
+def test_burst_wait_ignores_stalls_no_wait_would_save():
+    b = BurstWait(period=1e-4, tolerance=1e-3)
+    _wake_ups(b, 2e-3, 5.0)                        # 2 ms stalls: late whatever the wait
+    assert b.periods == 7 and b.near_misses == 0
 
 
 # -- options.py -------------------------------------------------------------------------------

@@ -30,6 +30,7 @@ from ..params import ModelParameters
 from ..simulate import steps_per_period
 
 __all__ = ['CommandRejected', 'SampledPlant', 'check_command', 'answered_time', 'Pacer',
+           'BurstWait',
            'Profile', 'HostedLaw', 'CommandLag']
 
 
@@ -229,6 +230,65 @@ class Pacer:
             self.worst_lateness = lateness
         self.lateness_sum += lateness
         self.produced += 1
+
+
+
+@dataclass
+class BurstWait:
+    """How long a hosted real-time plant lets due samples wait before it wakes and computes
+    them in one burst (:meth:`wait`, wall seconds, a whole number of periods).
+
+    On this kind of virtual machine a wake-up costs 20-40 us of CPU, several samples' worth of
+    work, so the fewer the better; but the first sample of a burst is published ``wait`` plus
+    the wake-up's own overshoot after it was due, and more than ``tolerance`` is a deadline
+    miss. The wait starts at its longest, ``longest_share`` of the tolerance less one period
+    (7 periods at the defaults: bursts of 8 samples, 0.3 ms of the 1 ms tolerance left for the
+    overshoot). A *near miss* is a wake-up whose first sample was more than ``near_miss`` of
+    the tolerance late while a shorter wait would have kept it under (a slow wake-up; not a
+    stall longer than the tolerance, which no wait saves). The wait follows them in windows of
+    ``window`` seconds of wall time: more than ``allowed`` near misses in a window shorten it
+    by one period (down to no wait, one sample per wake-up), none lengthen it by one, back up
+    to the longest. Sporadic slow wake-ups cost a sample or two each; only a machine that is
+    slow to wake the plant again and again pays for shorter bursts. Pure: the plant calls
+    :meth:`observe` at each wake-up.
+    """
+
+    period: float
+    tolerance: float
+    longest_share: float = 0.8
+    near_miss: float = 0.85
+    window: float = 0.5
+    allowed: int = 2
+    longest: int = 0
+    periods: int = 0
+    wake_ups: int = 0
+    near_misses: int = 0
+    _in_window: int = 0
+    _window_end: float = 0.0
+
+    def __post_init__(self) -> None:
+        self.longest = max(0, int(self.longest_share * self.tolerance / self.period + 1e-9) - 1)
+        self.periods = self.longest
+
+    def wait(self) -> float:
+        """Seconds the first due sample waits before the wake-up."""
+        return self.periods * self.period
+
+    def observe(self, lateness: float, now: float) -> None:
+        """At a wake-up: the first due sample is ``lateness`` s past its due time."""
+        self.wake_ups += 1
+        limit = self.near_miss * self.tolerance
+        if lateness > limit and lateness - self.periods * self.period < limit:
+            self.near_misses += 1
+            self._in_window += 1
+        if now >= self._window_end:
+            if self._window_end:        # not the first wake-up: a whole window has passed
+                if self._in_window > self.allowed:
+                    self.periods = max(0, self.periods - 1)
+                elif not self._in_window:
+                    self.periods = min(self.longest, self.periods + 1)
+            self._in_window = 0
+            self._window_end = now + self.window
 
 
 #: The per-sample costs :class:`Profile` measures, in the order of its ``ns`` accumulators.

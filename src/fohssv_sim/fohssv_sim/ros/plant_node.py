@@ -78,6 +78,7 @@ from ..params import PARAMETERS, ModelParameters, ParameterError, ParameterSpec,
 from .inplant_record import EXIT_RECORD_LOST
 from .inplant_record import start as start_recording
 from .loop import (
+    BurstWait,
     CommandLag,
     CommandRejected,
     HostedLaw,
@@ -127,7 +128,7 @@ EXIT_SECOND_CONTROLLER = 7
 CONTROLLER_PREFIX = 'controller.'
 #: With a hosted controller: the wall time (s) one chunk of samples runs before the executor
 #: is spun again (services, parameters, the graph checks, signals).
-_CHUNK = 0.005
+_CHUNK = 0.02
 #: Lockstep with a hosted law: samples per compiled call (between looks at the clock).
 _FREE_BURST = 32
 #: Most samples of one burst (a realtime backlog beyond it is taken in several).
@@ -267,7 +268,7 @@ class PlantNode(Node):
         self.rejected = 0
         self.stale = 0                            # realtime: of those, stale or future
         self.ignored = 0
-        self._burst_wait = 0.0                    # hosted realtime: see _start_run
+        self.bursts: BurstWait | None = None      # hosted realtime: see _start_run
         # hosted: the rows a burst of samples is computed into (SampledPlant.advance_burst)
         # and [max |delta_f|, max |delta_c|, max |w|, max |theta|] (set at each burst: the
         # options and the model may change at run time)
@@ -495,11 +496,10 @@ class PlantNode(Node):
             batch = max(1, round(tick / wall_period))
             pacer = Pacer(period=wall_period, tolerance=tick, max_batch=2 * batch,
                           max_backlog=10 * batch)
-            # hosted: one wake-up per burst of samples, due half a tick apart at most (each
-            # sample published within half the deadline tolerance; 5 at the defaults)
+            # hosted: one wake-up per burst of samples (8 at the defaults, fewer while the
+            # machine is slow to wake the plant: BurstWait)
             if self.hosted is not None:
-                self._burst_wait = (max(1, int(tick / (2.0 * wall_period) + 1e-9)) - 1
-                                    ) * wall_period
+                self.bursts = BurstWait(period=wall_period, tolerance=tick)
             pacer.begin(time.monotonic())
             self._publish()
             pacer.published(time.monotonic())
@@ -861,17 +861,18 @@ class PlantNode(Node):
         self._refresh_matched()
         now = monotonic()
         end = now + _CHUNK
-        pacer = self.pacer
-        burst_wait = self._burst_wait
+        pacer, bursts = self.pacer, self.bursts
         while now < end:
             if pacer is None:
                 due = _FREE_BURST
             else:
-                due = pacer.due(now)
-                if not due:     # asleep until a burst is due (one wake-up per burst)
-                    sleep(pacer.next_due() + burst_wait - now)
+                first = pacer.next_due()
+                wake = first + bursts.wait()
+                if now < wake:  # asleep until a whole burst is due (one wake-up per burst)
+                    sleep(wake - now)
                     now = monotonic()
-                    continue
+                    bursts.observe(now - first, now)
+                due = pacer.due(now)
             if not self._advance_burst(due):
                 return
             now = monotonic()
@@ -1095,6 +1096,10 @@ class PlantNode(Node):
                                           if self.sim.samples else 0.0))
             if self.hosted is None:
                 s.update(self._lag.summary())
+            elif self.bursts is not None:   # hosted: wake-ups, and how often they backed off
+                s.update(wake_ups=self.bursts.wake_ups, burst_backoffs=self.bursts.near_misses,
+                         samples_per_wake_up=(p.produced / self.bursts.wake_ups
+                                              if self.bursts.wake_ups else 0.0))
         elif wall > 0:
             s.update(samples_per_second=total / wall, steps_per_second=steps / wall)
         return s

@@ -655,7 +655,8 @@ class PlantNode(Node):
             return False
         if status < 0:                       # no compiled kernel
             return self._advance_each(periods)
-        rows, hold, h = self._rows, sim.hold, plant.h
+        # Python floats (one conversion for the burst, not a numpy scalar per value)
+        rows, hold, h = self._rows[:done].tolist(), sim.hold, plant.h
         state, force, pacer = self._state_data, self._force_data, self.pacer
         end = o.duration - 1e-9 * o.control_period if o.duration > 0.0 else math.inf
         last = done - 1

@@ -129,6 +129,9 @@ CONTROLLER_PREFIX = 'controller.'
 #: With a hosted controller: the wall time (s) one chunk of samples runs before the executor
 #: is spun again (services, parameters, the graph checks, signals).
 _CHUNK = 0.02
+#: How long a plant whose minimum peers are there waits for the other listed subscribers of
+#: its sample topics to match before it starts anyway (_listed_matched).
+_LISTED_WAIT = 10.0
 #: Lockstep with a hosted law: samples per compiled call (between looks at the clock).
 _FREE_BURST = 32
 #: Most samples of one burst (a realtime backlog beyond it is taken in several).
@@ -372,15 +375,25 @@ class PlantNode(Node):
     def _listed_matched(self) -> bool:
         """Every subscription the graph lists on the sample topics has matched the plant's
         writer (a recorder or probe whose planing_force reader matches after its state reader
-        would otherwise miss the start of a short, fast run). Best effort: after 2 s with the
-        minimums met the plant starts anyway (a listed reader may never match, e.g. with
-        incompatible QoS)."""
+        would otherwise miss the start of a short, fast run; a volatile ``command`` reader of
+        a hosted plant would miss its first commands). Best effort: after
+        :data:`_LISTED_WAIT` s with the minimums met the plant starts anyway, saying which
+        readers had not matched (one may never match, e.g. with incompatible QoS)."""
         if self._minimums_since is None:
             self._minimums_since = time.monotonic()
-        if time.monotonic() - self._minimums_since > 2.0:
+        unmatched = [f'{pub.topic_name} ({pub.get_subscription_count()} of {listed} '
+                     'matched)' for pub in self._sample_pubs
+                     if pub.get_subscription_count() < (listed := self.count_subscribers(
+                         pub.topic_name))]
+        if not unmatched:
             return True
-        return all(pub.get_subscription_count() >= self.count_subscribers(pub.topic_name)
-                   for pub in self._sample_pubs)
+        if time.monotonic() - self._minimums_since > _LISTED_WAIT:
+            self.get_logger().warning(
+                f'starting although not every listed subscriber matched after '
+                f'{_LISTED_WAIT:g} s: {", ".join(unmatched)}; those readers may miss the '
+                'first samples (incompatible QoS?)')
+            return True
+        return False
 
     def _waiting_for(self, subs: int, pubs: int) -> str:
         """What the plant waits for, in words (logged at start, on a change, every 5 s)."""

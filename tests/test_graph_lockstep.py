@@ -107,7 +107,7 @@ def test_reset_service_returns_to_t0_and_replays_the_run():
         probe.close()
     t = probe.state_array()[:, 0]
     back = np.flatnonzero(np.diff(t) < 0)
-    assert len(back) == 1 and t[back[0] + 1] == 0.0
+    assert len(back) == 1 and t[back[0] + 1] == 0.0, (back, t[back], t[back + 1], out[-3000:])
     # issue 21.2 / 22.8: the rates divide the whole run's samples by the whole run's time
     # (the probe saw back[0] advances before the reset: t = 0 and back[0] steps)
     line = next(ln for ln in out.splitlines() if 'summary: {' in ln)

@@ -27,7 +27,11 @@ each case is one function, so a case can be added without touching the others):
 * profile (:func:`case_profile`): short real-time runs per model at 1e-4 s with the plant's
   ``profile:=1``, hosted and external: the plant's cost per sample of each part (mean us);
 * normal scheduler (:func:`case_fifo`): the hosted 1e-4 s and external 1e-3 s runs again with
-  ``realtime_priority:=0`` (the plant runs under SCHED_FIFO 50 by default where permitted).
+  ``realtime_priority:=0`` (the plant runs under SCHED_FIFO 50 by default where permitted);
+* wake-up (:func:`case_wake`): the CPU time of a bare ``time.sleep`` loop per wake-up, woken
+  every 0.8 ms as a hosted plant is (normal scheduler and SCHED_FIFO), and how late the
+  wake-ups come (median, 99th and 99.9th percentile): like the echo, a figure of the machine
+  that a hosted plant's CPU share scales with (it wakes once per burst of samples).
 
 Every plant run reports its process CPU time per sample (``cpu_per_sample_us``, all threads,
 from the first sample to the last); the controller's over the same span is read from /proc
@@ -452,6 +456,47 @@ def case_fifo(domains: Domains, sim_time: float) -> list[dict]:
     return runs
 
 
+_WAKE_LOOP = r"""
+import json, os, sys, time, ctypes
+ctypes.CDLL(None).prctl(29, 1, 0, 0, 0)            # 1 ns timer slack, as the plant asks
+if sys.argv[1] == 'fifo':
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))
+period, n = float(sys.argv[2]), int(sys.argv[3])
+late = []
+c0 = time.process_time()
+start = time.monotonic()
+for i in range(n):
+    due = start + (i + 1) * period
+    time.sleep(max(0.0, due - time.monotonic()))
+    late.append(time.monotonic() - due)
+cpu = time.process_time() - c0
+late.sort()
+print(json.dumps({'cpu_per_wake_up_us': cpu / n * 1e6, 'late_p50_us': late[n // 2] * 1e6,
+                  'late_p99_us': late[int(n * 0.99)] * 1e6,
+                  'late_p999_us': late[int(n * 0.999)] * 1e6, 'wake_ups': n}))
+"""
+
+
+def case_wake(quick: bool) -> dict:
+    """A bare sleep loop woken every 0.8 ms (a hosted plant's burst at the defaults)."""
+    out = {}
+    n = 1000 if quick else 5000
+    for sched in ('normal', 'fifo'):
+        if sched == 'fifo' and not _rt_priority_permitted():
+            continue
+        res = subprocess.run([sys.executable, '-c', _WAKE_LOOP, sched, '0.0008', str(n)],
+                             capture_output=True, text=True, timeout=120)
+        if res.returncode != 0:
+            print(f'wake-up   {sched}: failed: {res.stderr.strip()[-300:]}', flush=True)
+            continue
+        w = json.loads(res.stdout)
+        out[sched] = w
+        print(f"wake-up   {sched:6s} sleep loop every 0.8 ms: {w['cpu_per_wake_up_us']:.1f} us "
+              f"CPU per wake-up; late by {w['late_p50_us']:.0f} / {w['late_p99_us']:.0f} / "
+              f"{w['late_p999_us']:.0f} us (median / 99 % / 99.9 %)", flush=True)
+    return out
+
+
 def targets(sim_time: float, lockstep: dict, realtime: list[dict], margin: list[dict],
             rate: dict, inplant: dict) -> list[dict]:
     rows = []
@@ -510,6 +555,7 @@ def main() -> int:
     load_start = os.getloadavg()
 
     echo = case_echo(domains, a.quick)
+    wake = case_wake(a.quick)
     lockstep = case_lockstep(domains, a.quick, echo, sim_time)
     realtime = case_realtime(domains, sim_time)
     margin = case_margin(domains, sim_time)
@@ -534,7 +580,7 @@ def main() -> int:
         'python': sys.version.split()[0], 'quick': a.quick, 'load_avg_start': load_start,
         'load_avg_end': os.getloadavg(),
         'simulated_time_realtime': sim_time, 'wall_time': time.monotonic() - started,
-        'echo': echo, 'lockstep': lockstep, 'realtime': realtime, 'margin': margin,
+        'echo': echo, 'wake_up': wake, 'lockstep': lockstep, 'realtime': realtime, 'margin': margin,
         'external_rate': rate, 'inplant_recording': inplant,
         'normal_scheduler': fifo, 'profile': profiles,
         'targets': rows}, indent=2) + '\n')

@@ -295,6 +295,7 @@ class _Session:
     """The writer at work: the bag, the log times, the counts."""
 
     def __init__(self, config: WriterConfig, ring: Ring) -> None:
+        self._cpu0 = time.process_time()
         self.ring = ring
         self.topics = config.topics
         self.writer = RunWriter(config.path, chunk_size=config.chunk_size).open()
@@ -357,7 +358,8 @@ class _Session:
                    if w.counts.get(k, 0) < v}
         return {'closed': str(w.path), 'messages': total, 'counts': dict(w.counts),
                 'missing': missing, 'lost': lost, 'waits': self.ring.waits,
-                'interrupted': run_end is None}
+                'interrupted': run_end is None,
+                'cpu_time': time.process_time() - self._cpu0}
 
 
 def _reply(out: BinaryIO, values: Mapping[str, Any]) -> None:

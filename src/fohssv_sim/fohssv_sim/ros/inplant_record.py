@@ -235,8 +235,10 @@ class InPlantRecording:
                       f'behind): the bag holds {detail} published (run_end); {r["closed"]} is '
                       'closed and readable')
             return code or EXIT_RECORD_LOST
+        cpu = (f' (writer CPU {r["cpu_time"]:.2f} s)' if isinstance(r.get('cpu_time'), float)
+               else '')
         log.info(f'in-plant recording: closed {r["closed"]}: {r["messages"]} messages '
-                 f'({counts}); every message of the run is in the bag')
+                 f'({counts}); every message of the run is in the bag{cpu}')
         return code
 
     def _wait_closed(self) -> dict | None:

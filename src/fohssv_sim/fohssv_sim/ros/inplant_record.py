@@ -167,6 +167,7 @@ class InPlantRecording:
             begin = time.monotonic()
             self.waits += 1
             self.ring.add_wait()
+            self._send(('wake',))            # the writer sleeps between batches: now
             while not self.ring.put(index, data):
                 if self.proc.poll() is not None:
                     self._writer_failed()

@@ -22,8 +22,8 @@ stores are atomic and stay in order on x86-64 and ARMv8 for this one-producer, o
 (CPython's own calls around them order them on weaker machines).
 
 Control goes over the writer's stdin, one length-prefixed pickle per message (the two ends are
-this module, one program): ``('open', config)``, ``('metadata', values)``, ``('wake',)`` (a
-lockstep plant waits for room: write now) and ``('end', run_end_json)``. The writer answers on
+this module, one program): ``('open', config)``, ``('metadata', values)``, ``('wake',)`` (the
+plant found the ring full: write now) and ``('end', run_end_json)``. The writer answers on
 its stdout with one JSON line when the bag is open and one when it is closed
 (:func:`read_reply`; with the writer's CPU time from open to close). End of file on stdin
 without ``end`` means the plant died (SIGKILL included): the writer takes what the ring holds,
@@ -74,11 +74,12 @@ EXIT_LOST = 6
 EXIT_INTERRUPTED = 7
 #: Run-metadata key of a bag closed without any message (as the recorder node marks it).
 EMPTY_KEY = 'fohssv.empty'
-#: Wall seconds between two looks at the ring (and at the control pipe): the writer wakes
-#: this often (or when a lockstep plant finds the ring full), each time writing everything the
-#: ring holds, so it takes the CPU in few, long turns instead of interrupting the loop's
-#: processes at every sample.
-_IDLE = 0.01
+#: Longest wall time (s) between two looks at the ring (and at the control pipe): the writer
+#: wakes this often (sooner for a small or fast-filling ring, a flush, a control message or a
+#: plant that finds the ring full: :func:`_serve`), each time writing everything the ring holds
+#: in one batch, so it takes the CPU in few, long turns (a batch's fixed cost is spread over
+#: a thousand messages in a lockstep demo) instead of interrupting the loop at every sample.
+_IDLE = 0.05
 _HEADER = 64                       # head, tail, lost, waits (u64), rest spare
 _RECORD = struct.Struct('<IHH')    # payload length, topic index, spare
 _WRAP = 0xFFFFFFFF                 # record length meaning "continue at the ring's start"
@@ -175,6 +176,11 @@ class Ring:
     @property
     def waits(self) -> int:
         return self._counters[3]
+
+    @property
+    def consumed(self) -> int:
+        """Bytes the consumer took so far (its tail)."""
+        return self._counters[1]
 
     @property
     def used(self) -> int:
@@ -414,20 +420,25 @@ def _reply(out: BinaryIO, values: Mapping[str, Any]) -> None:
 def _serve(session: _Session, control: _Control, flush_period: float) -> str | None:
     """Write until ``end`` (its run_end JSON) or the plant's death (None).
 
-    After each batch the writer sleeps :data:`_IDLE` on the control pipe, unless the ring
-    held a quarter of its size or more (a small ring, or a writer behind: it looks again at
-    once). A lockstep plant that finds the ring full wakes it (``wake``)."""
-    last_flush = time.monotonic()
+    Between two batches the writer sleeps on the control pipe: :data:`_IDLE`, less when the
+    ring, filling at the rate it did since the last look, would be a quarter full sooner (a
+    small ring, a fast plant), or when the next flush is due sooner. A plant that finds the ring
+    full wakes it (``wake``), as does any control message."""
     ring = session.ring
-    busy = ring.capacity // 4
+    quarter = ring.capacity / 4
+    last_flush = last_look = time.monotonic()
     while True:
+        now = time.monotonic()
         backlog = ring.used
         session.drain()
-        now = time.monotonic()
+        rate = backlog / max(now - last_look, 1e-6)             # bytes per second
+        last_look = now
         if now - last_flush >= flush_period:
             session.writer.flush()
             last_flush = now
-        for message in control.poll(0.0 if backlog >= busy else _IDLE):
+        sleep = min(_IDLE, quarter / rate if rate > 0 else _IDLE,
+                    max(0.0, last_flush + flush_period - now))
+        for message in control.poll(sleep):
             if message[0] == 'metadata':
                 session.writer.add_metadata(message[1])
             elif message[0] == 'end':
@@ -483,4 +494,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == '__main__':
-    sys.exit(main())
+    _code = main()
+    # the bag is closed and the reply sent: no interpreter teardown (tens of ms freeing the
+    # typestore and the modules), which the plant would wait for at the end of its run
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(_code)

@@ -78,6 +78,7 @@ class InPlantRecording:
         self.waits = 0
         self.wait_seconds = 0.0
         self.lost = 0
+        self._woken_at = -1
         self.failed = ''
         self.result: dict | None = None
         self._ended = False
@@ -177,6 +178,10 @@ class InPlantRecording:
             return
         if not self.failed and self.proc.poll() is not None:
             self._writer_failed()
+        tail = self.ring.consumed
+        if tail != self._woken_at:           # once per batch the writer took since: wake it
+            self._woken_at = tail
+            self._send(('wake',))
         self.lost += 1
         self.ring.add_lost()
         name = self.config.topics[index].name

@@ -5,8 +5,12 @@ bag, CPU time from /proc).
 
 The records are a lockstep sample's messages, serialized by rosbags (state, planing_force,
 /clock, command: four per sample); the ring is the default 32 MiB, so the producer never
-waits. A 10 kHz run puts 40000 messages a second through the writer: the writer's rate here
-says how long a run it keeps up with (the ring holds about 8 s of backlog).
+waits. Two cases: the producer as fast as it can (the writer takes large batches; its rate
+says how long a 10 kHz run, 40000 messages a second, it keeps up with: the ring holds about
+8 s of backlog), and paced at the demo loop's rate (5000 samples a second, in bursts of one
+millisecond: the writer wakes between batches as in a run, so its per-batch costs count).
+The writer's CPU is its own process time from bag open to close (its closing reply), close
+included.
 
     python bench/bench_inplant.py --out bench/results/inplant.json [--quick]
 """
@@ -37,6 +41,9 @@ from fohssv_sim.bag.inplant import Ring, TopicSpec, WriterConfig, kind_of, read_
 from fohssv_sim.bag.writer import typestore
 
 TS = typestore()
+#: Samples per second of the paced case: the lockstep demo loop through a controller node on
+#: a 2-core machine (about 5000 round trips a second, bench/bench_ros.py).
+DEMO_RATE = 5000.0
 INF = QosTime(9223372036, 854775807)
 QOS = Qos(history=QosHistory.KEEP_LAST, depth=2000, reliability=QosReliability.RELIABLE,
           durability=QosDurability.VOLATILE, deadline=INF, lifespan=INF,
@@ -62,7 +69,9 @@ def _cpu(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
-def run(samples: int) -> dict:
+def run(samples: int, rate: float = 0.0) -> dict:
+    """The writer fed ``samples`` lockstep samples, at ``rate`` samples per second (0: as fast
+    as the producer can)."""
     topics = (contract.STATE, contract.PLANING_FORCE, contract.CLOCK, contract.COMMAND)
     specs = tuple(TopicSpec('/' + t.name.lstrip('/'), t.type, (QOS,), kind_of(t.type))
                   for t in topics)
@@ -81,9 +90,14 @@ def run(samples: int) -> dict:
                              _array(contract.PLANING_FORCE, [t, 5.0]), _clock(round(t * 1e9)),
                              _array(contract.COMMAND, [t, 0.01, -0.02])))
         put = ring.put
+        burst = max(1, round(rate * 1e-3)) if rate else samples      # samples per millisecond
         wall0 = time.monotonic()
         cpu0 = time.process_time()
         for k in range(samples):
+            if rate and k % burst == 0:
+                delay = wall0 + k / rate - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
             state, force, clock, command = messages[k % len(messages)]
             put(0, state)
             put(1, force)
@@ -93,13 +107,16 @@ def run(samples: int) -> dict:
         send(proc.stdin, ('end', contract.run_end_text('plant', 'bench', 0, 0.0, {})))
         reply = read_reply(proc.stdout)
         wall = time.monotonic() - wall0
-        writer_cpu = _cpu(proc.pid) - idle_cpu
+        writer_cpu = _cpu(proc.pid) - idle_cpu       # 10 ms ticks; the reply's is exact
         proc.wait(timeout=60)
+        if reply is not None and 'cpu_time' in reply:
+            writer_cpu = reply['cpu_time']
     ring.close()
     n = 4 * samples
     if reply is None or reply.get('messages') != n:
         raise RuntimeError(f'the writer wrote {reply}')
-    return {'messages': n, 'producer_cpu_per_message_us': producer * 1e6,
+    return {'messages': n, 'rate_samples_per_second': rate,
+            'producer_cpu_per_message_us': producer * 1e6,
             'writer_cpu_per_message_us': writer_cpu / n * 1e6,
             'writer_messages_per_cpu_second': n / writer_cpu if writer_cpu > 0 else 0.0,
             'writer_messages_per_second': n / wall, 'wall_time': wall}
@@ -117,9 +134,14 @@ def main() -> int:
           f"{r['writer_messages_per_cpu_second']:.0f}/s; a 10 kHz run makes 40000/s), "
           f"{r['writer_messages_per_second']:.0f} messages/s to a closed bag on this machine "
           'now', flush=True)
+    paced = run(2000 if a.quick else 10000, rate=DEMO_RATE)
+    print(f"inplant   paced at {DEMO_RATE:.0f} samples/s (the demo loop's rate), "
+          f"{paced['messages']} messages: writer {paced['writer_cpu_per_message_us']:.1f} us "
+          'CPU per message', flush=True)
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps({'benchmark': 'in-plant recording', 'cpus': os.cpu_count(),
-                                 'quick': a.quick, **r}, indent=2) + '\n')
+                                 'load_average': os.getloadavg(), 'quick': a.quick, **r,
+                                 'paced': paced}, indent=2) + '\n')
     print(f'wrote {a.out}')
     return 0
 

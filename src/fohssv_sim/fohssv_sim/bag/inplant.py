@@ -22,12 +22,14 @@ stores are atomic and stay in order on x86-64 and ARMv8 for this one-producer, o
 (CPython's own calls around them order them on weaker machines).
 
 Control goes over the writer's stdin, one length-prefixed pickle per message (the two ends are
-this module, one program): ``('open', config)``, ``('metadata', values)`` and ``('end',
-run_end_json)``. The writer answers on its stdout with one JSON line when the bag is open and
-one when it is closed (:func:`read_reply`). End of file on stdin without ``end`` means the plant
-died (SIGKILL included): the writer takes what the ring holds, marks the bag
-``fohssv.record_interrupted`` and closes it completely. A writer killed itself leaves a bag cut
-at its last flush (every ``flush_period``, default 0.1 s), which ``fohssv repair`` completes.
+this module, one program): ``('open', config)``, ``('metadata', values)``, ``('wake',)`` (the
+plant found the ring full: write now) and ``('end', run_end_json)``. The writer answers on
+its stdout with one JSON line when the bag is open and one when it is closed
+(:func:`read_reply`; with the writer's CPU time from open to close). End of file on stdin
+without ``end`` means the plant died (SIGKILL included): the writer takes what the ring holds,
+marks the bag ``fohssv.record_interrupted`` and closes it completely. A writer killed itself
+leaves a bag cut at its last flush (every ``flush_period``, default 0.1 s), which ``fohssv
+repair`` completes.
 
 When the ring is full the plant does not drop silently: in lockstep it waits for room (the
 writer paces the loop; counted as ``record_waits``), in real time it counts the record as lost
@@ -39,6 +41,7 @@ Pure module: no rclpy.
 
 from __future__ import annotations
 
+import gc
 import json
 import mmap
 import os
@@ -71,10 +74,12 @@ EXIT_LOST = 6
 EXIT_INTERRUPTED = 7
 #: Run-metadata key of a bag closed without any message (as the recorder node marks it).
 EMPTY_KEY = 'fohssv.empty'
-#: Wall seconds between two looks at an empty ring (and at the control pipe): the writer
-#: wakes at most this often, each time writing everything the ring holds, so it takes the
-#: CPU in few, long turns instead of interrupting the loop's processes at every sample.
-_IDLE = 0.01
+#: Longest wall time (s) between two looks at the ring (and at the control pipe): the writer
+#: wakes this often (sooner for a small or fast-filling ring, a flush, a control message or a
+#: plant that finds the ring full: :func:`_serve`), each time writing everything the ring holds
+#: in one batch, so it takes the CPU in few, long turns (a batch's fixed cost is spread over
+#: a thousand messages in a lockstep demo) instead of interrupting the loop at every sample.
+_IDLE = 0.05
 _HEADER = 64                       # head, tail, lost, waits (u64), rest spare
 _RECORD = struct.Struct('<IHH')    # payload length, topic index, spare
 _WRAP = 0xFFFFFFFF                 # record length meaning "continue at the ring's start"
@@ -101,6 +106,7 @@ class Ring:
         self._head = self._counters[0]      # producer's copy
         self._limit = self._counters[1] + self.capacity   # head may grow to this (producer)
         self._tail = self._counters[1]      # consumer's copy
+        self._taken = self._tail            # consumer: the end of the last take()
 
     @classmethod
     def create(cls, size: int = DEFAULT_RING_BYTES) -> Ring:
@@ -172,6 +178,11 @@ class Ring:
         return self._counters[3]
 
     @property
+    def consumed(self) -> int:
+        """Bytes the consumer took so far (its tail)."""
+        return self._counters[1]
+
+    @property
     def used(self) -> int:
         """Bytes produced and not yet consumed."""
         return self._counters[0] - self._counters[1]
@@ -201,6 +212,37 @@ class Ring:
             self._counters[1] = tail
         self._tail = tail
         self._counters[1] = tail
+
+    def take(self, limit: int = 1 << 30) -> list[tuple[int, memoryview]]:
+        """The records produced so far (at most ``limit`` bytes of them), in order, as
+        ``(index, bytes view)``, in one list: :meth:`records` for a batch. The tail stays until
+        :meth:`release` (the views are valid until then)."""
+        cap = self.capacity
+        tail = self._tail
+        head = min(self._counters[0], tail + limit)
+        data = self._data
+        unpack = _RECORD.unpack_from
+        out = []
+        append = out.append
+        while tail < head:
+            off = tail % cap
+            gap = cap - off
+            if gap < 8:
+                tail += gap
+                continue
+            n, index, _ = unpack(data, off)
+            if n == _WRAP:
+                tail += gap
+                continue
+            append((index, data[off + 8:off + 8 + n]))
+            tail += 8 + ((n + 7) & ~7)
+        self._taken = tail
+        return out
+
+    def release(self) -> None:
+        """Move the tail past the records of the last :meth:`take` (room for the plant)."""
+        self._tail = self._taken
+        self._counters[1] = self._taken
 
     def close(self) -> None:
         self._counters.release()
@@ -320,21 +362,30 @@ class _Session:
                 self._log.append(times.clock)
             else:
                 self._log.append(lambda raw, _type=t.type: times.stamped(raw, _type))
+        ids = self.writer.channel_ids()
+        self._channel = [ids[t.name] for t in self.topics]
         self.expected: dict[str, int] | None = None
+        # what is alive now lives to the end: the collector's full passes need not walk it (the
+        # writer makes no cycles; its batches are freed by reference counts)
+        gc.collect()
+        gc.freeze()
+        self._cpu0 = time.process_time()      # the bag is open: the writer's work begins
 
     def drain(self, limit: int = 1 << 22) -> int:
-        """Write what the ring holds (at most ``limit`` bytes of records); records written."""
-        n = 0
-        write = self.writer.write
-        names = [t.name for t in self.topics]
+        """Write what the ring holds (at most ``limit`` bytes of records) in one batch;
+        records written."""
+        records = self.ring.take(limit)
+        if not records:
+            return 0
+        channel = self._channel
         log = self._log
-        for index, raw in self.ring.records(limit):
-            pad = -len(raw) % 4
-            # as a DDS reader receives it (and the recorder node writes it): RTPS pads a
-            # serialized payload with zeros to a multiple of 4 bytes
-            write(names[index], log[index](raw), bytes(raw) + _PAD[pad] if pad else raw)
-            n += 1
-        return n
+        # as a DDS reader receives it (and the recorder node writes it): RTPS pads a
+        # serialized payload with zeros to a multiple of 4 bytes
+        self.writer.write_many([
+            (channel[i], log[i](raw), bytes(raw) + _PAD[-len(raw) % 4] if len(raw) & 3 else raw)
+            for i, raw in records])
+        self.ring.release()
+        return len(records)
 
     def end(self, run_end: str | None) -> dict:
         """Close the bag after ``run_end`` (the plant's JSON; None: the plant died)."""
@@ -357,7 +408,8 @@ class _Session:
                    if w.counts.get(k, 0) < v}
         return {'closed': str(w.path), 'messages': total, 'counts': dict(w.counts),
                 'missing': missing, 'lost': lost, 'waits': self.ring.waits,
-                'interrupted': run_end is None}
+                'interrupted': run_end is None,
+                'cpu_time': time.process_time() - self._cpu0}
 
 
 def _reply(out: BinaryIO, values: Mapping[str, Any]) -> None:
@@ -366,15 +418,27 @@ def _reply(out: BinaryIO, values: Mapping[str, Any]) -> None:
 
 
 def _serve(session: _Session, control: _Control, flush_period: float) -> str | None:
-    """Write until ``end`` (its run_end JSON) or the plant's death (None)."""
-    last_flush = time.monotonic()
+    """Write until ``end`` (its run_end JSON) or the plant's death (None).
+
+    Between two batches the writer sleeps on the control pipe: :data:`_IDLE`, less when the
+    ring, filling at the rate it did since the last look, would be a quarter full sooner (a
+    small ring, a fast plant), or when the next flush is due sooner. A plant that finds the ring
+    full wakes it (``wake``), as does any control message."""
+    ring = session.ring
+    quarter = ring.capacity / 4
+    last_flush = last_look = time.monotonic()
     while True:
-        wrote = session.drain()
         now = time.monotonic()
+        backlog = ring.used
+        session.drain()
+        rate = backlog / max(now - last_look, 1e-6)             # bytes per second
+        last_look = now
         if now - last_flush >= flush_period:
             session.writer.flush()
             last_flush = now
-        for message in control.poll(0.0 if wrote else _IDLE):
+        sleep = min(_IDLE, quarter / rate if rate > 0 else _IDLE,
+                    max(0.0, last_flush + flush_period - now))
+        for message in control.poll(sleep):
             if message[0] == 'metadata':
                 session.writer.add_metadata(message[1])
             elif message[0] == 'end':
@@ -430,4 +494,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == '__main__':
-    sys.exit(main())
+    _code = main()
+    # the bag is closed and the reply sent: no interpreter teardown (tens of ms freeing the
+    # typestore and the modules), which the plant would wait for at the end of its run
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(_code)

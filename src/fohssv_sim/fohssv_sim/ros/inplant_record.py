@@ -78,6 +78,7 @@ class InPlantRecording:
         self.waits = 0
         self.wait_seconds = 0.0
         self.lost = 0
+        self._woken_at = -1
         self.failed = ''
         self.result: dict | None = None
         self._ended = False
@@ -167,6 +168,7 @@ class InPlantRecording:
             begin = time.monotonic()
             self.waits += 1
             self.ring.add_wait()
+            self._send(('wake',))            # the writer sleeps between batches: now
             while not self.ring.put(index, data):
                 if self.proc.poll() is not None:
                     self._writer_failed()
@@ -176,6 +178,10 @@ class InPlantRecording:
             return
         if not self.failed and self.proc.poll() is not None:
             self._writer_failed()
+        tail = self.ring.consumed
+        if tail != self._woken_at:           # once per batch the writer took since: wake it
+            self._woken_at = tail
+            self._send(('wake',))
         self.lost += 1
         self.ring.add_lost()
         name = self.config.topics[index].name
@@ -235,8 +241,10 @@ class InPlantRecording:
                       f'behind): the bag holds {detail} published (run_end); {r["closed"]} is '
                       'closed and readable')
             return code or EXIT_RECORD_LOST
+        cpu = (f' (writer CPU {r["cpu_time"]:.2f} s)' if isinstance(r.get('cpu_time'), float)
+               else '')
         log.info(f'in-plant recording: closed {r["closed"]}: {r["messages"]} messages '
-                 f'({counts}); every message of the run is in the bag')
+                 f'({counts}); every message of the run is in the bag{cpu}')
         return code
 
     def _wait_closed(self) -> dict | None:

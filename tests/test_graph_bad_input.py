@@ -313,8 +313,7 @@ def test_controllers_and_the_recorder_warn_about_two_publishers_of_state(tmp_pat
 
     domain = rosproc.unique_domain_id()
     env = rosproc.ros_env(domain)
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain)
+    ctx = rosproc.init_context(domain)          # the nodes' discovery settings
     nodes = [rclpy.create_node(name, context=ctx) for name in ('plant_a', 'plant_b')]
     qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)

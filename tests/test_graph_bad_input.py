@@ -81,8 +81,11 @@ def test_invalid_parameter_change_is_refused_and_the_run_is_untouched():
     probe = Probe(domain)
     ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
     # 0.5 s (5000 lockstep samples): the run must outlast the four service calls, which a
-    # loaded machine can delay by seconds (a call to a plant that has ended gets no answer)
-    plant = _plant({'model': 'delay-free', 'duration': 0.5, 'min_state_subscribers': 2}, env)
+    # loaded machine can delay by seconds (a call to a plant that has ended gets no answer).
+    # Paced by the probe's acknowledgements: 5001 samples are more than the 2000-sample queue,
+    # and beside two CPU hogs the unpaced probe never got all of them (30 s after the run)
+    plant = _plant({'model': 'delay-free', 'duration': 0.5, 'min_state_subscribers': 2,
+                    'pace_to_subscribers': 512}, env)
     try:
         probe.wait(lambda: len(probe.states) > 50, 30, 'the run to start')
         out_of_range, read_only, wrong_type = probe.set_plant_parameters(

@@ -529,7 +529,7 @@ class PlantNode(Node):
         planing_force, /clock and the views when due."""
         # a failed publish (rclpy's RCLError 'Failed to publish' under load) is retried,
         # and ends the run with exit 9 (summary, run_end) if DDS keeps refusing it
-        # (each payload made once: with record:=PATH making it is what records it)
+        # (each payload made once: a retry sends the same bytes)
         payload = self._state_out.payload()
         try:
             self._send_state(payload)

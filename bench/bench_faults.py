@@ -24,7 +24,9 @@ Categories (each case on a ROS_DOMAIN_ID of its own, from ``tests/rosproc.py``):
   exit 7, unchecked),
   publishers gone without run_end (exit 7), SIGINT to a recorded lockstep plant (bag, run_end
   and summary agree), recorder and player started together, a full filesystem (one line,
-  exit 1, the bag repairs; needs root), a plant's UDP sockets on loopback only;
+  exit 1, the bag repairs; needs root), a plant's UDP sockets on loopback only, state
+  publishes DDS refuses (injected, ``FOHSSV_FAULT_REFUSE_STATE``; external and hosted
+  controller: exit 9, one line, the bag and run_end agree);
 * loss: a lockstep closed loop recorded with the demo's settings, and a rate-0 ``player``
   replay into a recorder, each also with two busy processes (``yes > /dev/null``) on the
   machine. After the plant (player) has finished, the recorder gets ``STOP_GRACE`` s to stop
@@ -40,6 +42,7 @@ table per category and every failing case (command and output), writes the JSON 
 cases, under 1 min).
 
     python bench/bench_faults.py [--out bench/results/faults.json] [--quick] [--jobs 4]
+                                 [--only CATEGORY,...] [--match TEXT]
 """
 
 from __future__ import annotations
@@ -802,6 +805,14 @@ def reliability_cases() -> list[Case]:
         Case('reliability', 'a plant binds UDP on loopback only',
              g('test_graph_transport', 'test_a_plant_binds_udp_on_loopback_only'),
              quick=True),
+        Case('reliability', 'state publishes refused (injected): exit 9, bag = run_end',
+             g('test_graph_publish_failure',
+               'test_a_refused_sample_ends_the_run_with_exit_9_and_the_bag_agrees', 'tmp',
+               False, False, kind='handled')),
+        Case('reliability', 'a hosted run whose state publishes are refused: exit 9',
+             g('test_graph_publish_failure',
+               'test_a_refused_sample_ends_the_run_with_exit_9_and_the_bag_agrees', 'tmp',
+               True, False, kind='handled')),
     ]
 
 
@@ -949,6 +960,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--quick', action='store_true', help='a representative subset')
     ap.add_argument('--jobs', type=int, default=4, help='cases run at once (default 4)')
     ap.add_argument('--only', default='', help='comma-separated categories')
+    ap.add_argument('--match', default='', help='only the cases whose name contains this text')
     a = ap.parse_args(argv)
     started = time.monotonic()
     with tempfile.TemporaryDirectory(prefix='fohssv-faults-') as tmpdir:
@@ -960,6 +972,8 @@ def main(argv: list[str] | None = None) -> int:
             cases = [c for c in cases if c.quick]
         if a.only:
             cases = [c for c in cases if c.category in a.only.split(',')]
+        if a.match:
+            cases = [c for c in cases if a.match in c.name]
         print(f'{len(cases)} cases, {a.jobs} at a time', flush=True)
         index = iter(range(len(cases)))
         # everything but the loss cases at once, then the loss cases alone, then under load

@@ -65,11 +65,11 @@ def ros_env(domain_id: int | None = None, **extra: str) -> dict[str, str]:
 def init_context(domain_id: int):
     """An initialised ``rclpy.Context`` on ``domain_id`` with the discovery settings every fohssv
     node gives itself (``startup.init``: the package's loopback-only Fast DDS profile, and
-    with it the range LOCALHOST handed to rcl as SUBNET). A participant of the test process
-    left as env.sh sets it (LOCALHOST with the profile) discovers by unicast announcements
-    only: a node started after it saw it 0.5 to 2.9 s later, against 0 to 0.7 s for one
-    configured like the nodes (measured), so a player that did not wait for it played to
-    nobody."""
+    with it the range LOCALHOST handed to rcl as SUBNET), whatever the test process's own
+    environment holds. A participant with LOCALHOST and the profile (what env.sh exported
+    before it exported SUBNET with the profile) discovers by unicast announcements only: a
+    node started after it saw it 0.5 to 2.9 s later, against 0 to 0.7 s for one configured
+    like the nodes (measured), so a player that did not wait for it played to nobody."""
     import rclpy
 
     from fohssv_sim.ros.startup import default_transport

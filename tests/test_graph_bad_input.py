@@ -81,8 +81,11 @@ def test_invalid_parameter_change_is_refused_and_the_run_is_untouched():
     probe = Probe(domain)
     ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
     # 0.5 s (5000 lockstep samples): the run must outlast the four service calls, which a
-    # loaded machine can delay by seconds (a call to a plant that has ended gets no answer)
-    plant = _plant({'model': 'delay-free', 'duration': 0.5, 'min_state_subscribers': 2}, env)
+    # loaded machine can delay by seconds (a call to a plant that has ended gets no answer).
+    # Paced by the probe's acknowledgements: 5001 samples are more than the 2000-sample queue,
+    # and beside two CPU hogs the unpaced probe never got all of them (30 s after the run)
+    plant = _plant({'model': 'delay-free', 'duration': 0.5, 'min_state_subscribers': 2,
+                    'pace_to_subscribers': 512}, env)
     try:
         probe.wait(lambda: len(probe.states) > 50, 30, 'the run to start')
         out_of_range, read_only, wrong_type = probe.set_plant_parameters(
@@ -313,8 +316,7 @@ def test_controllers_and_the_recorder_warn_about_two_publishers_of_state(tmp_pat
 
     domain = rosproc.unique_domain_id()
     env = rosproc.ros_env(domain)
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain)
+    ctx = rosproc.init_context(domain)          # the nodes' discovery settings
     nodes = [rclpy.create_node(name, context=ctx) for name in ('plant_a', 'plant_b')]
     qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)

@@ -43,8 +43,7 @@ def test_a_full_disk_ends_in_one_line_and_the_bag_repairs(small_disk, tmp_path):
     rec = rosproc.start('fohssv_sim', 'recorder', [
         '--ros-args', '-p', f'bag_path:={bag}', '-p', 'plant_node:=none', '-p',
         'topics:=[state]'], env=env, log=log)
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain)
+    ctx = rosproc.init_context(domain)          # the nodes' discovery settings
     node = rclpy.create_node('plant', context=ctx)
     try:
         pub = node.create_publisher(Float64MultiArray, 'state', QoSProfile(

@@ -38,8 +38,7 @@ class Sources:
     """Nodes in the test process, each publishing ``state`` (and ``run_end``) in a namespace."""
 
     def __init__(self, domain: int) -> None:
-        self.ctx = rclpy.Context()
-        rclpy.init(context=self.ctx, domain_id=domain)
+        self.ctx = rosproc.init_context(domain)     # the nodes' discovery settings
         self.ex = SingleThreadedExecutor(context=self.ctx)
         self.nodes = []
 

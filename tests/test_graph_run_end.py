@@ -162,8 +162,7 @@ def test_a_shortfall_against_run_end_is_named_and_exits_6(tmp_path):
     log = tmp_path / 'recorder.log'
     rec = _recorder(env, bag, log, 'plant_node:=none', 'end_timeout:=1.0',
                     'topics:=[state]')
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain)
+    ctx = rosproc.init_context(domain)          # the nodes' discovery settings
     node = rclpy.create_node('source', context=ctx)
     try:
         deep = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,

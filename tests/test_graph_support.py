@@ -50,8 +50,8 @@ class Probe:
         """``command_publisher=False``: a passive listener (the plant counts it as a state
         subscriber, never as a controller); ``clock=True``: also record ``/clock`` times
         (ns) in ``clocks``."""
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=domain_id)
+        # the nodes' discovery settings: discovered as fast as a node, whatever the load
+        self.context = rosproc.init_context(domain_id)
         self.node = rclpy.create_node('probe', context=self.context)
         self.states: list[tuple] = []
         self.forces: list[tuple] = []

@@ -4,7 +4,12 @@ profile (config/fastdds_localhost.xml) is applied by the nodes themselves, here 
 profile variables removed from the environment (as in a shell without env.sh). The sockets are
 read from /proc/<pid>/net/udp through the process's socket inodes, independently of Fast DDS.
 FOHSSV_DDS_NETWORK=open leaves Fast DDS's defaults: the same check then finds a socket on
-0.0.0.0 (the check can fail)."""
+0.0.0.0 (the check can fail).
+
+A user's own rclpy process started in a shell that sourced env.sh binds loopback only too:
+env.sh exports ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET with the profile (rmw_fastrtps adds a UDP
+transport on every interface for LOCALHOST, profile or not); with an explicit LOCALHOST, which
+env.sh keeps (and says so), the same process binds outside loopback."""
 
 from __future__ import annotations
 
@@ -12,6 +17,7 @@ import ipaddress
 import os
 import socket
 import struct
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -74,3 +80,46 @@ def test_a_plant_binds_udp_on_loopback_only():
 def test_fohssv_dds_network_open_leaves_fast_dds_defaults():
     addresses = _sockets_of_a_waiting_plant(FOHSSV_DDS_NETWORK='open')
     assert _outside(addresses), addresses
+
+
+ROOT = Path(__file__).resolve().parents[1]
+#: A user's own node: a subscriber, as anyone writes one after `source env.sh`.
+_OWN_NODE = ('import os, time, rclpy; from std_msgs.msg import String; rclpy.init(); '
+             'n = rclpy.create_node("mine"); '
+             'n.create_subscription(String, "chatter", lambda m: None, 10); '
+             'print("RANGE=" + os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"], flush=True); '
+             'time.sleep(120)')
+
+
+def _sockets_of_an_env_sh_process(*exports: str) -> tuple[list[str], str, str]:
+    """(UDP addresses, stdout's first line, stderr) of an rclpy process started by a clean
+    shell that exported ``exports`` and then sourced env.sh."""
+    env = {'PATH': '/usr/local/bin:/usr/bin:/bin', 'HOME': os.environ.get('HOME', '/root'),
+           'ROS_DOMAIN_ID': str(rosproc.unique_domain_id())}
+    script = ''.join(f'export {e}; ' for e in exports) + (
+        f'source "{ROOT}/env.sh" && exec python -c \'{_OWN_NODE}\'')
+    proc = subprocess.Popen(['bash', '-c', script], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        line = proc.stdout.readline()         # after rclpy.init and the node: exec kept the pid
+        rosproc.wait_for(lambda: proc.poll() is not None or len(udp_addresses(proc.pid)) >= 3,
+                         90, what='the process to open its sockets')
+        addresses = udp_addresses(proc.pid)
+    finally:
+        proc.kill()
+        _, err = proc.communicate(timeout=30)
+    return addresses, line.strip(), err
+
+
+def test_an_rclpy_process_after_env_sh_binds_udp_on_loopback_only():
+    addresses, line, err = _sockets_of_an_env_sh_process()
+    assert line == 'RANGE=SUBNET', (line, err)
+    assert addresses and not _outside(addresses), addresses
+    assert 'fohssv:' not in err, err                 # nothing to say about the defaults
+
+
+def test_env_sh_keeps_an_explicit_localhost_and_says_what_it_costs():
+    addresses, line, err = _sockets_of_an_env_sh_process('ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST')
+    assert line == 'RANGE=LOCALHOST', (line, err)
+    assert 'fohssv: keeping your ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST' in err, err
+    assert _outside(addresses), addresses            # rmw_fastrtps's own any-interface UDP

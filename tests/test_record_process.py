@@ -21,7 +21,6 @@ import pytest
 import rclpy
 from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
 from mcap.reader import make_reader
-from rclpy.context import Context
 from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -42,7 +41,16 @@ from fohssv_sim.params import ModelParameters
 from fohssv_sim.ros.qos import profile
 
 from mcap_doctor import assert_doctor_clean
-from rosproc import output, ros_env, start, stop, unique_domain_id, wait_exit, wait_for
+from rosproc import (
+    init_context,
+    output,
+    ros_env,
+    start,
+    stop,
+    unique_domain_id,
+    wait_exit,
+    wait_for,
+)
 
 pytestmark = pytest.mark.graph
 
@@ -56,8 +64,7 @@ class FakePlant:
     """A node named 'plant' with parameters, publishing a real model's steps."""
 
     def __init__(self, domain: int) -> None:
-        self.ctx = Context()
-        rclpy.init(context=self.ctx, domain_id=domain)
+        self.ctx = init_context(domain)     # the nodes' discovery settings
         self.node = Node('plant', context=self.ctx)
         self.node.declare_parameter('model', 'delay-free')
         self.node.declare_parameter('V', 75.0)

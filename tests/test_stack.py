@@ -61,7 +61,9 @@ def test_env_script_gives_a_clean_shell_rclpy_and_the_overlay():
     lines = out.stdout.split()
     assert lines[0] == str(ROOT / 'ros2_ws' / 'install' / 'fohssv_sim')
     assert lines[1] == str(ROOT / '.venv')
-    assert lines[2] == 'LOCALHOST'
+    # with the loopback profile env.sh applies, SUBNET (as the nodes hand it to rcl): see
+    # test_graph_transport for the sockets of a process started after it
+    assert lines[2] == 'SUBNET'
 
 
 def test_dockerfile_names_only_files_that_exist_and_pins_like_requirements():

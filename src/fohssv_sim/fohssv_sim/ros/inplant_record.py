@@ -3,10 +3,12 @@ every published message and every taken command into the ring, end the bag with 
 
 The writer and the ring are :mod:`fohssv_sim.bag.inplant` (pure); this module only knows the
 plant's message writers and publishers. :func:`start` is the plant's one hook at construction:
-it checks ``record`` (:func:`check_record`), starts the writer, and wraps the ``payload`` of
-the plant's serialized ``state``, ``planing_force`` and ``/clock`` messages and the
-``publish`` of its view publishers, so that each message is also put into the ring: the bytes
-DDS gets (a view message object is serialized by the tap and published as those bytes).
+it checks ``record`` (:func:`check_record`), starts the writer, and wraps the plant's publish
+calls of its serialized ``state``, ``planing_force``, ``/clock`` (and hosted ``command``)
+messages and the ``publish`` of its view publishers, so that each message is also put into
+the ring once published: the bytes DDS took (a view message object is serialized by the tap
+and published as those bytes; a sample DDS refused is not recorded, as ``run_end`` does not
+count it).
 :meth:`InPlantRecording.command` takes the raw bytes of each
 command the plant takes while running, :meth:`InPlantRecording.end` the run_end JSON, and
 :meth:`InPlantRecording.finish` waits for the writer to close the bag.
@@ -139,22 +141,23 @@ class InPlantRecording:
 
         pub.publish = publish_recorded
 
-    def tap_payload(self, writer: Any, topic_name: str) -> None:
-        """Put every message a serialized-message writer (``wire.ArrayWriter``,
-        ``ClockWriter``) makes into the ring: its ``payload`` wrapped, so the bytes are
-        recorded whichever call publishes them."""
+    def tap_send(self, node: Any, attr: str, topic_name: str) -> None:
+        """Put every message the plant's publish call ``node.<attr>`` (``_send_state`` & co.,
+        serialized bytes from ``wire.ArrayWriter`` and ``ClockWriter``) publishes into the ring
+        too, once it was published: a sample DDS refused (retried, or never sent before an
+        exit 9) is recorded once, or not at all, as ``run_end`` counts it."""
         index = self._index[topic_name]
-        payload = writer.payload
+        send = getattr(node, attr)
         put = self.ring.put
         full = self._full
 
-        def payload_recorded(*args: Any) -> bytes:
-            data = payload(*args)
+        def send_recorded(data: bytes) -> Any:
+            result = send(data)
             if not put(index, data):
                 full(index, data)
-            return data
+            return result
 
-        writer.payload = payload_recorded
+        setattr(node, attr, send_recorded)
 
     def command(self, raw: bytes) -> None:
         """A command the plant took while running (the raw bytes it received)."""
@@ -285,9 +288,9 @@ def _command_name(node: Any) -> str:
 
 def start(node: Any) -> InPlantRecording | None:
     """The plant's hook: an :class:`InPlantRecording` of ``node`` when ``record`` is set, else
-    None. What the plant publishes is recorded where its bytes are made: the serialized
-    ``state``, ``planing_force``, ``/clock`` (and a hosted law's ``command``) messages by their
-    writers' ``payload`` (whatever call then publishes them), the views by their publishers'
+    None. What the plant publishes is recorded as it is published: the serialized
+    ``state``, ``planing_force``, ``/clock`` (and a hosted law's ``command``) messages by the
+    plant's publish calls (``_send_state`` & co.), the views by their publishers'
     ``publish``; the commands the plant takes by :meth:`InPlantRecording.command`.
 
     Raises:
@@ -297,18 +300,19 @@ def start(node: Any) -> InPlantRecording | None:
     if path is None:
         return None
     command = _command_name(node)
-    made = [(node.state_pub.topic_name, contract.STATE, node._state_out),   # noqa: SLF001
-            (node.force_pub.topic_name, contract.PLANING_FORCE, node._force_out),  # noqa: SLF001
-            (command, contract.COMMAND, getattr(node, '_command_out', None)),
-            (node.clock_pub.topic_name, contract.CLOCK, node._clock_out)]   # noqa: SLF001
+    made = [(node.state_pub.topic_name, contract.STATE, '_send_state'),
+            (node.force_pub.topic_name, contract.PLANING_FORCE, '_send_force'),
+            (command, contract.COMMAND,
+             '_send_command' if hasattr(node, '_send_command') else None),
+            (node.clock_pub.topic_name, contract.CLOCK, '_send_clock')]
     views = getattr(node, 'views', None)
     published = [] if views is None else list(zip(views.publishers, contract.VIEW_TOPICS,
                                                    strict=True))
     rec = InPlantRecording(node, path, [(name, topic) for name, topic, _ in made]
                            + [(pub.topic_name, topic) for pub, topic in published])
-    for name, _, writer in made:
-        if writer is not None:
-            rec.tap_payload(writer, name)
+    for name, _, attr in made:
+        if attr is not None:
+            rec.tap_send(node, attr, name)
     for pub, _ in published:
         rec.tap(pub)
     rec.command_index = rec.index(command)

@@ -44,9 +44,9 @@ by more than ``max_command_lag`` control periods for as long, 7 a hosted control
 another publisher of ``command`` (an external controller) on the same domain and namespace,
 8 the in-plant bag (``record``) misses messages (its writer fell behind in real time, or
 failed),
-9 a sample could not be published (DDS refused it for a second, e.g. a machine so loaded
-that the readers never acknowledge): the run ends there with its summary and a ``run_end``
-listing what was published.
+9 a sample could not be published (DDS refused it for a second: rclpy's ``RCLError``, seen
+on a loaded machine; ``FOHSSV_FAULT_REFUSE_STATE``, :mod:`.faults`, injects it for tests): the
+run ends there with its summary and a ``run_end`` listing what was published.
 """
 
 from __future__ import annotations
@@ -75,6 +75,7 @@ from ..contract import CLOCK, COMMAND, PLANING_FORCE, RUN_END, STATE, run_end_te
 from ..control import NonFiniteCommand
 from ..models import MAX_PITCH, check_state
 from ..params import PARAMETERS, ModelParameters, ParameterError, ParameterSpec, field_specs
+from .faults import REFUSE_STATE_VAR, refused_publishes, refusing
 from .inplant_record import EXIT_RECORD_LOST
 from .inplant_record import start as start_recording
 from .loop import (
@@ -210,6 +211,13 @@ class PlantNode(Node):
                                                profile(PLANING_FORCE))
         self.clock_pub = self.create_publisher(Clock, CLOCK.name, profile(CLOCK))
         self._send_state = raw_publish(self.state_pub)
+        refuse = refused_publishes()        # a testing aid (faults.py): None unless asked for
+        if refuse is not None:
+            self._send_state = refusing(self._send_state, *refuse)
+            self.get_logger().warning(
+                f'{REFUSE_STATE_VAR}: state publishes after the first {refuse[0]} are refused '
+                + ('for good' if refuse[1] is None else f'{refuse[1]} time(s)')
+                + ' (fault injection, a testing aid: unset it to run normally)')
         self._send_force = raw_publish(self.force_pub)
         self._send_clock = raw_publish(self.clock_pub)
         # hosted: /clock and command (volatile) are written only while someone subscribes;
@@ -257,6 +265,7 @@ class PlantNode(Node):
         self.law_failures = 0                     # hosted: samples the law gave no command
         self._announced = False                   # run_end published
         self.forces_lost = 0                      # planing_force samples not published
+        self._cut: tuple[float, int] | None = None  # (t, steps) where a burst ended the run
         self.publish_retries = 0                  # publishes DDS refused at first
         self.resets = 0
         self._samples_before = 0                  # samples and steps before the last reset
@@ -533,16 +542,18 @@ class PlantNode(Node):
         planing_force, /clock and the views when due."""
         # a failed publish (rclpy's RCLError 'Failed to publish' under load) is retried,
         # and ends the run with exit 9 (summary, run_end) if DDS keeps refusing it
+        # (each payload made once: a retry sends the same bytes)
+        payload = self._state_out.payload()
         try:
-            self._send_state(self._state_out.payload())
+            self._send_state(payload)
         except Exception as exc:  # noqa: BLE001 - RCLError is not exported by rclpy
-            self._retry_publish(self._send_state, self.state_pub.topic_name,
-                                self._state_out.payload(), exc, state=True)
+            self._retry_publish(self._send_state, self.state_pub.topic_name, payload, exc,
+                                state=True)
+        payload = self._force_out.payload()
         try:
-            self._send_force(self._force_out.payload())
+            self._send_force(payload)
         except Exception as exc:  # noqa: BLE001
-            self._retry_publish(self._send_force, self.force_pub.topic_name,
-                                self._force_out.payload(), exc)
+            self._retry_publish(self._send_force, self.force_pub.topic_name, payload, exc)
         if self._clock_wanted and sample % self._clock_every == 0:
             try:
                 self._send_clock(self._clock_out.payload(round(self._state_data[0] * 1e9)))
@@ -574,8 +585,10 @@ class PlantNode(Node):
             except Exception as again:  # noqa: BLE001
                 exc = again
         if state:
-            self.sent -= 1                     # the state of this sample never went out
-        self.forces_lost += 1                  # nor its planing_force (not published after)
+            self.sent -= 1   # the state of this sample never went out, nor (not counted in
+                             # sent) its planing_force, which is not published after it
+        else:
+            self.forces_lost += 1              # the state went out, its planing_force not
         raise PublishFailed(f'{name}: the sample at t={self._state_data[0]!r} s '
                             f'could not be published for {_PUBLISH_RETRY:g} s ({exc}); '
                             'stopping the run')
@@ -691,6 +704,8 @@ class PlantNode(Node):
                 self._send_sample(sim.samples + 1)
             except PublishFailed as exc:
                 sim.samples += 1
+                # the kernel computed the burst's later samples too: the run ended here
+                self._cut = (t, n0 + (j + 1) * hold)
                 self._fail(EXIT_PUBLISH_FAILED, str(exc))
                 return False
             if pacer is not None:
@@ -1072,12 +1087,13 @@ class PlantNode(Node):
         # t, samples and steps count from the last /reset; the rates divide the whole run's
         # samples (samples_total) by the whole run's wall and CPU time
         total = self._samples_before + self.sim.samples
-        steps = self._steps_before + self.sim.plant.n
+        t, n = self._made()
+        steps = self._steps_before + n
         s: dict[str, Any] = {
             'mode': self.options.mode, 'model': self.model.model, 'solver': self.model.solver,
             'step': self.model.step, 'control_period': self.options.control_period,
-            't': self.sim.t, 'samples': self.sim.samples,
-            'steps': self.sim.plant.n, 'resets': self.resets, 'samples_total': total,
+            't': t, 'samples': self.sim.samples,
+            'steps': n, 'resets': self.resets, 'samples_total': total,
             'steps_total': steps, 'published_states': self.sent,
             'wall_time': wall, 'cpu_time': cpu,
             'cpu_per_sample_us': cpu / total * 1e6 if total else 0.0,
@@ -1118,6 +1134,11 @@ class PlantNode(Node):
             s.update(samples_per_second=total / wall, steps_per_second=steps / wall)
         return s
 
+    def _made(self) -> tuple[float, int]:
+        """(t, steps) of the run's last sample: the plant's, unless a refused publish ended
+        the run inside a burst whose later samples the kernel had computed already."""
+        return self._cut if self._cut is not None else (self.sim.t, self.sim.plant.n)
+
     def _end(self, code: int) -> None:
         if self.finished.done():
             return
@@ -1154,7 +1175,7 @@ class PlantNode(Node):
             n = self.views.published
             for pub in self.views.publishers:
                 published[pub.topic_name] = 2 * n if pub is self.views.marker_pub else n
-        text = run_end_text('plant', reason, code, self.sim.t, published)
+        text = run_end_text('plant', reason, code, self._made()[0], published)
         if self.record is not None:
             self.record.end(text)
         try:

@@ -1,0 +1,77 @@
+"""Fault injection for tests: a plant whose ``state`` publishes DDS "refuses" (a testing aid).
+
+rclpy raises ``RCLError('Failed to publish')`` when rmw_fastrtps's write fails, and the plant
+retries such a sample for a second before it ends the run with exit 9 (``plant_node``). No
+deterministic way to make a real write fail was found: in Fast DDS 3.2 a keep-last writer
+(every publisher of the plant) makes room by dropping its oldest sample whether or not it was
+acknowledged, so a stopped reader or a short ``max_blocking_time`` never fails a write (only
+an exhausted payload or change pool, or a serialization error, does). So the failure is
+injected, at the one place the plant publishes, with the exception rclpy itself raises:
+
+``FOHSSV_FAULT_REFUSE_STATE=N`` (read once, when the plant starts): after the first ``N``
+``state`` samples, every publish of ``state`` raises rclpy's ``RCLError``;
+``FOHSSV_FAULT_REFUSE_STATE=N:M`` refuses only the next ``M`` publishes, then accepts again
+(``M`` below 1000 is a refusal the plant's 1 s of retries, one a millisecond, gets past).
+
+Unset (the default), nothing is wrapped: the plant publishes through rclpy's own call and the
+per-sample path costs nothing more. The plant logs a warning when the variable is set.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from typing import Any
+
+from ..params import ParameterError
+
+__all__ = ['REFUSE_STATE_VAR', 'refused_publishes', 'refusing']
+
+#: The environment variable: ``N`` or ``N:M`` (see the module docstring).
+REFUSE_STATE_VAR = 'FOHSSV_FAULT_REFUSE_STATE'
+_LIMIT = 10**12
+
+
+def refused_publishes(environ: dict[str, str] | None = None) -> tuple[int, int | None] | None:
+    """``(after, count)`` from :data:`REFUSE_STATE_VAR` (``count`` None: every publish after
+    ``after``); None when it is unset or empty.
+
+    Raises:
+        ParameterError: a value that is not ``N`` or ``N:M`` with whole numbers in range.
+    """
+    text = (os.environ if environ is None else environ).get(REFUSE_STATE_VAR, '').strip()
+    if not text:
+        return None
+    parts = text.split(':')
+    try:
+        if len(parts) > 2:
+            raise ValueError
+        after = int(parts[0])
+        count = int(parts[1]) if len(parts) == 2 else None
+    except ValueError:
+        after = count = -1
+    if not 0 <= after <= _LIMIT or (count is not None and not 1 <= count <= _LIMIT):
+        raise ParameterError(
+            f'{REFUSE_STATE_VAR}={text!r}: expected N or N:M, whole numbers with 0 <= N <= '
+            f'1e12 and 1 <= M <= 1e12 (state publishes: refused after the first N, M times or '
+            'for good); a testing aid, unset it to run normally')
+    return after, count
+
+
+def refusing(send: Callable[[Any], Any], after: int, count: int | None) -> Callable[[Any], Any]:
+    """``send`` (a publish call) that raises rclpy's ``RCLError`` for the calls after the
+    first ``after`` successful ones: ``count`` times, or for good when ``count`` is None."""
+    from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+
+    error = _rclpy.RCLError
+    state = {'sent': 0, 'refused': 0}
+
+    def publish(payload: Any) -> Any:
+        if state['sent'] >= after and (count is None or state['refused'] < count):
+            state['refused'] += 1
+            raise error(f'Failed to publish: refused by {REFUSE_STATE_VAR} (testing aid)')
+        result = send(payload)
+        state['sent'] += 1
+        return result
+
+    return publish

@@ -10,6 +10,7 @@ from ..analysis.diagrams import plot_alpha_v, plot_orbit_diagram
 from ..analysis.stability import critical_order_curve
 from ..analysis.sweep import ProgressPrinter, SweepSpec, run_sweep
 from ..params import ParameterError, steps_per_period
+from . import command_help
 from .common import (
     CliError,
     add_common_options,
@@ -86,7 +87,7 @@ def dask_options(p: argparse.ArgumentParser, chunk_size: int, chunk_text: str) -
 
 
 def register(sub) -> None:
-    p = sub.add_parser('sweep', help='orbit diagrams over alpha, V or the alpha-V grid',
+    p = sub.add_parser('sweep', help=command_help('sweep'),
                        description='Local maxima of a state after a transient, per parameter '
                        'value, each orbit classified (steady / drifting / periodic-p / '
                        'aperiodic with the 0-1 test K). Runs on Dask: a local cluster by '

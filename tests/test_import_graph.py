@@ -180,5 +180,6 @@ def test_cli_imports_only_the_subcommand_that_runs():
     # fit and the module it takes its Dask options from
     assert fit['commands'] == ['fohssv_sim.cli.fit', 'fohssv_sim.cli.sweep'], fit['commands']
     assert 'usage: fohssv fit' in fit['help'] and '--reference' in fit['help']
+    assert fit['heavy'] == [], fit['heavy']      # its parser alone: no figures, no solver
     check = _cli_imports('check', '--help')
     assert check['commands'] == ['fohssv_sim.cli.plot'], check['commands']

@@ -6,8 +6,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..analysis.diagrams import plot_alpha_v, plot_orbit_diagram
-from ..analysis.stability import critical_order_curve
 from ..analysis.sweep import ProgressPrinter, SweepSpec, run_sweep
 from ..params import ParameterError, steps_per_period
 from . import command_help
@@ -221,6 +219,11 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     if spec.check_step:
         checked = sum(1 for r in result.rows if r['step_check'])
         print(f'step check: {checked} points re-run at half step, {len(changed)} changed class')
+    # here, not at the top: fit, gainmap and tune take their Dask options from this module,
+    # and the figures and the Matignon curve import matplotlib, scipy.optimize and numba
+    from ..analysis.diagrams import plot_alpha_v, plot_orbit_diagram
+    from ..analysis.stability import critical_order_curve
+
     if args.kind == 'alpha-V':
         crit = critical_order_curve(model_params(args), load_controller(args.controller,
                                     spec.gains), spec.speeds)

@@ -1,26 +1,28 @@
-"""`fohssv fit` (issue 23) on runs the real recorder recorded from the real lockstep plant and
-controller (three processes over DDS each): the FOM with alpha = 0.81 and planing_offset 1.9,
-and the delay-free model (smooth planing, the FOM's alpha = 1 limit, docs/model.md §5).
+"""`fohssv fit` (issue 23) on runs of the real lockstep plant and controller (two processes over
+DDS each), recorded by the plant itself (``record:=PATH``: the bag the recorder node writes of
+the same run, message for message: tests/test_graph_inplant_record.py): the FOM with
+alpha = 0.81 and planing_offset 1.9, and the delay-free model (smooth planing, the FOM's
+alpha = 1 limit, docs/model.md §5).
 
 The truth is what the plant was started with, not anything the fit computed: the fit recovers
 it from the bag (noise-free), its intervals cover it with Gaussian noise on the states, the
 delay-free run gives alpha at the bound 1 inside its interval, the params YAML it writes is
 loaded as is by a real plant, and the paper's question (--reference delayed) gives a finite
 alpha, residual and interval at two speeds. Runs are short (0.2 s, 0.1 s) and recorded once
-for the module, both at once on their own domains.
+for the module, both at once on their own domains. The CLI cases run through the command's
+own entry point (``fohssv_sim.cli.main``, what the installed ``fohssv`` calls) in this
+process; the plant that loads the params file it wrote is a process of its own.
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
-import signal
-import subprocess
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-from ament_index_python.packages import get_package_prefix
 from test_graph_support import finish, plant_args, stop_all
 
 from fohssv_sim.analysis.fit import (
@@ -34,52 +36,33 @@ from fohssv_sim.bag import load_run
 
 import rosproc
 
-FOHSSV = Path(get_package_prefix('fohssv_sim')) / 'lib' / 'fohssv_sim' / 'fohssv'
 ALPHA, OFFSET = 0.81, 1.9
 RUNS = {'fom': ({'model': 'fractional', 'fractional_order': ALPHA, 'planing_offset': OFFSET},
                 0.2),
         'delay_free': ({'model': 'delay-free', 'planing_form': 'smooth'}, 0.1)}
 
 
-def _start(tmp: Path, name: str, params: dict, duration: float):
-    env = rosproc.ros_env()
-    bag = tmp / name
-    log = tmp / f'{name}_recorder.log'
-    rec = rosproc.start('fohssv_sim', 'recorder', ['--ros-args', '-p', f'bag_path:={bag}',
-                                                   '-p', 'command_publishers:=1'],
-                        env=env, log=log)
-    return env, bag, log, rec
-
-
 @pytest.fixture(scope='module')
 def bags(tmp_path_factory):
     tmp = tmp_path_factory.mktemp('fit')
-    started = {name: _start(tmp, name, p, d) for name, (p, d) in RUNS.items()}
-    procs = []
+    procs, plants = [], {}
     try:
-        plants = {}
-        for name, (env, _bag, log, rec) in started.items():
-            procs.append(rec)
-            rosproc.wait_for(lambda log=log: 'recording to' in log.read_text(), 60,
-                             what='the recorder')
+        for name, (params, duration) in RUNS.items():
+            env = rosproc.ros_env()
             procs.append(rosproc.start('fohssv_controller', 'state_feedback',
-                                       ['--ros-args', '-p', 'min_command_subscribers:=2'],
+                                       ['--ros-args', '-p', 'min_command_subscribers:=1'],
                                        env=env))
-            params, duration = RUNS[name]
             plants[name] = rosproc.start('fohssv_sim', 'plant', plant_args(
-                mode='lockstep', duration=duration, min_state_subscribers=2,
-                pace_to_subscribers=512, **params), env=env)
+                mode='lockstep', duration=duration, min_state_subscribers=1,
+                record=str(tmp / name), **params), env=env)
             procs.append(plants[name])
         for plant in plants.values():
             code, out = finish(plant, 180)
             assert code == 0, out
-        time.sleep(0.5)   # the recorders' last flush period
-        for _env, _bag, log, rec in started.values():
-            rec.send_signal(signal.SIGINT)
-            assert rec.wait(timeout=30) == 0, log.read_text()
+            assert 'every message of the run is in the bag' in out, out
     finally:
         stop_all(*procs)
-    return {name: started[name][1] for name in RUNS}
+    return {name: tmp / name for name in RUNS}
 
 
 def _fit(bag: Path, names, tmp: Path, *, bounds=None, controller=None, noise=0.0, seed=1):
@@ -130,13 +113,19 @@ def test_delay_free_run_gives_alpha_at_the_bound_1_within_its_interval(bags, tmp
     assert res.values['fractional_order'] > 0.999, res.message
 
 
+def _cli(*args: str) -> None:
+    from fohssv_sim.cli import main
+
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        code = main(['fit', *args])
+    assert code == 0, out.getvalue()
+
+
 def test_cli_writes_fit_json_figures_and_a_params_file_the_plant_loads(bags, tmp_path):
     out = tmp_path / 'out'
-    cmd = subprocess.run([str(FOHSSV), 'fit', str(bags['fom']), '--fit', 'fractional_order',
-                          '--population', '8', '--profile-points', '5', '--workers', '1',
-                          '--no-step-check',
-                          '--out', str(out)], capture_output=True, text=True, timeout=600)
-    assert cmd.returncode == 0, cmd.stderr
+    _cli(str(bags['fom']), '--fit', 'fractional_order', '--population', '8',
+         '--profile-points', '5', '--workers', '1', '--no-step-check', '--out', str(out))
     d = json.loads((out / 'fit.json').read_text())
     assert abs(d['values']['fractional_order'] - ALPHA) <= 1e-3 and d['reproduces']
     assert len(d['bag_sha256']) == 64 and d['objective'] == 'trajectory'
@@ -154,11 +143,9 @@ def test_cli_writes_fit_json_figures_and_a_params_file_the_plant_loads(bags, tmp
 
 
 def test_reference_delayed_on_two_speeds_gives_finite_alpha_residual_interval(tmp_path):
-    cmd = subprocess.run([str(FOHSSV), 'fit', '--reference', 'delayed', '--speeds', '75,85',
-                          '--duration', '0.05', '--population', '6', '--profile-points', '5',
-                          '--set', 'step=5e-5', '--no-step-check', '--workers', '1',
-                          '--out', str(tmp_path)], capture_output=True, text=True, timeout=600)
-    assert cmd.returncode == 0, cmd.stderr
+    _cli('--reference', 'delayed', '--speeds', '75,85', '--duration', '0.05', '--population',
+         '6', '--profile-points', '5', '--set', 'step=5e-5', '--no-step-check', '--workers',
+         '1', '--out', str(tmp_path))
     rows = json.loads((tmp_path / 'reference.json').read_text())['rows']
     assert [r['speed'] for r in rows] == [75.0, 85.0]
     for r in rows:

@@ -135,3 +135,51 @@ def test_nodes_that_simulate_nothing_start_without_numba():
                          timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == '[]', out.stdout
+
+
+_CLI_IMPORTS = '''
+import contextlib, io, json, sys
+from fohssv_sim.cli import main
+out = io.StringIO()
+with contextlib.redirect_stdout(out):
+    try:
+        main(sys.argv[1:])
+    except SystemExit:
+        pass
+heavy = ('matplotlib', 'dask', 'distributed', 'numba', 'scipy')
+print(json.dumps({'help': out.getvalue(),
+                  'heavy': sorted(m for m in sys.modules if m.split('.')[0] in heavy
+                                  and m.count('.') < 2),
+                  'commands': sorted(m for m in sys.modules if m.startswith('fohssv_sim.cli.')
+                                     and m != 'fohssv_sim.cli.common')}))
+'''
+
+
+def _cli_imports(*argv: str) -> dict:
+    import json
+
+    out = subprocess.run([sys.executable, '-c', _CLI_IMPORTS, *argv], capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout)
+
+
+def test_cli_imports_only_the_subcommand_that_runs():
+    """``fohssv --help`` lists every subcommand without importing one of their modules (nor
+    matplotlib, Dask, numba or scipy: about 0.8 CPU s at each start); ``fohssv NAME`` imports
+    the module of NAME only. The listing is the one of the parser with every module
+    imported."""
+    from fohssv_sim.cli import COMMANDS, build_parser
+
+    top = _cli_imports('--help')
+    assert top['heavy'] == [] and top['commands'] == [], top
+    assert top['help'] == build_parser().format_help()
+    for name in COMMANDS:
+        assert f'    {name} ' in top['help'], name
+    fit = _cli_imports('fit', '--help')
+    # fit and the module it takes its Dask options from
+    assert fit['commands'] == ['fohssv_sim.cli.fit', 'fohssv_sim.cli.sweep'], fit['commands']
+    assert 'usage: fohssv fit' in fit['help'] and '--reference' in fit['help']
+    assert fit['heavy'] == [], fit['heavy']      # its parser alone: no figures, no solver
+    check = _cli_imports('check', '--help')
+    assert check['commands'] == ['fohssv_sim.cli.plot'], check['commands']

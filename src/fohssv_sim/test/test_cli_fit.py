@@ -181,3 +181,27 @@ def test_cycle_objective_recovers_alpha_and_the_cycle_an_fft_measures(tmp_path):
     shifted = np.interp(t + 1 / f_fft, t, w)       # period 1: w(t + T) = w(t)
     inside = t + 1 / f_fft <= t[-1]
     assert np.max(np.abs(shifted[inside] - w[inside])) < 0.05 * np.ptp(w)
+
+
+def test_alpha_tau_legend_names_only_the_kinds_of_point_it_shows(tmp_path):
+    """Issue 23's figure alpha*(tau): a 'reproduced' entry only where some speed reproduced,
+    a 'not reproduced' one only where some did not (read from the written SVG, whose text
+    matplotlib keeps as comments, and from the figure's legend)."""
+    from fohssv_sim.analysis.fit import FitSpec, alpha_tau_figure, plot_alpha_tau
+
+    spec = FitSpec(names=('fractional_order',), bounds=((0.5, 1.0),), base={})
+    yes, no = 'fractional_order* (reproduced)', 'fractional_order* (best, not reproduced)'
+    for flags, labels in [((False, False), {no}), ((True, False), {yes, no}),
+                          ((True, True), {yes})]:
+        rows = [{'speed': v, 'tau': 1.8 / v, 'name': 'fractional_order', 'value': 0.8,
+                 'interval': [0.79, 0.81], 'residual': 0.01 if f else 0.2, 'reproduces': f}
+                for v, f in zip((75.0, 85.0), flags)]
+        stem = tmp_path / f'alpha_tau_{sum(flags)}'
+        paths = plot_alpha_tau(rows, spec, stem, 'caption')
+        svg = paths[1].read_text()
+        assert {t for t in re.findall(r'<!-- (.*?) -->', svg) if t.startswith(
+            'fractional_order* (')} == labels, flags
+        legend = {t.get_text() for t in alpha_tau_figure(rows, spec, 'c').axes[0]
+                  .get_legend().get_texts()}
+        assert legend == labels | {'residual floor at the best α', 'threshold 0.05'}
+        assert paths[0].stat().st_size > 5000

@@ -34,6 +34,8 @@ SMALL = dict(controller='state_feedback', bounds=(Bound('pitch_rate_gain', -1.0,
 # which differs between candidates from the first sample: the peak |Fp| of so short a run is
 # the gains' common start, every candidate ties, and differential evolution stops, converged)
 RESUME = {**SMALL, 'objective': 'effort'}
+#: the FOM's default step (docs/model.md), the step of these searches
+RESUME_STEP = 2e-5
 
 
 def _row(outcome='steady', alpha_c=0.9, alpha=0.85, peak_fp=30.0):
@@ -133,6 +135,28 @@ def test_interrupted_search_resumes_to_the_same_winner(tmp_path, client):
         g['best_value'] for g in rec['generations']]
     with pytest.raises(TuneError, match='holds a different search'):
         run_tune(TuneSpec(**{**RESUME, 'seed': 8}), part, client=client)
+
+
+def test_continued_search_with_a_new_winner_checks_the_new_winner(tmp_path, client):
+    """--check-step on a search continued with a larger budget whose winner changed: the new
+    winner is re-run at half the step (its own folder; the old winner's check was refused as
+    'a different job' before), with the same record as an uninterrupted search of that
+    budget."""
+    spec = {**RESUME, 'seed': 3, 'check_step': True}
+    first = run_tune(TuneSpec(**{**spec, 'budget': 10}), tmp_path / 'cont', client=client)
+    more = run_tune(TuneSpec(**{**spec, 'budget': 15}), tmp_path / 'cont', client=client)
+    assert first.record['winner']['generation'] < 2 == more.record['winner']['generation']
+    fresh = run_tune(TuneSpec(**{**spec, 'budget': 15}), tmp_path / 'fresh', client=client)
+    def same(a, b):     # equal records (NaN too)
+        return json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
+
+    assert same(more.record['winner'], fresh.record['winner'])
+    assert same(more.record['check_step'], fresh.record['check_step'])
+    assert more.record['check_step']['step'] == RESUME_STEP / 2
+    w = more.record['winner']
+    job = json.loads((tmp_path / 'cont' / 'check_step' /
+                      f"gen_{w['generation']:04d}_{w['candidate']:03d}" / 'job.json').read_text())
+    assert job['spec']['candidates'] == [w['values']] and job['spec']['step_factor'] == 0.5
 
 
 def run(*args):

@@ -1176,8 +1176,22 @@ def write_reference(results: Sequence[tuple[float, FitResult, FitData]], out: Pa
 
 def plot_alpha_tau(rows: list[dict[str, Any]], spec: FitSpec, stem: Path, caption: str,
                    label: str = '') -> list[Path]:
-    """alpha*(tau) with the intervals, and the residual floor on a second axis."""
-    from .figures import pyplot, save, titled
+    """alpha*(tau) with the intervals, and the residual floor on a second axis (the figure
+    of :func:`alpha_tau_figure`), saved as ``stem``.png and .svg."""
+    from .figures import pyplot, save
+
+    fig = alpha_tau_figure(rows, spec, caption, label)
+    paths = [stem.parent / f'{stem.name}.png', stem.parent / f'{stem.name}.svg']
+    save(fig, paths, dpi=110)
+    pyplot().close(fig)
+    return paths
+
+
+def alpha_tau_figure(rows: list[dict[str, Any]], spec: FitSpec, caption: str,
+                     label: str = '') -> Any:
+    """The figure alpha*(tau): filled markers where the run is reproduced, open ones where
+    the best value is not; a legend entry only for a kind of point the figure has."""
+    from .figures import pyplot, titled
 
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 4.8))
@@ -1185,13 +1199,16 @@ def plot_alpha_tau(rows: list[dict[str, Any]], spec: FitSpec, stem: Path, captio
     val = np.array([r['value'] for r in rows])
     lo = val - np.array([r['interval'][0] for r in rows])
     hi = np.array([r['interval'][1] for r in rows]) - val
-    ok = np.array([r['reproduces'] for r in rows])
+    ok = np.array([bool(r['reproduces']) for r in rows], dtype=bool)
+    name = rows[0]['name']
     ax.errorbar(tau, val, yerr=[lo, hi], fmt='none', ecolor='tab:blue', capsize=3)
-    ax.plot(tau[ok], val[ok], 'o', color='tab:blue', label=f'{rows[0]["name"]}* (reproduced)')
-    ax.plot(tau[~ok], val[~ok], 'o', mfc='none', color='tab:blue',
-            label=f'{rows[0]["name"]}* (best, not reproduced)')
+    if ok.any():
+        ax.plot(tau[ok], val[ok], 'o', color='tab:blue', label=f'{name}* (reproduced)')
+    if not ok.all():
+        ax.plot(tau[~ok], val[~ok], 'o', mfc='none', color='tab:blue',
+                label=f'{name}* (best, not reproduced)')
     ax.set_xlabel('τ = L/V (s)')
-    ax.set_ylabel(f'{rows[0]["name"]}*')
+    ax.set_ylabel(f'{name}*')
     ax2 = ax.twinx()
     ax2.semilogy(tau, [max(r['residual'], 1e-16) for r in rows], 's--', color='tab:red',
                  ms=4, label='residual floor at the best α')
@@ -1204,7 +1221,4 @@ def plot_alpha_tau(rows: list[dict[str, Any]], spec: FitSpec, stem: Path, captio
     ax.set_title(titled(f'the FOM order that best reproduces the delayed model\n{caption}',
                         label), fontsize=7)
     fig.tight_layout()
-    paths = [stem.parent / f'{stem.name}.png', stem.parent / f'{stem.name}.svg']
-    save(fig, paths, dpi=110)
-    plt.close(fig)
-    return paths
+    return fig

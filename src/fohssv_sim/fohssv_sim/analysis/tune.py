@@ -705,7 +705,10 @@ def _check_step(gens: _Generations, best: dict[str, Any], rows: list[dict[str, A
     it over the others."""
     spec = gens.spec
     key = OBJECTIVES[spec.objective]
-    half, _, _ = gens.run_job(gens.out / 'check_step', [best['values']], 0.5,
+    # a folder per winner: a search continued with a larger budget may have a new winner
+    # (the old one's check stays, and is reused if it wins again)
+    folder = gens.out / 'check_step' / f"gen_{best['generation']:04d}_{best['candidate']:03d}"
+    half, _, _ = gens.run_job(folder, [best['values']], 0.5,
                               {'check': 'winner at half step'})
     half.sort(key=lambda r: r['scenario'])
     flagged, changes = step_flags(rows, half, key)

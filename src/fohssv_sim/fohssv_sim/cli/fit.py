@@ -11,6 +11,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from . import command_help
 from .common import (
     BagInputError,
     CliError,
@@ -30,8 +31,7 @@ REFERENCE_FILES = ('reference.json', 'reference.md', 'alpha_tau.png')
 
 def register(sub) -> None:
     p = sub.add_parser(
-        'fit', help='identify the fractional order (and other model parameters) from a '
-        'recorded run, or the alpha that best reproduces the delayed model',
+        'fit', help=command_help('fit'),
         description='Estimates the named model parameters so that the FOM, driven by the '
         "bag's recorded commands (open loop, held at the recorded times) or closed by "
         '--controller, reproduces the recorded states: a population on Dask, then '

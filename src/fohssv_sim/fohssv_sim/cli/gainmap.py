@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from . import command_help
 from .common import (
     CliError,
     add_common_options,
@@ -33,8 +34,7 @@ from .sweep import check_dask_options, dask_options, refuse_other_job, run_on_da
 
 def register(sub) -> None:
     p = sub.add_parser(
-        'gainmap', help='map two gains of a controller: class, settling, peak planing force, '
-        'effort, Matignon boundary; optionally the worst case over a V-alpha envelope',
+        'gainmap', help=command_help('gainmap'),
         description='Sweeps two gains of a controller over a grid (other gains fixed with '
         '--gain), runs every closed loop from x(0) = 0 (batched for affine laws), classifies it '
         '(steady / drifting / periodic / chaotic / diverged) and scores it (peak |Fp|, time to '

@@ -9,6 +9,7 @@ from pathlib import Path
 from ..analysis.plots import plot_phase_portrait, plot_time_responses, summary
 from ..bag import BagError, load_run
 from ..bag.__main__ import main as bag_main
+from . import command_help
 from .common import (
     BagInputError,
     CliError,
@@ -25,7 +26,7 @@ from .common import (
 
 
 def register(sub) -> None:
-    p = sub.add_parser('plot', help='time responses and w-q phase portrait of recorded bags',
+    p = sub.add_parser('plot', help=command_help('plot'),
                        description='Time responses of z, w, theta, q, delta_c and Fp (Figs. '
                        '3-4) and the w-q phase portrait (Fig. 7); several bags overlay. '
                        'Writes PNG and SVG and a summary JSON per bag.')
@@ -40,11 +41,10 @@ def register(sub) -> None:
                    'holds several; default: the only state topic, wherever it is')
     p.set_defaults(func=cmd_plot)
 
-    r = sub.add_parser('repair', help='rebuild the index, summary and metadata.yaml of a bag '
-                       'cut short (e.g. by SIGKILL)')
+    r = sub.add_parser('repair', help=command_help('repair'))
     r.add_argument('args', nargs=argparse.REMAINDER)
     r.set_defaults(func=lambda a: _delegate('repair', a.args))
-    c = sub.add_parser('check', help='structural check of a bag (CRCs, indexes, metadata)')
+    c = sub.add_parser('check', help=command_help('check'))
     c.add_argument('args', nargs=argparse.REMAINDER)
     c.set_defaults(func=lambda a: _delegate('check', a.args))
 

@@ -8,12 +8,12 @@ import sys
 from pathlib import Path
 
 from ..analysis.report import ReportSettings, make_report
+from . import command_help
 from .common import check_scheduler, check_workers, claim_output, output_dir
 
 
 def register(sub) -> None:
-    p = sub.add_parser('report', help="reproduce the paper's claims (docs/model.md §8): "
-                       'figures and a Markdown claims table',
+    p = sub.add_parser('report', help=command_help('report'),
                        description='Runs Figs. 3-10 of the paper at the stated settings, '
                        'each with a half-step check, and writes OUT/report.md, OUT/claims.json '
                        'and the figures. Takes tens of minutes on 2 cores at the default '

@@ -9,6 +9,7 @@ from typing import Any
 
 from ..analysis.stability import critical_order_curve, plot_critical_order, plot_wedge
 from ..equilibria import find_equilibria
+from . import command_help
 from .common import (
     CliError,
     add_common_options,
@@ -30,8 +31,7 @@ MAX_SPEEDS = 10_000
 
 
 def register(sub) -> None:
-    p = sub.add_parser('stability', help='equilibria, eigenvalues, Matignon wedge (Fig. 5), '
-                       'alpha_c over V')
+    p = sub.add_parser('stability', help=command_help('stability'))
     add_common_options(p)
     p.add_argument('--alpha', type=bounded('--alpha', low=0, low_open=True, high=1,
                                            meaning='fractional order'),

@@ -6,10 +6,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..analysis.diagrams import plot_alpha_v, plot_orbit_diagram
-from ..analysis.stability import critical_order_curve
 from ..analysis.sweep import ProgressPrinter, SweepSpec, run_sweep
 from ..params import ParameterError, steps_per_period
+from . import command_help
 from .common import (
     CliError,
     add_common_options,
@@ -86,7 +85,7 @@ def dask_options(p: argparse.ArgumentParser, chunk_size: int, chunk_text: str) -
 
 
 def register(sub) -> None:
-    p = sub.add_parser('sweep', help='orbit diagrams over alpha, V or the alpha-V grid',
+    p = sub.add_parser('sweep', help=command_help('sweep'),
                        description='Local maxima of a state after a transient, per parameter '
                        'value, each orbit classified (steady / drifting / periodic-p / '
                        'aperiodic with the 0-1 test K). Runs on Dask: a local cluster by '
@@ -220,6 +219,11 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     if spec.check_step:
         checked = sum(1 for r in result.rows if r['step_check'])
         print(f'step check: {checked} points re-run at half step, {len(changed)} changed class')
+    # here, not at the top: fit, gainmap and tune take their Dask options from this module,
+    # and the figures and the Matignon curve import matplotlib, scipy.optimize and numba
+    from ..analysis.diagrams import plot_alpha_v, plot_orbit_diagram
+    from ..analysis.stability import critical_order_curve
+
     if args.kind == 'alpha-V':
         crit = critical_order_curve(model_params(args), load_controller(args.controller,
                                     spec.gains), spec.speeds)

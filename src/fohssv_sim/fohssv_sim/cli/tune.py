@@ -13,6 +13,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from . import command_help
 from .common import (
     CliError,
     add_common_options,
@@ -29,8 +30,7 @@ from .sweep import ProgressPrinter, dask_options
 
 def register(sub) -> None:
     p = sub.add_parser(
-        'tune', help='search controller parameters for the best worst case over a V-alpha '
-        'envelope (differential evolution on Dask); writes the winner as a --params-file',
+        'tune', help=command_help('tune'),
         description='Global search (scipy differential evolution) over numeric parameters of '
         'a controller for the best worst case over the envelope --envelope-speeds x '
         '--envelope-alphas. Score, lexicographic: every scenario steady first, then (affine '

@@ -52,7 +52,7 @@ import struct
 import sys
 import tempfile
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from typing import Any, BinaryIO
@@ -188,34 +188,9 @@ class Ring:
         return self._counters[0] - self._counters[1]
 
     # -- consumer (the writer) --------------------------------------------------------------
-    def records(self, limit: int = 1 << 30) -> Iterator[tuple[int, memoryview]]:
-        """The records produced so far (at most ``limit`` bytes of them), in order, as
-        ``(index, bytes view)``; the tail moves past each once the caller asked for the next
-        (so a view is valid until then)."""
-        cap = self.capacity
-        head = min(self._counters[0], self._tail + limit)
-        tail = self._tail
-        data = self._data
-        while tail < head:
-            off = tail % cap
-            gap = cap - off
-            if gap < 8:
-                tail += gap
-                continue
-            n, index, _ = _RECORD.unpack_from(data, off)
-            if n == _WRAP:
-                tail += gap
-                continue
-            yield index, data[off + 8:off + 8 + n]
-            tail += 8 + ((n + 7) & ~7)
-            self._tail = tail
-            self._counters[1] = tail
-        self._tail = tail
-        self._counters[1] = tail
-
     def take(self, limit: int = 1 << 30) -> list[tuple[int, memoryview]]:
         """The records produced so far (at most ``limit`` bytes of them), in order, as
-        ``(index, bytes view)``, in one list: :meth:`records` for a batch. The tail stays until
+        ``(index, bytes view)``, in one list: the writer's batch. The tail stays until
         :meth:`release` (the views are valid until then)."""
         cap = self.capacity
         tail = self._tail

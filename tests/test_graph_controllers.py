@@ -27,12 +27,18 @@ def _closed_loop(start_controller) -> np.ndarray:
     env = rosproc.ros_env(domain)
     probe = Probe(domain)
     ctl = start_controller(env)
+    # the plant lingers (its publishers up) until the probe has every sample: a reader loses
+    # what it has not taken when the writer goes away, and a loaded in-process probe can be
+    # seconds behind an unpaced lockstep run (seen in make test); then SIGINT ends the linger
     plant = rosproc.start('fohssv_sim', 'plant', plant_args(
-        model='delay-free', duration=DURATION, min_state_subscribers=2), env=env)
+        model='delay-free', duration=DURATION, min_state_subscribers=2, end_linger=120.0),
+        env=env)
     try:
-        code, out = finish(plant, 60)
-        assert code == 0, out
-        probe.wait(lambda: len(probe.states) >= 501, 10, 'all samples')
+        probe.wait(lambda: len(probe.states) >= 501 or plant.poll() is not None, 120,
+                   'all samples')
+        out = stop_all(plant)
+        assert plant.returncode == 0 and 'stopping cleanly at t=' in out, out
+        assert len(probe.states) == 501, out
         return probe.state_array()
     finally:
         stop_all(plant, ctl)

@@ -52,7 +52,10 @@ def _bag(path: Path, commands: bool = True, duration: float = 0.02) -> Path:
 def test_population_equals_the_plant_stepped_period_by_period():
     """One compiled call for points differing in alpha, V and the planing offset gives the
     numbers of make_plant + Plant.advance per period, open loop and closed loop, bit for bit;
-    a point that blows up is marked failed in both."""
+    a point that blows up is marked failed in both, in the same period. (Its states before
+    that are compared to 1e-12 relative, not bit for bit: on one machine of this kind the
+    alpha = 0.3 point, which leaves every bound within two periods, differed by one ulp
+    after its first period, where the three points that stay finite agree bit for bit.)"""
     ps = [ModelParameters(fractional_order=a, speed=v, planing_offset=w)
           for a, v, w in [(0.81, 75.0, 1.9), (0.7, 80.0, 'consistent'), (1.0, 75.0, 2.5),
                           (0.3, 75.0, 1.9)]]
@@ -63,7 +66,12 @@ def test_population_equals_the_plant_stepped_period_by_period():
         got = run_population(ps, 400, 5, duration=1.0, **kw)
         ref = run_population_reference(ps, 400, 5, duration=1.0, **kw)
         assert np.array_equal(got.failed, ref.failed)
-        assert np.array_equal(got.states, ref.states, equal_nan=True)
+        assert list(got.failed) == [False, False, False, True]
+        assert np.array_equal(got.states[:3], ref.states[:3])
+        bad = np.isnan(got.states[3]).any(axis=1)
+        assert np.array_equal(bad, np.isnan(ref.states[3]).any(axis=1)) and bad.any()
+        np.testing.assert_allclose(got.states[3][~bad], ref.states[3][~bad], rtol=1e-12,
+                                   atol=0.0)
     r = simulate(ps[0], make('state_feedback'), 0.04, control_period=1e-4, sample_every=5)
     got = run_population(ps[:1], 400, 5, law=law, duration=0.04)
     assert np.array_equal(got.states[0], r.state)        # the batch runner's closed loop

@@ -218,13 +218,14 @@ def test_a_port_in_use_gives_one_line_and_exit_1():
 
 @pytest.mark.graph
 def test_the_views_are_decimated_to_the_viewer_rate(tmp_path):
-    """A lockstep closed loop without a recorder (0.3 s: 31 views, tens a wall second at
-    the loop's usual speed, a few under heavy load) seen at ``rate`` 1: the client gets at
-    most one view a second (plus the first), the newest at each tick."""
+    """A lockstep closed loop without a recorder (0.3 s: 31 views, 0.1-0.6 s of wall time,
+    longer under heavy load) seen at ``rate`` 10: the client gets at most ten views a second
+    (plus the first), the newest at each tick, so fewer than the plant sent. (At rate 1 a run
+    faster than one tick showed the client a single view: the loop got faster.)"""
     env = rosproc.ros_env()
     vlog = tmp_path / 'viewer.log'
     viewer = rosproc.start('fohssv_sim', 'viewer', ['--ros-args', '-p', 'port:=0', '-p',
-                                                    'rate:=1.0'], env=env, log=vlog)
+                                                    'rate:=10.0'], env=env, log=vlog)
     ctl = plant = client = None
     try:
         found = rosproc.wait_for(lambda: re.search(
@@ -238,9 +239,7 @@ def test_the_views_are_decimated_to_the_viewer_rate(tmp_path):
             model='delay-free', duration=0.3, min_view_subscribers=1), env=env)
         client.wait(lambda: plant.poll() is not None, 120, 'the end of the run')
         assert plant.returncode == 0, rosproc.output(plant)
-        # past the viewer's next tick (1 s at rate 1), which sends the newest view: a run
-        # shorter than a tick otherwise shows only the first (seen in make test)
-        client.drain(2.5)
+        client.drain(1.0)       # past the viewer's next ticks, which send the newest view
         assert rosproc.stop(viewer, signal.SIGINT) == 0, vlog.read_text()
     finally:
         if client is not None:
@@ -251,7 +250,7 @@ def test_the_views_are_decimated_to_the_viewer_rate(tmp_path):
     received, sent = map(int, re.search(r'(\d+) views received, (\d+) sent',
                                         vlog.read_text()).groups())
     span = states[-1].arrived - states[0].arrived
-    assert 2 <= sent == len(states) <= 1.0 * span + 2, (sent, span)
+    assert sent == len(states) <= 10.0 * span + 2, (sent, span)
     assert 25 <= received <= 31 and sent < received, (received, sent)
     stamps = [r.log_time for r in states]
     assert stamps == sorted(set(stamps))

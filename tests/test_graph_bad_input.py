@@ -11,7 +11,10 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
+import signal
+import time
 
 import numpy as np
 import pytest
@@ -164,6 +167,43 @@ def test_lockstep_timeout_names_the_stalled_controller():
     assert code == 3, out
     assert ('lockstep timeout: the controller stalled: no command answering t=0.0 s within '
             'command_timeout=0.5 s (no command received at all') in out
+
+
+def test_lockstep_timeout_counts_from_the_delivery_of_the_state(tmp_path):
+    """A controller stopped (SIGSTOP) mid-run for 4 s, 8 times command_timeout, then resumed:
+    its reader acknowledges nothing while stopped, so the plant says the state is not
+    delivered and waits; resumed, the controller answers and the run completes. (A matched
+    controller whose half of discovery lags behind under load looks the same to the plant.)"""
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    probe = Probe(domain, command_publisher=False)
+    log = tmp_path / 'plant.log'
+    ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
+    plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+        model='delay-free', duration=1.0, command_timeout=0.5, min_state_subscribers=2,
+        end_linger=60.0, pace_to_subscribers=512), env=env, log=log)
+    try:
+        probe.wait(lambda: len(probe.states) >= 50, 60, 'the run under way')
+        os.kill(ctl.pid, signal.SIGSTOP)
+        try:
+            time.sleep(4.0)
+            assert plant.poll() is None, log.read_text()
+        finally:
+            os.kill(ctl.pid, signal.SIGCONT)
+        # paced, the plant cannot run ahead of the probe; it lingers while the probe drains,
+        # and a signal then ends the linger
+        probe.wait(lambda: len(probe.states) >= 10001 or plant.poll() is not None, 120,
+                   'all samples')
+        stop_all(plant)
+        text = log.read_text()
+        assert plant.returncode == 0, text
+        assert 'stopping cleanly at t=1.0 s: duration 1 s reached' in text, text
+        assert re.search(r'the state for t=[0-9.e-]+ s is not acknowledged by all 2 '
+                         r'subscriber\(s\) of /state after 0\.5 s', text), text
+        assert len(probe.states) == 10001
+    finally:
+        stop_all(plant, ctl)
+        probe.close()
 
 
 def test_lockstep_timeout_names_an_overrunning_plant():

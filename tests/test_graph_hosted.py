@@ -63,8 +63,10 @@ class _Lockstep:
         self.hosted = hosted
         self.probe = Probe(domain, command_publisher=False)
         yaml_file = f"{get_package_share_directory('fohssv_sim')}/config/plant.yaml"
-        self.ctl = (rosproc.start('fohssv_controller', external, env=env) if external
-                    else None)
+        # the controller holds its answers until the probe's reader is matched too: without
+        # that the plant alone gated them, and a probe discovered after the 0.05 s run got none
+        self.ctl = (rosproc.start('fohssv_controller', external, [
+            '--ros-args', '-p', 'min_command_subscribers:=2'], env=env) if external else None)
         extra = {'controller': hosted} if hosted else {}
         self.plant = rosproc.start(
             'fohssv_sim', 'plant', ['--ros-args', '--params-file', yaml_file] + plant_args(

@@ -155,6 +155,11 @@ _NODE_NAMES = tuple(p.name for p in NODE_PARAMETERS)
 _ACK_TIMEOUT = 1.0
 #: ... and the longest wait once going on could overrun the writer's queue (a stalled reader).
 _STALL_TIMEOUT = 10.0
+#: Lockstep: how long past ``command_timeout`` the plant waits for the awaited state to be
+#: acknowledged by the subscribers of ``state`` (s). A controller whose reader the plant has
+#: matched may not have matched the plant's writer yet (discovery is two one-sided halves;
+#: under load the second came seconds later): its timeout counts from the delivery.
+_DELIVERY_GRACE = 30.0
 #: Rejected commands logged one by one; later ones are throttled to one line per second.
 _LOG_EACH = 20
 #: Realtime mode: wall-clock period of the watchdog check (s).
@@ -288,6 +293,7 @@ class PlantNode(Node):
         self._limits = np.array([0.0, 0.0, self.model.speed, MAX_PITCH])
         self._awaiting: float | None = None       # lockstep: t of the state awaiting a command
         self._published_wall = 0.0                # lockstep: when that state went out
+        self._undelivered: float | None = None    # lockstep: t of a state not yet acknowledged
         self._last_command_t: float | None = None  # t of the last command received
         self._last_command_wall: float | None = None
         self._watchdog_warned = False
@@ -795,8 +801,32 @@ class PlantNode(Node):
     def _check_lockstep_timeout(self) -> None:
         if self._awaiting is None or not self.running:
             return
-        waited = time.monotonic() - self._published_wall
+        now = time.monotonic()
+        waited = now - self._published_wall
         if waited <= self.options.command_timeout:
+            return
+        if not self.state_pub.wait_for_all_acked(Duration(seconds=0)):
+            # not the controller's delay: a subscriber has not got the state yet
+            if waited <= self.options.command_timeout + _DELIVERY_GRACE:
+                if self._undelivered != self._awaiting:
+                    self._undelivered = self._awaiting
+                    self.get_logger().info(
+                        f'the state for t={self._awaiting!r} s is not acknowledged by all '
+                        f'{self.state_pub.get_subscription_count()} subscriber(s) of '
+                        f'{self.state_pub.topic_name} after {waited:.1f} s (discovery not '
+                        'finished on their side?): command_timeout counts from its delivery')
+                return
+            self._fail(EXIT_TIMEOUT,
+                       f'lockstep timeout: the state for t={self._awaiting!r} s was not '
+                       f'acknowledged by the subscribers of {self.state_pub.topic_name} within '
+                       f'{waited:.1f} s (command_timeout={self.options.command_timeout:g} s + '
+                       f'{_DELIVERY_GRACE:g} s for delivery; command has {self._peers()[1]} '
+                       'publisher(s))')
+            return
+        if self._undelivered == self._awaiting:
+            # delivered since the last check: the controller has its full timeout from now
+            self._undelivered = None
+            self._published_wall = now
             return
         last = ('no command received at all' if self._last_command_t is None else
                 f'the last command answered t={self._last_command_t!r} s')

@@ -80,6 +80,8 @@ def test_realtime_summary_profile_and_clock_decimation():
     assert 0.0 < s['achieved_real_time_factor'] <= 0.02 * 1.05
     assert s['cpu_time'] > 0.0
     assert s['cpu_per_sample_us'] == pytest.approx(s['cpu_time'] / 100 * 1e6)
+    # the host's steal over the run (5 s of wall time): a share of all CPU time
+    assert 0.0 <= s['host_steal_share'] <= 1.0
     prof = s['profile']
     assert tuple(prof) == PARTS
     assert prof['advance']['calls'] == 100

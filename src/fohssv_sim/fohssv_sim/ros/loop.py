@@ -31,7 +31,8 @@ from ..simulate import steps_per_period
 
 __all__ = ['CommandRejected', 'SampledPlant', 'check_command', 'answered_time', 'Pacer',
            'BurstWait',
-           'Profile', 'HostedLaw', 'CommandLag']
+           'Profile', 'HostedLaw', 'CommandLag', 'cpu_seconds', 'host_cpu_ticks',
+           'steal_share']
 
 
 class CommandRejected(ValueError):
@@ -450,3 +451,31 @@ class CommandLag:
 def cpu_seconds() -> float:
     """CPU time of this process (user + system, all threads), for cost per sample figures."""
     return time.process_time()
+
+
+def host_cpu_ticks(stat: str = '/proc/stat') -> tuple[int, int] | None:
+    """(all ticks, steal ticks) of the machine's CPUs since boot, from ``stat`` (Linux's
+    /proc/stat ``cpu`` line); None where unavailable. Steal is time the hypervisor ran
+    something else while this virtual machine had work: a vCPU stalled for milliseconds, which
+    no scheduling inside the guest (SCHED_FIFO included) avoids."""
+    try:
+        with open(stat, encoding='ascii') as f:
+            fields = f.readline().split()
+        if fields[0] != 'cpu':
+            return None
+        # user nice system idle iowait irq softirq steal (guest time is inside user)
+        ticks = [int(v) for v in fields[1:9]]
+    except (OSError, ValueError, IndexError):
+        return None
+    if len(ticks) < 8:
+        return None
+    return sum(ticks), ticks[7]
+
+
+def steal_share(before: tuple[int, int] | None, after: tuple[int, int] | None
+                ) -> float | None:
+    """The share of all CPU time stolen by the hypervisor between two
+    :func:`host_cpu_ticks` readings (None when either is missing or no tick passed)."""
+    if before is None or after is None or after[0] <= before[0]:
+        return None
+    return (after[1] - before[1]) / (after[0] - before[0])

@@ -89,6 +89,8 @@ from .loop import (
     answered_time,
     check_command,
     cpu_seconds,
+    host_cpu_ticks,
+    steal_share,
 )
 from .nodekit import (
     STOP,
@@ -210,6 +212,7 @@ class PlantNode(Node):
         self._lockstep = self.options.mode == 'lockstep'
         self.profile: Profile | None = Profile() if self.options.profile else None
         self._cpu_start = 0.0
+        self._ticks_start: tuple[int, int] | None = None
         self.state_pub = self.create_publisher(Float64MultiArray, STATE.name, profile(STATE))
         self._all_acked: dict[str, int] = {}   # topic -> samples when all acknowledged
         self.force_pub = self.create_publisher(Float64MultiArray, PLANING_FORCE.name,
@@ -497,6 +500,7 @@ class PlantNode(Node):
         self.running = True
         self._run_wall_start = time.monotonic()
         self._cpu_start = cpu_seconds()
+        self._ticks_start = host_cpu_ticks()
         self._last_command_wall = self._run_wall_start
         try:
             self._start_run()
@@ -1153,7 +1157,9 @@ class PlantNode(Node):
                      slips=p.slips, worst_lateness=p.worst_lateness,
                      max_command_lag=self._max_lag, stale_commands=self.stale,
                      cpu_share_of_period=(cpu / self.sim.samples / p.period
-                                          if self.sim.samples else 0.0))
+                                          if self.sim.samples else 0.0),
+                     host_steal_share=(steal_share(self._ticks_start, host_cpu_ticks())
+                                       if self.running else None))
             if self.hosted is None:
                 s.update(self._lag.summary())
             elif self.bursts is not None:   # hosted: wake-ups, and how often they backed off

@@ -6,7 +6,10 @@ each case is one function, so a case can be added without touching the others):
 * echo (:func:`case_echo`): the bare DDS round trip, two processes echoing a
   ``std_msgs/Float64MultiArray`` with the executor and the QoS of the ``state``/``command``
   topics (``bench/ros_echo.py``): round trips per second, the ceiling of any lockstep loop
-  through a controller node, and the figure to scale the others to another machine;
+  through a controller node, and the figure to scale the others to another machine; and
+  beside it, alternately, the same echo with Fast DDS's default writer timings (the package
+  profile without its default DataWriter profile): what the profile's
+  ``nack_supression_duration`` of 5 ms saves per round trip;
 * lockstep (:func:`case_lockstep`): the plant with the eq. 31 controller node
   (``state_feedback``) against the plant hosting the same law (``controller:=state_feedback``),
   FOM (default solver) and delay-free model at the default control period: samples per
@@ -207,9 +210,12 @@ def _run_plant(domains: Domains, plant_params: dict, timeout: float) -> dict:
     return s
 
 
-def run_echo(domains: Domains, count: int) -> dict:
-    """The bare round-trip loop (bench/ros_echo.py) for ``count`` round trips."""
+def run_echo(domains: Domains, count: int, profile: str | None = None) -> dict:
+    """The bare round-trip loop (bench/ros_echo.py) for ``count`` round trips; ``profile``: a
+    Fast DDS profile file instead of the package's (``FASTDDS_DEFAULT_PROFILES_FILE``)."""
     env = domains.env()
+    if profile is not None:
+        env['FASTDDS_DEFAULT_PROFILES_FILE'] = profile
     script = str(HERE / 'ros_echo.py')
     pong = subprocess.Popen([sys.executable, script, 'pong'], env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
@@ -222,6 +228,23 @@ def run_echo(domains: Domains, count: int) -> dict:
     if out.returncode != 0 or not lines:
         raise RuntimeError(f'echo ping exited {out.returncode}:\n{out.stdout}{out.stderr}')
     return json.loads(lines[-1])
+
+
+def default_writer_times_profile(folder: str) -> str:
+    """A copy of the package's Fast DDS profile without its default DataWriter profile (Fast
+    DDS's own writer timings, nack_supression_duration 0): what the writer timing it sets
+    saves, measured on the bare echo."""
+    import re
+
+    from fohssv_sim.ros.startup import localhost_profile
+
+    text = Path(localhost_profile()).read_text()
+    stripped = re.sub(r'\s*<data_writer .*?</data_writer>', '', text, flags=re.S)
+    if stripped == text:
+        raise RuntimeError('the package profile has no default DataWriter profile')
+    path = Path(folder) / 'fastdds_default_writer_times.xml'
+    path.write_text(stripped)
+    return str(path)
 
 
 def _timed_loop(env: dict, plant_params: dict, timeout: float) -> tuple[float, dict]:
@@ -324,10 +347,32 @@ def _steal_text(share: float | None) -> str:
 
 
 def case_echo(domains: Domains, quick: bool) -> dict:
-    echo = run_echo(domains, 5000 if quick else 20000)
+    """The bare echo with the package's profile (the figure every ratio uses), and beside it,
+    alternately, with Fast DDS's default writer timings: what the profile's
+    nack_supression_duration saves on a round trip (3 pairs, 1 with ``quick``)."""
+    import statistics
+    import tempfile
+
+    count = 5000 if quick else 20000
+    echo = run_echo(domains, count)
     print(f"echo      bare DDS round trip: {echo['round_trips_per_second']:.0f} round trips/s "
           f"({1e6 / echo['round_trips_per_second']:.0f} us each, {echo['round_trips']})",
           flush=True)
+    pairs = []
+    with tempfile.TemporaryDirectory() as tmp:
+        plain = default_writer_times_profile(tmp)
+        for _ in range(1 if quick else 3):
+            a = run_echo(domains, count, profile=plain)['round_trips_per_second']
+            b = run_echo(domains, count)['round_trips_per_second']
+            pairs.append((b / a, a, b))
+    ratios = sorted(p[0] for p in pairs)
+    echo['writer_times'] = {'pairs': [{'fast_dds_defaults': a, 'package_profile': b}
+                                      for _, a, b in pairs],
+                            'median_speed_up': statistics.median(ratios)}
+    print('echo      package profile vs Fast DDS default writer times (nack_supression_duration '
+          '5 ms vs 0), round trips/s side by side: ' + ', '.join(
+              f'{b:.0f} vs {a:.0f}' for _, a, b in pairs)
+          + f"; median speed-up {echo['writer_times']['median_speed_up']:.2f}", flush=True)
     return echo
 
 

@@ -18,6 +18,7 @@ import os
 import socket
 import struct
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -123,3 +124,35 @@ def test_env_sh_keeps_an_explicit_localhost_and_says_what_it_costs():
     assert line == 'RANGE=LOCALHOST', (line, err)
     assert 'fohssv: keeping your ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST' in err, err
     assert _outside(addresses), addresses            # rmw_fastrtps's own any-interface UDP
+
+
+#: A process that makes a participant and a reliable writer (where the default DataWriter
+#: profile applies) and exits.
+_WRITER = ('import rclpy; from std_msgs.msg import String; rclpy.init(); '
+           'n = rclpy.create_node("writer"); n.create_publisher(String, "chatter", 10); '
+           'print("made", flush=True)')
+
+
+def _fast_dds_errors(profile: Path) -> tuple[str, str]:
+    env = rosproc.ros_env(FASTDDS_DEFAULT_PROFILES_FILE=str(profile))
+    env.pop('FASTRTPS_DEFAULT_PROFILES_FILE', None)
+    out = subprocess.run([sys.executable, '-c', _WRITER], env=env,
+                         capture_output=True, text=True, timeout=120)
+    return out.stdout, out.stderr
+
+
+def test_the_package_profile_loads_without_a_fast_dds_error(tmp_path):
+    """Fast DDS drops a whole profile file it cannot parse (transports included) and says so
+    on stderr; the installed profile, with its DataWriter timing, loads cleanly. A copy with
+    the writer timing misspelt (the camel case of older documentation) shows the check sees
+    such an error."""
+    from fohssv_sim.ros.startup import localhost_profile
+
+    ours = Path(localhost_profile())
+    assert 'nack_supression_duration' in ours.read_text()
+    out, err = _fast_dds_errors(ours)
+    assert out.strip() == 'made' and 'XMLPARSER' not in err, err
+    bad = tmp_path / 'misspelt.xml'
+    bad.write_text(ours.read_text().replace('nack_supression_duration', 'nackSupressionDuration'))
+    out, err = _fast_dds_errors(bad)
+    assert out.strip() == 'made' and 'XMLPARSER' in err and str(bad) in err, err

@@ -1098,7 +1098,8 @@ def _versions() -> dict[str, str]:
 def _caption(result: FitResult) -> str:
     st = result.settings
     return (f"FOM, solver {st['solver']}, step {st['step']:g} s, control period "
-            f"{st['control_period']:g} s, {st['loop']}; {result.spec.objective} objective")
+            f"{st['control_period']:g} s, {result.spec.objective} objective;\n"
+            f"loop {st['loop']}")
 
 
 def plot_overlay(result: FitResult, stem: Path, label: str = '') -> list[Path]:

@@ -1,17 +1,19 @@
 """`fohssv fit` (issue 23) on runs of the real lockstep plant and controller (two processes over
 DDS each), recorded by the plant itself (``record:=PATH``: the bag the recorder node writes of
 the same run, message for message: tests/test_graph_inplant_record.py): the FOM with
-alpha = 0.81 and planing_offset 1.9, and the delay-free model (smooth planing, the FOM's
-alpha = 1 limit, docs/model.md §5).
+alpha = 0.81 and planing_offset 1.9, the same FOM under the fractional PID (a law with memory,
+not affine), the delay-free model (smooth planing, the FOM's alpha = 1 limit, docs/model.md
+§5) and the delayed model.
 
 The truth is what the plant was started with, not anything the fit computed: the fit recovers
 it from the bag (noise-free), its intervals cover it with Gaussian noise on the states, the
-delay-free run gives alpha at the bound 1 inside its interval, the params YAML it writes is
-loaded as is by a real plant, and the paper's question (--reference delayed) gives a finite
-alpha, residual and interval at two speeds. Runs are short (0.2 s, 0.1 s) and recorded once
-for the module, both at once on their own domains. The CLI cases run through the command's
-own entry point (``fohssv_sim.cli.main``, what the installed ``fohssv`` calls) in this
-process; the plant that loads the params file it wrote is a process of its own.
+delay-free run gives alpha at the bound 1 inside its interval, the delayed run is reported as
+reproduced by no alpha, the params YAML it writes is loaded as is by a real plant, and the
+paper's question (--reference delayed) gives a finite alpha, residual and interval at two
+speeds. Runs are short (0.2 s, 0.1 s) and recorded once for the module, all at once on their
+own domains. The CLI cases run through the command's own entry point (``fohssv_sim.cli.main``,
+what the installed ``fohssv`` calls) in this process; the plant that loads the params file it
+wrote is a process of its own.
 """
 
 from __future__ import annotations
@@ -37,9 +39,13 @@ from fohssv_sim.bag import load_run
 import rosproc
 
 ALPHA, OFFSET = 0.81, 1.9
-RUNS = {'fom': ({'model': 'fractional', 'fractional_order': ALPHA, 'planing_offset': OFFSET},
-                0.2),
-        'delay_free': ({'model': 'delay-free', 'planing_form': 'smooth'}, 0.1)}
+#: name: (controller node, plant parameters, duration in s)
+RUNS = {'fom': ('state_feedback', {'model': 'fractional', 'fractional_order': ALPHA,
+                                   'planing_offset': OFFSET}, 0.2),
+        'delay_free': ('state_feedback', {'model': 'delay-free', 'planing_form': 'smooth'},
+                       0.1),
+        'delayed': ('state_feedback', {'model': 'delayed'}, 0.2),
+        'pid': ('fractional_pid', {'model': 'fractional', 'fractional_order': ALPHA}, 0.1)}
 
 
 @pytest.fixture(scope='module')
@@ -47,9 +53,9 @@ def bags(tmp_path_factory):
     tmp = tmp_path_factory.mktemp('fit')
     procs, plants = [], {}
     try:
-        for name, (params, duration) in RUNS.items():
+        for name, (controller, params, duration) in RUNS.items():
             env = rosproc.ros_env()
-            procs.append(rosproc.start('fohssv_controller', 'state_feedback',
+            procs.append(rosproc.start('fohssv_controller', controller,
                                        ['--ros-args', '-p', 'min_command_subscribers:=1'],
                                        env=env))
             plants[name] = rosproc.start('fohssv_sim', 'plant', plant_args(
@@ -111,6 +117,40 @@ def test_delay_free_run_gives_alpha_at_the_bound_1_within_its_interval(bags, tmp
     lo, hi = res.intervals['fractional_order']
     assert hi == 1.0 and lo <= res.values['fractional_order'] <= 1.0, res.message
     assert res.values['fractional_order'] > 0.999, res.message
+
+
+def test_a_delayed_model_run_is_told_plainly_that_no_alpha_reproduces_it(bags, tmp_path):
+    """The delayed model's closed loop (tau = L/V, the real plant) against the FOM's closed
+    loop over alpha's whole range: the FOM follows it for a while and then departs, and the
+    fit says so in one sentence, with the residual over the whole window (recomputed here
+    from the bag's states and the fitted states) rather than the part it follows. The FOM's
+    own run of the same length and loop is reproduced by the same fit (the first test)."""
+    res = _fit(bags['delayed'], ('fractional_order',), tmp_path, controller='state_feedback')
+    lo, hi = res.spec.bounds[0]
+    assert not res.reproduces, res.message
+    assert res.message.startswith(f'no value of fractional_order in [{lo:g}, {hi:g}] '
+                                  'reproduces this run'), res.message
+    run = load_run(bags['delayed'])
+    data = run.state[1:]                                 # t = 0 is where the model starts
+    sim = res.fitted_states[np.round(run.t[1:] / 1e-4).astype(int)]
+    r = np.clip((sim - data) / data.std(axis=0), -10, 10)
+    assert abs(np.sqrt(np.mean(r ** 2)) - res.residual) < 1e-9 * res.residual
+    assert res.residual > res.spec.threshold, res.message
+    assert f'over [0, {run.t[-1]:g}] s' in res.message, res.message
+
+
+def test_closed_loop_of_a_plugin_with_memory_recovers_alpha(bags, tmp_path):
+    """fractional_pid keeps memory (its fractional integral and derivative), so it has no
+    compiled affine form: the fit runs it point by point through the plant, a fresh law per
+    point, and recovers the alpha of the real plant it closed the loop of; the eq. 31 state
+    feedback in its place, which is not what the run's controller node was, does not."""
+    res = _fit(bags['pid'], ('fractional_order',), tmp_path / 'pid', controller='fractional_pid')
+    assert res.reproduces, res.message
+    assert abs(res.values['fractional_order'] - ALPHA) <= 1e-3, res.message
+    assert _covers(res, 'fractional_order', ALPHA), res.message
+    assert 'point by point' in res.settings['loop']
+    wrong = _fit(bags['pid'], ('fractional_order',), tmp_path / 'sf', controller='state_feedback')
+    assert not wrong.reproduces, wrong.message
 
 
 def _cli(*args: str) -> None:

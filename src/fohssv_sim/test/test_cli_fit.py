@@ -77,6 +77,20 @@ def test_population_equals_the_plant_stepped_period_by_period():
     assert np.array_equal(got.states[0], r.state)        # the batch runner's closed loop
 
 
+def test_a_law_with_memory_runs_point_by_point_as_the_batch_runner_runs_it():
+    """fractional_pid has no compiled form: the fit's point-by-point path (a fresh law per
+    point, its command held per period) gives simulate()'s closed loop bit for bit, for each
+    of two points run one after the other (the second does not inherit the first's memory)."""
+    ps = [ModelParameters(fractional_order=a) for a in (0.81, 0.9)]
+    got = run_population_reference(ps, 400, 5, controller=lambda: make('fractional_pid'),
+                                   duration=0.04)
+    assert not got.failed.any()
+    for i, p in enumerate(ps):
+        r = simulate(p, make('fractional_pid'), 0.04, control_period=1e-4, sample_every=5)
+        assert np.array_equal(got.states[i], r.state), p.fractional_order
+        assert np.array_equal(got.inputs[i], r.inputs[:-1]), p.fractional_order
+
+
 def test_bad_input_is_one_line_and_exit_2(tmp_path):
     bag = _bag(tmp_path / 'run')
     silent = _bag(tmp_path / 'no_commands', commands=False)
@@ -89,7 +103,11 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
              ((str(bag), '--fit', 'fractional_order', '--bounds', 'speed=60:80'),
               '--bounds speed: not among the fitted names'),
              ((str(bag), '--fit', 'fractional_order', '--window', '5:6'),
-              '--window 5:6 s holds 0 state sample(s)')]
+              '--window 5:6 s holds 0 state sample(s)'),
+             ((str(bag), '--fit', 'fractional_order', '--controller', 'nope'),
+              "--controller nope: unknown controller 'nope'"),
+             ((str(bag), '--fit', 'fractional_order', '--controller', 'state_feedback',
+               '--gain', 'pitch_gain=x'), '--gain: ')]
     for args, text in cases[1:]:
         code, err = run_main('fit', *args, '--out', str(tmp_path / 'out'))
         assert code == 2, (args, err)

@@ -6,8 +6,10 @@ with parameters ``names`` free in ``bounds`` and every other parameter as the ru
 
 * open loop by the run's own commands, each held from its recorded time (zero-order hold, as
   the lockstep plant applies them), or
-* closed loop by a controller plugin (``controller``; an affine law runs compiled, held over
-  each control period as through ROS).
+* closed loop by a controller plugin (``controller``), its command held over each control
+  period as through ROS: an affine law runs compiled in the population kernel; any other
+  (a law with memory: fractional_pid) point by point through the plant contract
+  (:func:`.population.run_population_reference`, a fresh controller per point), slower.
 
 It is compared with the run's states at the control instants in a window [t0, t1]:
 
@@ -19,7 +21,9 @@ It is compared with the run's states at the control instants in a window [t0, t1
   data's, and the orbit class (:mod:`.orbits`; 1 when it differs).
 
 The *residual* is the RMS of r (dimensionless: standard deviations, or relative errors); the
-run is *reproduced* when it is at most ``threshold`` (default 0.05).
+run is *reproduced* when it is at most ``threshold`` (default 0.05): over the whole window for
+a closed loop (``controller``), over the last reproduced horizon for an open-loop replay (see
+below: a replay departs from the run from any error, a fitted closed loop only by misfit).
 
 **Open-loop replays diverge.** The vehicle is open-loop unstable (eigenvalue +15.5 1/s at
 V = 75, faster with planing contacts): replaying recorded commands through a model whose
@@ -29,7 +33,9 @@ So (``horizon='auto'``) the fit grows its horizon: stage 0 fits the first 1/2^S 
 (halved while even that is not reproduced, down to 20 samples), each later stage doubles it,
 warm-started from the previous stage, and bisects back towards the last reproduced horizon
 where a stage is not reproduced; it reports the last reproduced horizon with its fit
-(``horizon_end``). ``horizon='full'`` fits the whole window in one stage.
+(``horizon_end``). ``horizon='full'`` fits the whole window in one stage. A closed loop is
+searched the same way (its basin also narrows as the horizon grows) but judged over the whole
+window (``window_residual``).
 
 **Global, then local.** Each stage evaluates a population (until a horizon is reproduced: a
 Latin hypercube over the bounds; later stages: the current estimate and, per parameter the last
@@ -75,7 +81,7 @@ import numpy as np
 
 from ..params import PARAMETER_BY_NAME, PARAMETERS, ModelParameters, ParameterError
 from .orbits import classify
-from .population import run_population
+from .population import run_population, run_population_reference
 
 __all__ = ['FitError', 'FitSpec', 'FitData', 'FitResult', 'OBJECTIVES', 'fittable_names',
            'check_names', 'resolve_bounds', 'data_from_run', 'data_from_simulation',
@@ -383,6 +389,7 @@ class Problem:
         self.w = w / np.sqrt(np.mean(w[w > 0] ** 2)) if w.any() else w
         self.law = None
         if spec.controller is not None:
+            # None: a plugin that is not affine, run point by point (see simulate)
             self.law = _packed_law(spec.controller, spec.gains)
         elif data.inputs is None:
             raise FitError(f"{data.source.get('bag', 'the run')}: no command messages, so the "
@@ -416,6 +423,15 @@ class Problem:
         if not ok:
             return None, valid
         d = self.data
+        if self.spec.controller is not None and self.law is None:
+            # no compiled form (a law with memory, e.g. fractional_pid): each point through
+            # the plant contract with a fresh controller, its command held per period
+            from ..control import make
+
+            spec = self.spec
+            return run_population_reference(
+                ok, n, self.hold, controller=lambda: make(spec.controller, spec.gains),
+                initial_state=d.initial_state, duration=d.duration), valid
         kwargs: dict[str, Any] = {'initial_state': d.initial_state, 'duration': d.duration,
                                   'threads': threads}
         if self.law is not None:
@@ -461,19 +477,24 @@ class Problem:
         return float(np.sqrt(np.mean(r ** 2)))
 
 
-def _packed_law(name: str, gains: dict[str, Any]) -> np.ndarray:
+def _packed_law(name: str, gains: dict[str, Any]) -> np.ndarray | None:
+    """The compiled form of the plugin ``name`` with ``gains`` (an affine law), or None (a
+    law without one, run point by point).
+
+    Raises:
+        FitError: an unknown plugin or a gain it refuses.
+    """
     from ..control import UnknownController, make
     from ..models import AffineLaw
 
     try:
         ctl = make(name, gains)
-    except (UnknownController, ParameterError, TypeError, ValueError) as e:
-        raise FitError(str(e)) from None
+    except UnknownController as e:
+        raise FitError(f'--controller {name}: {e}') from None
+    except (ParameterError, TypeError, ValueError) as e:
+        raise FitError(f'--gain: {e}') from None
     law = AffineLaw.from_controller(ctl)
-    if law is None:
-        raise FitError(f'--controller {name}: not affine state feedback (Controller.affine() '
-                       'is None); the fit runs affine laws compiled (state_feedback, lqr)')
-    return law.packed
+    return None if law is None else law.packed
 
 
 # -- the cycle objective -------------------------------------------------------------------
@@ -690,7 +711,13 @@ class FitResult:
     intervals: dict[str, list[float]]
     jacobian_intervals: dict[str, list[float]]
     profile_interval: list[float] | None
+    #: what ``reproduces`` compares with the threshold: ``window_residual`` for a closed loop
+    #: (``spec.controller``), ``horizon_residual`` for an open-loop replay
     residual: float
+    #: over [window start, ``horizon_end``] (the last reproduced horizon, or the last tried)
+    horizon_residual: float
+    #: over the whole window
+    window_residual: float
     reproduces: bool
     horizon_end: float
     window: tuple[float, float]
@@ -710,6 +737,8 @@ class FitResult:
         return {'values': self.values, 'intervals': self.intervals,
                 'jacobian_intervals': self.jacobian_intervals,
                 'profile_interval': self.profile_interval, 'residual': self.residual,
+                'horizon_residual': self.horizon_residual,
+                'window_residual': self.window_residual,
                 'threshold': self.spec.threshold, 'reproduces': self.reproduces,
                 'message': self.message, 'objective': self.spec.objective,
                 'window': list(self.window), 'horizon_end': self.horizon_end,
@@ -884,13 +913,21 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
             intervals[n] = [float(max(bounds[j, 0], intervals[n][0] - d)),
                             float(min(bounds[j, 1], intervals[n][1] + d))]
     res = problem.norm(r)
+    # the residual over the whole window; a closed loop is judged by it: unlike an open-loop
+    # replay (which departs from any error), a fitted closed loop that leaves the run after
+    # the reproduced horizon is the model's misfit
+    window_res = res if upto >= m else problem.norm(problem.residuals([x])[0])
+    if spec.controller is not None:
+        reproduced = window_res <= spec.threshold
     t_end = float(data.t[problem.index[upto - 1]])
     sim, _ = problem.simulate([x], problem.index.size)  # the overlay: the whole window
     fitted = sim.states[0] if sim is not None else np.full_like(data.states, np.nan)
     params = problem.params_for(x)
     values = {n: float(v) for n, v in zip(spec.names, x)}
     result = FitResult(spec=spec, values=values, intervals=intervals,
-                       jacobian_intervals=jac_iv, profile_interval=piv, residual=res,
+                       jacobian_intervals=jac_iv, profile_interval=piv,
+                       residual=window_res if spec.controller is not None else res,
+                       horizon_residual=res, window_residual=window_res,
                        reproduces=bool(reproduced), horizon_end=t_end,
                        window=(problem.window[0], float(data.t[problem.index[-1]])),
                        stages=stages, profile=profile,
@@ -899,8 +936,7 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
                        settings={'model': 'fractional', 'solver': params.solver,
                                  'step': params.step, 'planing_form': params.planing_form,
                                  'control_period': data.control_period,
-                                 'loop': 'open (recorded commands, held)' if problem.law is None
-                                 else f'closed ({spec.controller}, held per control period)',
+                                 'loop': _loop_text(problem),
                                  'initial_state': list(data.initial_state),
                                  'dof': dof, 's2': s2, 'population_points': ev.points,
                                  'step_check': check,
@@ -912,6 +948,15 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
                         if np.isfinite(fitted[sel, 1]).all() else None}
     result.message = summary_line(result)
     return result
+
+
+def _loop_text(problem: Problem) -> str:
+    """How the fitted model is driven (fit.json's settings, the figures' captions)."""
+    if problem.spec.controller is None:
+        return 'open (recorded commands, held)'
+    how = ('compiled' if problem.law is not None
+           else 'not affine: point by point through the plant')
+    return f'closed ({problem.spec.controller}, held per control period, {how})'
 
 
 def _step_check(problem: Problem, spec: FitSpec, data: FitData, bounds: np.ndarray,
@@ -981,15 +1026,25 @@ def summary_line(result: FitResult) -> str:
     vals = ', '.join(f'{n} = {result.values[n]:.6g} [{result.intervals[n][0]:.6g}, '
                      f'{result.intervals[n][1]:.6g}]' for n in s.names)
     w0, w1 = result.window
-    span = f'[{w0:g}, {result.horizon_end:g}] s'
+    closed = s.controller is not None           # judged over the whole window
+    span = f'[{w0:g}, {w1 if closed else result.horizon_end:g}] s'
     if not result.reproduces:
         names = ' and '.join(s.names)
         rng = ' x '.join(f'[{lo:g}, {hi:g}]' for lo, hi in s.bounds)
         one = 'value' if len(s.names) == 1 else 'values'
         vals = ', '.join(f'{n} = {result.values[n]:.6g}' for n in s.names)
+        follows = ''
+        if (closed and result.horizon_end < w1 - 1e-12
+                and result.horizon_residual <= s.threshold):
+            follows = (f'; its closed loop follows the run (residual '
+                       f'{result.horizon_residual:.3g}) only up to t = {result.horizon_end:g} '
+                       's and then departs from it')
         return (f'no {one} of {names} in {rng} reproduces this run: the best, {vals}, leaves '
-                f'a residual of {result.residual:.3g} > threshold {s.threshold:g} over {span} '
-                f'({s.objective} objective)')
+                f'a residual of {result.residual:.3g} > threshold {s.threshold:g} over {span}'
+                f'{follows} ({s.objective} objective)')
+    if closed:
+        return (f'{vals} reproduces this run: residual {result.residual:.3g} <= threshold '
+                f'{s.threshold:g} over {span} ({s.objective} objective)')
     tail = ''
     if result.horizon_end < w1 - 1e-12:
         tail = (f' of the window [{w0:g}, {w1:g}] s (beyond it the fitted model departs from '
@@ -1043,7 +1098,8 @@ def _versions() -> dict[str, str]:
 def _caption(result: FitResult) -> str:
     st = result.settings
     return (f"FOM, solver {st['solver']}, step {st['step']:g} s, control period "
-            f"{st['control_period']:g} s, {st['loop']}; {result.spec.objective} objective")
+            f"{st['control_period']:g} s, {result.spec.objective} objective;\n"
+            f"loop {st['loop']}")
 
 
 def plot_overlay(result: FitResult, stem: Path, label: str = '') -> list[Path]:

@@ -30,8 +30,9 @@ Pure: numpy, numba; no rclpy.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -220,28 +221,40 @@ def run_population(params: Sequence[ModelParameters], n_periods: int, hold: int,
 
 def run_population_reference(params: Sequence[ModelParameters], n_periods: int, hold: int,
                              *, inputs: np.ndarray | None = None, law=None,
+                             controller: Callable[[], Any] | None = None,
                              initial_state: Sequence[float] = (0, 0, 0, 0),
                              duration: float | None = None) -> PopulationResult:
     """The same numbers point by point through the plant contract (``make_plant`` and
-    ``Plant.advance`` per period; held inputs only): the readable reference
-    :func:`run_population` is tested against."""
+    ``Plant.advance`` per period, inputs held): the readable reference :func:`run_population`
+    is tested against.
+
+    ``controller``, instead of ``inputs`` or ``law``: a factory of
+    :class:`fohssv_sim.control.Controller` (e.g. ``lambda: control.make(name, gains)``),
+    called once per point (a law with memory starts afresh), whose clamped
+    ``command(t, x)`` is held over each period as through ROS: the closed loop of a plugin
+    that is not affine (no compiled form), point by point."""
     from ..models import check_state, make_plant
 
+    if sum(v is not None for v in (inputs, law, controller)) != 1:
+        raise ValueError('give exactly one of inputs (open loop), law or controller')
     P = len(params)
     out = np.full((P, n_periods + 1, 4), np.nan)
     used = np.full((P, n_periods, 2), np.nan)
     failed = np.zeros(P, dtype=bool)
     for i, p in enumerate(params):
         plant = make_plant(p, initial_state, duration=duration)
+        ctl = controller() if controller is not None else None
         out[i, 0] = plant.x
         for k in range(n_periods):
-            if inputs is not None:
-                u = (float(inputs[k, 0]), float(inputs[k, 1]))
-            else:
-                x = plant.x
-                u = kernels._input(law, True, x[0], x[1], x[2], x[3])
-            used[i, k] = u
             try:
+                if inputs is not None:
+                    u = (float(inputs[k, 0]), float(inputs[k, 1]))
+                elif ctl is not None:
+                    u = ctl.command(plant.t, plant.x)
+                else:
+                    x = plant.x
+                    u = kernels._input(law, True, x[0], x[1], x[2], x[3])
+                used[i, k] = u
                 plant.advance(u, hold)
                 check_state(plant)
             except FloatingPointError:

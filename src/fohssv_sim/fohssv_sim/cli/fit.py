@@ -57,8 +57,9 @@ def register(sub) -> None:
                    "bisecting where the replay departs (default for bags); full: the whole "
                    'window at once (default with --reference)')
     p.add_argument('--controller', help='close the loop with this controller plugin instead '
-                   'of replaying the recorded commands (default with --reference: '
-                   'state_feedback, eq. 31)')
+                   'of replaying the recorded commands (an affine law runs compiled, any other '
+                   'point by point; the fit is then judged over the whole window; default with '
+                   '--reference: state_feedback, eq. 31)')
     p.add_argument('--gain', action='append', metavar='NAME=VALUE',
                    help='controller parameter (repeatable)')
     p.add_argument('--set', action='append', metavar='NAME=VALUE',

@@ -137,6 +137,8 @@ RESULT_CODES = {0: 'completed', 1: 'simulation failed', 6: 'command lag'}
 #: The plant's exit code when another publisher of state shares its domain (a test or
 #: benchmark of someone else on this machine): the run is repeated on another domain.
 EXIT_SECOND_PLANT = 5
+#: The hosted plant's exit code when another node publishes commands on its domain.
+EXIT_SECOND_CONTROLLER = 7
 
 
 def run_plant(domains: Domains, plant_params: dict, timeout: float) -> dict:
@@ -192,7 +194,10 @@ def _run_plant(domains: Domains, plant_params: dict, timeout: float) -> dict:
     steal = _steal_share(ticks_before, _cpu_ticks())
     text = ''.join(lines)
     found = [ln for ln in lines if 'summary: {' in ln]
-    if code == EXIT_SECOND_PLANT:
+    if code == EXIT_SECOND_PLANT or (code == EXIT_SECOND_CONTROLLER
+                                      and plant_params.get('controller')):
+        # another graph on the domain: a second plant (5), or another node's commands beside
+        # a hosted law (7: e.g. someone's test or benchmark sharing this machine)
         raise SecondPlant(f"another graph on ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}")
     if code not in RESULT_CODES or not found:
         raise RuntimeError(f'plant exited {code}:\n{text[-2000:]}')

@@ -507,6 +507,9 @@ class PlantNode(Node):
         subs, pubs = self._peers()
         self.get_logger().info(f'peers matched (command: {pubs} publisher(s), state: {subs} '
                                'subscriber(s)); starting at t = 0')
+        if self.record is not None:   # the law's name in the bag (plot titles)
+            self.record.name_controller(None if self.hosted is None
+                                        else self.get_parameter('controller').value)
         if self.hosted is not None:  # then again between chunks of samples
             self._refresh_matched()
         if self._free_run:           # lockstep, hosted: the spin loop runs chunks of samples

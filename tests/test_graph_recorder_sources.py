@@ -12,9 +12,11 @@ the test process over DDS).
 from __future__ import annotations
 
 import contextlib
+import signal
 
 import pytest
 import rclpy
+import yaml
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, String
@@ -158,3 +160,53 @@ def test_publishers_gone_without_run_end_end_the_recording_with_exit_7(tmp_path)
     assert code == 7, text
     assert 'gone without a run_end' in text and 'Traceback' not in text
     assert load_run(bag).topics['/state'] == 12
+
+
+
+def test_a_signal_after_the_publishers_left_without_run_end_exits_7(tmp_path):
+    """A recorder far behind a fast run misses its run_end (the plant left first: a reader
+    drops what it has not taken from a writer that goes away) and gets its signal before
+    end_timeout of silence (``make demo`` stops it 30 s after the plant's end): the drain
+    must not end in exit 0, a completeness never checked (seen: 11865 of 20001 states, exit
+    0, the demo's summary printed)."""
+    domain = rosproc.unique_domain_id()
+    rec, bag, log = _recorder(tmp_path, rosproc.ros_env(domain), '[state]', end_timeout=60.0)
+    src = Sources(domain)
+    watcher = rclpy.create_node('watcher', context=src.ctx)
+    src.ex.add_node(watcher)
+    try:
+        node, s, e = src.add('plant')
+        src.wait(lambda: s.get_subscription_count() >= 1 and e.get_subscription_count() >= 1,
+                 'the recorder to match')
+        _publish(s, None, 12)
+        src.spin(1.0)
+        node.destroy_node()                              # gone without its run_end
+        src.nodes.remove(node)
+        src.wait(lambda: watcher.count_publishers('/state') == 0, 'the plant to be gone')
+        src.spin(1.0)                                    # the recorder looks every 0.1 s
+        assert rec.poll() is None, log.read_text()       # end_timeout (60 s) not reached
+        rec.send_signal(signal.SIGINT)
+        code = rosproc.wait_exit(rec, 60)
+    finally:
+        watcher.destroy_node()
+        src.close()
+        stop_all(rec)
+    text = log.read_text()
+    assert code == 7, text
+    assert 'gone without a run_end' in text and 'Traceback' not in text
+    assert load_run(bag).topics['/state'] == 12
+
+
+def test_a_recorder_stopped_before_any_message_marks_its_bag_empty(tmp_path):
+    """What the launch file leaves when another node fails at start (``controller:=nope``):
+    the recorder, stopped by the launch before any message, closes a bag marked
+    ``fohssv.empty`` in its metadata and says so (the demo removes such a bag)."""
+    rec, bag, log = _recorder(tmp_path, rosproc.ros_env(), '[state]')
+    rec.send_signal(signal.SIGINT)
+    code = rosproc.wait_exit(rec, 60)
+    text = log.read_text()
+    assert code == 0, text
+    assert 'the bag is empty (marked fohssv.empty in its metadata)' in text
+    meta = yaml.safe_load((bag / 'metadata.yaml').read_text())
+    custom = meta['rosbag2_bagfile_information']['custom_data']
+    assert custom['fohssv.empty'] == 'no message arrived before the recorder stopped'

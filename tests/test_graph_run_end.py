@@ -22,6 +22,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from types import SimpleNamespace
 
 import pytest
@@ -251,3 +252,34 @@ def test_after_sigint_a_lockstep_plant_steps_and_publishes_nothing(tmp_path):
     in_bag = load_run(loop.bag).topics['/state']
     assert ended['published']['/state'] == summary['published_states'] == in_bag, (
         ended, summary, in_bag)
+
+
+def test_the_plant_keeps_its_run_end_until_a_late_recorder_took_it(tmp_path):
+    """A recorder that cannot take anything when the run ends (here stopped with SIGSTOP for
+    5 s from the run's start; under load, a recorder seconds behind a fast run) still gets the
+    run_end: the plant keeps its writers while a run_end reader is there (a recorder leaves
+    once it has it), instead of leaving after end_linger with the run_end untaken (seen in
+    test_launch under load: every sample in the bag, no run_end, exit 7)."""
+    env = rosproc.ros_env()
+    bag, log, plog = tmp_path / 'run', tmp_path / 'recorder.log', tmp_path / 'plant.log'
+    rec = _recorder(env, bag, log, 'command_publishers:=1')
+    plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+        model='delay-free', duration=0.05, controller='state_feedback',
+        min_state_subscribers=2), env=env, log=plog)
+    try:
+        rosproc.wait_for(lambda: 'starting at t = 0' in plog.read_text(), 120,
+                         what='the run to start')
+        os.kill(rec.pid, signal.SIGSTOP)
+        try:
+            rosproc.wait_for(lambda: 'stopping cleanly' in plog.read_text(), 60,
+                             what='the run to end')
+            time.sleep(5.0)           # past the flush (2 s) and end_linger (1 s)
+            assert plant.poll() is None, plog.read_text()   # it waits for the recorder
+        finally:
+            os.kill(rec.pid, signal.SIGCONT)
+        assert rosproc.wait_exit(rec, 60) == 0, log.read_text()
+        assert rosproc.wait_exit(plant, 30) == 0, plog.read_text()
+    finally:
+        stop_all(plant, rec)
+    assert 'every message of the run is in the bag' in log.read_text()
+    assert load_run(bag).topics['/state'] == 501          # 0.05 s at 1e-4 s, t = 0 included

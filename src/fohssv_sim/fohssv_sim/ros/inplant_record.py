@@ -27,6 +27,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+from rcl_interfaces.srv import GetParameters
+from rclpy.clock import Clock, ClockType
+from rclpy.parameter import parameter_value_to_python
 from rclpy.serialization import serialize_message
 
 from .. import contract
@@ -200,7 +203,45 @@ class InPlantRecording:
 
     # -- start and end ----------------------------------------------------------------------
     def metadata(self, values: dict[str, Any]) -> None:
-        self._send(('metadata', values))
+        if not self._ended:
+            self._send(('metadata', values))
+
+    def name_controller(self, hosted: str | None) -> None:
+        """At the run's start: the law answering the plant, stored as the recorder node
+        stores it (``fohssv.controller_node``, ``fohssv.controller``; ``fohssv plot`` names it
+        in its titles). ``hosted``: the plant's own law; else the ``controller`` parameter of
+        the node publishing ``command``, asked without blocking the run (written when the
+        reply comes, if before the run's end)."""
+        node = self.node
+        if hosted is not None:
+            self.metadata({'fohssv.controller_node': node.get_fully_qualified_name(),
+                           'fohssv.controller': hosted})
+            return
+        infos = node.get_publishers_info_by_topic(_command_name(node))
+        if not infos:
+            return
+        ctl = f"{infos[0].node_namespace.rstrip('/')}/{infos[0].node_name}"
+        client = node.create_client(GetParameters, f'{ctl}/get_parameters')
+        deadline = time.monotonic() + 10.0
+
+        def on_reply(future: Any) -> None:
+            result = future.result()
+            values = ([parameter_value_to_python(v) for v in result.values]
+                      if result is not None else [])
+            self.metadata({'fohssv.controller_node': ctl, **(
+                {'fohssv.controller': values[0]} if values and isinstance(values[0], str)
+                else {})})
+
+        def ask() -> None:
+            if client.service_is_ready():
+                timer.cancel()
+                client.call_async(GetParameters.Request(names=['controller'])
+                                  ).add_done_callback(on_reply)
+            elif time.monotonic() > deadline:
+                timer.cancel()
+                self.metadata({'fohssv.controller_node': ctl})
+
+        timer = node.create_timer(0.1, ask, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def end(self, run_end: str) -> None:
         """The run's run_end JSON: the writer takes what the ring holds, checks it, closes."""

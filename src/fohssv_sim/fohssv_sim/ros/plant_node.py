@@ -162,6 +162,9 @@ _STALL_TIMEOUT = 10.0
 #: matched may not have matched the plant's writer yet (discovery is two one-sided halves;
 #: under load the second came seconds later): its timeout counts from the delivery.
 _DELIVERY_GRACE = 30.0
+#: After the run (and ``end_linger``): the longest wait for the readers of ``run_end`` (the
+#: recorders, which leave once they took it) to leave (s).
+_RUN_END_WAIT = 10.0
 #: Rejected commands logged one by one; later ones are throttled to one line per second.
 _LOG_EACH = 20
 #: Realtime mode: wall-clock period of the watchdog check (s).
@@ -511,6 +514,9 @@ class PlantNode(Node):
         subs, pubs = self._peers()
         self.get_logger().info(f'peers matched (command: {pubs} publisher(s), state: {subs} '
                                'subscriber(s)); starting at t = 0')
+        if self.record is not None:   # the law's name in the bag (plot titles)
+            self.record.name_controller(None if self.hosted is None
+                                        else self.get_parameter('controller').value)
         if self.hosted is not None:  # then again between chunks of samples
             self._refresh_matched()
         if self._free_run:           # lockstep, hosted: the spin loop runs chunks of samples
@@ -1244,13 +1250,23 @@ class PlantNode(Node):
         """Keep the publishers (and services) up for ``end_linger`` s after the run ended, or
         until nothing subscribes to the samples (or views) any more: a reader drops what it has not
         taken yet from a writer that goes away, so a subscriber lagging behind a fast run
-        would lose its tail when the plant exits. A signal after the run ended ends it
-        (``STOP.count`` beyond ``signals``, the count when the run ended: a signal that
-        interrupted the run does not, so a recorder still drains)."""
+        would lose its tail when the plant exits. Then, up to _RUN_END_WAIT s, while a reader
+        of ``run_end`` is still there (a recorder leaves once it took it). A signal after the
+        run ended ends it (``STOP.count`` beyond ``signals``, the count when the run ended: a
+        signal that interrupted the run does not, so a recorder still drains)."""
         deadline = time.monotonic() + self.options.end_linger
         samples = self._sample_pubs
         while (rclpy.ok() and STOP.count == signals and time.monotonic() < deadline
                and any(p.get_subscription_count() > 0 for p in samples)):
+            executor.spin_once(timeout_sec=0.05)
+        # run_end too, as the player keeps its own: a recorder that has not taken it yet loses
+        # it with this writer (seen under load: every sample in the bag, the run_end never
+        # heard, exit 7); a recorder leaves once it has it. Bounded by _RUN_END_WAIT.
+        end = self.end_pub
+        deadline = time.monotonic() + _RUN_END_WAIT
+        while (rclpy.ok() and STOP.count == signals and time.monotonic() < deadline
+               and (end.get_subscription_count() > 0
+                    or self.count_subscribers(end.topic_name) > 0)):
             executor.spin_once(timeout_sec=0.05)
 
 

@@ -13,15 +13,20 @@ from typing import Any
 
 from . import command_help
 from .common import (
+    LIMITS,
     BagInputError,
     CliError,
     assignments,
+    check_chunk_size,
+    check_grid,
+    check_run_steps,
     job_folder,
+    number,
     output_dir,
     parse_range,
     resolve_output,
 )
-from .sweep import dask_options
+from .sweep import check_dask_options, dask_options
 
 #: What a fit writes into its folder (claimed in job.json: a folder holding another fit's
 #: outputs is refused, never overwritten).
@@ -97,6 +102,19 @@ def register(sub) -> None:
                    help='local Dask workers as processes (default: threads of this process; '
                    'the compiled kernel runs outside the GIL)')
     p.set_defaults(func=cmd_fit)
+
+
+def _check_sizes(args: argparse.Namespace) -> None:
+    """The search's counts within their limits, before any simulation, file or worker (a
+    --population of 1e9 ran for minutes; a --starts above it was silently cut to it)."""
+    number('--population', args.population, low=2, high=LIMITS['points'], integer=True,
+           unit='points', meaning='points of the global stage')
+    number('--starts', args.starts, low=1, high=args.population, integer=True,
+           unit='points', meaning='best population points that start least_squares: at most '
+           '--population')
+    number('--profile-points', args.profile_points, low=3, high=LIMITS['range_values'],
+           integer=True, unit='points', meaning='alpha values of the coarse profile')
+    check_chunk_size(args.chunk_size)
 
 
 def _names(text: str | None) -> tuple[str, ...]:
@@ -223,6 +241,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         return _cmd_reference(args)
     if args.bag is None:
         raise CliError('give a BAG to fit, or --reference delayed --speeds VALUES')
+    _check_sizes(args)
     from ..analysis.fit import (
         FitError,
         Problem,
@@ -252,11 +271,14 @@ def cmd_fit(args: argparse.Namespace) -> int:
                        'plugin')
     if window is None and args.objective == 'cycle':
         window = (float(data.t[-1]) / 2, float(data.t[-1]))
+    check_grid('the global stage (--population)', args.population,
+               data.n_periods * max(1, round(data.control_period / base.step)))
     spec = _spec(args, names, base, window, args.controller, args.horizon or 'auto')
     try:
         Problem(spec, data)     # an empty window, no drive: refused before any file or Dask
     except FitError as e:
         raise CliError(str(e)) from None
+    check_dask_options(args)    # --workers in range, a scheduler that answers
     sha = bag_sha256(args.bag)
     data.source['sha256'] = sha
     identity = {'bag_sha256': sha, 'namespace': args.namespace,
@@ -289,6 +311,7 @@ def _cmd_reference(args: argparse.Namespace) -> int:
     names = _names(args.names or 'fractional_order')
     if not args.duration > 0:
         raise CliError(f'--duration {args.duration:g} s must be > 0')
+    _check_sizes(args)
     window = _window(args.window)
     if window is None and args.objective == 'cycle':
         window = (args.duration / 2, args.duration)
@@ -299,12 +322,15 @@ def _cmd_reference(args: argparse.Namespace) -> int:
     jobs = []
     for v in speeds:
         fom = model_params(args, **{**overrides, 'speed': v, 'model': 'fractional'})
+        steps = check_run_steps('--duration', args.duration, fom.step)   # before any run
+        check_grid('the global stage (--population)', args.population, steps)
         spec = _spec(args, names, fom, window, controller, args.horizon or 'full')
         try:
             data = reference_data(fom, controller, spec.gains, args.duration, cp)
         except FitError as e:
             raise CliError(str(e)) from None
         jobs.append((v, spec, data))
+    check_dask_options(args)    # --workers in range, a scheduler that answers
     identity = {'reference': 'delayed', 'speeds': speeds, 'duration': args.duration,
                 'control_period': cp, 'fit': [spec.to_dict() for _v, spec, _d in jobs]}
     out = resolve_output(args, 'fit', f'reference-delayed_V{speeds[0]:g}-{speeds[-1]:g}',

@@ -18,6 +18,9 @@ from .common import (
     CliError,
     add_common_options,
     assignments,
+    check_chunk_size,
+    check_grid,
+    check_run_steps,
     job_folder,
     job_name,
     model_params,
@@ -25,7 +28,7 @@ from .common import (
     output_dir,
     parse_range,
 )
-from .sweep import ProgressPrinter, dask_options
+from .sweep import ProgressPrinter, check_dask_options, dask_options
 
 
 def register(sub) -> None:
@@ -106,8 +109,10 @@ def build_spec(args: argparse.Namespace):
 
     if not args.tune:
         raise CliError('nothing to tune: give --tune NAME=LOW:HIGH[,NAME=LOW:HIGH...]')
+    check_chunk_size(args.chunk_size)
     over = {'model': args.model} if args.model else {}
-    values = model_params(args, **over).to_dict()
+    base = model_params(args, **over)
+    values = base.to_dict()
     values.pop('fractional_order', None)
     values.pop('speed', None)
     if args.control_period is not None and args.control_period < 0:
@@ -125,6 +130,12 @@ def build_spec(args: argparse.Namespace):
         spec.validate()
     except TuneError as e:
         raise CliError(str(e)) from None
+    # the sizes and the Dask options, as sweep and gainmap refuse them: before any folder
+    # or worker (a --duration of 1e9 s, --workers 1000, a scheduler where nothing listens)
+    steps = check_run_steps('--duration', args.duration, base.step)
+    check_grid('one generation of the search (population x scenarios)',
+               spec.population_size * len(spec.scenarios()), steps)
+    check_dask_options(args)
     return spec
 
 

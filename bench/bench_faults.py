@@ -19,7 +19,9 @@ Categories (each case on a ROS_DOMAIN_ID of its own, from ``tests/rosproc.py``):
   readable after ``fohssv repair``), a controller killed mid-lockstep (the plant ends with
   exit 3 naming it), SIGINT to each node during a run (exit 0, no traceback);
 * reliability (issue 21): the graph tests of each class it fixed, run as cases: 40 bad states
-  to a controller (alive; 20 lines, then one a second), a plugin that raises, one recorder
+  and 40 withheld (non-finite) commands to a controller (alive; 20 lines, then one a
+  second), a plugin that raises, a hosted law failing every sample, a realtime ``/reset``
+  (the summary counts the whole run), one recorder
   for two namespaced vehicles, two publishers of one topic (both run_ends: exit 0; one:
   exit 7, unchecked),
   publishers gone without run_end (exit 7), SIGINT to a recorded lockstep plant (bag, run_end
@@ -778,9 +780,18 @@ def reliability_cases() -> list[Case]:
              g('test_graph_controllers',
                'test_controller_survives_many_bad_states_and_throttles_their_lines'),
              quick=True),
+        Case('reliability', '40 withheld (non-finite) commands: alive, 20 lines then 1/s',
+             g('test_graph_controllers',
+               'test_controller_survives_many_withheld_commands_and_throttles_their_lines')),
         Case('reliability', 'a plugin whose update raises: counted, rate-limited',
              g('test_graph_controllers',
                'test_a_plugin_that_raises_is_logged_rate_limited_and_the_node_lives', 'tmp')),
+        Case('reliability', 'a hosted law failing every sample: counted, rate-limited',
+             g('test_graph_hosted',
+               'test_a_hosted_law_that_fails_every_sample_is_counted_and_rate_limited', 'tmp')),
+        Case('reliability', 'a realtime /reset: the summary counts the whole run',
+             g('test_graph_hosted',
+               'test_after_a_realtime_reset_the_summary_is_the_whole_runs', 'tmp')),
         Case('reliability', 'one recorder, two namespaced vehicles',
              g('test_graph_recorder_sources',
                'test_one_recorder_records_two_namespaced_vehicles', 'tmp')),

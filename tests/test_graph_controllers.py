@@ -218,6 +218,35 @@ def test_controller_survives_many_bad_states_and_throttles_their_lines():
     assert 'answered 2 state(s), dropped 40' in out
 
 
+def test_controller_survives_many_withheld_commands_and_throttles_their_lines():
+    """Issue 21, class 1, its other half: the 21st withheld (non-finite) command killed the
+    node as the 21st dropped state did. Gains of 1e308 overflow for 40 states of z = 10 m:
+    no command for any of them, the node stays alive and answers a state after them."""
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    probe = Probe(domain)
+    ctl = rosproc.start('fohssv_controller', 'state_feedback',
+                        ['--ros-args', '-p', 'depth_gain:=1e308', '-p', 'pitch_gain:=-1e308'],
+                        env=env)
+    try:
+        _first_state_to_controller(probe)
+        for k in range(40):
+            probe.publish_state([0.1 + k * 1e-3, 10.0, 0.0, 10.0, 0.0])
+        probe.publish_state([0.5, 0.0, 0.0, 0.0, 0.0])
+        probe.wait(lambda: any(c[0] == 0.5 for c in probe.commands), 20, 'the good answer')
+        alive = ctl.poll() is None
+    finally:
+        out = stop_all(ctl)
+        probe.close()
+    assert alive, out
+    assert 'Traceback' not in out and 'cannot be changed' not in out
+    assert not [c for c in probe.commands if 0.1 <= c[0] < 0.5], probe.commands
+    lines = [ln for ln in out.splitlines() if 'no command sent for this state' in ln]
+    assert 20 <= len(lines) < 40, out
+    assert '(20 withheld) [logged one by one up to here' in lines[19]
+    assert 'answered 2 state(s), dropped 0, withheld 40 (non-finite law output)' in out
+
+
 _RAISING = '''
 import sys
 sys.path.insert(0, {examples!r})

@@ -235,3 +235,69 @@ def test_a_late_external_controller_stops_the_realtime_plant_with_exit_6(tmp_pat
     s = _summary(out)
     assert s['command_lag_worst'] > 20 and s['commands_over_lag_limit'] > 0, s
     assert s['t'] < 1.0, s
+
+
+def test_after_a_realtime_reset_the_summary_is_the_whole_runs(tmp_path):
+    """Issue 21.2: after ``/reset`` a real-time plant's pacer started its counts over, so the
+    summary gave the deadline misses and ``samples_paced`` of the part after the reset only,
+    ``samples_per_wake_up`` divided those samples by the whole run's wake-ups, and
+    ``cpu_share_of_period`` divided the whole run's CPU time by the samples since the reset.
+    Now every count and rate but ``t``, ``samples`` and ``steps`` is the whole run's
+    (docs/ros.md): the probe's count of the states published before the reset (t going back
+    to 0 once) and the samples since it make ``samples_total``, and the pacer counted each
+    state published."""
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    log = tmp_path / 'plant.log'
+    probe = Probe(domain, command_publisher=False)
+    plant = _realtime_hosted(env, log, duration=0.0)      # runs until stopped
+    try:
+        probe.wait(lambda: len(probe.states) >= 300, 60, 'the run to pass t = 0.3 s')
+        response = probe.reset_plant()
+        assert response.success, response.message
+        seen = len(probe.states)
+        probe.wait(lambda: len(probe.states) >= seen + 100, 60, 'the run after the reset')
+        code = rosproc.stop(plant)
+    finally:
+        out = stop_all(plant) + log.read_text()
+        probe.close()
+    assert code == 0, out
+    s = _summary(out)
+    t = probe.state_array()[:, 0]
+    back = np.flatnonzero(np.diff(t) < 0)
+    assert len(back) == 1 and t[back[0] + 1] == 0.0, (back, out[-3000:])
+    # samples count the steps of one control period: the t = 0 state is published at the
+    # start and again at the reset, not stepped to (test_graph_lockstep.py's reset test)
+    assert s['resets'] == 1 and s['samples_total'] == back[0] + s['samples'], (back, s)
+    assert s['samples_paced'] == s['published_states'] == s['samples_total'] + 2, s
+    wall_period = 1e-3                         # control_period / real_time_factor 1
+    assert s['cpu_share_of_period'] == pytest.approx(
+        s['cpu_time'] / s['samples_total'] / wall_period), s
+    assert s['samples_per_wake_up'] * s['wake_ups'] == pytest.approx(s['samples_paced']), s
+
+
+def test_a_hosted_law_that_fails_every_sample_is_counted_and_rate_limited(tmp_path):
+    """Issue 21, class 1, hosted: a law with no command for a sample (here a depth gain of
+    1e308 overflows at z = 10 m for every sample of the run) is counted and logged as the
+    controller node logs it, the first 20 lines one by one and then at most one a second, the
+    last good command held (none yet: zero), and the run ends as configured (exit 0)."""
+    env = rosproc.ros_env(rosproc.unique_domain_id())
+    log = tmp_path / 'plant.log'
+    plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+        model='delay-free', controller='state_feedback', duration=DURATION,
+        initial_state=[10.0, 0.0, 0.0, 0.0], min_state_subscribers=0, end_linger=0.0,
+        **{'controller.depth_gain': 1e308}), env=env, log=log)
+    try:
+        code = rosproc.wait_exit(plant, 120)
+    finally:
+        stop_all(plant)
+    out = log.read_text()
+    assert code == 0 and 'Traceback' not in out, out
+    n = round(DURATION / 1e-4) + 1                      # the samples at t = 0 .. DURATION
+    s = _summary(out)
+    assert s['law_failures'] == n - 1 and s['hosted_commands'] == 0, s
+    lines = [ln for ln in out.splitlines() if 'no command for this sample' in ln]
+    # 20 one by one, then at most one a second of a run far shorter than the 20 s allowed
+    assert 20 <= len(lines) <= 40, out
+    assert 'holding delta_f=0.0, delta_c=0.0 rad (1 without a command)' in lines[0], lines[0]
+    assert '[logged one by one up to here' in lines[19], lines[19]

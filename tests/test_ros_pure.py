@@ -152,6 +152,20 @@ def test_pacer_counts_misses_and_slips_when_the_backlog_is_too_long():
     assert p.due(p.start - 1.0) == 0
 
 
+def test_pacer_restart_starts_the_schedule_over_and_keeps_the_runs_counts():
+    """A /reset in realtime: the next sample is due at once, the counts are the whole run's
+    (they started over before, so the summary gave the part after the reset)."""
+    p = Pacer(period=1e-3, tolerance=2e-4, max_batch=2, max_backlog=10)
+    p.begin(100.0)
+    p.published(100.0)
+    p.published(100.0015)               # a miss
+    p.restart(200.0)
+    assert p.next_due() == pytest.approx(200.0) and p.due(200.0) == 1
+    p.published(200.0)                  # on time: the lateness counts from the restart
+    assert (p.produced, p.misses, p.late) == (3, 1, 0)
+    assert p.worst_lateness == pytest.approx(0.5e-3)
+
+
 
 def _wake_ups(b: BurstWait, overshoot: float, seconds: float, start: float = 0.0) -> float:
     """Feed ``b`` the wake-ups of ``seconds`` of wall time whose first sample is ``wait`` plus

@@ -66,6 +66,10 @@ def catalogue(tmp: Path) -> list[tuple[list[str], int, str]]:
     quick = ['--transient', '0.01', '--window', '0.01']
     gm = ['gainmap', '--x', 'pitch_rate_gain=-1:0:0.5', '--y', 'vertical_velocity_gain=0,0.1']
     max_workers = LIMITS['workers_per_core'] * CORES
+    tn = ['tune', '--tune', 'pitch_rate_gain=-1:0', '--envelope-speeds', '75',
+          '--envelope-alphas', '0.85']
+    fb = ['fit', bag, '--fit', 'fractional_order', '--controller', 'state_feedback']
+    fr = ['fit', '--fit', 'fractional_order', '--reference', 'delayed', '--speeds', '75']
     return [
         # -- the command line itself --
         ([], 2, 'the following arguments are required: command'),
@@ -210,6 +214,46 @@ def catalogue(tmp: Path) -> list[tuple[list[str], int, str]]:
         (['report', '--scheduler', nobody], 2, 'no Dask scheduler answers there'),
         (['report', '--out', afile], 2, 'exists and is not a folder'),
         (['report', '--bogus'], 2, 'unrecognized arguments: --bogus'),
+        # -- tune: the same Dask options and limits as sweep and gainmap --
+        ([*tn, '--workers', '1000'], 2,
+         f'--workers=1000 is outside the allowed range [0, {max_workers}] processes'),
+        ([*tn, '--workers', '-1'], 2, '--workers=-1 is outside the allowed range'),
+        ([*tn, '--scheduler', nobody], 2, 'no Dask scheduler answers there'),
+        ([*tn, '--duration', '1e9'], 2,
+         '--duration (1e+09 s simulated at step 2e-05 s) has 5e+13 integration steps per run; '
+         'the limit is 1e+09'),
+        ([*tn, '--chunk-size', '-5'], 2, '--chunk-size=-5 is outside the allowed range [1, '
+         '100000] points'),
+        ([*tn, '--budget', '100000000', '--population', '10000000'], 2,
+         'one generation of the search (population x scenarios) has 1e+07 points; the limit '
+         'is 1e+06'),
+        ([*tn, '--control-period', '1e9'], 2,
+         '--control-period=1e+09 s is longer than the run (--duration=2 s)'),
+        ([*tn, '--settle-band', 'inf'], 2, '--settle-band=inf is outside the allowed range (0, 1]'),
+        ([*tn, '--seed', '-1'], 2, '--seed=-1 is outside the allowed range [0, '),
+        # -- fit, of a bag and of the delayed model --
+        ([*fb, '--speeds', '75'], 2, '--speeds 75 is for --reference'),
+        ([*fb, '--control-period', '0'], 2,
+         '--control-period=0 is outside the allowed range (0, inf) s'),
+        ([*fr, '--seed', '-1'], 2, '--seed=-1 is outside the allowed range [0, '),
+        ([*fr, '--set', 'speed=80'], 2, '--set speed=80.0 is not used with --reference'),
+        ([*fr, '--control-period', '3e-5'], 2,
+         '--control-period=3e-05 s must be a whole multiple of the integration step 2e-05 s'),
+        ([*fr, '--control-period', '2'], 2,
+         '--control-period=2 s is longer than the run (--duration=1 s)'),
+        ([*fb, '--workers', '1000'], 2, '--workers=1000 is outside the allowed range'),
+        ([*fb, '--scheduler', nobody], 2, 'no Dask scheduler answers there'),
+        ([*fb, '--population', '1000000000'], 2,
+         '--population=1000000000 is outside the allowed range [2, 1e+06] points'),
+        ([*fr, '--workers', '-1'], 2, '--workers=-1 is outside the allowed range'),
+        ([*fr, '--scheduler', nobody], 2, 'no Dask scheduler answers there'),
+        ([*fr, '--duration', '1e9'], 2,
+         '--duration (1e+09 s simulated at step 2e-05 s) has 5e+13 integration steps'),
+        ([*fr, '--chunk-size', '-5'], 2, '--chunk-size=-5 is outside the allowed range'),
+        ([*fr, '--starts', '65'], 2,
+         '--starts=65 is outside the allowed range [1, 64] points'),
+        ([*fr, '--profile-points', '1000000000'], 2,
+         '--profile-points=1000000000 is outside the allowed range [3, 100000] points'),
         # -- check, repair --
         (['check'], 2, 'usage: python -m fohssv_sim.bag check BAG'),
         (['check', bag, bag], 2, 'usage: python -m fohssv_sim.bag check BAG'),
@@ -260,7 +304,7 @@ def test_every_bad_input_of_every_subcommand_is_one_line_and_refused(tmp_path, m
             before = files_under(inputs)
     assert not failures, '\n'.join(failures)
     assert {argv[0] for argv, _, _ in cases if argv} >= {
-        'stability', 'sweep', 'gainmap', 'plot', 'report', 'check', 'repair'}
+        'stability', 'sweep', 'gainmap', 'plot', 'report', 'check', 'repair', 'tune', 'fit'}
 
 
 def test_the_installed_script_refuses_in_one_line_too(tmp_path):

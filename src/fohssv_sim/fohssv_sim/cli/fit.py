@@ -13,15 +13,21 @@ from typing import Any
 
 from . import command_help
 from .common import (
+    LIMITS,
     BagInputError,
     CliError,
     assignments,
+    bounded,
+    check_chunk_size,
+    check_grid,
+    check_run_steps,
     job_folder,
+    number,
     output_dir,
     parse_range,
     resolve_output,
 )
-from .sweep import dask_options
+from .sweep import check_dask_options, dask_options
 
 #: What a fit writes into its folder (claimed in job.json: a folder holding another fit's
 #: outputs is refused, never overwritten).
@@ -75,19 +81,23 @@ def register(sub) -> None:
                    help='points of the global stage (default 64)')
     p.add_argument('--starts', type=int, default=2,
                    help='best population points that start least_squares (default 2)')
-    p.add_argument('--seed', type=int, default=0, help='seed of the Latin hypercube')
+    p.add_argument('--seed', type=bounded('--seed', low=0, high=2**32 - 1, integer=True),
+                   default=0, help='seed of the Latin hypercube')
     p.add_argument('--profile-points', type=int, default=41,
                    help='alpha values of the coarse profile over the bounds (default 41)')
     p.add_argument('--no-step-check', dest='step_check', action='store_false',
                    help='skip the refit at half the step (whose shift widens the intervals)')
-    p.add_argument('--control-period', type=float, help='s (default: the bag\'s recorded '
-                   'plant parameter; 1e-4 with --reference)')
+    p.add_argument('--control-period', type=bounded('--control-period', low=0, low_open=True,
+                                                    unit='s'),
+                   help='s (default: the bag\'s recorded plant parameter; 1e-4 with '
+                   '--reference)')
     p.add_argument('--namespace', help="the vehicle's namespace when the bag holds several")
     p.add_argument('--reference', choices=('delayed',), help='fit the FOM to the delayed '
                    'model\'s closed loop instead of a bag')
     p.add_argument('--speeds', metavar='VALUES', help='with --reference: V in m/s, '
                    'start:stop:step or a,b,c (e.g. 70:90:2.5)')
-    p.add_argument('--duration', type=float, default=1.0,
+    p.add_argument('--duration', type=bounded('--duration', low=0, low_open=True, unit='s'),
+                   default=None,
                    help='with --reference: s per run from x(0) = 0 (default 1)')
     p.add_argument('--out', type=Path, help='output folder (default '
                    f"{job_folder('fit', 'BAG-HASH')}, or "
@@ -98,6 +108,30 @@ def register(sub) -> None:
                    help='local Dask workers as processes (default: threads of this process; '
                    'the compiled kernel runs outside the GIL)')
     p.set_defaults(func=cmd_fit)
+
+
+def _check_sizes(args: argparse.Namespace) -> None:
+    """The search's counts within their limits, before any simulation, file or worker (a
+    --population of 1e9 ran for minutes; a --starts above it was silently cut to it)."""
+    number('--population', args.population, low=2, high=LIMITS['points'], integer=True,
+           unit='points', meaning='points of the global stage')
+    number('--starts', args.starts, low=1, high=args.population, integer=True,
+           unit='points', meaning='best population points that start least_squares: at most '
+           '--population')
+    number('--profile-points', args.profile_points, low=3, high=LIMITS['range_values'],
+           integer=True, unit='points', meaning='alpha values of the coarse profile')
+    check_chunk_size(args.chunk_size)
+
+
+def _whole_steps(period: float, step: float, name: str = '--control-period') -> int:
+    """Integration steps per control period; a period that is not a whole multiple of the
+    step is refused (it was rounded: 3e-5 s ran as 4e-5 s at the 2e-5 s step)."""
+    from ..params import steps_per_period
+
+    try:
+        return steps_per_period(period, step, name)
+    except ValueError as e:
+        raise CliError(str(e)) from None
 
 
 def _names(text: str | None) -> tuple[str, ...]:
@@ -224,6 +258,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
         return _cmd_reference(args)
     if args.bag is None:
         raise CliError('give a BAG to fit, or --reference delayed --speeds VALUES')
+    for option, value in (('--speeds', args.speeds), ('--duration', args.duration)):
+        if value is not None:     # never silently ignored
+            raise CliError(f'{option} {value} is for --reference: a bag fit takes the run '
+                           'from the bag; drop it')
+    _check_sizes(args)
     from ..analysis.fit import (
         FitError,
         Problem,
@@ -253,11 +292,15 @@ def cmd_fit(args: argparse.Namespace) -> int:
                        'plugin')
     if window is None and args.objective == 'cycle':
         window = (float(data.t[-1]) / 2, float(data.t[-1]))
+    hold = _whole_steps(data.control_period, base.step,
+                        '--control-period' if args.control_period else 'control_period')
+    check_grid('the global stage (--population)', args.population, data.n_periods * hold)
     spec = _spec(args, names, base, window, args.controller, args.horizon or 'auto')
     try:
         Problem(spec, data)     # an empty window, no drive: refused before any file or Dask
     except FitError as e:
         raise CliError(str(e)) from None
+    check_dask_options(args)    # --workers in range, a scheduler that answers
     sha = bag_sha256(args.bag)
     data.source['sha256'] = sha
     identity = {'bag_sha256': sha, 'namespace': args.namespace,
@@ -288,24 +331,36 @@ def _cmd_reference(args: argparse.Namespace) -> int:
     if any(v <= 0 for v in speeds):
         raise CliError(f'--speeds {args.speeds}: every V must be > 0 m/s')
     names = _names(args.names or 'fractional_order')
-    if not args.duration > 0:
-        raise CliError(f'--duration {args.duration:g} s must be > 0')
+    if args.duration is None:
+        args.duration = 1.0
+    _check_sizes(args)
     window = _window(args.window)
     if window is None and args.objective == 'cycle':
         window = (args.duration / 2, args.duration)
     controller = args.controller or 'state_feedback'
     cp = args.control_period or 1e-4
+    if cp > args.duration:
+        raise CliError(f'--control-period={cp:g} s is longer than the run '
+                       f'(--duration={args.duration:g} s)')
     overrides = assignments(args.set or [], '--set')
-    overrides.pop('model', None)
+    for name, why in (('model', 'the reference fits the FOM (fractional) to the delayed model'),
+                      ('speed', 'the reference runs at each V of --speeds')):
+        if name in overrides:     # never silently replaced
+            raise CliError(f'--set {name}={overrides[name]} is not used with --reference: '
+                           f'{why}; drop it')
     jobs = []
     for v in speeds:
         fom = model_params(args, **{**overrides, 'speed': v, 'model': 'fractional'})
+        steps = check_run_steps('--duration', args.duration, fom.step)   # before any run
+        _whole_steps(cp, fom.step)
+        check_grid('the global stage (--population)', args.population, steps)
         spec = _spec(args, names, fom, window, controller, args.horizon or 'full')
         try:
             data = reference_data(fom, controller, spec.gains, args.duration, cp)
         except FitError as e:
             raise CliError(str(e)) from None
         jobs.append((v, spec, data))
+    check_dask_options(args)    # --workers in range, a scheduler that answers
     identity = {'reference': 'delayed', 'speeds': speeds, 'duration': args.duration,
                 'control_period': cp, 'fit': [spec.to_dict() for _v, spec, _d in jobs]}
     out = resolve_output(args, 'fit', f'reference-delayed_V{speeds[0]:g}-{speeds[-1]:g}',

@@ -18,6 +18,10 @@ from .common import (
     CliError,
     add_common_options,
     assignments,
+    bounded,
+    check_chunk_size,
+    check_grid,
+    check_run_steps,
     job_folder,
     job_name,
     model_params,
@@ -25,7 +29,7 @@ from .common import (
     output_dir,
     parse_range,
 )
-from .sweep import ProgressPrinter, dask_options
+from .sweep import ProgressPrinter, check_dask_options, dask_options
 
 
 def register(sub) -> None:
@@ -53,16 +57,21 @@ def register(sub) -> None:
                    help='candidate evaluations at most (default 60)')
     p.add_argument('--population', type=int, default=0, help='candidates per generation '
                    '(default: 5 per tuned parameter, at most budget/4, at least 5)')
-    p.add_argument('--seed', type=int, default=1, help='seed of the search (default 1)')
+    p.add_argument('--seed', type=bounded('--seed', low=0, high=2**32 - 1, integer=True),
+                   default=1, help='seed of the search (default 1)')
     p.add_argument('--min-margin', type=float, default=0.02, help='Matignon margin '
                    'min(alpha_c - alpha) counted as enough (default 0.02)')
     p.add_argument('--model', help='model (default: the model parameter, fractional)')
-    p.add_argument('--duration', type=float, default=2.0, help='s per run (default 2)')
-    p.add_argument('--transient', type=float, default=1.5,
+    p.add_argument('--duration', type=bounded('--duration', low=0, low_open=True, unit='s'),
+                   default=2.0, help='s per run (default 2)')
+    p.add_argument('--transient', type=bounded('--transient', low=0, unit='s'), default=1.5,
                    help='s before the classification window (default 1.5)')
-    p.add_argument('--control-period', type=float, default=1e-4,
+    p.add_argument('--control-period', type=bounded('--control-period', low=0, unit='s'),
+                   default=1e-4,
                    help='zero-order hold period in s (default 1e-4, the plant\'s)')
-    p.add_argument('--settle-band', type=float, default=0.02,
+    p.add_argument('--settle-band', type=bounded('--settle-band', low=0, low_open=True,
+                                                 high=1, meaning='relative band'),
+                   default=0.02,
                    help='settled when |w - w*| <= band * max(|w*|, 0.1 m/s) (default 0.02)')
     dask_options(p, 128, 'one batched solver call')
     p.add_argument('--check-step', action='store_true',
@@ -106,12 +115,15 @@ def build_spec(args: argparse.Namespace):
 
     if not args.tune:
         raise CliError('nothing to tune: give --tune NAME=LOW:HIGH[,NAME=LOW:HIGH...]')
+    check_chunk_size(args.chunk_size)
     over = {'model': args.model} if args.model else {}
-    values = model_params(args, **over).to_dict()
+    base = model_params(args, **over)
+    values = base.to_dict()
     values.pop('fractional_order', None)
     values.pop('speed', None)
-    if args.control_period is not None and args.control_period < 0:
-        raise CliError(f'--control-period={args.control_period} s must be >= 0')
+    if args.control_period > args.duration:
+        raise CliError(f'--control-period={args.control_period:g} s is longer than the run '
+                       f'(--duration={args.duration:g} s)')
     spec = TuneSpec(
         controller=args.controller, bounds=parse_bounds(args.tune),
         envelope_speeds=_envelope(args.envelope_speeds, '--envelope-speeds'),
@@ -125,6 +137,12 @@ def build_spec(args: argparse.Namespace):
         spec.validate()
     except TuneError as e:
         raise CliError(str(e)) from None
+    # the sizes and the Dask options, as sweep and gainmap refuse them: before any folder
+    # or worker (a --duration of 1e9 s, --workers 1000, a scheduler where nothing listens)
+    steps = check_run_steps('--duration', args.duration, base.step)
+    check_grid('one generation of the search (population x scenarios)',
+               spec.population_size * len(spec.scenarios()), steps)
+    check_dask_options(args)
     return spec
 
 

@@ -207,6 +207,11 @@ class Pacer:
         self.produced = self.misses = self.late = self.slips = 0
         self.worst_lateness = self.lateness_sum = 0.0
 
+    def restart(self, now: float) -> None:
+        """The schedule starts over at ``now`` (the next sample is due then), as after a
+        ``/reset``; the counts go on: they are the whole run's, as the summary's rates."""
+        self.start = now - self.produced * self.period
+
     def next_due(self) -> float:
         """Wall time at which the next sample is due."""
         return self.start + self.produced * self.period

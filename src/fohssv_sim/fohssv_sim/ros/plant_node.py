@@ -1100,8 +1100,8 @@ class PlantNode(Node):
         self._watchdog_warned = False
         self.get_logger().info(f'reset to t = 0 at {list(self.options.initial_state)}')
         if self.running:
-            if self.pacer is not None:
-                self.pacer.begin(time.monotonic())
+            if self.pacer is not None:     # due from now on; its counts stay the run's
+                self.pacer.restart(time.monotonic())
             try:
                 self._publish()
             except PublishFailed as exc:
@@ -1162,8 +1162,7 @@ class PlantNode(Node):
                      mean_lateness=p.lateness_sum / p.produced if p.produced else 0.0,
                      slips=p.slips, worst_lateness=p.worst_lateness,
                      max_command_lag=self._max_lag, stale_commands=self.stale,
-                     cpu_share_of_period=(cpu / self.sim.samples / p.period
-                                          if self.sim.samples else 0.0),
+                     cpu_share_of_period=(cpu / total / p.period if total else 0.0),
                      host_steal_share=(steal_share(self._ticks_start, host_cpu_ticks())
                                        if self.running else None))
             if self.hosted is None:

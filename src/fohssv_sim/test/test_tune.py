@@ -160,6 +160,25 @@ def test_continued_search_with_a_new_winner_checks_the_new_winner(tmp_path, clie
     assert job['spec']['candidates'] == [w['values']] and job['spec']['step_factor'] == 0.5
 
 
+def test_check_step_added_on_a_rerun_checks_the_search_already_run(tmp_path, client):
+    """--check-step is not part of a search's identity: a rerun that adds it reads the
+    generations back and checks their winner (it was refused as 'a different search', and
+    the default folder, named from the identity, was another one: the search ran again)."""
+    from fohssv_sim.cli.common import job_name
+
+    plain = TuneSpec(**RESUME)
+    checked = TuneSpec(**{**RESUME, 'check_step': True})
+    assert job_name('state_feedback', plain.identity()) == job_name('state_feedback',
+                                                                    checked.identity())
+    first = run_tune(plain, tmp_path / 'search', client=client)
+    assert 'check_step' not in first.record
+    again = run_tune(checked, tmp_path / 'search', client=client)
+    assert again.computed_chunks == 0 and again.reused_chunks == first.computed_chunks
+    assert again.winner['values'] == first.winner['values']
+    assert again.record['check_step']['step'] == RESUME_STEP / 2
+    assert len(again.record['check_step']['half_step']) == len(plain.scenarios())
+
+
 def test_fractional_pid_is_tuned_on_simulated_classes_and_metrics_only(tmp_path, client):
     """``fractional_pid`` (issue 24, item 2): no linearisation, so no margin level; its
     tuned gains and fractional orders reach the law that runs, point by point. The winner's

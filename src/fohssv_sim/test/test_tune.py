@@ -7,6 +7,7 @@ import shutil
 import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
 from ament_index_python.packages import get_package_prefix
 
@@ -157,6 +158,68 @@ def test_continued_search_with_a_new_winner_checks_the_new_winner(tmp_path, clie
     job = json.loads((tmp_path / 'cont' / 'check_step' /
                       f"gen_{w['generation']:04d}_{w['candidate']:03d}" / 'job.json').read_text())
     assert job['spec']['candidates'] == [w['values']] and job['spec']['step_factor'] == 0.5
+
+
+def test_check_step_added_on_a_rerun_checks_the_search_already_run(tmp_path, client):
+    """--check-step is not part of a search's identity: a rerun that adds it reads the
+    generations back and checks their winner (it was refused as 'a different search', and
+    the default folder, named from the identity, was another one: the search ran again)."""
+    from fohssv_sim.cli.common import job_name
+
+    plain = TuneSpec(**RESUME)
+    checked = TuneSpec(**{**RESUME, 'check_step': True})
+    assert job_name('state_feedback', plain.identity()) == job_name('state_feedback',
+                                                                    checked.identity())
+    first = run_tune(plain, tmp_path / 'search', client=client)
+    assert 'check_step' not in first.record
+    again = run_tune(checked, tmp_path / 'search', client=client)
+    assert again.computed_chunks == 0 and again.reused_chunks == first.computed_chunks
+    assert again.winner['values'] == first.winner['values']
+    assert again.record['check_step']['step'] == RESUME_STEP / 2
+    assert len(again.record['check_step']['half_step']) == len(plain.scenarios())
+
+
+def test_fractional_pid_is_tuned_on_simulated_classes_and_metrics_only(tmp_path, client):
+    """``fractional_pid`` (issue 24, item 2): no linearisation, so no margin level; its
+    tuned gains and fractional orders reach the law that runs, point by point. The winner's
+    worst RMS effort is checked against its own closed loops run by ``simulate`` outside the
+    search, and the tuned derivative order is shown to change that number."""
+    from fohssv_controller.fractional_pid import FractionalPID
+    from fohssv_sim.params import ModelParameters
+    from fohssv_sim.simulate import simulate
+
+    spec = TuneSpec(**{**RESUME, 'controller': 'fractional_pid',
+                       'bounds': (Bound('pitch_kd', -1.0, -0.1),
+                                  Bound('derivative_order', 0.5, 1.0))})
+    run_tune(spec, tmp_path / 'fpid', client=client)
+    rec = json.loads((tmp_path / 'fpid' / 'tune.json').read_text())    # as written
+    cands = [c for g in rec['generations'] for c in g['candidates']]
+    assert len(cands) == 10 and all(c['valid'] for c in cands)
+    # level 2 is skipped: no margin, no shortfall, no equilibrium in the rows
+    assert all(c['margin'] is None and c['shortfall'] == 0.0 and not c['linearised']
+               for c in cands)
+    assert all(r['path'] == 'per-point' and r['alpha_c'] is None
+               for r in rec['winner']['scenarios'])
+    w = rec['winner']
+    assert w['score']['value'] == min(c['value'] for c in cands)
+    # the winner's closed loops, run outside the search from its reported values
+    rms = {}
+    for a in spec.envelope_alphas:
+        p = ModelParameters(speed=75.0, fractional_order=a)
+        law = FractionalPID(**w['values'])
+        run_ = simulate(p, law, spec.duration, control_period=1e-4, sample_every=5)
+        rms[a] = float(np.sqrt(np.mean(run_.inputs[:, 1] ** 2)))
+        row = next(r for r in w['scenarios'] if r['alpha'] == a)
+        assert row['effort_rms'] == pytest.approx(rms[a], rel=1e-12)
+    assert w['score']['metric'] == pytest.approx(max(rms.values()), rel=1e-12)
+    # the tuned order is not ignored: another derivative order, another effort
+    other = {**w['values'],
+             'derivative_order': 0.5 if w['values']['derivative_order'] > 0.75 else 1.0}
+    p = ModelParameters(speed=75.0, fractional_order=spec.envelope_alphas[0])
+    moved = simulate(p, FractionalPID(**other), spec.duration, control_period=1e-4,
+                     sample_every=5)
+    assert not math.isclose(float(np.sqrt(np.mean(moved.inputs[:, 1] ** 2))),
+                            rms[spec.envelope_alphas[0]], rel_tol=1e-6)
 
 
 def run(*args):

@@ -202,9 +202,12 @@ class TuneSpec:
     def identity(self) -> dict[str, Any]:
         """What defines the search's sequence of generations: everything but the budget
         (with the population made explicit), so a rerun with a larger budget continues the
-        same search from its recorded generations."""
+        same search from its recorded generations, and but ``check_step`` (it only re-runs
+        the winner after the search), so a rerun with ``--check-step`` checks the winner of
+        the search already run instead of being refused or starting another."""
         d = self.to_dict()
         d.pop('budget')
+        d.pop('check_step')
         d['population'] = self.population_size
         return d
 

@@ -17,6 +17,7 @@ import signal
 import pytest
 import rclpy
 import yaml
+from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, String
@@ -95,10 +96,16 @@ def test_one_recorder_records_two_namespaced_vehicles(tmp_path):
         _, sb, eb = src.add('plant', 'b')
         src.wait(lambda: all(p.get_subscription_count() >= 1 for p in (sa, sb, ea, eb)),
                  'the recorder to match')
+        # /b's samples first, acknowledged by the recorder's reader (so the recorder has
+        # discovered /b's writer: a recorder that has not yet seen a vehicle cannot wait for
+        # it, and under load its half of discovery came after /a's end), its run_end last
+        _publish(sb, None, 20)
+        assert sb.wait_for_all_acked(Duration(seconds=60)), 'the recorder took /b/state'
+        src.spin(1.0)                                   # its graph looks every 0.1 s
         _publish(sa, ea, 30)
         src.spin(1.0)
         assert rec.poll() is None, log.read_text()      # /b has not ended yet
-        _publish(sb, eb, 20)
+        _publish(sb, eb, 0, t0=20e-4, claim=20)
         code = rosproc.wait_exit(rec, 60)
     finally:
         src.close()

@@ -66,6 +66,9 @@ from pathlib import Path
 
 from ament_index_python.packages import get_package_prefix
 
+# the hypervisor's steal, read as the plant reads it for its summary (/proc/stat)
+from fohssv_sim.ros.loop import host_cpu_ticks, steal_share
+
 HERE = Path(__file__).resolve().parent
 MODELS = ('delay-free', 'delayed', 'fractional')
 #: Model parameters of the real-time cases (the FOM of the issue: alpha 0.85, V 75, h 2e-5).
@@ -99,26 +102,6 @@ def _cpu_seconds(pid: int) -> float | None:
         return None
 
 
-def _cpu_ticks() -> tuple[int, int] | None:
-    """(all ticks, steal ticks) of the machine's CPUs so far, from /proc/stat (Linux); None
-    if unavailable. Steal is the time the hypervisor ran something else while this virtual
-    machine had work: on this kind of machine a stalled vCPU, which no scheduling inside the
-    guest can avoid, and the cause of most deadline misses of a run beside it."""
-    try:
-        fields = Path('/proc/stat').read_text().split('\n', 1)[0].split()
-        ticks = [int(x) for x in fields[1:9]]   # user nice system idle iowait irq softirq steal
-    except (OSError, ValueError, IndexError):
-        return None
-    return sum(ticks), ticks[7]
-
-
-def _steal_share(before: tuple[int, int] | None, after: tuple[int, int] | None) -> float | None:
-    """Share of the machine's CPU time stolen by the hypervisor between two samples."""
-    if before is None or after is None or after[0] <= before[0]:
-        return None
-    return (after[1] - before[1]) / (after[0] - before[0])
-
-
 def _stop(proc: subprocess.Popen) -> str:
     proc.send_signal(signal.SIGINT)
     try:
@@ -141,25 +124,27 @@ EXIT_SECOND_PLANT = 5
 EXIT_SECOND_CONTROLLER = 7
 
 
-def run_plant(domains: Domains, plant_params: dict, timeout: float) -> dict:
+def run_plant(domains: Domains, plant_params: dict, timeout: float,
+              env_extra: dict | None = None) -> dict:
     """One plant run with the eq. 31 law: through the controller node, or hosted when
     ``plant_params`` names a ``controller``; returns the plant's summary, with the controller
     node's CPU time per sample from the plant's start (peers matched) to its end. A run that
     met another graph on its domain (exit 5) is repeated on the next domain (3 tries)."""
     for _ in range(2):
         try:
-            return _run_plant(domains, plant_params, timeout)
+            return _run_plant(domains, plant_params, timeout, env_extra)
         except SecondPlant as exc:
             print(f'          ({exc}; again on another domain)', flush=True)
-    return _run_plant(domains, plant_params, timeout)
+    return _run_plant(domains, plant_params, timeout, env_extra)
 
 
 class SecondPlant(RuntimeError):
     """The plant met another publisher of state on its domain."""
 
 
-def _run_plant(domains: Domains, plant_params: dict, timeout: float) -> dict:
-    env = domains.env()
+def _run_plant(domains: Domains, plant_params: dict, timeout: float,
+               env_extra: dict | None = None) -> dict:
+    env = dict(domains.env(), **(env_extra or {}))
     args = ['--ros-args']
     for k, v in plant_params.items():
         args += ['-p', f'{k}:={v}']
@@ -168,7 +153,7 @@ def _run_plant(domains: Domains, plant_params: dict, timeout: float) -> dict:
         stderr=subprocess.STDOUT, text=True, start_new_session=True)
     lines: list[str] = []
     ctl_cpu: list[float | None] = []
-    ticks_before = _cpu_ticks()
+    ticks_before = host_cpu_ticks()
     try:
         plant = subprocess.Popen([_exe('fohssv_sim', 'plant'), *args], env=env,
                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
@@ -191,7 +176,7 @@ def _run_plant(domains: Domains, plant_params: dict, timeout: float) -> dict:
     finally:
         if ctl is not None:
             _stop(ctl)
-    steal = _steal_share(ticks_before, _cpu_ticks())
+    steal = steal_share(ticks_before, host_cpu_ticks())
     text = ''.join(lines)
     found = [ln for ln in lines if 'summary: {' in ln]
     if code == EXIT_SECOND_PLANT or (code == EXIT_SECOND_CONTROLLER
@@ -203,7 +188,8 @@ def _run_plant(domains: Domains, plant_params: dict, timeout: float) -> dict:
         raise RuntimeError(f'plant exited {code}:\n{text[-2000:]}')
     s = json.loads(found[-1].split('summary: ', 1)[1])
     s['exit_code'] = code
-    s['host_steal_share'] = steal   # the whole process's life (start-up included)
+    # the plant's own figure (its run, real time) where it gives one, else the process's life
+    s.setdefault('host_steal_share', steal)
     if code != 0:   # the run stopped: a diverged or lagging loop is a result, not a crash
         s['failure'] = next((ln.split(']: ', 1)[-1] for ln in lines if RESULT_CODES[code]
                              in ln), f'exit {code}')
@@ -370,15 +356,44 @@ def case_echo(domains: Domains, quick: bool) -> dict:
             a = run_echo(domains, count, profile=plain)['round_trips_per_second']
             b = run_echo(domains, count)['round_trips_per_second']
             pairs.append((b / a, a, b))
-    ratios = sorted(p[0] for p in pairs)
-    echo['writer_times'] = {'pairs': [{'fast_dds_defaults': a, 'package_profile': b}
-                                      for _, a, b in pairs],
-                            'median_speed_up': statistics.median(ratios)}
-    print('echo      package profile vs Fast DDS default writer times (nack_supression_duration '
-          '5 ms vs 0), round trips/s side by side: ' + ', '.join(
-              f'{b:.0f} vs {a:.0f}' for _, a, b in pairs)
-          + f"; median speed-up {echo['writer_times']['median_speed_up']:.2f}", flush=True)
+        echo['writer_times'] = {'pairs': [{'fast_dds_defaults': a, 'package_profile': b}
+                                          for _, a, b in pairs],
+                                'median_speed_up': statistics.median(p[0] for p in pairs)}
+        print('echo      package profile vs Fast DDS default writer times (nack_supression_'
+              'duration 5 ms vs 0), round trips/s side by side: ' + ', '.join(
+                  f'{b:.0f} vs {a:.0f}' for _, a, b in pairs)
+              + f"; median speed-up {echo['writer_times']['median_speed_up']:.2f}", flush=True)
+        echo['writer_times']['lockstep'] = _writer_times_lockstep(domains, quick, plain)
     return echo
+
+
+def _writer_times_lockstep(domains: Domains, quick: bool, plain: str) -> list[dict]:
+    """The FOM lockstep loop with the eq. 31 node under Fast DDS's default writer timings
+    (``plain``) and under the package profile, alternately (3 pairs, 1 with ``quick``; 3 s
+    simulated, 0.5 s with ``quick``), each pair beside a bare echo measured before it. With
+    ``plain`` a node keeps the profile it was given and leaves the discovery range as set, so
+    both sides run with the range the nodes give rcl with their own profile (SUBNET)."""
+    params = {'mode': 'lockstep', 'duration': 0.5 if quick else 3.0,
+              **MODEL_PARAMS['fractional'], 'model': 'fractional'}
+    pairs = []
+    for _ in range(1 if quick else 3):
+        rate = run_echo(domains, 5000 if quick else 20000)['round_trips_per_second']
+        got = {}
+        for key, extra in (('fast_dds_defaults', {'FASTDDS_DEFAULT_PROFILES_FILE': plain}),
+                           ('package_profile', {})):
+            s = run_plant(domains, params, timeout=600.0,
+                          env_extra={'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET', **extra})
+            got[key] = {k: s.get(k) for k in ('samples_per_second', 'cpu_per_sample_us',
+                                              'controller_cpu_per_sample_us')}
+        pairs.append({'echo_beside': rate, **got})
+        a, b = got['fast_dds_defaults'], got['package_profile']
+        print(f"lockstep  FOM, Fast DDS default writer times vs package profile (echo {rate:.0f} "
+              f"round trips/s beside): {a['samples_per_second']:.0f} -> "
+              f"{b['samples_per_second']:.0f} samples/s, plant CPU {a['cpu_per_sample_us']:.0f} "
+              f"-> {b['cpu_per_sample_us']:.0f} us/sample, controller "
+              f"{a.get('controller_cpu_per_sample_us') or 0:.0f} -> "
+              f"{b.get('controller_cpu_per_sample_us') or 0:.0f}", flush=True)
+    return pairs
 
 
 def case_lockstep(domains: Domains, quick: bool, echo: dict, sim_time: float) -> dict:
@@ -617,7 +632,7 @@ def case_wake(sim_time: float, when: str) -> dict:
     for sched in ('normal', 'fifo'):
         if sched == 'fifo' and not _rt_priority_permitted():
             continue
-        before = _cpu_ticks()
+        before = host_cpu_ticks()
         res = subprocess.run([sys.executable, '-c', _WAKE_LOOP, sched, str(FLOOR_PERIOD),
                               str(FLOOR_BURST), str(FLOOR_TOLERANCE), str(n)],
                              capture_output=True, text=True, timeout=60 + 3 * sim_time)
@@ -625,7 +640,7 @@ def case_wake(sim_time: float, when: str) -> dict:
             print(f'floor     {sched}: failed: {res.stderr.strip()[-300:]}', flush=True)
             continue
         w = json.loads(res.stdout)
-        w['host_steal_share'] = _steal_share(before, _cpu_ticks())
+        w['host_steal_share'] = steal_share(before, host_cpu_ticks())
         out[sched] = w
         print(f"floor     {when:5s} {sched:6s} no-work loop, hosted schedule ({sim_time:g} s): "
               f"misses {w['misses']}/{w['samples']} ({100 * w['miss_rate']:.2f} %), worst "

@@ -134,13 +134,16 @@ def test_inplant_bag_equals_the_recorder_bag_of_the_same_run(tmp_path):
     assert (tmp_path / 'fig' / 'run_time.png').stat().st_size > 10_000
 
 
-def test_a_hosted_inplant_bag_names_its_law(tmp_path):
+def test_a_hosted_inplant_bag_names_its_law_and_holds_every_command(tmp_path):
     """``make demo --hosted`` records in-plant with no controller node: the bag still names
-    the law (``fohssv plot`` titled "controller ?" before)."""
+    the law (``fohssv plot`` titled "controller ?" before), and holds every ``/clock`` and
+    ``command`` message although nobody subscribes to them (the plant then does not publish
+    them on DDS, but puts them into the bag): 0.01 s at 1e-4 s is 101 samples (t = 0 to
+    0.01 s) and 100 commands, each answering a sample before the last, in order."""
     bag, log = tmp_path / 'hosted', tmp_path / 'plant.log'
     plant = rosproc.start('fohssv_sim', 'plant', plant_args(
-        model='delay-free', duration=0.01, controller='lqr', record=str(bag)),
-        env=rosproc.ros_env(), log=log)
+        model='delay-free', duration=0.01, control_period=1e-4, controller='lqr',
+        record=str(bag)), env=rosproc.ros_env(), log=log)
     try:
         assert rosproc.wait_exit(plant, 120) == 0, log.read_text()
     finally:
@@ -148,6 +151,18 @@ def test_a_hosted_inplant_bag_names_its_law(tmp_path):
     run = load_run(bag)
     assert run.metadata['fohssv.controller'] == 'lqr'
     assert controller_of(run) == 'lqr'
+    with AnyReader([bag]) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        wanted = [c for c in reader.connections if c.topic in ('/clock', '/command')]
+        stamps = {c.topic: [] for c in wanted}
+        for conn, _, raw in reader.messages(connections=wanted):
+            msg = reader.deserialize(raw, conn.msgtype)
+            stamps[conn.topic].append(msg.clock.sec + 1e-9 * msg.clock.nanosec
+                                      if conn.topic == '/clock' else float(msg.data[0]))
+    assert counts['/state'] == counts['/planing_force'] == counts['/clock'] == 101, counts
+    assert counts['/command'] == 100, counts
+    assert stamps['/clock'] == pytest.approx([k * 1e-4 for k in range(101)], abs=1e-12)
+    assert stamps['/command'] == pytest.approx([k * 1e-4 for k in range(100)], abs=1e-12)
 
 
 def _writer(log) -> int:

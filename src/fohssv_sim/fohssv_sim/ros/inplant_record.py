@@ -8,7 +8,8 @@ calls of its serialized ``state``, ``planing_force``, ``/clock`` (and hosted ``c
 messages and the ``publish`` of its view publishers, so that each message is also put into
 the ring once published: the bytes DDS took (a view message object is serialized by the tap
 and published as those bytes; a sample DDS refused is not recorded, as ``run_end`` does not
-count it).
+count it). A hosted plant's ``/clock`` and ``command`` are put into the ring even while it
+does not publish them, nobody subscribing (:meth:`InPlantRecording.tap_send`).
 :meth:`InPlantRecording.command` takes the raw bytes of each
 command the plant takes while running, :meth:`InPlantRecording.end` the run_end JSON, and
 :meth:`InPlantRecording.finish` waits for the writer to close the bag.
@@ -144,11 +145,14 @@ class InPlantRecording:
 
         pub.publish = publish_recorded
 
-    def tap_send(self, node: Any, attr: str, topic_name: str) -> None:
+    def tap_send(self, node: Any, attr: str, topic_name: str, wanted: str = '') -> None:
         """Put every message the plant's publish call ``node.<attr>`` (``_send_state`` & co.,
         serialized bytes from ``wire.ArrayWriter`` and ``ClockWriter``) publishes into the ring
         too, once it was published: a sample DDS refused (retried, or never sent before an
-        exit 9) is recorded once, or not at all, as ``run_end`` counts it."""
+        exit 9) is recorded once, or not at all, as ``run_end`` counts it. With ``wanted``
+        (the name of the node's flag, ``_clock_wanted`` or ``_command_wanted``): published
+        only while that flag says someone subscribes (a hosted plant's volatile topics nobody
+        reads), and put into the ring either way."""
         index = self._index[topic_name]
         send = getattr(node, attr)
         put = self.ring.put
@@ -160,7 +164,13 @@ class InPlantRecording:
                 full(index, data)
             return result
 
-        setattr(node, attr, send_recorded)
+        def send_if_wanted(data: bytes) -> Any:
+            result = send(data) if getattr(node, wanted) else None
+            if not put(index, data):
+                full(index, data)
+            return result
+
+        setattr(node, attr, send_if_wanted if wanted else send_recorded)
 
     def command(self, raw: bytes) -> None:
         """A command the plant took while running (the raw bytes it received)."""
@@ -341,19 +351,19 @@ def start(node: Any) -> InPlantRecording | None:
     if path is None:
         return None
     command = _command_name(node)
-    made = [(node.state_pub.topic_name, contract.STATE, '_send_state'),
-            (node.force_pub.topic_name, contract.PLANING_FORCE, '_send_force'),
+    made = [(node.state_pub.topic_name, contract.STATE, '_send_state', ''),
+            (node.force_pub.topic_name, contract.PLANING_FORCE, '_send_force', ''),
             (command, contract.COMMAND,
-             '_send_command' if hasattr(node, '_send_command') else None),
-            (node.clock_pub.topic_name, contract.CLOCK, '_send_clock')]
+             '_send_command' if hasattr(node, '_send_command') else None, '_command_wanted'),
+            (node.clock_pub.topic_name, contract.CLOCK, '_send_clock', '_clock_wanted')]
     views = getattr(node, 'views', None)
     published = [] if views is None else list(zip(views.publishers, contract.VIEW_TOPICS,
                                                    strict=True))
-    rec = InPlantRecording(node, path, [(name, topic) for name, topic, _ in made]
+    rec = InPlantRecording(node, path, [(name, topic) for name, topic, _, _ in made]
                            + [(pub.topic_name, topic) for pub, topic in published])
-    for name, _, attr in made:
+    for name, _, attr, wanted in made:
         if attr is not None:
-            rec.tap_send(node, attr, name)
+            rec.tap_send(node, attr, name, wanted)
     for pub, _ in published:
         rec.tap(pub)
     rec.command_index = rec.index(command)

@@ -149,6 +149,11 @@ class PublishFailed(Exception):
 #: Wall seconds between two looks at the graph for a second plant (a graph query, off the
 #: per-sample path).
 _RIVAL_CHECK_PERIOD = 0.5
+#: Rival checks (of _RIVAL_CHECK_PERIOD) a rival publisher's node name is waited for before
+#: the plant stops without it.
+_NAME_WAIT = 10
+#: The name DDS gives an endpoint's node until the node itself is discovered.
+_UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'
 
 _MODEL_NAMES = tuple(p.name for p in PARAMETERS)
 _NODE_NAMES = tuple(p.name for p in NODE_PARAMETERS)
@@ -231,10 +236,11 @@ class PlantNode(Node):
                 + ' (fault injection, a testing aid: unset it to run normally)')
         self._send_force = raw_publish(self.force_pub)
         self._send_clock = raw_publish(self.clock_pub)
-        # hosted: /clock and command (volatile) are written only while someone subscribes;
-        # the counts are looked at between chunks of samples (_refresh_matched)
-        self._clock_wanted = True
-        self._command_wanted = True
+        # hosted: /clock and command (volatile) are published only while someone subscribes;
+        # the counts are looked at between chunks of samples (_refresh_matched). *_on: made
+        # at all (published, or with record:=PATH only put into the in-plant bag)
+        self._clock_wanted = self._clock_on = True
+        self._command_wanted = self._command_on = True
         # typed views for viewers, every view_period (views.py); None when off
         self._view_every = view_samples(self.options)
         self.views = ViewPublisher(
@@ -273,6 +279,7 @@ class PlantNode(Node):
         self.received = 0                         # commands received while running
         self.commanded = 0                        # hosted: commands the law gave
         self.commands_sent = 0                    # hosted: of those, published (subscribed)
+                                                  # or put into the in-plant bag
         self.law_failures = 0                     # hosted: samples the law gave no command
         self._announced = False                   # run_end published
         self.forces_lost = 0                      # planing_force samples not published
@@ -312,6 +319,7 @@ class PlantNode(Node):
         self._peers_logged: tuple[int, int] | None = None
         self._next_wait_log = 0.0
         self._peer_timer = self.create_timer(0.01, self._wait_for_peers)
+        self._unnamed_checks = 0
         self._rival_timer = self.create_timer(_RIVAL_CHECK_PERIOD, self._check_rivals)
         self.get_logger().info(
             f'{self.sim.plant.describe()} (ready in {self.sim.compile_seconds:.2f} s); mode '
@@ -443,10 +451,11 @@ class PlantNode(Node):
             self._check_second_controller()
         if self.finished.done() or self.count_publishers(self.state_pub.topic_name) <= 1:
             return                                # only this plant's own publisher
-        infos = self.get_publishers_info_by_topic(self.state_pub.topic_name)
-        nodes = sorted(f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos)
+        nodes = self._publisher_nodes(self.state_pub.topic_name)
+        if nodes is None:
+            return
         self._fail(EXIT_SECOND_PLANT,
-                   f'{len(infos)} publishers of {self.state_pub.topic_name} (nodes: '
+                   f'{len(nodes)} publishers of {self.state_pub.topic_name} (nodes: '
                    f"{', '.join(nodes)}): another plant (or a republishing player) runs on this "
                    'ROS_DOMAIN_ID and namespace, and the two would take each other\'s commands; '
                    'stopping. Give each its own ROS_DOMAIN_ID or namespace.')
@@ -457,14 +466,29 @@ class PlantNode(Node):
         topic = self.command_topic
         if self.finished.done() or self.count_publishers(topic) <= 1:
             return                                # only the plant's own command publisher
-        infos = self.get_publishers_info_by_topic(topic)
-        nodes = sorted(f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos)
+        nodes = self._publisher_nodes(topic)
+        if nodes is None:
+            return
         self._fail(EXIT_SECOND_CONTROLLER,
-                   f'{len(infos)} publishers of {topic} (nodes: {", ".join(nodes)}): this '
+                   f'{len(nodes)} publishers of {topic} (nodes: {", ".join(nodes)}): this '
                    f'plant hosts the controller {self.hosted.name!r} (controller:='
                    f'{self.options.controller}) and another node publishes commands too; two '
                    'controllers must not mix, stopping. Stop the external controller, or start '
                    "the plant with controller:='' to use it.")
+
+    def _publisher_nodes(self, topic: str) -> list[str] | None:
+        """The nodes publishing ``topic``, sorted, for the one line that stops the plant; None
+        while a publisher's node is not named yet (DDS discovers an endpoint before its
+        node's name: the line said ``_NODE_NAMESPACE_UNKNOWN_/_NODE_NAME_UNKNOWN_``) and the
+        name has been waited for less than :data:`_NAME_WAIT` rival checks; after that the
+        stop goes ahead, naming the node as not yet known."""
+        infos = self.get_publishers_info_by_topic(topic)
+        unnamed = sum(i.node_name == _UNKNOWN_NODE for i in infos)
+        if unnamed and self._unnamed_checks < _NAME_WAIT:
+            self._unnamed_checks += 1
+            return None
+        return sorted('(a node whose name is not discovered yet)' if i.node_name == _UNKNOWN_NODE
+                      else f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos)
 
     def _wait_for_peers(self) -> None:
         if self.running or self.finished.done():
@@ -570,7 +594,7 @@ class PlantNode(Node):
             self._send_force(payload)
         except Exception as exc:  # noqa: BLE001
             self._retry_publish(self._send_force, self.force_pub.topic_name, payload, exc)
-        if self._clock_wanted and sample % self._clock_every == 0:
+        if self._clock_on and sample % self._clock_every == 0:
             try:
                 self._send_clock(self._clock_out.payload(round(self._state_data[0] * 1e9)))
             except Exception as exc:  # noqa: BLE001 - keep-last 1: the next one replaces it
@@ -622,7 +646,7 @@ class PlantNode(Node):
         add(1, t1 - t0)
         add(2, t2 - t1)
         add(3, t3 - t2)
-        if self._clock_wanted and self.sim.samples % self._clock_every == 0:
+        if self._clock_on and self.sim.samples % self._clock_every == 0:
             t3 = perf_counter_ns()
             self._send_clock(self._clock_out.payload(round(self._state_data[0] * 1e9)))
             add(4, perf_counter_ns() - t3)
@@ -786,7 +810,7 @@ class PlantNode(Node):
     def _publish_command(self, t: float, df: float, dc: float) -> None:
         """Publish what the hosted law commanded for the sample at ``t``."""
         self.commanded += 1
-        if self._command_wanted:
+        if self._command_on:
             data = self._command_data
             data[0] = t
             data[1] = df
@@ -948,14 +972,16 @@ class PlantNode(Node):
 
     def _refresh_matched(self) -> None:
         """Hosted: whether anyone subscribes to ``/clock`` and ``command``: a volatile topic
-        nobody reads is not written (a reader that is not there gets nothing either way; 3-5
+        nobody reads is not published (a reader that is not there gets nothing either way; 3-5
         us of CPU per message saved). A graph query here, between chunks, not per sample.
-        With ``record`` both are always written: the in-plant bag holds them."""
-        if self.record is not None:
-            return
+        With ``record`` both are still made and put into the in-plant bag, which holds them
+        all (inplant_record.py publishes them only while wanted)."""
+        recording = self.record is not None
         self._clock_wanted = self.clock_pub.get_subscription_count() > 0
+        self._clock_on = self._clock_wanted or recording
         if self.command_pub is not None:
             self._command_wanted = self.command_pub.get_subscription_count() > 0
+            self._command_on = self._command_wanted or recording
 
     def _check_watchdog(self) -> None:
         if not self.running:

@@ -47,6 +47,11 @@ EXIT_RECORD_LOST = 8
 _OPEN_TIMEOUT = 60.0
 #: Wall seconds the writer may go without progress while it closes the bag.
 _CLOSE_STALL = 30.0
+#: The name DDS gives an endpoint's node until the node itself is discovered.
+_UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'
+#: Wall seconds a run that ended waits for the controller node's name (the bag's
+#: ``fohssv.controller``) before its bag is closed without it.
+_NAME_WAIT = 5.0
 
 
 def check_record(options: PlantOptions) -> Path | None:
@@ -88,6 +93,8 @@ class InPlantRecording:
         self.failed = ''
         self.result: dict | None = None
         self._ended = False
+        self._naming = False      # the controller node's name is being asked (name_controller)
+        self._end_text: str | None = None   # run_end held until that answer (settle)
         specs = []
         self._index: dict[str, int] = {}
         for name, topic in topics:
@@ -227,37 +234,75 @@ class InPlantRecording:
             self.metadata({'fohssv.controller_node': node.get_fully_qualified_name(),
                            'fohssv.controller': hosted})
             return
-        infos = node.get_publishers_info_by_topic(_command_name(node))
-        if not infos:
+        topic = _command_name(node)
+        if not node.get_publishers_info_by_topic(topic):
             return
-        ctl = f"{infos[0].node_namespace.rstrip('/')}/{infos[0].node_name}"
-        client = node.create_client(GetParameters, f'{ctl}/get_parameters')
         deadline = time.monotonic() + 10.0
+        self._naming = True
+        asking: dict[str, Any] = {}
 
         def on_reply(future: Any) -> None:
             result = future.result()
             values = ([parameter_value_to_python(v) for v in result.values]
                       if result is not None else [])
-            self.metadata({'fohssv.controller_node': ctl, **(
+            self._named({'fohssv.controller_node': asking['node'], **(
                 {'fohssv.controller': values[0]} if values and isinstance(values[0], str)
                 else {})})
 
         def ask() -> None:
+            if 'client' not in asking:
+                # DDS discovers an endpoint before its node's name (_NODE_NAME_UNKNOWN_,
+                # seen under load): the name is looked up again until it is known
+                named = [i for i in node.get_publishers_info_by_topic(topic)
+                         if i.node_name != _UNKNOWN_NODE]
+                if not named:
+                    if time.monotonic() > deadline:
+                        timer.cancel()
+                        self._named({})
+                    return
+                asking['node'] = f"{named[0].node_namespace.rstrip('/')}/{named[0].node_name}"
+                asking['client'] = node.create_client(GetParameters,
+                                                      f"{asking['node']}/get_parameters")
+            client = asking['client']
             if client.service_is_ready():
                 timer.cancel()
                 client.call_async(GetParameters.Request(names=['controller'])
                                   ).add_done_callback(on_reply)
             elif time.monotonic() > deadline:
                 timer.cancel()
-                self.metadata({'fohssv.controller_node': ctl})
+                self._named({'fohssv.controller_node': asking['node']})
 
         timer = node.create_timer(0.1, ask, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
+    def _named(self, values: dict[str, Any]) -> None:
+        """The controller's name came (or its lookup gave up): into the metadata, and the
+        run_end held for it goes to the writer."""
+        self._naming = False
+        self.metadata(values)
+        if self._end_text is not None:
+            self.end(self._end_text)
+
     def end(self, run_end: str) -> None:
-        """The run's run_end JSON: the writer takes what the ring holds, checks it, closes."""
+        """The run's run_end JSON: the writer takes what the ring holds, checks it, closes.
+        While the controller node's name is still being asked (a short lockstep run, or a
+        loaded machine, ends before the answer), the run_end is held for :meth:`settle`."""
+        if self._naming:
+            self._end_text = run_end
+            return
         if not self._ended:
             self._ended = True
             self._send(('end', run_end))
+
+    def settle(self, executor: Any, timeout: float = _NAME_WAIT) -> None:
+        """After the run: spin ``executor`` until the controller's name came, at most
+        ``timeout`` s (the plant's services and the reply need the executor), then hand the
+        writer the run_end held (without the name if it did not come)."""
+        deadline = time.monotonic() + timeout
+        while self._naming and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        self._naming = False
+        if self._end_text is not None:
+            self.end(self._end_text)
 
     def _send(self, message: tuple) -> None:
         try:
@@ -277,6 +322,9 @@ class InPlantRecording:
         the plant's exit code: ``code``, or :data:`EXIT_RECORD_LOST` when ``code`` is 0 and
         the bag misses messages."""
         if self.result is None:
+            if self._end_text is not None:   # a run_end held for the controller's name
+                self._naming = False
+                self.end(self._end_text)
             if not self._ended:          # no run_end (an error): the writer takes EOF as such
                 self._close_control()
             self.result = self._wait_closed()

@@ -1327,6 +1327,8 @@ def _run(node: PlantNode) -> int:
     # a reader loses what it has not taken when the writer goes away: after a signal
     # too, the recorder gets the time to drain what was published (bounded waits)
     node.flush(signals)
+    if node.record is not None:       # the controller's name for the bag, if still asked
+        node.record.settle(executor)
     code = _recorded(node, code)      # the bag closed before the linger (which may wait 1 s)
     node.linger(executor, signals)
     return code

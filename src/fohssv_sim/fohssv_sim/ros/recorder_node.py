@@ -273,7 +273,10 @@ class Recorder(Node):
             self._ctl_timer.cancel()
             return
         if self._ctl_client is None:
-            infos = self.get_publishers_info_by_topic(self._command_topic)
+            # an endpoint is discovered before its node's name (_NODE_NAME_UNKNOWN_ under
+            # load): asked only once the name is known
+            infos = [i for i in self.get_publishers_info_by_topic(self._command_topic)
+                     if i.node_name != '_NODE_NAME_UNKNOWN_']
             if not infos:
                 return
             ns = infos[0].node_namespace.rstrip('/')

@@ -179,6 +179,21 @@ def test_check_step_added_on_a_rerun_checks_the_search_already_run(tmp_path, cli
     assert len(again.record['check_step']['half_step']) == len(plain.scenarios())
 
 
+def test_a_generation_folder_of_another_job_is_refused_as_such(tmp_path, client):
+    """A generation folder that holds another job (as those written before --check-step
+    left a search's identity: their job.json carries it) is refused with the TuneError
+    naming the folder, not with scipy's RuntimeError about its map-like callable (which
+    wraps any ValueError raised in a generation: the CLI said 'internal error', exit 70)."""
+    spec = TuneSpec(**RESUME)
+    run_tune(spec, tmp_path / 'old', client=client)
+    job = tmp_path / 'old' / 'generations' / 'gen_0000' / 'job.json'
+    d = json.loads(job.read_text())
+    d['spec']['tune']['check_step'] = True
+    job.write_text(json.dumps(d))
+    with pytest.raises(TuneError, match='gen_0000 holds a different job'):
+        run_tune(spec, tmp_path / 'old', client=client)
+
+
 def test_fractional_pid_is_tuned_on_simulated_classes_and_metrics_only(tmp_path, client):
     """``fractional_pid`` (issue 24, item 2): no linearisation, so no margin level; its
     tuned gains and fractional orders reach the law that runs, point by point. The winner's

@@ -642,11 +642,19 @@ def run_tune(spec: TuneSpec, out: Path, *, scheduler: str | None = None, workers
     init = qmc.scale(qmc.LatinHypercube(d=len(spec.bounds), seed=spec.seed).random(
         spec.population_size), lo, hi)
     try:
-        res = differential_evolution(
-            gens, list(zip(lo, hi)), strategy='best1bin', maxiter=spec.generations - 1,
-            init=init, mutation=spec.mutation, recombination=spec.recombination,
-            seed=spec.seed, tol=0.0, atol=0.0, polish=False, updating='deferred',
-            vectorized=True)
+        try:
+            res = differential_evolution(
+                gens, list(zip(lo, hi)), strategy='best1bin', maxiter=spec.generations - 1,
+                init=init, mutation=spec.mutation, recombination=spec.recombination,
+                seed=spec.seed, tol=0.0, atol=0.0, polish=False, updating='deferred',
+                vectorized=True)
+        except RuntimeError as e:
+            # scipy wraps a ValueError raised in a generation (TuneError is one: e.g. a
+            # generation folder that holds another job) in a RuntimeError about the map-like
+            # callable; hand back the TuneError itself (one line, exit 2 in the CLI)
+            if isinstance(e.__cause__, TuneError):
+                raise e.__cause__ from None
+            raise
         best = gens.best
         if best is None:
             first = next(c for g in record['generations'] for c in g['candidates'])

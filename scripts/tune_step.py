@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
                              if key == 'peak_fp' else {})})
     print(f"{record['spec']['controller']} winner of {args.out}: {key} by step "
           f"({record['spec']['duration']:g} s runs, transient {record['spec']['transient']:g} s,"
-          f" ZOH {record['spec']['control_period']:g} s, solver {spec_d['base']['solver']}, "
+          f" ZOH {record['spec']['control_period']:g} s, solver {spec_d['base'].get('solver', 'auto')}, "
           + ('sampled every step)' if args.every_step else 'sampled every control period)'))
     summary = []
     for a in alphas:

@@ -285,3 +285,33 @@ def test_more_bad_input_is_refused_in_one_line(tmp_path, capsys, args, text):
     assert text in err and len(err.strip().splitlines()) == 1, err
     assert 'Traceback' not in err
     assert not (tmp_path / 'bad').exists()
+
+
+def test_tune_step_script_reruns_the_winner_as_the_search_scored_it(tmp_path, client):
+    """``scripts/tune_step.py`` (the README's step and boundary tables) re-runs a search's
+    winner in chosen scenarios at chosen steps: at the search's own step and scenarios it gives
+    the outcome and metric the search recorded for the winner (scored there in a batched Dask
+    chunk among the other candidates), and a step it is given is the step it runs."""
+    import sys
+
+    spec = TuneSpec(**RESUME)
+    rec = run_tune(spec, tmp_path / 'search', client=client).record
+    script = Path(__file__).resolve().parents[3] / 'scripts' / 'tune_step.py'
+    out = tmp_path / 'step.json'
+    res = subprocess.run([sys.executable, str(script), str(tmp_path / 'search'),
+                          '--alphas', '0.8,0.9', '--speeds', '75',
+                          '--steps', f'{RESUME_STEP},{RESUME_STEP / 2}', '--json', str(out)],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stdout + res.stderr
+    got = json.loads(out.read_text())
+    assert got['metric'] == 'effort_rms' and got['winner'] == rec['winner']['values']
+    scored = {r['alpha']: r for r in rec['winner']['scenarios']}
+    at_step = [r for r in got['rows'] if r['step'] == RESUME_STEP]
+    assert sorted(r['alpha'] for r in at_step) == [0.8, 0.9]
+    for r in at_step:
+        assert r['outcome'] == scored[r['alpha']]['outcome']
+        assert r['effort_rms'] == pytest.approx(scored[r['alpha']]['effort_rms'], rel=1e-12)
+    halved = [r for r in got['rows'] if r['step'] == RESUME_STEP / 2]
+    assert len(halved) == 2
+    # a different step is a different run (not the search's rows read back)
+    assert all(r['effort_rms'] != scored[r['alpha']]['effort_rms'] for r in halved)

@@ -85,9 +85,10 @@ def main(argv: list[str] | None = None) -> int:
                           'outcome': r['outcome'], key: r[key], 'wall_s': wall / n,
                           **({'peak_fp_window': r['peak_fp_window']}
                              if key == 'peak_fp' else {})})
+    solver = spec_d['base'].get('solver', 'auto')     # 'auto' when the search kept it
     print(f"{record['spec']['controller']} winner of {args.out}: {key} by step "
           f"({record['spec']['duration']:g} s runs, transient {record['spec']['transient']:g} s,"
-          f" ZOH {record['spec']['control_period']:g} s, solver {spec_d['base'].get('solver', 'auto')}, "
+          f" ZOH {record['spec']['control_period']:g} s, solver {solver}, "
           + ('sampled every step)' if args.every_step else 'sampled every control period)'))
     summary = []
     for a in alphas:

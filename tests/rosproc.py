@@ -58,6 +58,8 @@ def ros_env(domain_id: int | None = None, **extra: str) -> dict[str, str]:
     env['ROS_DOMAIN_ID'] = str(domain_id if domain_id is not None else unique_domain_id())
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     env.setdefault('PYTHONUNBUFFERED', '1')
+    # a node that hangs prints every thread's Python stack on the SIGABRT wait_exit sends it
+    env.setdefault('PYTHONFAULTHANDLER', '1')
     env.update(extra)
     return env
 
@@ -134,13 +136,20 @@ def stop(proc: subprocess.Popen, sig: int = signal.SIGINT, timeout: float = 10.0
 
 
 def wait_exit(proc: subprocess.Popen, timeout: float) -> int:
-    """Wait for ``proc`` to exit by itself; kill it and fail if it does not in time."""
+    """Wait for ``proc`` to exit by itself; stop it and fail if it does not in time. It is
+    stopped with SIGABRT first: with ``PYTHONFAULTHANDLER`` (:func:`ros_env`) a Python
+    process then prints where each of its threads was (in its output or log), then SIGKILL."""
     try:
         return proc.wait(timeout=timeout)
     except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait(timeout=5)
-        raise AssertionError(f'{proc.args[0]} did not exit within {timeout} s') from None
+        proc.send_signal(signal.SIGABRT)
+        try:
+            proc.wait(timeout=3)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=5)
+        raise AssertionError(f'{proc.args[0]} did not exit within {timeout} s (stopped with '
+                             'SIGABRT: where its threads were is in its output)') from None
 
 
 def output(proc: subprocess.Popen) -> str:

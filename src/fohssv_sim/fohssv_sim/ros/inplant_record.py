@@ -35,6 +35,7 @@ from rclpy.serialization import serialize_message
 
 from .. import contract
 from ..bag.inplant import Ring, TopicSpec, WriterConfig, kind_of, read_reply, send
+from .matching import UNKNOWN_NODE, node_path
 from .options import NODE_PARAMETER_BY_NAME, PlantOptions
 from .qos import offered_qos
 
@@ -47,8 +48,6 @@ EXIT_RECORD_LOST = 8
 _OPEN_TIMEOUT = 60.0
 #: Wall seconds the writer may go without progress while it closes the bag.
 _CLOSE_STALL = 30.0
-#: The name DDS gives an endpoint's node until the node itself is discovered.
-_UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'
 #: Wall seconds a run that ended waits for the controller node's name (the bag's
 #: ``fohssv.controller``) before its bag is closed without it.
 _NAME_WAIT = 5.0
@@ -254,13 +253,13 @@ class InPlantRecording:
                 # DDS discovers an endpoint before its node's name (_NODE_NAME_UNKNOWN_,
                 # seen under load): the name is looked up again until it is known
                 named = [i for i in node.get_publishers_info_by_topic(topic)
-                         if i.node_name != _UNKNOWN_NODE]
+                         if i.node_name != UNKNOWN_NODE]
                 if not named:
                     if time.monotonic() > deadline:
                         timer.cancel()
                         self._named({})
                     return
-                asking['node'] = f"{named[0].node_namespace.rstrip('/')}/{named[0].node_name}"
+                asking['node'] = node_path(named[0])
                 asking['client'] = node.create_client(GetParameters,
                                                       f"{asking['node']}/get_parameters")
             client = asking['client']
@@ -277,10 +276,8 @@ class InPlantRecording:
     def _named(self, values: dict[str, Any]) -> None:
         """The controller's name came (or its lookup gave up): into the metadata, and the
         run_end held for it goes to the writer."""
-        self._naming = False
         self.metadata(values)
-        if self._end_text is not None:
-            self.end(self._end_text)
+        self._release_end()
 
     def end(self, run_end: str) -> None:
         """The run's run_end JSON: the writer takes what the ring holds, checks it, closes.
@@ -300,6 +297,11 @@ class InPlantRecording:
         deadline = time.monotonic() + timeout
         while self._naming and time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.05)
+        self._release_end()
+
+    def _release_end(self) -> None:
+        """No longer waiting for the controller's name: the run_end held for it (if any)
+        goes to the writer."""
         self._naming = False
         if self._end_text is not None:
             self.end(self._end_text)
@@ -322,9 +324,7 @@ class InPlantRecording:
         the plant's exit code: ``code``, or :data:`EXIT_RECORD_LOST` when ``code`` is 0 and
         the bag misses messages."""
         if self.result is None:
-            if self._end_text is not None:   # a run_end held for the controller's name
-                self._naming = False
-                self.end(self._end_text)
+            self._release_end()          # a run_end held for the controller's name
             if not self._ended:          # no run_end (an error): the writer takes EOF as such
                 self._close_control()
             self.result = self._wait_closed()

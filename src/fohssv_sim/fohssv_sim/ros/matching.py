@@ -8,7 +8,17 @@ import time
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 
-__all__ = ['HoldReporter', 'SubscriptionGate', 'SecondPublisherWarning']
+__all__ = ['HoldReporter', 'SubscriptionGate', 'SecondPublisherWarning', 'UNKNOWN_NODE',
+           'node_path']
+
+#: The name DDS gives an endpoint's node until the node itself is discovered (an endpoint is
+#: found before its node's name: seen under load).
+UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'
+
+
+def node_path(info) -> str:
+    """``/namespace/name`` of the node of an endpoint (a ``TopicEndpointInfo``)."""
+    return f"{info.node_namespace.rstrip('/')}/{info.node_name}"
 
 
 class SecondPublisherWarning:
@@ -31,12 +41,12 @@ class SecondPublisherWarning:
         if self.warned or self.node.count_publishers(self.topic) <= 1:
             return
         infos = self.node.get_publishers_info_by_topic(self.topic)
-        if any(i.node_name == '_NODE_NAME_UNKNOWN_' for i in infos) and self._unnamed < 10:
+        if any(i.node_name == UNKNOWN_NODE for i in infos) and self._unnamed < 10:
             self._unnamed += 1          # the endpoints are discovered before their nodes' names
             return
         self.warned = True
         self.timer.cancel()
-        nodes = sorted(f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos)
+        nodes = sorted(node_path(i) for i in infos)
         self.node.get_logger().warning(
             f"{len(infos)} publishers of {self.topic} (nodes: {', '.join(nodes)}): two plants "
             '(or a plant and a republishing player) on one ROS_DOMAIN_ID and namespace; their '

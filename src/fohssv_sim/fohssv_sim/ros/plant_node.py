@@ -92,6 +92,7 @@ from .loop import (
     host_cpu_ticks,
     steal_share,
 )
+from .matching import UNKNOWN_NODE, node_path
 from .nodekit import (
     STOP,
     ArrayReader,
@@ -152,8 +153,6 @@ _RIVAL_CHECK_PERIOD = 0.5
 #: Rival checks (of _RIVAL_CHECK_PERIOD) a rival publisher's node name is waited for before
 #: the plant stops without it.
 _NAME_WAIT = 10
-#: The name DDS gives an endpoint's node until the node itself is discovered.
-_UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'
 
 _MODEL_NAMES = tuple(p.name for p in PARAMETERS)
 _NODE_NAMES = tuple(p.name for p in NODE_PARAMETERS)
@@ -483,12 +482,12 @@ class PlantNode(Node):
         name has been waited for less than :data:`_NAME_WAIT` rival checks; after that the
         stop goes ahead, naming the node as not yet known."""
         infos = self.get_publishers_info_by_topic(topic)
-        unnamed = sum(i.node_name == _UNKNOWN_NODE for i in infos)
+        unnamed = sum(i.node_name == UNKNOWN_NODE for i in infos)
         if unnamed and self._unnamed_checks < _NAME_WAIT:
             self._unnamed_checks += 1
             return None
-        return sorted('(a node whose name is not discovered yet)' if i.node_name == _UNKNOWN_NODE
-                      else f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos)
+        return sorted('(a node whose name is not discovered yet)' if i.node_name == UNKNOWN_NODE
+                      else node_path(i) for i in infos)
 
     def _wait_for_peers(self) -> None:
         if self.running or self.finished.done():

@@ -88,6 +88,7 @@ from .bag_options import (
     default_bag_path,
     new_bag_path,
 )
+from .matching import UNKNOWN_NODE, node_path
 from .nodekit import (
     STOP,
     SecondPublisherWarning,
@@ -276,11 +277,10 @@ class Recorder(Node):
             # an endpoint is discovered before its node's name (_NODE_NAME_UNKNOWN_ under
             # load): asked only once the name is known
             infos = [i for i in self.get_publishers_info_by_topic(self._command_topic)
-                     if i.node_name != '_NODE_NAME_UNKNOWN_']
+                     if i.node_name != UNKNOWN_NODE]
             if not infos:
                 return
-            ns = infos[0].node_namespace.rstrip('/')
-            self._ctl_node = f'{ns}/{infos[0].node_name}'
+            self._ctl_node = node_path(infos[0])
             self._ctl_client = self.create_client(GetParameters,
                                                   f'{self._ctl_node}/get_parameters')
         if self._ctl_client.service_is_ready():

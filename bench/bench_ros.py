@@ -32,7 +32,7 @@ each case is one function, so a case can be added without touching the others):
 * normal scheduler (:func:`case_fifo`): the hosted 1e-4 s and external 1e-3 s runs again with
   ``realtime_priority:=0`` (the plant runs under SCHED_FIFO 50 by default where permitted);
 * machine floor (:func:`case_wake`, at the start and at the end of the run): a loop with the
-  hosted plant's schedule that does no work (woken every 0.8 ms, when a burst of 8 samples of
+  hosted plant's schedule that does no work (woken every 0.5 ms, when a burst of 5 samples of
   1e-4 s is due), normal scheduler and SCHED_FIFO: its deadline misses (the share of a plant's
   misses that no code of the plant can remove), the CPU time per wake-up and how late the
   wake-ups come; like the echo, a figure of the machine.
@@ -67,7 +67,7 @@ from pathlib import Path
 from ament_index_python.packages import get_package_prefix
 
 # the hypervisor's steal, read as the plant reads it for its summary (/proc/stat)
-from fohssv_sim.ros.loop import host_cpu_ticks, steal_share
+from fohssv_sim.ros.loop import BurstWait, host_cpu_ticks, steal_share
 
 HERE = Path(__file__).resolve().parent
 MODELS = ('delay-free', 'delayed', 'fractional')
@@ -615,13 +615,15 @@ print(json.dumps({'cpu_per_wake_up_us': cpu / w * 1e6, 'late_p50_us': late[w // 
 """
 
 #: The schedule of the machine-floor loop: the hosted plant's at the defaults (1e-4 s samples,
-#: woken once per burst of 8, a deadline missed when published more than 1 ms after due).
-FLOOR_PERIOD, FLOOR_BURST, FLOOR_TOLERANCE = 1e-4, 8, 1e-3
+#: woken once per burst of the plant's longest (5), a deadline missed when published more
+#: than 1 ms after due).
+FLOOR_PERIOD, FLOOR_TOLERANCE = 1e-4, 1e-3
+FLOOR_BURST = BurstWait(period=FLOOR_PERIOD, tolerance=FLOOR_TOLERANCE).longest + 1
 
 
 def case_wake(sim_time: float, when: str) -> dict:
     """The machine's floor: a loop with the hosted plant's schedule that computes and publishes
-    nothing (woken every 0.8 ms, when a burst of 8 samples of 1e-4 s is due, its samples counted
+    nothing (woken every 0.5 ms, when a burst of 5 samples of 1e-4 s is due, its samples counted
     as published at the wake-up), for ``sim_time`` of wall time, under the normal scheduler and
     SCHED_FIFO 50: the CPU time per wake-up, how late the wake-ups come, and the deadline
     misses a plant doing no work would have had. A hosted plant's misses are these plus what

@@ -179,29 +179,31 @@ def _wake_ups(b: BurstWait, overshoot: float, seconds: float, start: float = 0.0
 
 def test_burst_wait_is_longest_on_a_machine_that_wakes_the_plant_on_time():
     b = BurstWait(period=1e-4, tolerance=1e-3)
-    # 0.8 of the 1 ms tolerance less one period: 7 periods, bursts of 8 samples
-    assert b.longest == 7 and b.wait() == pytest.approx(7e-4)
-    _wake_ups(b, 30e-6, 5.0)                       # 30 us late wake-ups: 0.73 ms < 0.85 ms
-    assert b.periods == 7 and b.near_misses == 0
+    # half the 1 ms tolerance less one period: 4 periods, bursts of 5 samples
+    assert b.longest == 4 and b.wait() == pytest.approx(4e-4)
+    _wake_ups(b, 0.4e-3, 5.0)                      # 0.4 ms late wake-ups: 0.8 ms < 0.85 ms
+    assert b.periods == 4 and b.near_misses == 0
+    # at real_time_factor 2 (50 us periods): 9 periods, the same 0.45 ms of wall time
+    assert BurstWait(period=5e-5, tolerance=1e-3).longest == 9
     # one sample per wake-up when the tolerance is a single period
     assert BurstWait(period=1e-4, tolerance=1e-4).longest == 0
 
 
 def test_burst_wait_shortens_for_slow_wake_ups_and_grows_back():
     b = BurstWait(period=1e-4, tolerance=1e-3)
-    # every wake-up 0.5 ms late: first samples published wait + 0.5 ms after they were due;
-    # under the 0.85 ms near-miss limit for waits of up to 3 periods (0.8 ms), over it from 4
-    now = _wake_ups(b, 0.5e-3, 10.0)
-    assert b.periods in (3, 4) and b.near_misses > 0
+    # every wake-up 0.6 ms late: first samples published wait + 0.6 ms after they were due;
+    # under the 0.85 ms near-miss limit for waits of up to 2 periods (0.8 ms), over it from 3
+    now = _wake_ups(b, 0.6e-3, 10.0)
+    assert b.periods in (2, 3) and b.near_misses > 0
     # the machine is quick again: back to the longest wait, one period per quiet window
     _wake_ups(b, 20e-6, 3.0, start=now)
-    assert b.periods == 7
+    assert b.periods == 4
 
 
 def test_burst_wait_ignores_stalls_no_wait_would_save():
     b = BurstWait(period=1e-4, tolerance=1e-3)
     _wake_ups(b, 2e-3, 5.0)                        # 2 ms stalls: late whatever the wait
-    assert b.periods == 7 and b.near_misses == 0
+    assert b.periods == 4 and b.near_misses == 0
 
 
 def test_host_steal_share_from_two_proc_stat_readings(tmp_path):

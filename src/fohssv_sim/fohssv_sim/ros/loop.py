@@ -248,8 +248,9 @@ class BurstWait:
     work, so the fewer the better; but the first sample of a burst is published ``wait`` plus
     the wake-up's own overshoot after it was due, and more than ``tolerance`` is a deadline
     miss. The wait starts at its longest, ``longest_share`` of the tolerance less one period
-    (7 periods at the defaults: bursts of 8 samples, 0.3 ms of the 1 ms tolerance left for the
-    overshoot). A *near miss* is a wake-up whose first sample was more than ``near_miss`` of
+    (4 periods at the defaults: bursts of 5 samples, 0.6 ms of the 1 ms tolerance left for the
+    overshoot and the burst's own work; at ``real_time_factor`` 2, 9 periods of 50 us).
+    A *near miss* is a wake-up whose first sample was more than ``near_miss`` of
     the tolerance late while a shorter wait would have kept it under (a slow wake-up; not a
     stall longer than the tolerance, which no wait saves). The wait follows them in windows of
     ``window`` seconds of wall time: more than ``allowed`` near misses in a window shorten it
@@ -261,7 +262,7 @@ class BurstWait:
 
     period: float
     tolerance: float
-    longest_share: float = 0.8
+    longest_share: float = 0.5
     near_miss: float = 0.85
     window: float = 0.5
     allowed: int = 2

@@ -557,7 +557,7 @@ class PlantNode(Node):
             batch = max(1, round(tick / wall_period))
             pacer = Pacer(period=wall_period, tolerance=tick, max_batch=2 * batch,
                           max_backlog=10 * batch)
-            # hosted: one wake-up per burst of samples (8 at the defaults, fewer while the
+            # hosted: one wake-up per burst of samples (5 at the defaults, fewer while the
             # machine is slow to wake the plant: BurstWait)
             if self.hosted is not None:
                 self.bursts = BurstWait(period=wall_period, tolerance=tick)

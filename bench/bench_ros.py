@@ -40,6 +40,9 @@ each case is one function, so a case can be added without touching the others):
 The hypervisor's steal over each run (``/proc/stat``: the time this virtual machine had work
 and the host ran something else) is printed beside each plant run and floor loop: on this kind
 of machine a stalled vCPU for milliseconds at a time, the cause of most deadline misses.
+A real-time run whose steal exceeded 1 % (the real-time, margin and in-plant cases) is run
+again, at most twice: every attempt is printed and kept in the JSON, the figure is the attempt
+with the least steal, and the target table names it with every attempt's steal.
 External lockstep runs of the FOM are repeated three times, each beside its own echo, and the
 median pair is reported (the ratio is a target, and one pair varies by 0.1 on a noisy host).
 
@@ -199,6 +202,48 @@ def _run_plant(domains: Domains, plant_params: dict, timeout: float,
         s['controller_cpu_time'] = ctl_cpu[1] - ctl_cpu[0]
         s['controller_cpu_per_sample_us'] = s['controller_cpu_time'] / s['samples'] * 1e6
     return s
+
+
+#: A real-time run during which the hypervisor stole more than this share of the machine's
+#: time (``host_steal_share``: the host ran other guests on its cores) measured the host, not
+#: the plant: it is run again, at most ``STEAL_RETRIES`` more times. Every attempt is printed
+#: and kept in the JSON (``attempts``); the figure used is the attempt with the least steal.
+STEAL_LIMIT, STEAL_RETRIES = 0.01, 2
+
+
+def run_steady(domains: Domains, make_params, label: str, timeout: float = 900.0) -> dict:
+    """A real-time run (``make_params(attempt)`` gives the plant's parameters), run again
+    while the host's steal over it exceeds :data:`STEAL_LIMIT`; printed per attempt with
+    ``label``. Returns the attempt with the least steal, with ``attempts`` (each attempt's
+    misses, steal and exit code) and ``attempt`` (which one it is, from 1)."""
+    tried = []
+    for attempt in range(1 + STEAL_RETRIES):
+        s = run_plant(domains, make_params(attempt), timeout=timeout)
+        tried.append(s)
+        print(_realtime_line(label, s), flush=True)
+        steal = s.get('host_steal_share')
+        if steal is None or steal <= STEAL_LIMIT:
+            break
+        if attempt < STEAL_RETRIES:
+            print(f'          (host steal {100 * steal:.1f} % > {100 * STEAL_LIMIT:g} %: the '
+                  f'host, not the plant; again, attempt {attempt + 2} of '
+                  f'{1 + STEAL_RETRIES})', flush=True)
+    best = min(range(len(tried)), key=lambda i: tried[i].get('host_steal_share') or 0.0)
+    s = tried[best]
+    s['attempt'] = best + 1
+    s['attempts'] = [{'deadline_miss_rate': a.get('deadline_miss_rate'),
+                      'host_steal_share': a.get('host_steal_share'),
+                      'exit_code': a['exit_code'], 't': a['t']} for a in tried]
+    return s
+
+
+def _attempt_text(s: dict) -> str:
+    """For a target row: which attempt of a re-run case it reads (empty for the first)."""
+    n = len(s.get('attempts', ()))
+    if n < 2:
+        return ''
+    steals = ', '.join(f"{100 * (a['host_steal_share'] or 0):.1f}" for a in s['attempts'])
+    return f" [attempt {s['attempt']} of {n}, steal {steals} %]"
 
 
 def run_echo(domains: Domains, count: int, profile: str | None = None) -> dict:
@@ -463,11 +508,11 @@ def case_realtime(domains: Domains, sim_time: float) -> list[dict]:
     for model in MODELS:
         for period in (1e-4, 1e-3):
             for how, extra in (('external', {}), ('hosted', HOSTED)):
-                s = run_plant(domains, _realtime_params(model, period, sim_time, **extra),
-                              timeout=900.0)
+                s = run_steady(domains, lambda _, m=model, p=period, e=extra:
+                               _realtime_params(m, p, sim_time, **e),
+                               f'{model:10s} T={period:g} s {how:8s}')
                 s['how'] = how
                 runs.append(s)
-                print(_realtime_line(f'{model:10s} T={period:g} s {how:8s}', s), flush=True)
     return runs
 
 
@@ -475,11 +520,10 @@ def case_margin(domains: Domains, sim_time: float) -> list[dict]:
     """The hosted law at real_time_factor 2, 1e-4 s: the margin."""
     runs = []
     for model in MODELS:
-        s = run_plant(domains, _realtime_params(model, 1e-4, sim_time, real_time_factor=2.0,
-                                                **HOSTED), timeout=900.0)
+        s = run_steady(domains, lambda _, m=model: _realtime_params(
+            m, 1e-4, sim_time, real_time_factor=2.0, **HOSTED),
+            f'{model:10s} T=1e-4 s hosted, real_time_factor 2')
         runs.append(s)
-        print(_realtime_line(f'{model:10s} T=1e-4 s hosted, real_time_factor 2', s),
-              flush=True)
     return runs
 
 
@@ -531,13 +575,15 @@ def case_inplant_recording(domains: Domains, sim_time: float, quick: bool) -> di
         for model in MODELS:
             pair = {}
             for key in ('unrecorded', 'recorded'):
-                extra = {'record': f'{tmp}/{model}'} if key == 'recorded' else {}
-                s = run_plant(domains, _realtime_params(model, 1e-4, sim_time, **HOSTED,
-                                                        **extra), timeout=900.0)
+                def params(attempt: int, m: str = model, k: str = key) -> dict:
+                    extra = {'record': f'{tmp}/{m}-{attempt}'} if k == 'recorded' else {}
+                    return _realtime_params(m, 1e-4, sim_time, **HOSTED, **extra)
+
+                s = run_steady(domains, params, f'{model:10s} T=1e-4 s hosted {key:10s}')
                 s['how'] = f'hosted, {key}'
-                print(_realtime_line(f'{model:10s} T=1e-4 s hosted {key:10s}', s), flush=True)
                 pair[key] = s
-            counts = _bag_counts(Path(tmp) / model)
+            # the bag of the recorded attempt the figures read
+            counts = _bag_counts(Path(tmp) / f"{model}-{pair['recorded']['attempt'] - 1}")
             pair['bag_counts'] = counts
             pair['model'] = model
             print(f'record    {model:10s} in-plant bag: ' + ', '.join(
@@ -669,7 +715,7 @@ def targets(sim_time: float, lockstep: dict, realtime: list[dict], margin: list[
             rate: dict, inplant: dict) -> list[dict]:
     rows = []
     for s in realtime:
-        name = f"realtime {s['model']} T={s['control_period']:g} s {s['how']}"
+        name = f"realtime {s['model']} T={s['control_period']:g} s {s['how']}{_attempt_text(s)}"
         if s['how'] == 'hosted' and s['control_period'] < 5e-4:
             rows.append(_row(f'{name}: achieved real-time factor',
                              s['achieved_real_time_factor'], '>= 0.999',
@@ -684,7 +730,8 @@ def targets(sim_time: float, lockstep: dict, realtime: list[dict], margin: list[
             rows.append(_row(f'{name}: ran {sim_time:g} s, no lag stop', s['t'],
                              'completes', s['exit_code'] == 0, 'to t={:g} s'))
     for s in margin:
-        rows.append(_row(f"hosted {s['model']} T=1e-4 s real_time_factor 2: misses",
+        rows.append(_row(f"hosted {s['model']} T=1e-4 s real_time_factor 2{_attempt_text(s)}: "
+                         'misses',
                          100 * s['deadline_miss_rate'], '<= 1 %',
                          s['deadline_miss_rate'] <= 0.01, '{:.2f} %'))
     best = rate['best_rate_hz']
@@ -702,7 +749,8 @@ def targets(sim_time: float, lockstep: dict, realtime: list[dict], margin: list[
                          'commands in the bag', got[0], f'{samples + 1}/{samples + 1}/{samples}',
                          got == (samples + 1, samples + 1, samples),
                          f'{got[0]}/{got[1]}/{got[2]}'))
-        rows.append(_row(f"hosted {pair['model']} T=1e-4 s recorded in-plant: deadline misses",
+        rows.append(_row(f"hosted {pair['model']} T=1e-4 s recorded in-plant{_attempt_text(rec)}: "
+                         'deadline misses',
                          100 * rec['deadline_miss_rate'], '<= 0.1 %',
                          rec['deadline_miss_rate'] <= 0.001, '{:.2f} %'))
     demo = inplant['demo_loop']

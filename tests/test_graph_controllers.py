@@ -5,6 +5,7 @@ a bad state message dropped."""
 from __future__ import annotations
 
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -150,6 +151,68 @@ def test_controller_holds_commands_until_min_command_subscribers_match(tmp_path)
             second.close()
     assert [c[0] for c in probe.commands] == [0.0, 0.1]
     assert 'command has matched 1 of 2 required subscription(s)' in log.read_text()
+
+
+def test_first_answer_waits_for_the_command_subscription_of_the_state_publisher():
+    """Another node subscribed to ``command`` (a recorder, a viewer: here a passive probe)
+    meets ``min_command_subscribers`` before the plant's own command subscription has reached
+    the controller's process. The answer to the plant's first state must wait for that
+    subscription: sent at once it went to the other subscriber only, and a lockstep plant
+    waited for it until its command_timeout (test_graph_tune failed so under load). Here the
+    'plant' (a test node in its own process context, so its own DDS participant) creates its
+    command subscription only 0.3 s after its first state: a reliable, volatile reader that
+    joins after the sample was written never gets it."""
+    import threading
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from std_msgs.msg import Float64MultiArray
+
+    from fohssv_sim.contract import COMMAND, STATE
+    from fohssv_sim.ros.qos import profile
+
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    listener = Probe(domain, command_publisher=False)    # a command subscriber from the start
+    ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
+    context = rosproc.init_context(domain)
+    node = rclpy.create_node('late_plant', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    stop = threading.Event()
+
+    def spin() -> None:
+        while not stop.is_set() and context.ok():
+            executor.spin_once(timeout_sec=0.02)
+
+    spinner = threading.Thread(target=spin, daemon=True)
+    got: list[tuple] = []
+    try:
+        state_pub = node.create_publisher(Float64MultiArray, STATE.name, profile(STATE))
+        spinner.start()
+        # the controller's command publisher matched the listener, its state reader this node
+        listener.wait(lambda: listener.node.count_publishers(COMMAND.name) > 0
+                      and state_pub.get_subscription_count() > 0, 30, 'the controller')
+        time.sleep(0.5)          # the controller's side of the listener's match, too
+        msg = Float64MultiArray()
+        msg.data = [0.0, 0.01, 0.0, 0.0, 0.0]
+        state_pub.publish(msg)
+        listener.wait(lambda: node.count_subscribers(STATE.name) > 0, 5, 'the state reader')
+        time.sleep(0.3)
+        node.create_subscription(Float64MultiArray, COMMAND.name,
+                                 lambda m: got.append(tuple(m.data)), profile(COMMAND))
+        listener.wait(lambda: got, 30, "the answer to t=0 at the state publisher's "
+                      'command subscription, created after the state')
+        listener.wait(lambda: listener.commands, 10, 'the same answer at the listener')
+    finally:
+        stop.set()
+        spinner.join(timeout=5)
+        out = stop_all(ctl)
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+        listener.close()
+    assert got[0][0] == 0.0 and listener.commands[0] == got[0], out
 
 
 def test_controller_rejects_min_command_subscribers_below_one():

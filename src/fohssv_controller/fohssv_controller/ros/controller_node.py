@@ -107,7 +107,8 @@ class ControllerNode(Node):
                                                   self._on_state, profile(STATE), raw=True)
         self._pending: list[tuple[float, ...]] = []
         self._retry = None
-        self._matched = SubscriptionGate(self, self.command_pub, minimum=minimum)
+        self._matched = SubscriptionGate(self, self.command_pub, minimum=minimum,
+                                         follow=self.state_sub.topic_name)
         self._open = False   # True once the gate settled open: no per-sample graph queries
         self._held = HoldReporter(self, self._matched)
         self._rivals = SecondPublisherWarning(self, self.state_sub.topic_name)

@@ -67,15 +67,28 @@ class SubscriptionGate:
     The graph lists a remote subscription only once discovery has reached this process, which
     can be after the plant's first sample: ``minimum`` is the guarantee (``minimum=2`` for a
     plant and a recorder), the graph check a best effort on top of it.
+
+    ``follow`` (a topic name: the controller node's ``state``): the gate also waits, at the
+    first message it passes and for at most ``follow_grace`` s from then, until the graph lists a
+    subscription of this topic in the process of every publisher of ``follow`` and the
+    publisher has matched every listed subscription. A controller answers the plant's state;
+    the plant's ``command`` subscription can reach this process after its state did, while
+    another subscriber of ``command`` (a recorder, a viewer) already meets ``minimum``: the
+    first answer then went to that subscriber only and the lockstep plant waited for it
+    until its ``command_timeout`` (a graph test failed so under load).
     """
 
     def __init__(self, node: Node, publisher: Publisher, grace: float = 2.0,
-                 minimum: int = 1) -> None:
+                 minimum: int = 1, follow: str | None = None,
+                 follow_grace: float = 5.0) -> None:
         if minimum < 1:
             raise ValueError(f'minimum={minimum!r} must be >= 1')
         self._node, self._pub, self._grace = node, publisher, grace
         self._minimum = minimum
         self._deadline: float | None = None
+        self._follow = follow
+        self._follow_grace = follow_grace
+        self._follow_deadline: float | None = None
 
     def __call__(self) -> bool:
         matched = self._pub.get_subscription_count()
@@ -84,16 +97,38 @@ class SubscriptionGate:
             if matched < self._minimum:
                 return False
             self._deadline = now + self._grace
+        if self._follow is not None:
+            if self._follow_deadline is None:
+                self._follow_deadline = now + self._follow_grace
+            if now < self._follow_deadline:
+                if not (self._followed_listed() and matched >= self._node.count_subscribers(
+                        self._pub.topic_name)):
+                    return False
+            self._follow = None       # passed (or waited long enough): not asked again
         if now >= self._deadline:
             return True
         return matched >= self._node.count_subscribers(self._pub.topic_name)
 
+    def _followed_listed(self) -> bool:
+        """Whether every process publishing ``follow`` has a subscription of this topic in
+        the graph (processes told apart by their endpoints' GUID prefix, the first 12 bytes
+        of the endpoint GID: a node's name can be discovered after its endpoints)."""
+        node = self._node
+        sources = {bytes(i.endpoint_gid[:12])
+                   for i in node.get_publishers_info_by_topic(self._follow)}
+        if not sources:
+            return True
+        listed = {bytes(i.endpoint_gid[:12])
+                  for i in node.get_subscriptions_info_by_topic(self._pub.topic_name)}
+        return sources <= listed
+
     @property
     def settled(self) -> bool:
-        """True once the grace period has passed: from then on the gate is open, and a
-        caller that found it open may stop asking
+        """True once the grace period has passed (and a ``follow`` check with it): from then
+        on the gate is open, and a caller that found it open may stop asking
         (the controller node does, so that it makes no graph query per sample)."""
-        return self._deadline is not None and time.monotonic() >= self._deadline
+        return (self._deadline is not None and self._follow is None
+                and time.monotonic() >= self._deadline)
 
     def describe(self) -> str:
         """Why the gate is shut, for a log line."""

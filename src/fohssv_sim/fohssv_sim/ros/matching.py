@@ -100,27 +100,28 @@ class SubscriptionGate:
         if self._follow is not None:
             if self._follow_deadline is None:
                 self._follow_deadline = now + self._follow_grace
-            if now < self._follow_deadline:
-                if not (self._followed_listed() and matched >= self._node.count_subscribers(
-                        self._pub.topic_name)):
-                    return False
-            self._follow = None       # passed (or waited long enough): not asked again
+            if now < self._follow_deadline and not self._follow_met(matched):
+                return False
+            self._follow = None       # met (or waited long enough): not asked again
         if now >= self._deadline:
             return True
         return matched >= self._node.count_subscribers(self._pub.topic_name)
 
-    def _followed_listed(self) -> bool:
-        """Whether every process publishing ``follow`` has a subscription of this topic in
-        the graph (processes told apart by their endpoints' GUID prefix, the first 12 bytes
-        of the endpoint GID: a node's name can be discovered after its endpoints)."""
+    def _follow_met(self, matched: int) -> bool:
+        """Whether the graph lists a publisher of ``follow`` (the state just answered came
+        from one), every such process has a subscription of this topic in the graph, and the
+        publisher has matched every listed subscription. Processes are told apart by their
+        endpoints' GUID prefix, the first 12 bytes of the endpoint GID: a node's name can be
+        discovered after its endpoints."""
         node = self._node
+        topic = self._pub.topic_name
+        if matched < node.count_subscribers(topic):
+            return False
         sources = {bytes(i.endpoint_gid[:12])
                    for i in node.get_publishers_info_by_topic(self._follow)}
-        if not sources:
-            return True
         listed = {bytes(i.endpoint_gid[:12])
-                  for i in node.get_subscriptions_info_by_topic(self._pub.topic_name)}
-        return sources <= listed
+                  for i in node.get_subscriptions_info_by_topic(topic)}
+        return bool(sources) and sources <= listed
 
     @property
     def settled(self) -> bool:

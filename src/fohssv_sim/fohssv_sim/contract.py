@@ -76,7 +76,7 @@ COMMAND = Topic('command', FLOAT64_ARRAY, ('t', 'delta_f', 'delta_c'), ('s', 'ra
                 'reliable_commands')
 CLOCK = Topic('/clock', 'rosgraph_msgs/msg/Clock', ('clock',), ('s',),
               'simulation time, published by the plant at every published step (realtime '
-              'mode: every clock_period if set)', 'clock')
+              'mode: every clock_period if set) while someone subscribes', 'clock')
 
 TOPICS = (STATE, PLANING_FORCE, COMMAND, CLOCK)
 

@@ -61,7 +61,7 @@ from .params import ParameterError, ParameterSpec
 
 __all__ = ['Controller', 'ParameterError', 'NonFiniteCommand', 'clamp', 'DEFLECTION_LIMIT',
            'deflection_limit', 'GROUP', 'UnknownController', 'available', 'load', 'make',
-           'as_law']
+           'as_law', 'per_sample_command']
 
 #: The entry-point group of controller plugins.
 GROUP = 'fohssv.controllers'
@@ -174,6 +174,41 @@ def as_law(controller: Any) -> tuple[Callable[[float, Sequence[float]], Sequence
     if callable(controller):
         return controller, getattr(controller, '__name__', 'callable')
     raise ValueError(f'controller={controller!r} is neither a Controller nor a callable')
+
+
+def per_sample_command(controller: Controller
+                       ) -> Callable[[float, Sequence[float]], tuple[float, float]]:
+    """The controller's clamped :meth:`Controller.command` as a per-sample path calls it (the
+    hosted law in the plant, the controller node): for a law that says it is affine
+    (:meth:`Controller.affine`, e.g. eq. 31, the LQR) the same u = clamp(K x + u0, limit) as
+    one scalar expression of its gains, summed in the order of the compiled kernels' input
+    and of eq. 31's ``update`` (about 0.3 us instead of 1 us through ``update``, ``float``
+    and ``clamp``); any other controller's own ``command``. Build it again after the
+    controller's parameters change.
+
+    The affine form raises :class:`NonFiniteCommand` as ``command`` does.
+    """
+    law = controller.affine()
+    if law is None:
+        return controller.command
+    name = controller.name or type(controller).__name__
+    (a0, a1, a2, a3), (b0, b1, b2, b3) = ([float(v) for v in row] for row in law[0])
+    u0, u1 = (float(v) for v in law[1])
+    p = controller.params
+    lf = float(getattr(p, 'max_fin_deflection', math.inf))
+    lc = float(getattr(p, 'max_cavitator_deflection', math.inf))
+
+    def command(t: float, x: Sequence[float]) -> tuple[float, float]:
+        z, w, th, q = x
+        uf = (a0 * z + a1 * w + a2 * th + a3 * q) + u0
+        uc = (b0 * z + b1 * w + b2 * th + b3 * q) + u1
+        if uf - uf == 0.0 and uc - uc == 0.0:      # False for NaN and +-inf
+            return max(-lf, min(lf, uf)), max(-lc, min(lc, uc))
+        raise NonFiniteCommand(
+            f'{name}: non-finite output at t={t!r} s: delta_f={uf!r}, delta_c={uc!r} rad from '
+            f'[z, w, theta, q] = {[float(v) for v in x]}')
+
+    return command
 
 
 # -- the plugin registry ----------------------------------------------------------------------

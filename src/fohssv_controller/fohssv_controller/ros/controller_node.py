@@ -16,9 +16,11 @@ naming the stalled controller).
 
 The per-sample path (10k states/s at the default control period) skips rclpy's message
 conversion: the state arrives serialized (a raw subscription) and its doubles are unpacked at
-their known offset, the answer is written in place into one serialized ``command`` (see
-:mod:`fohssv_sim.ros.wire`), and once the command subscriptions are settled (see
-:class:`~fohssv_sim.ros.matching.SubscriptionGate`) no graph query is made per sample.
+their known offset, an affine law (eq. 31, the LQR) is evaluated as one scalar expression of
+its gains (:func:`fohssv_sim.control.per_sample_command`, as the plant hosts it), the answer is
+written in place into one serialized ``command`` (see :mod:`fohssv_sim.ros.wire`), and once
+the command subscriptions are settled (see :class:`~fohssv_sim.ros.matching.SubscriptionGate`)
+no graph query is made per sample.
 A second publisher of ``state`` (two plants on one domain and namespace, whose samples the
 controller would answer interleaved) is logged once as a warning naming the nodes.
 
@@ -28,7 +30,7 @@ Exit codes: 0 on a clean stop, 2 for an unknown controller or invalid parameters
 from __future__ import annotations
 
 import sys
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from rcl_interfaces.msg import ParameterDescriptor
@@ -37,7 +39,7 @@ from std_msgs.msg import Float64MultiArray
 
 from fohssv_sim import control
 from fohssv_sim.contract import COMMAND, STATE, ContractError, decode
-from fohssv_sim.control import Controller, NonFiniteCommand
+from fohssv_sim.control import Controller, NonFiniteCommand, per_sample_command
 from fohssv_sim.params import ParameterSpec, field_specs
 from fohssv_sim.ros.nodekit import (
     ArrayReader,
@@ -92,6 +94,8 @@ class ControllerNode(Node):
         minimum = declare(self, (MIN_COMMAND_SUBSCRIBERS,))['min_command_subscribers']
         refuse_unknown(self)
         self.controller = self._build(values)
+        # the law as the per-sample path calls it (an affine law as one scalar expression)
+        self._law = per_sample_command(self.controller)
         install_validation(self, names, self._build, self._apply)
 
         self._command = ArrayWriter(COMMAND)
@@ -138,6 +142,7 @@ class ControllerNode(Node):
 
     def _apply(self, controller: Controller) -> None:
         self.controller = controller
+        self._law = per_sample_command(controller)
         self.get_logger().info(f'parameters changed: {controller.describe()}')
 
     def _on_state(self, raw: bytes) -> None:
@@ -146,7 +151,7 @@ class ControllerNode(Node):
             t, z, w, theta, q = data
             s = t + z + w + theta + q   # NaN when any is non-finite (or the sum overflows)
             if s - s == 0.0:
-                self._answer(t, [z, w, theta, q])
+                self._answer(t, (z, w, theta, q))
                 return
         try:
             t, *x = decode(STATE, data)   # the slow path: rejects with the reason, or passes
@@ -156,14 +161,14 @@ class ControllerNode(Node):
             return
         self._answer(t, x)
 
-    def _answer(self, t: float, x: list[float]) -> None:
+    def _answer(self, t: float, x: Sequence[float]) -> None:
         last = self._last_t
+        self._last_t = t
         if last is not None and t < last:
             self.controller.reset()
             self.get_logger().info(f'state time went back to t={t!r} s: controller reset')
-        self._last_t = t
         try:
-            df, dc = self.controller.command(t, x)
+            df, dc = self._law(t, x)
         except NonFiniteCommand as exc:
             # never sent (clamped it would be a full deflection): the plant keeps its last
             # good command; in lockstep it waits, and its command_timeout names this node

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..contract import COMMAND, ContractError, decode
-from ..control import Controller, NonFiniteCommand
+from ..control import Controller, per_sample_command
 from ..models import MAX_PITCH, AffineLaw, Plant, check_state, make_plant
 from ..params import ModelParameters
 from ..simulate import steps_per_period
@@ -342,25 +342,6 @@ class Profile:
                 for i, name in enumerate(PROFILE_PARTS) if self.calls[i]}
 
 
-def _affine_command(name: str, law: AffineLaw):
-    """``command(t, x)`` of the affine law u = clamp(K x + u0, limit) as a plain scalar
-    expression (no numpy, no allocation besides the result), summed in the order of the
-    kernels' ``_input`` and of the eq. 31 controller's ``update``."""
-    a0, a1, a2, a3, b0, b1, b2, b3, u0, u1, lf, lc = (float(v) for v in law.packed)
-
-    def command(t: float, x: Sequence[float]) -> tuple[float, float]:
-        z, w, th, q = x
-        uf = (a0 * z + a1 * w + a2 * th + a3 * q) + u0
-        uc = (b0 * z + b1 * w + b2 * th + b3 * q) + u1
-        if uf - uf == 0.0 and uc - uc == 0.0:      # False for NaN and +-inf
-            return max(-lf, min(lf, uf)), max(-lc, min(lc, uc))
-        raise NonFiniteCommand(
-            f'{name}: non-finite output at t={t!r} s: delta_f={uf!r}, delta_c={uc!r} rad from '
-            f'[z, w, theta, q] = {[float(v) for v in x]}')
-
-    return command
-
-
 class HostedLaw:
     """A controller plugin run inside the plant's loop (the ``controller`` parameter): what
     ros2_control's controller manager does, read, update, write in one process.
@@ -383,8 +364,7 @@ class HostedLaw:
         self.affine = law is not None
         #: the law as the compiled kernels run it (None unless affine)
         self.law: AffineLaw | None = law
-        self.command = (_affine_command(self.name, law) if law is not None
-                        else controller.command)
+        self.command = per_sample_command(controller)
 
     def reset(self) -> None:
         """Clear the controller's memory (the plant was reset)."""

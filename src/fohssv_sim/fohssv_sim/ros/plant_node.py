@@ -250,8 +250,9 @@ class PlantNode(Node):
             self.views.publishers if self.views is not None else ())
         self.command_sub = self.command_pub = None
         if self.hosted is None:      # an external controller node answers each sample
-            on_command = (self._on_command if self.profile is None
-                          else self._on_command_profiled)
+            on_command = (self._on_command_profiled if self.profile is not None
+                          else self._on_command_lockstep if self._lockstep
+                          else self._on_command)
             self.command_sub = self.create_subscription(Float64MultiArray, COMMAND.name,
                                                         on_command, profile(COMMAND), raw=True)
             self.command_topic = self.command_sub.topic_name
@@ -401,16 +402,18 @@ class PlantNode(Node):
         return min(p.get_subscription_count() for p in self.views.publishers)
 
     def _listed_matched(self) -> bool:
-        """Every subscription the graph lists on the sample topics has matched the plant's
-        writer (a recorder or probe whose planing_force reader matches after its state reader
-        would otherwise miss the start of a short, fast run; a volatile ``command`` reader of
-        a hosted plant would miss its first commands). Best effort: after
-        :data:`_LISTED_WAIT` s with the minimums met the plant starts anyway, saying which
-        readers had not matched (one may never match, e.g. with incompatible QoS)."""
+        """Every subscription the graph lists on the sample topics and ``/clock`` has matched
+        the plant's writer (a recorder or probe whose planing_force reader matches after its
+        state reader would otherwise miss the start of a short, fast run; a volatile
+        ``command`` reader of a hosted plant would miss its first commands, and a ``/clock``
+        reader the first ``/clock`` messages, published only while someone subscribes).
+        Best effort: after :data:`_LISTED_WAIT` s with the minimums met the plant starts
+        anyway, saying which readers had not matched (one may never match, e.g. with
+        incompatible QoS)."""
         if self._minimums_since is None:
             self._minimums_since = time.monotonic()
         unmatched = [f'{pub.topic_name} ({pub.get_subscription_count()} of {listed} '
-                     'matched)' for pub in self._sample_pubs
+                     'matched)' for pub in self._sample_pubs + (self.clock_pub,)
                      if pub.get_subscription_count() < (listed := self.count_subscribers(
                          pub.topic_name))]
         if not unmatched:
@@ -540,8 +543,9 @@ class PlantNode(Node):
         if self.record is not None:   # the law's name in the bag (plot titles)
             self.record.name_controller(None if self.hosted is None
                                         else self.get_parameter('controller').value)
-        if self.hosted is not None:  # then again between chunks of samples
-            self._refresh_matched()
+        # who subscribes to /clock (and a hosted plant's command): looked at again between
+        # chunks of samples (hosted) or in the timer's checks (external controller)
+        self._refresh_matched()
         if self._free_run:           # lockstep, hosted: the spin loop runs chunks of samples
             self._publish()
             self._control()
@@ -832,7 +836,10 @@ class PlantNode(Node):
         self._published_wall = time.monotonic()
 
     def _check_lockstep_timeout(self) -> None:
-        if self._awaiting is None or not self.running:
+        if not self.running:
+            return
+        self._refresh_matched()
+        if self._awaiting is None:
             return
         now = time.monotonic()
         waited = now - self._published_wall
@@ -878,7 +885,11 @@ class PlantNode(Node):
             return
         self._take(data)
         self._awaiting = None
-        begin = monotonic()
+        self._stepped(monotonic())
+
+    def _stepped(self, begin: float) -> None:
+        """Lockstep: the awaited command was taken at ``begin`` (monotonic s): advance,
+        publish, and await the next one."""
         if not self._advance():
             return
         took = monotonic() - begin
@@ -970,11 +981,15 @@ class PlantNode(Node):
             now = monotonic()
 
     def _refresh_matched(self) -> None:
-        """Hosted: whether anyone subscribes to ``/clock`` and ``command``: a volatile topic
-        nobody reads is not published (a reader that is not there gets nothing either way; 3-5
-        us of CPU per message saved). A graph query here, between chunks, not per sample.
-        With ``record`` both are still made and put into the in-plant bag, which holds them
-        all (inplant_record.py publishes them only while wanted)."""
+        """Whether anyone subscribes to ``/clock`` (and, hosted, to ``command``): a volatile
+        topic nobody reads is not published (a reader that is not there gets nothing either
+        way; 3-5 us of CPU per message saved, on the lockstep round trip too). Looked at
+        between chunks of samples (hosted) or in the timer's checks (external controller:
+        every 10 ms in real time, every ``min(0.05 s, command_timeout / 4)`` in lockstep),
+        never per sample; at the start the plant waits for the listed ``/clock`` readers to
+        match (:meth:`_listed_matched`). With ``record`` both are still made and put into
+        the in-plant bag, which holds them all (inplant_record.py publishes them only while
+        wanted)."""
         recording = self.record is not None
         self._clock_wanted = self.clock_pub.get_subscription_count() > 0
         self._clock_on = self._clock_wanted or recording
@@ -985,6 +1000,7 @@ class PlantNode(Node):
     def _check_watchdog(self) -> None:
         if not self.running:
             return
+        self._refresh_matched()
         wd = self.options.watchdog_timeout
         if wd > 0.0 and not self._watchdog_warned and self._last_command_wall is not None:
             silent = time.monotonic() - self._last_command_wall
@@ -1000,6 +1016,30 @@ class PlantNode(Node):
         t0 = perf_counter_ns()
         self._on_command(raw)
         self.profile.add(5, perf_counter_ns() - t0)
+
+    def _on_command_lockstep(self, raw: bytes) -> None:
+        """Lockstep, external controller (the subscription's callback): the good command,
+        the one answering the awaited sample with deflections within their limits, is taken
+        with the fewest steps before the next state goes out (the round trip waits for it);
+        the rest of :meth:`_lockstep_command`'s bookkeeping comes after the state's publish,
+        while the controller works on it. Any other command goes through :meth:`_on_command`
+        (its checks, logs and counts)."""
+        data = self._command_in.read(raw)
+        if len(data) == 3 and self.running:
+            t, df, dc = data
+            o = self.options
+            if (t == self._awaiting and abs(df) <= o.max_fin_deflection
+                    and abs(dc) <= o.max_cavitator_deflection):
+                self.received += 1
+                if self.record is not None:
+                    self.record.command(raw)
+                self.sim.command = (df, dc)
+                self._last_command_t = t
+                self._awaiting = None
+                begin = self._last_command_wall = monotonic()
+                self._stepped(begin)
+                return
+        self._on_command(raw)
 
     def _on_command(self, raw: bytes) -> None:
         """A serialized ``command`` (the subscription is raw: see wire.py)."""

@@ -7,8 +7,13 @@ and its cavity move in the 3D panel, the plots draw the state and the planing fo
 
 * It subscribes to the plant's typed views (``pose``, ``twist``, ``planing_wrench``,
   ``vehicle_marker``, published every ``view_period`` of simulated time, see :mod:`.views`),
-  best effort and volatile: it never holds the plant back, and a view lost on the way is
-  skipped. It does not subscribe to ``state``: a subscriber there counts in the plant's
+  reliable, keep-last 10, volatile. The plant's view writers are keep-last, so a slow viewer
+  never holds the plant back (its oldest views are dropped instead). Reliable, not best
+  effort: the plant starts once its writers have matched the viewer's readers
+  (``min_view_subscribers``), and discovery is not symmetric in time: the viewer's side of
+  the match can complete later, and a best-effort reader drops what a writer it does not
+  know yet sends (a short run was over before that: the viewer received no view, under
+  load). A reliable reader asks for those views once it has matched. It does not subscribe to ``state``: a subscriber there counts in the plant's
   ``min_state_subscribers``, so a viewer could stand in for a controller or the recorder and
   let the plant start before they listen. The state and the planing force it serves are the
   views' numbers (exact, theta to rounding; see :mod:`.foxglove_live`).
@@ -42,7 +47,7 @@ from .viewer_options import VIEWER_PARAMETERS, ViewerOptions
 
 __all__ = ['Viewer', 'main']
 
-#: Views in flight per topic (two markers per view): best effort, so a slow viewer drops.
+#: Views kept per topic (two markers per view): keep-last, so a slow viewer drops the oldest.
 _DEPTH = 10
 
 
@@ -71,7 +76,7 @@ class Viewer(Node):
         o = self.options
         self.assembler = ViewAssembler()
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=_DEPTH,
-                         reliability=ReliabilityPolicy.BEST_EFFORT,
+                         reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
         subs = [self.create_subscription(cls, topic.name, callback, qos) for cls, topic, callback
                 in ((PoseStamped, contract.POSE, self._on_pose),

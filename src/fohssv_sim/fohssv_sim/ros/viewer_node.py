@@ -13,9 +13,10 @@ and its cavity move in the 3D panel, the plots draw the state and the planing fo
   (``min_view_subscribers``), and discovery is not symmetric in time: the viewer's side of
   the match can complete later, and a best-effort reader drops what a writer it does not
   know yet sends (a short run was over before that: the viewer received no view, under
-  load). A reliable reader asks for those views once it has matched. It does not subscribe to ``state``: a subscriber there counts in the plant's
-  ``min_state_subscribers``, so a viewer could stand in for a controller or the recorder and
-  let the plant start before they listen. The state and the planing force it serves are the
+  load). A reliable reader asks for those views once it has matched. It does not subscribe
+  to ``state``: a subscriber there counts in the plant's ``min_state_subscribers``, so a
+  viewer could stand in for a controller or the recorder and let the plant start before
+  they listen. The state and the planing force it serves are the
   views' numbers (exact, theta to rounding; see :mod:`.foxglove_live`).
 * Decimation: at most ``rate`` views per wall-clock second reach Foxglove (a timer at ``rate``
   Hz sends the newest complete view, if it is new); the plant's own decimation

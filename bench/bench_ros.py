@@ -29,6 +29,10 @@ each case is one function, so a case can be added without touching the others):
   the demo's lockstep loop recorded in-plant against unrecorded (issue 20, item 2);
 * profile (:func:`case_profile`): short real-time runs per model at 1e-4 s with the plant's
   ``profile:=1``, hosted and external: the plant's cost per sample of each part (mean us);
+* lockstep callback (:func:`case_callback`): the plant's lockstep command callback in one
+  process (``bench/plant_callback.py``: real publishers, no peer, no round trip), with
+  ``/clock`` published at every sample and without it (what the plant does with no
+  ``/clock`` reader), alternated: microseconds of CPU per sample each way;
 * normal scheduler (:func:`case_fifo`): the hosted 1e-4 s and external 1e-3 s runs again with
   ``realtime_priority:=0`` (the plant runs under SCHED_FIFO 50 by default where permitted);
 * machine floor (:func:`case_wake`, at the start and at the end of the run): a loop with the
@@ -625,6 +629,33 @@ def case_profile(domains: Domains, quick: bool) -> dict:
     return profiles
 
 
+def case_callback(domains: Domains, quick: bool) -> dict:
+    """The plant's lockstep command callback in one process, ``/clock`` published at every
+    sample against not (``bench/plant_callback.py``), alternated (3 pairs, 1 with ``quick``):
+    the median block of each run, and per pair what not publishing it saves."""
+    import statistics
+
+    script = str(HERE / 'plant_callback.py')
+    runs: dict[str, list[float]] = {'on': [], 'off': []}
+    for i in range(1 if quick else 3):
+        for clock in (('on', 'off') if i % 2 == 0 else ('off', 'on')):
+            out = subprocess.run([sys.executable, script, '--clock', clock, '--samples',
+                                  '5000' if quick else '20000'], env=domains.env(),
+                                 timeout=300, capture_output=True, text=True)
+            lines = [ln for ln in out.stdout.splitlines() if ln.startswith('{')]
+            if out.returncode != 0 or not lines:
+                raise RuntimeError(f'plant_callback exited {out.returncode}:\n{out.stderr}')
+            blocks = json.loads(lines[-1])['blocks']
+            runs[clock].append(statistics.median(b['cpu_us'] for b in blocks))
+    saved = [a - b for a, b in zip(runs['on'], runs['off'], strict=True)]
+    print('callback  plant lockstep command callback in one process (FOM, no peer), CPU us per '
+          'sample with /clock published vs not: ' + ', '.join(
+              f'{a:.1f} vs {b:.1f}' for a, b in zip(runs['on'], runs['off'], strict=True))
+          + f'; median saved {statistics.median(saved):.1f} us', flush=True)
+    return {'cpu_us_clock_on': runs['on'], 'cpu_us_clock_off': runs['off'],
+            'median_saved_us': statistics.median(saved)}
+
+
 def case_fifo(domains: Domains, sim_time: float) -> list[dict]:
     """The same runs with the normal scheduler (``realtime_priority:=0``; the plant's default
     is SCHED_FIFO 50 where permitted): the hosted law at 1e-4 s and the external node at
@@ -796,6 +827,7 @@ def main() -> int:
     rate = case_external_rate(domains, sim_time)
     inplant = case_inplant_recording(domains, sim_time, a.quick)
     profiles = case_profile(domains, a.quick)
+    callback = case_callback(domains, a.quick)
     fifo = case_fifo(domains, sim_time)
     wake_end = case_wake(sim_time, 'end')
 
@@ -819,7 +851,7 @@ def main() -> int:
         'echo': echo, 'machine_floor': {'start': wake, 'end': wake_end},
         'lockstep': lockstep, 'realtime': realtime, 'margin': margin,
         'external_rate': rate, 'inplant_recording': inplant,
-        'normal_scheduler': fifo, 'profile': profiles,
+        'normal_scheduler': fifo, 'profile': profiles, 'lockstep_callback': callback,
         'targets': rows}, indent=2) + '\n')
     print(f'wrote {a.out}')
     return 0

@@ -178,7 +178,8 @@ NODE_PARAMETERS: tuple[ParameterSpec, ...] = (
        '(published at t = k clock_period); 0 = at every sample; a whole multiple of '
        'control_period. Lockstep publishes /clock at every sample. Either mode publishes it only '
        'while someone subscribes (a volatile topic: a reader that is not there gets nothing '
-       'either way)', low=0.0, low_open=False,
+       'either way; one that matches during a run gets it from the plant\'s next look, within '
+       '10-50 ms)', low=0.0, low_open=False,
        high=1.0, high_open=False),
     _P('view_period', '-', 0.01, 's', 'simulated time between the typed views for viewers '
        '(pose, twist, planing_wrench, vehicle_marker; published at t = k view_period, both '

@@ -983,7 +983,8 @@ class PlantNode(Node):
     def _refresh_matched(self) -> None:
         """Whether anyone subscribes to ``/clock`` (and, hosted, to ``command``): a volatile
         topic nobody reads is not published (a reader that is not there gets nothing either
-        way; 3-5 us of CPU per message saved, on the lockstep round trip too). Looked at
+        way; about 5 us of CPU per message saved, on the lockstep round trip too; a reader
+        that matches during a run gets /clock from the next look). Looked at
         between chunks of samples (hosted) or in the timer's checks (external controller:
         every 10 ms in real time, every ``min(0.05 s, command_timeout / 4)`` in lockstep),
         never per sample; at the start the plant waits for the listed ``/clock`` readers to
@@ -1020,10 +1021,10 @@ class PlantNode(Node):
     def _on_command_lockstep(self, raw: bytes) -> None:
         """Lockstep, external controller (the subscription's callback): the good command,
         the one answering the awaited sample with deflections within their limits, is taken
-        with the fewest steps before the next state goes out (the round trip waits for it);
-        the rest of :meth:`_lockstep_command`'s bookkeeping comes after the state's publish,
-        while the controller works on it. Any other command goes through :meth:`_on_command`
-        (its checks, logs and counts)."""
+        with the fewest steps before the next state goes out (the round trip waits for it):
+        comparisons inline instead of :meth:`_on_command`'s, :meth:`_lockstep_command`'s and
+        :meth:`_take`'s calls (the watchdog's flag, real time only, is not looked at). Any
+        other command goes through :meth:`_on_command` (its checks, logs and counts)."""
         data = self._command_in.read(raw)
         if len(data) == 3 and self.running:
             t, df, dc = data

@@ -21,14 +21,16 @@ import sys
 import time
 
 import rclpy
+from bench_ros import MODEL_PARAMS  # this script's folder, first on sys.path
 from rclpy.parameter import Parameter
 
 from fohssv_sim.contract import COMMAND
 from fohssv_sim.ros.plant_node import PlantNode
 from fohssv_sim.ros.wire import ArrayWriter
 
-PARAMS = {'mode': 'lockstep', 'model': 'fractional', 'fractional_order': 0.85, 'speed': 75.0,
-          'step': 2e-5, 'solver': 'soe', 'duration': 0.0}
+#: the FOM of bench_ros's cases, lockstep, open-ended
+PARAMS = {'mode': 'lockstep', 'model': 'fractional', **MODEL_PARAMS['fractional'],
+          'duration': 0.0}
 
 
 def main() -> int:

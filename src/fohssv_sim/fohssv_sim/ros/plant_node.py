@@ -985,7 +985,7 @@ class PlantNode(Node):
     def _refresh_matched(self) -> None:
         """Whether anyone subscribes to ``/clock`` (and, hosted, to ``command``): a volatile
         topic nobody reads is not published (a reader that is not there gets nothing either
-        way; about 5 us of CPU per message saved, on the lockstep round trip too; a reader
+        way; 4-10 us of CPU per sample saved, on the lockstep round trip too; a reader
         that matches during a run gets /clock from the next look). Looked at
         between chunks of samples (hosted) or in the timer's checks (external controller:
         every 10 ms in real time, every ``min(0.05 s, command_timeout / 4)`` in lockstep),

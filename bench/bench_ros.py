@@ -33,6 +33,9 @@ each case is one function, so a case can be added without touching the others):
   process (``bench/plant_callback.py``: real publishers, no peer, no round trip), with
   ``/clock`` published at every sample and without it (what the plant does with no
   ``/clock`` reader), alternated: microseconds of CPU per sample each way;
+* threads (:func:`case_threads`): the bare echo and the lockstep FOM loop, each process's
+  threads' CPU sampled while its loop runs: CPU us per round trip of the Python main thread
+  and of Fast DDS's receive and event threads, echo beside loop (what the loop adds, where);
 * normal scheduler (:func:`case_fifo`): the hosted 1e-4 s and external 1e-3 s runs again with
   ``realtime_priority:=0`` (the plant runs under SCHED_FIFO 50 by default where permitted);
 * machine floor (:func:`case_wake`, at the start and at the end of the run): a loop with the
@@ -656,6 +659,115 @@ def case_callback(domains: Domains, quick: bool) -> dict:
             'median_saved_us': statistics.median(saved)}
 
 
+def _thread_cpu(pid: int) -> dict[str, float]:
+    """CPU seconds so far of the threads of process ``pid`` (Linux ``/proc``), by group: 'main'
+    (the Python thread: executor, callbacks, publishes), Fast DDS's 'dds.shm' (shared-memory
+    receive: takes each message and wakes the executor), 'dds.ev' (timed events), 'dds' (its
+    other threads) and 'other'."""
+    tick = os.sysconf('SC_CLK_TCK')
+    out: dict[str, float] = {}
+    for tid in os.listdir(f'/proc/{pid}/task'):
+        try:
+            with open(f'/proc/{pid}/task/{tid}/comm') as f:
+                name = f.read().strip()
+            with open(f'/proc/{pid}/task/{tid}/stat') as f:
+                fields = f.read().rsplit(')', 1)[1].split()
+        except OSError:           # the thread ended meanwhile
+            continue
+        if tid == str(pid):
+            key = 'main'
+        elif name.startswith(('dds.shm', 'dds.ev')):
+            key = name.rsplit('.', 1)[0] if name.count('.') > 1 else name
+        else:
+            key = 'dds' if name.startswith('dds.') else 'other'
+        out[key] = out.get(key, 0.0) + (int(fields[11]) + int(fields[12])) / tick
+    return out
+
+
+def _sample_threads(pids: dict[str, int], seconds: float) -> tuple[dict, float]:
+    """Each process's thread CPU over a window of ``seconds``: ({name: {group: s}}, wall s)."""
+    before = {k: _thread_cpu(p) for k, p in pids.items()}
+    t0 = time.monotonic()
+    time.sleep(seconds)
+    after = {k: _thread_cpu(p) for k, p in pids.items()}
+    return ({k: {g: after[k][g] - before[k].get(g, 0.0) for g in after[k]} for k in pids},
+            time.monotonic() - t0)
+
+
+def _per_trip(cpu: dict, trips: float) -> dict:
+    return {k: {g: round(1e6 * v / trips, 1) for g, v in sorted(groups.items()) if v > 0}
+            for k, groups in cpu.items()}
+
+
+def _threads_text(per: dict) -> str:
+    return ', '.join(f"{k} " + ' + '.join(f'{g} {v:.0f}' for g, v in groups.items())
+                     + f' = {sum(groups.values()):.0f}' for k, groups in per.items())
+
+
+def case_threads(domains: Domains, quick: bool) -> dict:
+    """Where a round trip's CPU goes, thread by thread: the bare echo (ping, pong) and the
+    lockstep FOM loop (plant, eq. 31 node), alternated (2 rounds, 1 with ``quick``). Each
+    process's threads are sampled over a window while its loop runs (after the ping's
+    'timing' line, after the plant's start), and divided by the round trips in the window,
+    taken as the run's rate times the window: CPU us per round trip, per thread group. What
+    the loop costs beyond the echo shows up in the threads that do it."""
+    window = 1.0 if quick else 2.0
+    rounds = []
+    for _ in range(1 if quick else 2):
+        env = domains.env()
+        script = str(HERE / 'ros_echo.py')
+        pong = subprocess.Popen([sys.executable, script, 'pong'], env=env,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
+                                start_new_session=True)
+        try:
+            ping = subprocess.Popen([sys.executable, script, 'ping', '--announce', '--count',
+                                     '15000' if quick else '40000'], env=env,
+                                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+            for line in ping.stdout:
+                if line.startswith('timing'):
+                    break
+            time.sleep(0.3)
+            cpu, seconds = _sample_threads({'ping': ping.pid, 'pong': pong.pid}, window)
+            rest = ping.communicate(timeout=300)[0]
+        finally:
+            _stop(pong)
+        lines = [ln for ln in rest.splitlines() if ln.startswith('{')]
+        if ping.returncode != 0 or not lines:
+            raise RuntimeError(f'echo ping exited {ping.returncode}:\n{rest}')
+        echo_rate = json.loads(lines[-1])['round_trips_per_second']
+        echo = _per_trip(cpu, echo_rate * seconds)
+        args = ['--ros-args']
+        for k, v in {'mode': 'lockstep', 'model': 'fractional',
+                     'duration': 1.5 if quick else 4.0, **MODEL_PARAMS['fractional']}.items():
+            args += ['-p', f'{k}:={v}']
+        ctl = subprocess.Popen([_exe('fohssv_controller', 'state_feedback')], env=env,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
+                               start_new_session=True)
+        try:
+            plant = subprocess.Popen([_exe('fohssv_sim', 'plant'), *args], env=env,
+                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                     text=True, start_new_session=True)
+            for line in plant.stdout:
+                if 'starting at t = 0' in line:
+                    break
+            time.sleep(0.3)
+            cpu, seconds = _sample_threads({'plant': plant.pid, 'controller': ctl.pid}, window)
+            rest = plant.communicate(timeout=300)[0]
+        finally:
+            _stop(ctl)
+        if plant.returncode != 0 or 'summary: {' not in rest:
+            raise RuntimeError(f'plant exited {plant.returncode}:\n{rest[-3000:]}')
+        summary = json.loads(rest.split('summary: ', 1)[1].splitlines()[0])
+        loop_rate = summary['samples_per_second']
+        loop = _per_trip(cpu, loop_rate * seconds)
+        rounds.append({'echo_round_trips_per_second': echo_rate, 'echo_cpu_us': echo,
+                       'loop_samples_per_second': loop_rate, 'loop_cpu_us': loop})
+        print(f'threads   CPU us per round trip by thread: echo ({echo_rate:.0f}/s) '
+              f'{_threads_text(echo)}; lockstep FOM loop ({loop_rate:.0f}/s) '
+              f'{_threads_text(loop)}', flush=True)
+    return {'window_s': window, 'rounds': rounds}
+
+
 def case_fifo(domains: Domains, sim_time: float) -> list[dict]:
     """The same runs with the normal scheduler (``realtime_priority:=0``; the plant's default
     is SCHED_FIFO 50 where permitted): the hosted law at 1e-4 s and the external node at
@@ -828,6 +940,7 @@ def main() -> int:
     inplant = case_inplant_recording(domains, sim_time, a.quick)
     profiles = case_profile(domains, a.quick)
     callback = case_callback(domains, a.quick)
+    threads = case_threads(domains, a.quick)
     fifo = case_fifo(domains, sim_time)
     wake_end = case_wake(sim_time, 'end')
 
@@ -852,6 +965,7 @@ def main() -> int:
         'lockstep': lockstep, 'realtime': realtime, 'margin': margin,
         'external_rate': rate, 'inplant_recording': inplant,
         'normal_scheduler': fifo, 'profile': profiles, 'lockstep_callback': callback,
+        'threads': threads,
         'targets': rows}, indent=2) + '\n')
     print(f'wrote {a.out}')
     return 0

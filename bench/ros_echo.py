@@ -54,7 +54,7 @@ def pong(node) -> Future:
     return Future()   # runs until SIGINT
 
 
-def ping(node, count: int, timeout: float) -> Future:
+def ping(node, count: int, timeout: float, announce: bool = False) -> Future:
     done = Future()
     state = ArrayWriter(STATE)
     out = state.values
@@ -91,6 +91,8 @@ def ping(node, count: int, timeout: float) -> Future:
             if time.monotonic() - matched_at < 0.5:
                 return
             node.destroy_timer(timer)
+            if announce:     # for a harness that samples the processes while the loop runs
+                print('timing', flush=True)
             start = time.perf_counter()
             pub.publish(state.payload())
         elif time.monotonic() - began > timeout:
@@ -106,10 +108,12 @@ def main() -> int:
     ap.add_argument('role', choices=('ping', 'pong'))
     ap.add_argument('--count', type=int, default=20000)
     ap.add_argument('--timeout', type=float, default=30.0, help='wait for the peer (s)')
+    ap.add_argument('--announce', action='store_true',
+                    help="ping: print a line 'timing' when the timed round trips begin")
     a = ap.parse_args()
     rclpy.init()
     node = rclpy.create_node(f'echo_{a.role}')
-    done = ping(node, a.count, a.timeout) if a.role == 'ping' else pong(node)
+    done = ping(node, a.count, a.timeout, a.announce) if a.role == 'ping' else pong(node)
     executor = make_executor()
     executor.add_node(node)
     try:

@@ -726,6 +726,8 @@ def case_threads(domains: Domains, quick: bool) -> dict:
             for line in ping.stdout:
                 if line.startswith('timing'):
                     break
+            else:
+                raise RuntimeError(f'echo ping exited {ping.wait()} before its round trips')
             time.sleep(0.3)
             cpu, seconds = _sample_threads({'ping': ping.pid, 'pong': pong.pid}, window)
             rest = ping.communicate(timeout=300)[0]
@@ -750,6 +752,8 @@ def case_threads(domains: Domains, quick: bool) -> dict:
             for line in plant.stdout:
                 if 'starting at t = 0' in line:
                     break
+            else:
+                raise RuntimeError(f'plant exited {plant.wait()} before its run started')
             time.sleep(0.3)
             cpu, seconds = _sample_threads({'plant': plant.pid, 'controller': ctl.pid}, window)
             rest = plant.communicate(timeout=300)[0]

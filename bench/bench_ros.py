@@ -660,117 +660,154 @@ def case_callback(domains: Domains, quick: bool) -> dict:
 
 
 def _thread_cpu(pid: int) -> dict[str, float]:
-    """CPU seconds so far of the threads of process ``pid`` (Linux ``/proc``), by group: 'main'
-    (the Python thread: executor, callbacks, publishes), Fast DDS's 'dds.shm' (shared-memory
-    receive: takes each message and wakes the executor), 'dds.ev' (timed events), 'dds' (its
-    other threads) and 'other'."""
-    tick = os.sysconf('SC_CLK_TCK')
+    """CPU seconds so far of the threads of process ``pid`` (Linux ``/proc``: each thread's
+    ``schedstat``, time on a CPU in nanoseconds), by group: 'main' (the Python thread:
+    executor, callbacks, publishes), Fast DDS's 'dds.shm' (shared-memory receive: takes each
+    message and wakes the executor), 'dds.ev' (timed events), 'dds' (its other threads, the
+    shared-memory watchdog included) and 'other'."""
     out: dict[str, float] = {}
     for tid in os.listdir(f'/proc/{pid}/task'):
         try:
             with open(f'/proc/{pid}/task/{tid}/comm') as f:
                 name = f.read().strip()
-            with open(f'/proc/{pid}/task/{tid}/stat') as f:
-                fields = f.read().rsplit(')', 1)[1].split()
+            with open(f'/proc/{pid}/task/{tid}/schedstat') as f:
+                ns = int(f.read().split()[0])
         except OSError:           # the thread ended meanwhile
             continue
         if tid == str(pid):
             key = 'main'
-        elif name.startswith(('dds.shm', 'dds.ev')):
-            key = name.rsplit('.', 1)[0] if name.count('.') > 1 else name
+        elif name.startswith(('dds.shm.', 'dds.ev.')) and not name.endswith('.wd'):
+            key = name.rsplit('.', 1)[0]
         else:
             key = 'dds' if name.startswith('dds.') else 'other'
-        out[key] = out.get(key, 0.0) + (int(fields[11]) + int(fields[12])) / tick
+        out[key] = out.get(key, 0.0) + ns * 1e-9
     return out
 
 
-def _sample_threads(pids: dict[str, int], seconds: float) -> tuple[dict, float]:
-    """Each process's thread CPU over a window of ``seconds``: ({name: {group: s}}, wall s)."""
-    before = {k: _thread_cpu(p) for k, p in pids.items()}
+def _sample_threads(procs: dict[str, subprocess.Popen], seconds: float
+                    ) -> tuple[dict, float, float | None]:
+    """Each process's thread CPU over a window of ``seconds`` while all of them run:
+    ({name: {group: s}}, the window's wall s, host steal share over it). Raises when one
+    of them ended within the window (its figures would be partial)."""
+    ticks = host_cpu_ticks()
+    before = {k: _thread_cpu(p.pid) for k, p in procs.items()}
     t0 = time.monotonic()
     time.sleep(seconds)
-    after = {k: _thread_cpu(p) for k, p in pids.items()}
-    return ({k: {g: after[k][g] - before[k].get(g, 0.0) for g in after[k]} for k in pids},
-            time.monotonic() - t0)
+    after = {k: _thread_cpu(p.pid) for k, p in procs.items()}
+    wall = time.monotonic() - t0
+    steal = steal_share(ticks, host_cpu_ticks())
+    ended = [k for k, p in procs.items() if p.poll() is not None]
+    if ended:
+        raise RuntimeError(f"{', '.join(ended)} ended within the {seconds:g} s window")
+    return ({k: {g: after[k].get(g, 0.0) - before[k].get(g, 0.0)
+                 for g in sorted(set(before[k]) | set(after[k]))} for k in procs},
+            wall, steal)
 
 
 def _per_trip(cpu: dict, trips: float) -> dict:
-    return {k: {g: round(1e6 * v / trips, 1) for g, v in sorted(groups.items()) if v > 0}
+    return {k: {g: round(1e6 * v / trips, 1) for g, v in groups.items()}
             for k, groups in cpu.items()}
 
 
 def _threads_text(per: dict) -> str:
-    return ', '.join(f"{k} " + ' + '.join(f'{g} {v:.0f}' for g, v in groups.items())
+    # a group under 0.05 us (a thread that hardly ran) is left out of the line, not the JSON
+    return ', '.join(f"{k} " + ' + '.join(f'{g} {v:.1f}' for g, v in groups.items()
+                                          if v >= 0.05)
                      + f' = {sum(groups.values()):.0f}' for k, groups in per.items())
+
+
+def _kill(proc: subprocess.Popen | None) -> None:
+    if proc is not None and proc.poll() is None:
+        proc.kill()
+        proc.wait()
 
 
 def case_threads(domains: Domains, quick: bool) -> dict:
     """Where a round trip's CPU goes, thread by thread: the bare echo (ping, pong) and the
     lockstep FOM loop (plant, eq. 31 node), alternated (2 rounds, 1 with ``quick``). Each
     process's threads are sampled over a window while its loop runs (after the ping's
-    'timing' line, after the plant's start), and divided by the round trips in the window,
-    taken as the run's rate times the window: CPU us per round trip, per thread group. What
-    the loop costs beyond the echo shows up in the threads that do it."""
+    'timing' line, after the plant's start) and divided by the round trips in the window,
+    taken as the run's rate times the window: CPU us per round trip, per thread group
+    (resolution: the kernel's nanosecond run times). What the loop costs beyond the echo
+    shows up in the threads that do it. The plant's own CPU per sample over its whole run
+    (its summary) is kept beside the window's, as a check of the estimate."""
     window = 1.0 if quick else 2.0
     rounds = []
     for _ in range(1 if quick else 2):
         env = domains.env()
         script = str(HERE / 'ros_echo.py')
-        pong = subprocess.Popen([sys.executable, script, 'pong'], env=env,
-                                stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
-                                start_new_session=True)
+        pong = ping = None
+        seen: list[str] = []
         try:
+            pong = subprocess.Popen([sys.executable, script, 'pong'], env=env,
+                                    stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
+                                    start_new_session=True)
             ping = subprocess.Popen([sys.executable, script, 'ping', '--announce', '--count',
-                                     '15000' if quick else '40000'], env=env,
+                                     '30000' if quick else '60000'], env=env,
                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
             for line in ping.stdout:
+                seen.append(line)
                 if line.startswith('timing'):
                     break
             else:
-                raise RuntimeError(f'echo ping exited {ping.wait()} before its round trips')
+                raise RuntimeError(f'echo ping exited {ping.wait()} before its round '
+                                   f"trips:\n{''.join(seen)}")
             time.sleep(0.3)
-            cpu, seconds = _sample_threads({'ping': ping.pid, 'pong': pong.pid}, window)
+            cpu, echo_seconds, echo_steal = _sample_threads({'ping': ping, 'pong': pong},
+                                                            window)
             rest = ping.communicate(timeout=300)[0]
         finally:
-            _stop(pong)
+            _kill(ping)
+            if pong is not None:
+                _stop(pong)
         lines = [ln for ln in rest.splitlines() if ln.startswith('{')]
         if ping.returncode != 0 or not lines:
-            raise RuntimeError(f'echo ping exited {ping.returncode}:\n{rest}')
+            raise RuntimeError(f"echo ping exited {ping.returncode}:\n{''.join(seen)}{rest}")
         echo_rate = json.loads(lines[-1])['round_trips_per_second']
-        echo = _per_trip(cpu, echo_rate * seconds)
+        echo = _per_trip(cpu, echo_rate * echo_seconds)
         args = ['--ros-args']
         for k, v in {'mode': 'lockstep', 'model': 'fractional',
                      'duration': 1.5 if quick else 4.0, **MODEL_PARAMS['fractional']}.items():
             args += ['-p', f'{k}:={v}']
-        ctl = subprocess.Popen([_exe('fohssv_controller', 'state_feedback')], env=env,
-                               stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
-                               start_new_session=True)
+        ctl = plant = None
+        seen = []
         try:
+            ctl = subprocess.Popen([_exe('fohssv_controller', 'state_feedback')], env=env,
+                                   stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
+                                   start_new_session=True)
             plant = subprocess.Popen([_exe('fohssv_sim', 'plant'), *args], env=env,
                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                      text=True, start_new_session=True)
             for line in plant.stdout:
+                seen.append(line)
                 if 'starting at t = 0' in line:
                     break
             else:
-                raise RuntimeError(f'plant exited {plant.wait()} before its run started')
+                raise RuntimeError(f'plant exited {plant.wait()} before its run started:\n'
+                                   + ''.join(seen[-40:]))
             time.sleep(0.3)
-            cpu, seconds = _sample_threads({'plant': plant.pid, 'controller': ctl.pid}, window)
+            cpu, seconds, loop_steal = _sample_threads({'plant': plant, 'controller': ctl},
+                                                       window)
             rest = plant.communicate(timeout=300)[0]
         finally:
-            _stop(ctl)
+            _kill(plant)
+            if ctl is not None:
+                _stop(ctl)
         if plant.returncode != 0 or 'summary: {' not in rest:
             raise RuntimeError(f'plant exited {plant.returncode}:\n{rest[-3000:]}')
         summary = json.loads(rest.split('summary: ', 1)[1].splitlines()[0])
         loop_rate = summary['samples_per_second']
         loop = _per_trip(cpu, loop_rate * seconds)
         rounds.append({'echo_round_trips_per_second': echo_rate, 'echo_cpu_us': echo,
-                       'loop_samples_per_second': loop_rate, 'loop_cpu_us': loop})
-        print(f'threads   CPU us per round trip by thread: echo ({echo_rate:.0f}/s) '
-              f'{_threads_text(echo)}; lockstep FOM loop ({loop_rate:.0f}/s) '
-              f'{_threads_text(loop)}', flush=True)
+                       'echo_window_s': echo_seconds, 'echo_host_steal_share': echo_steal,
+                       'loop_samples_per_second': loop_rate, 'loop_cpu_us': loop,
+                       'loop_window_s': seconds, 'loop_host_steal_share': loop_steal,
+                       'plant_cpu_per_sample_us_whole_run': summary['cpu_per_sample_us']})
+        print(f'threads   CPU us per round trip by thread: echo ({echo_rate:.0f}/s'
+              f'{_steal_text(echo_steal)}) {_threads_text(echo)}; lockstep FOM loop '
+              f'({loop_rate:.0f}/s{_steal_text(loop_steal)}) {_threads_text(loop)} (plant '
+              f"{summary['cpu_per_sample_us']:.0f} us/sample over its whole run)", flush=True)
     return {'window_s': window, 'rounds': rounds}
-
 
 def case_fifo(domains: Domains, sim_time: float) -> list[dict]:
     """The same runs with the normal scheduler (``realtime_priority:=0``; the plant's default

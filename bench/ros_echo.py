@@ -8,6 +8,8 @@ Two processes, each one rclpy node on the executor the product's nodes use
   ``command`` topic's QoS) echoing ``data[0]``, like a controller that computes nothing;
 * ``ping`` sends the first message once both directions are matched and answers every echo
   with the next message, like a lockstep plant that integrates and publishes nothing else;
+  with ``--announce`` it prints a line ``timing`` when the timed round trips begin (for a
+  harness that samples the processes meanwhile, bench_ros.py's threads case);
   after ``--count`` round trips it prints one JSON line ``{"round_trips": n, "seconds": s,
   "round_trips_per_second": r}`` and exits.
 

@@ -722,6 +722,40 @@ def _kill(proc: subprocess.Popen | None) -> None:
         proc.wait()
 
 
+def _loop_window(env: dict, peer: list[str], lead: list[str], name: str, started: str,
+                 window: float) -> tuple[dict, float, float | None, str]:
+    """Start ``peer`` then ``lead`` (commands), wait for the line of ``lead`` that contains
+    ``started``, sample both processes' threads over ``window`` s 0.3 s later
+    (:func:`_sample_threads`, as {'lead': ..., 'peer': ...}), and let ``lead`` finish: (the
+    CPU, the window's wall s, its steal, the rest of ``lead``'s output). Raises with
+    ``lead``'s output when it fails or exits early; both are stopped on any error."""
+    peer_proc = lead_proc = None
+    seen: list[str] = []
+    try:
+        peer_proc = subprocess.Popen(peer, env=env, stdout=subprocess.DEVNULL,
+                                     stderr=subprocess.STDOUT, start_new_session=True)
+        lead_proc = subprocess.Popen(lead, env=env, stdout=subprocess.PIPE,
+                                     stderr=subprocess.STDOUT, text=True,
+                                     start_new_session=True)
+        for line in lead_proc.stdout:
+            seen.append(line)
+            if started in line:
+                break
+        else:
+            raise RuntimeError(f'{name} exited {lead_proc.wait()} before its loop started:\n'
+                               + ''.join(seen[-40:]))
+        time.sleep(0.3)
+        cpu, seconds, steal = _sample_threads({'lead': lead_proc, 'peer': peer_proc}, window)
+        rest = lead_proc.communicate(timeout=300)[0]
+    finally:
+        _kill(lead_proc)
+        if peer_proc is not None:
+            _stop(peer_proc)
+    if lead_proc.returncode != 0:
+        raise RuntimeError(f'{name} exited {lead_proc.returncode}:\n{rest[-3000:]}')
+    return cpu, seconds, steal, rest
+
+
 def case_threads(domains: Domains, quick: bool) -> dict:
     """Where a round trip's CPU goes, thread by thread: the bare echo (ping, pong) and the
     lockstep FOM loop (plant, eq. 31 node), alternated (2 rounds, 1 with ``quick``). Each
@@ -732,72 +766,32 @@ def case_threads(domains: Domains, quick: bool) -> dict:
     shows up in the threads that do it. The plant's own CPU per sample over its whole run
     (its summary) is kept beside the window's, as a check of the estimate."""
     window = 1.0 if quick else 2.0
+    script = str(HERE / 'ros_echo.py')
+    args = ['--ros-args']
+    for k, v in {'mode': 'lockstep', 'model': 'fractional',
+                 'duration': 1.5 if quick else 4.0, **MODEL_PARAMS['fractional']}.items():
+        args += ['-p', f'{k}:={v}']
     rounds = []
     for _ in range(1 if quick else 2):
         env = domains.env()
-        script = str(HERE / 'ros_echo.py')
-        pong = ping = None
-        seen: list[str] = []
-        try:
-            pong = subprocess.Popen([sys.executable, script, 'pong'], env=env,
-                                    stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
-                                    start_new_session=True)
-            ping = subprocess.Popen([sys.executable, script, 'ping', '--announce', '--count',
-                                     '30000' if quick else '60000'], env=env,
-                                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-            for line in ping.stdout:
-                seen.append(line)
-                if line.startswith('timing'):
-                    break
-            else:
-                raise RuntimeError(f'echo ping exited {ping.wait()} before its round '
-                                   f"trips:\n{''.join(seen)}")
-            time.sleep(0.3)
-            cpu, echo_seconds, echo_steal = _sample_threads({'ping': ping, 'pong': pong},
-                                                            window)
-            rest = ping.communicate(timeout=300)[0]
-        finally:
-            _kill(ping)
-            if pong is not None:
-                _stop(pong)
+        cpu, echo_seconds, echo_steal, rest = _loop_window(
+            env, [sys.executable, script, 'pong'],
+            [sys.executable, script, 'ping', '--announce', '--count',
+             '30000' if quick else '60000'], 'echo ping', 'timing', window)
         lines = [ln for ln in rest.splitlines() if ln.startswith('{')]
-        if ping.returncode != 0 or not lines:
-            raise RuntimeError(f"echo ping exited {ping.returncode}:\n{''.join(seen)}{rest}")
+        if not lines:
+            raise RuntimeError(f'echo ping printed no result:\n{rest}')
         echo_rate = json.loads(lines[-1])['round_trips_per_second']
-        echo = _per_trip(cpu, echo_rate * echo_seconds)
-        args = ['--ros-args']
-        for k, v in {'mode': 'lockstep', 'model': 'fractional',
-                     'duration': 1.5 if quick else 4.0, **MODEL_PARAMS['fractional']}.items():
-            args += ['-p', f'{k}:={v}']
-        ctl = plant = None
-        seen = []
-        try:
-            ctl = subprocess.Popen([_exe('fohssv_controller', 'state_feedback')], env=env,
-                                   stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
-                                   start_new_session=True)
-            plant = subprocess.Popen([_exe('fohssv_sim', 'plant'), *args], env=env,
-                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                     text=True, start_new_session=True)
-            for line in plant.stdout:
-                seen.append(line)
-                if 'starting at t = 0' in line:
-                    break
-            else:
-                raise RuntimeError(f'plant exited {plant.wait()} before its run started:\n'
-                                   + ''.join(seen[-40:]))
-            time.sleep(0.3)
-            cpu, seconds, loop_steal = _sample_threads({'plant': plant, 'controller': ctl},
-                                                       window)
-            rest = plant.communicate(timeout=300)[0]
-        finally:
-            _kill(plant)
-            if ctl is not None:
-                _stop(ctl)
-        if plant.returncode != 0 or 'summary: {' not in rest:
-            raise RuntimeError(f'plant exited {plant.returncode}:\n{rest[-3000:]}')
+        echo = _per_trip({'ping': cpu['lead'], 'pong': cpu['peer']}, echo_rate * echo_seconds)
+        cpu, seconds, loop_steal, rest = _loop_window(
+            env, [_exe('fohssv_controller', 'state_feedback')],
+            [_exe('fohssv_sim', 'plant'), *args], 'plant', 'starting at t = 0', window)
+        if 'summary: {' not in rest:
+            raise RuntimeError(f'the plant printed no summary:\n{rest[-3000:]}')
         summary = json.loads(rest.split('summary: ', 1)[1].splitlines()[0])
         loop_rate = summary['samples_per_second']
-        loop = _per_trip(cpu, loop_rate * seconds)
+        loop = _per_trip({'plant': cpu['lead'], 'controller': cpu['peer']},
+                         loop_rate * seconds)
         rounds.append({'echo_round_trips_per_second': echo_rate, 'echo_cpu_us': echo,
                        'echo_window_s': echo_seconds, 'echo_host_steal_share': echo_steal,
                        'loop_samples_per_second': loop_rate, 'loop_cpu_us': loop,
@@ -808,6 +802,7 @@ def case_threads(domains: Domains, quick: bool) -> dict:
               f'({loop_rate:.0f}/s{_steal_text(loop_steal)}) {_threads_text(loop)} (plant '
               f"{summary['cpu_per_sample_us']:.0f} us/sample over its whole run)", flush=True)
     return {'window_s': window, 'rounds': rounds}
+
 
 def case_fifo(domains: Domains, sim_time: float) -> list[dict]:
     """The same runs with the normal scheduler (``realtime_priority:=0``; the plant's default

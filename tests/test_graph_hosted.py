@@ -134,12 +134,31 @@ def _realtime_hosted(env: dict, log: Path, **params) -> object:
         min_state_subscribers=1, end_linger=0.0, **params), env=env, log=log)
 
 
+def _follow(probe: Probe, before: StateFeedback, after: StateFeedback) -> dict[str, int]:
+    """How many of the probe's commands follow each law (those whose state the probe has and
+    for which the two laws differ); raises on a command that follows neither."""
+    states = {row[0]: row[1:] for row in list(probe.states)}
+    matched = {'before': 0, 'after': 0}
+    for t, df, dc in list(probe.commands):
+        x = states.get(t)
+        if x is None or before.command(t, x) == after.command(t, x):
+            continue
+        if (df, dc) == before.command(t, x):
+            matched['before'] += 1
+        elif (df, dc) == after.command(t, x):
+            matched['after'] += 1
+        else:
+            raise AssertionError(f'command {(t, df, dc)} follows neither gain')
+    return matched
+
+
 def test_hosted_parameters_change_at_run_time_and_the_commands_follow(tmp_path):
     domain = rosproc.unique_domain_id()
     env = rosproc.ros_env(domain)
     log = tmp_path / 'plant.log'
     probe = Probe(domain, command_publisher=False)
     plant = _realtime_hosted(env, log, duration=60.0, initial_state=[0.05, 0.0, 0.0, 0.0])
+    before, after = StateFeedback(), StateFeedback(depth_gain=10.0)
     try:
         probe.wait(lambda: len(probe.commands) >= 20, 60, 'hosted commands')
         # a request sent before the services are discovered is never answered: wait first
@@ -153,27 +172,26 @@ def test_hosted_parameters_change_at_run_time_and_the_commands_follow(tmp_path):
         assert '1.5708' in refused[0].reason, refused[0].reason
         (ok,) = probe.set_plant_parameters(**{'controller.depth_gain': 10.0})
         assert ok.successful, ok.reason
-        seen = len(probe.commands)
-        probe.wait(lambda: len(probe.commands) >= seen + 20, 30, 'commands after the change')
+        # the probe may lag the plant under load: what it receives next can still be commands
+        # sent before the change, so wait for commands (and their states) after it
+        probe.wait(lambda: _follow(probe, before, after)['after'] >= 10, 30,
+                   'commands after the change, with their states')
     finally:
         out = stop_all(plant) + log.read_text()
         probe.close()
     assert 'controller parameters changed: state_feedback(depth_gain=10' in out, out
-    states = {row[0]: row[1:] for row in probe.states}
-    before, after = StateFeedback(), StateFeedback(depth_gain=10.0)
-    matched = {'before': 0, 'after': 0}
-    for t, df, dc in probe.commands:
-        x = states.get(t)
-        if x is None or before.command(t, x) == after.command(t, x):
-            continue
-        if (df, dc) == before.command(t, x):
-            matched['before'] += 1
-        elif (df, dc) == after.command(t, x):
-            matched['after'] += 1
-        else:
-            raise AssertionError(f'command {(t, df, dc)} follows neither gain')
-    # the commands before the change follow eq. 31, those after it the new gain
+    matched = _follow(probe, before, after)
+    # the commands before the change follow eq. 31, those after it the new gain, in order
     assert matched['before'] >= 10 and matched['after'] >= 10, matched
+    times = {t: (df, dc) for t, df, dc in probe.commands}
+    states = {row[0]: row[1:] for row in probe.states}
+    old = [t for t, u in times.items() if t in states
+           and before.command(t, states[t]) != after.command(t, states[t])
+           and u == before.command(t, states[t])]
+    new = [t for t, u in times.items() if t in states
+           and before.command(t, states[t]) != after.command(t, states[t])
+           and u == after.command(t, states[t])]
+    assert max(old) < min(new), (max(old), min(new))
 
 
 def test_a_second_command_publisher_stops_a_hosted_plant(tmp_path):

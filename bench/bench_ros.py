@@ -36,6 +36,10 @@ each case is one function, so a case can be added without touching the others):
 * threads (:func:`case_threads`): the bare echo and the lockstep FOM loop, each process's
   threads' CPU sampled while its loop runs: CPU us per round trip of the Python main thread
   and of Fast DDS's receive and event threads, echo beside loop (what the loop adds, where);
+* pinned (:func:`case_pinned`): ``cpu_affinity`` in lockstep: the echo and the FOM loop
+  unpinned, then each process pinned (ping and plant on CPU 0, pong and controller on CPU 1),
+  3 rounds: the pinned loop's rate over the unpinned one's, each loop against the echo pinned
+  the same way, and the CPU per sample;
 * normal scheduler (:func:`case_fifo`): the hosted 1e-4 s and external 1e-3 s runs again with
   ``realtime_priority:=0`` (the plant runs under SCHED_FIFO 50 by default where permitted);
 * machine floor (:func:`case_wake`, at the start and at the end of the run): a loop with the
@@ -70,6 +74,7 @@ import json
 import os
 import platform
 import signal
+import statistics
 import subprocess
 import sys
 import threading
@@ -137,17 +142,18 @@ EXIT_SECOND_CONTROLLER = 7
 
 
 def run_plant(domains: Domains, plant_params: dict, timeout: float,
-              env_extra: dict | None = None) -> dict:
-    """One plant run with the eq. 31 law: through the controller node, or hosted when
-    ``plant_params`` names a ``controller``; returns the plant's summary, with the controller
-    node's CPU time per sample from the plant's start (peers matched) to its end. A run that
-    met another graph on its domain (exit 5) is repeated on the next domain (3 tries)."""
+              env_extra: dict | None = None, controller_params: dict | None = None) -> dict:
+    """One plant run with the eq. 31 law: through the controller node (with
+    ``controller_params``), or hosted when ``plant_params`` names a ``controller``; returns the
+    plant's summary, with the controller node's CPU time per sample from the plant's start
+    (peers matched) to its end. A run that met another graph on its domain (exit 5) is
+    repeated on the next domain (3 tries)."""
     for _ in range(2):
         try:
-            return _run_plant(domains, plant_params, timeout, env_extra)
+            return _run_plant(domains, plant_params, timeout, env_extra, controller_params)
         except SecondPlant as exc:
             print(f'          ({exc}; again on another domain)', flush=True)
-    return _run_plant(domains, plant_params, timeout, env_extra)
+    return _run_plant(domains, plant_params, timeout, env_extra, controller_params)
 
 
 class SecondPlant(RuntimeError):
@@ -155,13 +161,17 @@ class SecondPlant(RuntimeError):
 
 
 def _run_plant(domains: Domains, plant_params: dict, timeout: float,
-               env_extra: dict | None = None) -> dict:
+               env_extra: dict | None = None, controller_params: dict | None = None) -> dict:
     env = dict(domains.env(), **(env_extra or {}))
     args = ['--ros-args']
     for k, v in plant_params.items():
         args += ['-p', f'{k}:={v}']
+    ctl_args = ['--ros-args'] if controller_params else []
+    for k, v in (controller_params or {}).items():
+        ctl_args += ['-p', f'{k}:={v}']
     ctl = None if plant_params.get('controller') else subprocess.Popen(
-        [_exe('fohssv_controller', 'state_feedback')], env=env, stdout=subprocess.PIPE,
+        [_exe('fohssv_controller', 'state_feedback'), *ctl_args], env=env,
+        stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT, text=True, start_new_session=True)
     lines: list[str] = []
     ctl_cpu: list[float | None] = []
@@ -255,17 +265,21 @@ def _attempt_text(s: dict) -> str:
     return f" [attempt {s['attempt']} of {n}, steal {steals} %]"
 
 
-def run_echo(domains: Domains, count: int, profile: str | None = None) -> dict:
+def run_echo(domains: Domains, count: int, profile: str | None = None,
+             cpus: tuple[int, int] | None = None) -> dict:
     """The bare round-trip loop (bench/ros_echo.py) for ``count`` round trips; ``profile``: a
-    Fast DDS profile file instead of the package's (``FASTDDS_DEFAULT_PROFILES_FILE``)."""
+    Fast DDS profile file instead of the package's (``FASTDDS_DEFAULT_PROFILES_FILE``);
+    ``cpus``: the ping's and the pong's CPU (each process pinned, ``--cpu``)."""
     env = domains.env()
     if profile is not None:
         env['FASTDDS_DEFAULT_PROFILES_FILE'] = profile
     script = str(HERE / 'ros_echo.py')
-    pong = subprocess.Popen([sys.executable, script, 'pong'], env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    pin = (['--cpu', str(cpus[0])], ['--cpu', str(cpus[1])]) if cpus else ([], [])
+    pong = subprocess.Popen([sys.executable, script, 'pong', *pin[1]], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True)
     try:
-        out = subprocess.run([sys.executable, script, 'ping', '--count', str(count)],
+        out = subprocess.run([sys.executable, script, 'ping', '--count', str(count), *pin[0]],
                              env=env, timeout=300, capture_output=True, text=True)
     finally:
         _stop(pong)
@@ -756,6 +770,54 @@ def _loop_window(env: dict, peer: list[str], lead: list[str], name: str, started
     return cpu, seconds, steal, rest
 
 
+def case_pinned(domains: Domains, quick: bool) -> dict:
+    """``cpu_affinity`` in lockstep, side by side: each round the bare echo and the lockstep FOM
+    loop (eq. 31 node) unpinned, then both pinned (ping and plant on CPU 0, pong and
+    controller on CPU 1: ``--cpu`` / ``cpu_affinity``), 3 rounds (1 with ``quick``). Pinning
+    speeds the echo too, so the loop is compared with the echo pinned the same way; the gain
+    of pinning is the pinned loop's rate over the unpinned one's in the same round, and the
+    CPU per sample of both processes. Skipped where this process may not use CPUs 0 and 1."""
+    usable = set(os.sched_getaffinity(0))
+    if not {0, 1} <= usable:
+        print(f'pinned    skipped: this process may use CPUs {sorted(usable)}, not 0 and 1',
+              flush=True)
+        return {'skipped': True}
+    count = 5000 if quick else 20000
+    params = {'mode': 'lockstep', 'model': 'fractional', 'duration': 1.0 if quick else 3.0,
+              **MODEL_PARAMS['fractional']}
+    rounds = []
+    for _ in range(1 if quick else 3):
+        row = {}
+        for key, cpus in (('unpinned', None), ('pinned', (0, 1))):
+            echo = run_echo(domains, count, cpus=cpus)['round_trips_per_second']
+            s = run_plant(domains, {**params, **({'cpu_affinity': 0} if cpus else {})},
+                          timeout=600.0,
+                          controller_params={'cpu_affinity': 1} if cpus else None)
+            row[key] = {'echo': echo, 'samples_per_second': s['samples_per_second'],
+                        'ratio_to_echo': s['samples_per_second'] / echo,
+                        'plant_cpu_per_sample_us': s['cpu_per_sample_us'],
+                        'controller_cpu_per_sample_us': s.get('controller_cpu_per_sample_us'),
+                        'host_steal_share': s.get('host_steal_share')}
+        row['gain'] = row['pinned']['samples_per_second'] / row['unpinned']['samples_per_second']
+        rounds.append(row)
+        print('pinned    lockstep FOM ' + '; '.join(
+            f"{k}: echo {r['echo']:.0f}/s, loop {r['samples_per_second']:.0f}/s "
+            f"({r['ratio_to_echo']:.2f} of it), CPU plant {r['plant_cpu_per_sample_us']:.0f} / "
+            f"controller {r['controller_cpu_per_sample_us'] or 0:.0f} us/sample"
+            + _steal_text(r['host_steal_share'])
+            for k, r in ((k, row[k]) for k in ('unpinned', 'pinned')))
+            + f"; pinned loop / unpinned {row['gain']:.2f}", flush=True)
+    out = {'rounds': rounds}
+    for key in ('gain',):
+        out[key] = statistics.median(r[key] for r in rounds)
+    for key in ('unpinned', 'pinned'):
+        out[f'{key}_ratio_to_echo'] = statistics.median(r[key]['ratio_to_echo'] for r in rounds)
+    print(f"pinned    median of {len(rounds)}: pinned loop / unpinned loop {out['gain']:.2f}; "
+          f"loop / echo unpinned {out['unpinned_ratio_to_echo']:.2f}, pinned "
+          f"{out['pinned_ratio_to_echo']:.2f}", flush=True)
+    return out
+
+
 def case_threads(domains: Domains, quick: bool) -> dict:
     """Where a round trip's CPU goes, thread by thread: the bare echo (ping, pong) and the
     lockstep FOM loop (plant, eq. 31 node), alternated (2 rounds, 1 with ``quick``). Each
@@ -977,6 +1039,7 @@ def main() -> int:
     profiles = case_profile(domains, a.quick)
     callback = case_callback(domains, a.quick)
     threads = case_threads(domains, a.quick)
+    pinned = case_pinned(domains, a.quick)
     fifo = case_fifo(domains, sim_time)
     wake_end = case_wake(sim_time, 'end')
 
@@ -1001,7 +1064,7 @@ def main() -> int:
         'lockstep': lockstep, 'realtime': realtime, 'margin': margin,
         'external_rate': rate, 'inplant_recording': inplant,
         'normal_scheduler': fifo, 'profile': profiles, 'lockstep_callback': callback,
-        'threads': threads,
+        'threads': threads, 'pinned': pinned,
         'targets': rows}, indent=2) + '\n')
     print(f'wrote {a.out}')
     return 0

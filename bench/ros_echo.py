@@ -10,6 +10,8 @@ Two processes, each one rclpy node on the executor the product's nodes use
   with the next message, like a lockstep plant that integrates and publishes nothing else;
   with ``--announce`` it prints a line ``timing`` when the timed round trips begin (for a
   harness that samples the processes meanwhile, bench_ros.py's threads case);
+  with ``--cpu N`` either role pins its process's threads to CPU N once its node, publisher
+  and subscription exist, as a node's ``cpu_affinity`` does (bench_ros.py's pinned case);
   after ``--count`` round trips it prints one JSON line ``{"round_trips": n, "seconds": s,
   "round_trips_per_second": r}`` and exits.
 
@@ -35,7 +37,7 @@ from std_msgs.msg import Float64MultiArray
 
 from fohssv_sim.contract import COMMAND, STATE
 from fohssv_sim.ros.qos import profile
-from fohssv_sim.ros.spin import make_executor, spin_until
+from fohssv_sim.ros.spin import make_executor, pin_threads, spin_until
 from fohssv_sim.ros.wire import ArrayReader, ArrayWriter
 
 STATE_TOPIC, COMMAND_TOPIC = 'echo_state', 'echo_command'
@@ -112,10 +114,14 @@ def main() -> int:
     ap.add_argument('--timeout', type=float, default=30.0, help='wait for the peer (s)')
     ap.add_argument('--announce', action='store_true',
                     help="ping: print a line 'timing' when the timed round trips begin")
+    ap.add_argument('--cpu', type=int, default=None,
+                    help="pin the process's threads to this CPU (as cpu_affinity does)")
     a = ap.parse_args()
     rclpy.init()
     node = rclpy.create_node(f'echo_{a.role}')
     done = ping(node, a.count, a.timeout, a.announce) if a.role == 'ping' else pong(node)
+    if a.cpu is not None:
+        pin_threads((a.cpu,))
     executor = make_executor()
     executor.add_node(node)
     try:

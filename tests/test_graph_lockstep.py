@@ -10,6 +10,7 @@ operations in the same order).
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -171,3 +172,60 @@ def test_sigint_during_a_lockstep_run_stops_cleanly(tmp_path):
         assert 'FATAL' not in text and 'Traceback' not in text, text
     for _, _, logs in runs:
         assert 'interrupted; stopping cleanly. summary:' in logs[0].read_text()
+
+
+def _cpus_allowed(pid: int) -> dict[int, str]:
+    """Each thread of a process and the CPUs it may run on (``Cpus_allowed_list``)."""
+    out = {}
+    for tid in os.listdir(f'/proc/{pid}/task'):
+        try:
+            with open(f'/proc/{pid}/task/{tid}/status') as f:
+                out[int(tid)] = next(ln.split(':', 1)[1].strip() for ln in f
+                                     if ln.startswith('Cpus_allowed_list:'))
+        except (FileNotFoundError, ProcessLookupError):   # a thread that ended meanwhile
+            continue
+    return out
+
+
+def test_cpu_affinity_pins_every_thread_and_the_run_is_unchanged(tmp_path):
+    """cpu_affinity on the plant and the controller node: every thread of each process (DDS's
+    included, and those started after the pin, at matching) runs only on its CPU while the
+    lockstep run gives the batch runner's samples; the plant's summary names its CPUs."""
+    usable = sorted(os.sched_getaffinity(0))
+    plant_cpu, ctl_cpu = usable[-1], usable[0]       # two CPUs where there are two
+    duration = 0.1
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    probe = Probe(domain)
+    plant_log, ctl_log = tmp_path / 'plant.log', tmp_path / 'controller.log'
+    plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+        model='fractional', duration=duration, min_state_subscribers=2, end_linger=60.0,
+        cpu_affinity=plant_cpu), env=env, log=plant_log)
+    ctl = None
+    try:
+        rosproc.wait_for(lambda: 'cpu_affinity: ' in plant_log.read_text(), 60,
+                         what="the plant's pin")
+        ctl = rosproc.start('fohssv_controller', 'state_feedback',
+                            ['--ros-args', '-p', f'cpu_affinity:={ctl_cpu}'], env=env, log=ctl_log)
+        rosproc.wait_for(lambda: 'cpu_affinity: ' in ctl_log.read_text(), 60,
+                         what="the controller's pin")
+        n = round(duration / 1e-4) + 1
+        probe.wait(lambda: (len(probe.states) >= n and len(probe.forces) >= n)
+                   or plant.poll() is not None, 90, f'{n} samples at the probe')
+        threads = {'plant': _cpus_allowed(plant.pid), 'controller': _cpus_allowed(ctl.pid)}
+        out = stop_all(plant) + plant_log.read_text()
+        assert plant.returncode == 0 and 'stopping cleanly at t=' in out, out
+    finally:
+        stop_all(plant, ctl)
+        probe.close()
+    for name, cpu in (('plant', plant_cpu), ('controller', ctl_cpu)):
+        cpus = threads[name]
+        assert len(cpus) >= 5 and set(cpus.values()) == {str(cpu)}, (name, cpus)
+    assert f'threads run on CPU {plant_cpu}' in plant_log.read_text()
+    assert f'threads run on CPU {ctl_cpu}' in ctl_log.read_text()
+    summary = json.loads(plant_log.read_text().split('summary: ', 1)[1].splitlines()[0])
+    assert summary['cpu_affinity'] == [plant_cpu]
+    ref, fref = batch_samples('fractional', StateFeedback(), duration)
+    states, forces = probe.state_array(), np.array(probe.forces)
+    assert states.shape == ref.shape
+    assert np.max(np.abs(states - ref)) <= TOL and np.max(np.abs(forces - fref)) <= TOL

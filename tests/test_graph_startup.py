@@ -83,6 +83,13 @@ def bad_parameter_cases(tmp):
          'max_cavitator_deflection=3.0 is outside the allowed range (0, 1.5708] rad'),
         ('controller', ['-p', 'depth_gain:=high'],
          "depth_gain='high' is a string, not a number; allowed: (-inf, inf) rad/m"),
+        # cpu_affinity: CPUs this process may use (none has a CPU 100000)
+        ('plant', ['-p', 'cpu_affinity:=100000'], 'cpu_affinity=100000 names CPU 100000, '
+         "which this process may not use (it may use CPU 0"),
+        ('controller', ['-p', 'cpu_affinity:=first'], "cpu_affinity='first' is not a CPU "
+         "number or a list of them (this process may use CPU 0"),
+        ('controller', ['-p', 'cpu_affinity:=[0, 100000]'], 'cpu_affinity=[0, 100000] names '
+         'CPU 100000,'),
         ('controller', ['-p', 'min_command_subscribers:=0'],
          'min_command_subscribers=0 is outside the allowed range [1, 1000]'),
         ('recorder', ['-p', 'flush_period:=abc', '-p', f'bag_path:={bag}'],

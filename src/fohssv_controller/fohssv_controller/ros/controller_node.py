@@ -23,6 +23,8 @@ the command subscriptions are settled (see :class:`~fohssv_sim.ros.matching.Subs
 no graph query is made per sample.
 A second publisher of ``state`` (two plants on one domain and namespace, whose samples the
 controller would answer interleaved) is logged once as a warning naming the nodes.
+``cpu_affinity`` (as the plant's: ``''`` not pinned, or CPUs such as ``1`` or ``'0,2-3'``) pins
+every thread of the process once the node, its publisher and its subscription exist.
 
 Exit codes: 0 on a clean stop, 2 for an unknown controller or invalid parameters.
 """
@@ -42,6 +44,7 @@ from fohssv_sim.contract import COMMAND, STATE, ContractError, decode
 from fohssv_sim.control import Controller, NonFiniteCommand, per_sample_command
 from fohssv_sim.params import ParameterSpec, field_specs
 from fohssv_sim.ros.nodekit import (
+    CPU_AFFINITY,
     ArrayReader,
     ArrayWriter,
     HoldReporter,
@@ -53,6 +56,7 @@ from fohssv_sim.ros.nodekit import (
     destroy_on_error,
     final_log,
     install_validation,
+    pin_node,
     profile,
     refuse_unknown,
     run_node,
@@ -91,7 +95,8 @@ class ControllerNode(Node):
         names = tuple(s.name for s in specs)
         values = declare(self, specs)
         # until the plant's (and a recorder's) subscription is matched a publish is lost
-        minimum = declare(self, (MIN_COMMAND_SUBSCRIBERS,))['min_command_subscribers']
+        own = declare(self, (MIN_COMMAND_SUBSCRIBERS, CPU_AFFINITY))
+        minimum = own['min_command_subscribers']
         refuse_unknown(self)
         self.controller = self._build(values)
         # the law as the per-sample path calls it (an affine law as one scalar expression)
@@ -127,6 +132,7 @@ class ControllerNode(Node):
         self._log_withheld = LogLimiter(logger, _LOG_EACH)
         self._log_raised = LogLimiter(logger, _LOG_EACH)
         self.get_logger().info(f'controller {self.controller.describe()}')
+        pin_node(self, CPU_AFFINITY.validate(own['cpu_affinity']))
 
     def _plugin(self, default_controller: str) -> type[Controller]:
         declare_rows(self, [(
@@ -230,7 +236,7 @@ def main(args: list[str] | None = None,
                   f'{node.raised} raised by the law')
 
     sys.exit(run_node('controller', args, lambda: ControllerNode(default_controller),
-                      specs=(*specs, MIN_COMMAND_SUBSCRIBERS),
+                      specs=(*specs, MIN_COMMAND_SUBSCRIBERS, CPU_AFFINITY),
                       refused=(control.UnknownController,), on_exit=on_exit))
 
 

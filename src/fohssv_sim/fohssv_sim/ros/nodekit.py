@@ -38,6 +38,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from ..params import ParameterSpec
 from .matching import HoldReporter, SecondPublisherWarning, SubscriptionGate
+from .options import CPU_AFFINITY
 from .qos import offered_qos, profile
 from .ros_params import declare, install_validation
 from .spin import (
@@ -45,6 +46,7 @@ from .spin import (
     PausedCollector,
     final_log,
     make_executor,
+    pin_threads,
     set_realtime_priority,
     spin_until,
     tighten_timer_slack,
@@ -67,9 +69,18 @@ __all__ = ['run_node', 'spin_node', 'EXIT_OK', 'EXIT_BAD_PARAMETERS',
            'spin_until', 'STOP', 'final_log', 'SubscriptionGate', 'HoldReporter',
            'SecondPublisherWarning',
            'PausedCollector', 'set_realtime_priority', 'tighten_timer_slack', 'init', 'report',
-           'LogLimiter']
+           'LogLimiter', 'pin_node', 'CPU_AFFINITY']
 
 EXIT_OK = 0
+
+
+def pin_node(node: Any, cpus: tuple[int, ...]) -> None:
+    """Pin every thread of the node's process to ``cpus`` (its validated ``cpu_affinity``;
+    ``()`` leaves the scheduler's choice) and say so in one line."""
+    if cpus:
+        threads = pin_threads(cpus)
+        node.get_logger().info(f"cpu_affinity: the process's {threads} threads run on CPU "
+                               f"{','.join(map(str, cpus))}")
 
 
 class LogLimiter:

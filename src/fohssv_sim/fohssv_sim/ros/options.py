@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from dataclasses import dataclass
 from typing import Any
 
@@ -35,7 +36,8 @@ from ..params import (
 )
 
 __all__ = ['MODES', 'NODE_PARAMETERS', 'NODE_PARAMETER_BY_NAME', 'StateSpec', 'FlagSpec',
-           'TextSpec', 'NamesSpec', 'TableOptions', 'PlantOptions', 'check_options',
+           'TextSpec', 'NamesSpec', 'CpusSpec', 'CPU_AFFINITY', 'usable_cpus', 'TableOptions',
+           'PlantOptions', 'check_options',
            'clock_samples', 'view_samples', 'ros_type_name', 'whole_number']
 
 #: The plant node's two modes.
@@ -131,14 +133,107 @@ class NamesSpec(ParameterSpec):
         return tuple(value)
 
 
+def usable_cpus() -> tuple[int, ...]:
+    """The CPUs this process may run on (``os.sched_getaffinity``; all CPUs where that is
+    not available)."""
+    try:
+        return tuple(sorted(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return tuple(range(os.cpu_count() or 1))
+
+
+@dataclass(frozen=True)
+class CpusSpec(ParameterSpec):
+    """A set of CPUs (a ROS parameter typed at run time: a CPU number such as ``1``, a list
+    in ``taskset -c`` form such as ``'0,2-3'``, an integer array, or ``''`` for none). Its value
+    is the sorted tuple of CPU numbers (``()`` for none); each must be one this process may
+    run on."""
+
+    numeric: bool = False
+
+    def range_text(self) -> str:
+        return ("'' (not pinned), a CPU number or a list such as '0,2-3' of CPUs this "
+                'process may use')
+
+    def validate(self, value: Any) -> tuple[int, ...]:
+        """Return the CPUs as a sorted tuple.
+
+        Raises:
+            ParameterError: not CPU numbers, or a CPU this process may not use.
+        """
+        cpus = self._parse(value)
+        usable = usable_cpus()
+        if cpus is None:
+            raise self.refuse(value, 'is not a CPU number or a list of them (this process may '
+                              f'use CPU {_ranges(usable)})')
+        outside = [c for c in cpus if c not in usable]
+        if outside:
+            raise self.refuse(value, f'names CPU {_ranges(outside)}, which this process may '
+                              f'not use (it may use CPU {_ranges(usable)})')
+        return cpus
+
+    @staticmethod
+    def _parse(value: Any) -> tuple[int, ...] | None:
+        if isinstance(value, bool):
+            return None
+        if isinstance(value, int):
+            items: list[Any] = [value]
+        elif isinstance(value, str):
+            items = [p.strip() for p in value.split(',')] if value.strip() else []
+        elif isinstance(value, (list, tuple)) or hasattr(value, 'tolist'):
+            items = list(value)
+        else:
+            return None
+        cpus: set[int] = set()
+        for item in items:
+            if isinstance(item, bool):
+                return None
+            if isinstance(item, int):
+                first = last = item
+            elif isinstance(item, str):
+                lo, dash, hi = item.partition('-')
+                if not (lo.isdigit() and (not dash or hi.isdigit())):
+                    return None
+                first, last = int(lo), int(hi) if dash else int(lo)
+            else:
+                return None
+            if first < 0 or last < first:
+                return None
+            cpus.update(range(first, last + 1))
+        return tuple(sorted(cpus))
+
+
+def _ranges(cpus: Any) -> str:
+    """CPU numbers in ``taskset -c`` form: ``0-3,6``."""
+    out: list[str] = []
+    for c in sorted(cpus):
+        if out and out[-1][1] == c - 1:
+            out[-1] = (out[-1][0], c)
+        else:
+            out.append((c, c))
+    return ','.join(f'{a}' if a == b else f'{a}-{b}' for a, b in out)
+
+
+#: The CPUs a node's threads run on: the plant's and the controller nodes' row.
+CPU_AFFINITY = CpusSpec(
+    'cpu_affinity', '-', '', '-', "CPUs the node's threads run on (every thread of the "
+    "process, DDS's too, pinned at start, as ros2_control's controller manager pins its loop "
+    "with its cpu_affinity); '' = not pinned, the scheduler's choice. In lockstep with an "
+    'external controller, the plant on one CPU and the controller node on another keeps each '
+    "process's hand-over from DDS to its callback on one CPU (on a 2-core machine: plant 0, "
+    'controller 1)')
+
+
 #: The ROS types of the row kinds that are not plain numbers or names.
-_TYPE_OF_KIND = ((StateSpec, 'double[]'), (NamesSpec, 'string[]'), (FlagSpec, 'bool'))
+_TYPE_OF_KIND = ((StateSpec, 'double[]'), (NamesSpec, 'string[]'), (FlagSpec, 'bool'),
+                 (CpusSpec, 'integer, string or integer[]'))
 
 
 def ros_type_name(spec: ParameterSpec) -> str:
     """The ROS parameter type of a table row: ``double``, ``integer``, ``string``, ``string or
     double`` (dynamically typed: a name or a number), ``double[]`` (a state), ``bool`` (a
-    switch) or ``string[]`` (a list of names). The one rule;
+    switch), ``string[]`` (a list of names) or ``integer, string or integer[]``
+    (CPUs: dynamically typed). The one rule;
     :func:`fohssv_sim.ros.ros_params.ros_type` maps it to rclpy's ``ParameterType``."""
     for kind, name in _TYPE_OF_KIND:
         if isinstance(spec, kind):
@@ -261,6 +356,7 @@ NODE_PARAMETERS: tuple[ParameterSpec, ...] = (
        'between the plant and its writer process; when it is full a lockstep plant waits for '
        'the writer, a realtime plant counts and logs the lost messages (exit code 8)',
        low=4096.0, low_open=False, high=float(2 ** 30), high_open=False),
+    CPU_AFFINITY,
     _P('end_linger', '-', 1.0, 's', 'wall time the plant keeps its publishers after the run '
        'ended, so a subscriber that lags (a recorder, a plotter) can still take the last '
        'samples: Fast DDS drops the samples a reader has not taken when their writer goes '
@@ -373,6 +469,7 @@ class PlantOptions:
     max_command_lag: float = _f('max_command_lag')
     record: str = _f('record')
     record_buffer: int = _f('record_buffer')
+    cpu_affinity: tuple = _f('cpu_affinity')
     end_linger: float = _f('end_linger')
 
     def __post_init__(self) -> None:

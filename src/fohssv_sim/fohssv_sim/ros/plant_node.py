@@ -105,6 +105,7 @@ from .nodekit import (
     final_log,
     install_validation,
     make_executor,
+    pin_node,
     profile,
     refuse_unknown,
     run_node,
@@ -1210,6 +1211,7 @@ class PlantNode(Node):
             'rejected_commands': self.rejected, 'ignored_commands': self.ignored,
             'controller': self.options.controller or 'external',
             'publish_retries': self.publish_retries,
+            'cpu_affinity': list(self.options.cpu_affinity),
         }
         if self.hosted is not None:
             s.update(hosted_commands=self.commanded, commands_published=self.commands_sent,
@@ -1353,6 +1355,7 @@ def _run(node: PlantNode) -> int:
     and linger; the node's exit code."""
     executor = make_executor()
     executor.add_node(node)
+    pin_node(node, node.options.cpu_affinity)   # after the in-plant writer started: not it
     if node.options.mode == 'realtime':
         tighten_timer_slack()
         refused = set_realtime_priority(node.options.realtime_priority)

@@ -56,6 +56,7 @@ _ROS_TYPES = {'double[]': ParameterType.PARAMETER_DOUBLE_ARRAY,
               'string[]': ParameterType.PARAMETER_STRING_ARRAY,
               'bool': ParameterType.PARAMETER_BOOL,
               'string or double': ParameterType.PARAMETER_NOT_SET,
+              'integer, string or integer[]': ParameterType.PARAMETER_NOT_SET,
               'string': ParameterType.PARAMETER_STRING,
               'integer': ParameterType.PARAMETER_INTEGER,
               'double': ParameterType.PARAMETER_DOUBLE}

@@ -21,7 +21,7 @@ from rclpy.executors import Executor
 from rclpy.task import Future
 
 __all__ = ['Paced', 'make_executor', 'spin_until', 'tighten_timer_slack', 'final_log',
-           'StopSignal', 'STOP']
+           'StopSignal', 'STOP', 'pin_threads']
 
 _PR_SET_TIMERSLACK = 29
 
@@ -186,6 +186,27 @@ def set_realtime_priority(priority: int) -> str | None:
     except OSError as exc:
         return f'SCHED_FIFO priority {priority} not permitted ({exc.strerror})'
     return None
+
+
+def pin_threads(cpus: tuple[int, ...]) -> int:
+    """Pin every thread of this process to ``cpus`` (``sched_setaffinity`` of each thread in
+    ``/proc/self/task``: rclpy's and DDS's threads already exist when a node reads its
+    parameters; threads started later inherit it from the thread that starts them). Returns
+    the number of threads pinned; ``()`` pins nothing.
+
+    Raises:
+        OSError: a CPU the process may not use (the validated value has none).
+    """
+    if not cpus:
+        return 0
+    pinned = 0
+    for tid in sorted(int(t) for t in os.listdir('/proc/self/task')):
+        try:
+            os.sched_setaffinity(tid, cpus)
+        except ProcessLookupError:       # a thread that ended meanwhile
+            continue
+        pinned += 1
+    return pinned
 
 
 def final_log(name: str, text: str) -> None:

@@ -971,7 +971,7 @@ def floor_rows(start: dict, end: dict) -> list[dict]:
 
 
 def targets(sim_time: float, lockstep: dict, realtime: list[dict], margin: list[dict],
-            rate: dict, inplant: dict) -> list[dict]:
+            rate: dict, inplant: dict, pinned: dict | None = None) -> list[dict]:
     rows = []
     for s in realtime:
         name = f"realtime {s['model']} T={s['control_period']:g} s {s['how']}{_attempt_text(s)}"
@@ -999,6 +999,10 @@ def targets(sim_time: float, lockstep: dict, realtime: list[dict], margin: list[
     fom = lockstep['fractional']
     rows.append(_row('lockstep FOM external node / bare DDS round trips',
                      fom['ratio_to_echo'], '>= 0.85', fom['ratio_to_echo'] >= 0.85, '{:.2f}'))
+    if pinned and not pinned.get('skipped'):   # the same, both loops pinned (case_pinned)
+        r = pinned['pinned_ratio_to_echo']
+        rows.append(_row(f"the same, loop and echo pinned (cpu_affinity; median of "
+                         f"{len(pinned['rounds'])})", r, '>= 0.85', r >= 0.85, '{:.2f}'))
     samples = round(sim_time / 1e-4)
     for pair in inplant['realtime_hosted']:
         counts, rec = pair['bag_counts'], pair['recorded']
@@ -1043,7 +1047,7 @@ def main() -> int:
     fifo = case_fifo(domains, sim_time)
     wake_end = case_wake(sim_time, 'end')
 
-    rows = targets(sim_time, lockstep, realtime, margin, rate, inplant)
+    rows = targets(sim_time, lockstep, realtime, margin, rate, inplant, pinned)
     rows += floor_rows(wake, wake_end)
     print(f"\nissue 20 targets (this run; bare DDS echo {echo['round_trips_per_second']:.0f} "
           'round trips/s here: scale by it for another machine):')

@@ -773,7 +773,8 @@ def _loop_window(env: dict, peer: list[str], lead: list[str], name: str, started
 def case_pinned(domains: Domains, quick: bool) -> dict:
     """``cpu_affinity`` in lockstep, side by side: each round the bare echo and the lockstep FOM
     loop (eq. 31 node) unpinned, then both pinned (ping and plant on CPU 0, pong and
-    controller on CPU 1: ``--cpu`` / ``cpu_affinity``), 3 rounds (1 with ``quick``). Pinning
+    controller on CPU 1: ``--cpu`` / ``cpu_affinity``), 3 rounds (1 with ``quick``), which
+    pair goes first alternating; each loop against the echo run just before it. Pinning
     speeds the echo too, so the loop is compared with the echo pinned the same way; the gain
     of pinning is the pinned loop's rate over the unpinned one's in the same round, and the
     CPU per sample of both processes. Skipped where this process may not use CPUs 0 and 1."""
@@ -786,9 +787,10 @@ def case_pinned(domains: Domains, quick: bool) -> dict:
     params = {'mode': 'lockstep', 'model': 'fractional', 'duration': 1.0 if quick else 3.0,
               **MODEL_PARAMS['fractional']}
     rounds = []
-    for _ in range(1 if quick else 3):
+    for n in range(1 if quick else 3):
         row = {}
-        for key, cpus in (('unpinned', None), ('pinned', (0, 1))):
+        order = (('unpinned', None), ('pinned', (0, 1)))
+        for key, cpus in order if n % 2 == 0 else order[::-1]:   # each first in turn
             echo = run_echo(domains, count, cpus=cpus)['round_trips_per_second']
             s = run_plant(domains, {**params, **({'cpu_affinity': 0} if cpus else {})},
                           timeout=600.0,
@@ -807,9 +809,7 @@ def case_pinned(domains: Domains, quick: bool) -> dict:
             + _steal_text(r['host_steal_share'])
             for k, r in ((k, row[k]) for k in ('unpinned', 'pinned')))
             + f"; pinned loop / unpinned {row['gain']:.2f}", flush=True)
-    out = {'rounds': rounds}
-    for key in ('gain',):
-        out[key] = statistics.median(r[key] for r in rounds)
+    out = {'rounds': rounds, 'gain': statistics.median(r['gain'] for r in rounds)}
     for key in ('unpinned', 'pinned'):
         out[f'{key}_ratio_to_echo'] = statistics.median(r[key]['ratio_to_echo'] for r in rounds)
     print(f"pinned    median of {len(rounds)}: pinned loop / unpinned loop {out['gain']:.2f}; "

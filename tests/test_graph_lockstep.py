@@ -192,7 +192,9 @@ def test_cpu_affinity_pins_every_thread_and_the_run_is_unchanged(tmp_path):
     included, and those started after the pin, at matching) runs only on its CPU while the
     lockstep run gives the batch runner's samples; the plant's summary names its CPUs."""
     usable = sorted(os.sched_getaffinity(0))
-    plant_cpu, ctl_cpu = usable[-1], usable[0]       # two CPUs where there are two
+    if len(usable) < 2:
+        pytest.skip('one usable CPU: pinning would not differ from the default')
+    plant_cpu, ctl_cpu = usable[-1], usable[0]
     duration = 0.1
     domain = rosproc.unique_domain_id()
     env = rosproc.ros_env(domain)

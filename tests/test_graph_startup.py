@@ -6,6 +6,8 @@ executables); every case fails before any DDS traffic, so they all run at once."
 
 from __future__ import annotations
 
+import os
+
 import pytest
 
 import rosproc
@@ -18,6 +20,7 @@ NODES = {'plant': ('fohssv_sim', 'plant'), 'controller': ('fohssv_controller', '
 def bad_parameter_cases(tmp):
     """(node, arguments after --ros-args, words the one line must hold); also the
     catalogue of bench/bench_faults.py."""
+    cpu0 = min(os.sched_getaffinity(0))      # the first CPU this process may use
     misspelt = tmp / 'misspelt.yaml'
     misspelt.write_text('plant:\n  ros__parameters:\n    model: delay-free\n    sped: 80.0\n')
     wildcard = tmp / 'wildcard.yaml'
@@ -85,11 +88,11 @@ def bad_parameter_cases(tmp):
          "depth_gain='high' is a string, not a number; allowed: (-inf, inf) rad/m"),
         # cpu_affinity: CPUs this process may use (none has a CPU 100000)
         ('plant', ['-p', 'cpu_affinity:=100000'], 'cpu_affinity=100000 names CPU 100000, '
-         "which this process may not use (it may use CPU 0"),
+         f'which this process may not use (it may use CPU {cpu0}'),
         ('controller', ['-p', 'cpu_affinity:=first'], "cpu_affinity='first' is not a CPU "
-         "number or a list of them (this process may use CPU 0"),
-        ('controller', ['-p', 'cpu_affinity:=[0, 100000]'], 'cpu_affinity=[0, 100000] names '
-         'CPU 100000,'),
+         f'number or a list of them (this process may use CPU {cpu0}'),
+        ('controller', ['-p', f'cpu_affinity:=[{cpu0}, 100000]'],
+         f'cpu_affinity=[{cpu0}, 100000] names CPU 100000,'),
         ('controller', ['-p', 'min_command_subscribers:=0'],
          'min_command_subscribers=0 is outside the allowed range [1, 1000]'),
         ('recorder', ['-p', 'flush_period:=abc', '-p', f'bag_path:={bag}'],

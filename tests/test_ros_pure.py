@@ -280,7 +280,9 @@ def test_cpu_affinity_takes_taskset_lists_numbers_and_arrays_of_usable_cpus():
                        (-1, 'is not a CPU number'), ('1-0', 'is not a CPU number'),
                        ('a', 'is not a CPU number'), ('0,,1', 'is not a CPU number'),
                        (True, 'is not a CPU number'), (1.0, 'is not a CPU number'),
-                       ([0.0], 'is not a CPU number')]:
+                       ([0.0], 'is not a CPU number'), ('\u00b2', 'is not a CPU number'),
+                       # refused at once, never built (a range of 4e9 CPUs)
+                       (f'{last}-4294967295', f'names CPU {last + 1}-4294967295,')]:
         with pytest.raises(ParameterError) as err:
             PlantOptions(cpu_affinity=bad)
         text = str(err.value)

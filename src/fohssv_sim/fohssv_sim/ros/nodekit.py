@@ -74,13 +74,21 @@ __all__ = ['run_node', 'spin_node', 'EXIT_OK', 'EXIT_BAD_PARAMETERS',
 EXIT_OK = 0
 
 
-def pin_node(node: Any, cpus: tuple[int, ...]) -> None:
+def pin_node(node: Any, cpus: tuple[int, ...]) -> bool:
     """Pin every thread of the node's process to ``cpus`` (its validated ``cpu_affinity``;
-    ``()`` leaves the scheduler's choice) and say so in one line."""
-    if cpus:
+    ``()`` leaves the scheduler's choice) and say so in one line; when the kernel refuses, say
+    why in one line and run unpinned. True when pinned."""
+    if not cpus:
+        return False
+    text = ','.join(map(str, cpus))
+    try:
         threads = pin_threads(cpus)
-        node.get_logger().info(f"cpu_affinity: the process's {threads} threads run on CPU "
-                               f"{','.join(map(str, cpus))}")
+    except OSError as exc:
+        node.get_logger().warning(f'cpu_affinity: CPU {text} refused by the kernel '
+                                  f'({exc.strerror}); running unpinned')
+        return False
+    node.get_logger().info(f"cpu_affinity: the process's {threads} threads run on CPU {text}")
+    return True
 
 
 class LogLimiter:

@@ -150,6 +150,8 @@ class CpusSpec(ParameterSpec):
     run on."""
 
     numeric: bool = False
+    #: a ROS array is one of its forms (startup.precheck lets it through)
+    accepts_array = True
 
     def range_text(self) -> str:
         return ("'' (not pinned), a CPU number or a list such as '0,2-3' of CPUs this "
@@ -161,19 +163,25 @@ class CpusSpec(ParameterSpec):
         Raises:
             ParameterError: not CPU numbers, or a CPU this process may not use.
         """
-        cpus = self._parse(value)
+        spans = self._parse(value)
         usable = usable_cpus()
-        if cpus is None:
+        if spans is None:
             raise self.refuse(value, 'is not a CPU number or a list of them (this process may '
                               f'use CPU {_ranges(usable)})')
-        outside = [c for c in cpus if c not in usable]
-        if outside:
-            raise self.refuse(value, f'names CPU {_ranges(outside)}, which this process may '
-                              f'not use (it may use CPU {_ranges(usable)})')
-        return cpus
+        top = usable[-1]
+        outside = [(max(a, top + 1), b) for a, b in spans if b > top]   # before building one
+        cpus = sorted({c for a, b in spans for c in range(a, min(b, top) + 1)})
+        outside_text = ','.join(f'{a}' if a == b else f'{a}-{b}' for a, b in outside)
+        inside = _ranges(c for c in cpus if c not in usable)
+        if outside or inside:
+            named = ','.join(t for t in (inside, outside_text) if t)
+            raise self.refuse(value, f'names CPU {named}, which this process may not use (it '
+                              f'may use CPU {_ranges(usable)})')
+        return tuple(cpus)
 
     @staticmethod
-    def _parse(value: Any) -> tuple[int, ...] | None:
+    def _parse(value: Any) -> list[tuple[int, int]] | None:
+        """The (first, last) CPU ranges ``value`` names; None when it names none."""
         if isinstance(value, bool):
             return None
         if isinstance(value, int):
@@ -184,7 +192,7 @@ class CpusSpec(ParameterSpec):
             items = list(value)
         else:
             return None
-        cpus: set[int] = set()
+        spans = []
         for item in items:
             if isinstance(item, bool):
                 return None
@@ -192,20 +200,25 @@ class CpusSpec(ParameterSpec):
                 first = last = item
             elif isinstance(item, str):
                 lo, dash, hi = item.partition('-')
-                if not (lo.isdigit() and (not dash or hi.isdigit())):
+                if not (_decimal(lo) and (not dash or _decimal(hi))):
                     return None
                 first, last = int(lo), int(hi) if dash else int(lo)
             else:
                 return None
             if first < 0 or last < first:
                 return None
-            cpus.update(range(first, last + 1))
-        return tuple(sorted(cpus))
+            spans.append((first, last))
+        return spans
+
+
+def _decimal(text: str) -> bool:
+    """ASCII digits only (``str.isdigit`` also takes '²', which ``int`` refuses)."""
+    return text.isascii() and text.isdecimal()
 
 
 def _ranges(cpus: Any) -> str:
     """CPU numbers in ``taskset -c`` form: ``0-3,6``."""
-    out: list[str] = []
+    out: list[tuple[int, int]] = []
     for c in sorted(cpus):
         if out and out[-1][1] == c - 1:
             out[-1] = (out[-1][0], c)
@@ -469,7 +482,7 @@ class PlantOptions:
     max_command_lag: float = _f('max_command_lag')
     record: str = _f('record')
     record_buffer: int = _f('record_buffer')
-    cpu_affinity: tuple = _f('cpu_affinity')
+    cpu_affinity: tuple[int, ...] = _f('cpu_affinity')
     end_linger: float = _f('end_linger')
 
     def __post_init__(self) -> None:

@@ -1355,12 +1355,17 @@ def _run(node: PlantNode) -> int:
     and linger; the node's exit code."""
     executor = make_executor()
     executor.add_node(node)
-    pin_node(node, node.options.cpu_affinity)   # after the in-plant writer started: not it
+    pinned = pin_node(node, node.options.cpu_affinity)   # after the in-plant writer started
     if node.options.mode == 'realtime':
         tighten_timer_slack()
         refused = set_realtime_priority(node.options.realtime_priority)
         if refused:
             node.get_logger().warning(f'{refused}; running with the normal scheduler')
+        elif pinned and node.options.realtime_priority and len(node.options.cpu_affinity) == 1:
+            node.get_logger().warning(
+                'cpu_affinity names one CPU and the pacing thread runs under SCHED_FIFO: '
+                "behind schedule it can keep the process's own DDS threads (commands, "
+                'acknowledgements) off that CPU; give the plant two CPUs or realtime_priority:=0')
         with PausedCollector():
             spin_until(executor, node.finished, paced=node)
     else:

@@ -191,22 +191,32 @@ def set_realtime_priority(priority: int) -> str | None:
 def pin_threads(cpus: tuple[int, ...]) -> int:
     """Pin every thread of this process to ``cpus`` (``sched_setaffinity`` of each thread in
     ``/proc/self/task``: rclpy's and DDS's threads already exist when a node reads its
-    parameters; threads started later inherit it from the thread that starts them). Returns
-    the number of threads pinned; ``()`` pins nothing.
+    parameters; threads started later inherit it from the thread that starts them, and a
+    thread started during a pass by one not yet pinned is caught by the next pass). Without
+    ``/proc``, only the calling thread. Returns the number of threads pinned; ``()`` pins
+    nothing.
 
     Raises:
-        OSError: a CPU the process may not use (the validated value has none).
+        OSError: the kernel refused (e.g. a CPU taken away by a cpuset since the check).
     """
     if not cpus:
         return 0
-    pinned = 0
-    for tid in sorted(int(t) for t in os.listdir('/proc/self/task')):
-        try:
-            os.sched_setaffinity(tid, cpus)
-        except ProcessLookupError:       # a thread that ended meanwhile
-            continue
-        pinned += 1
-    return pinned
+    try:
+        os.listdir('/proc/self/task')
+    except OSError:
+        os.sched_setaffinity(0, cpus)
+        return 1
+    pinned: set[int] = set()
+    while True:
+        new = {int(t) for t in os.listdir('/proc/self/task')} - pinned
+        if not new:
+            return len(pinned)
+        for tid in sorted(new):
+            try:
+                os.sched_setaffinity(tid, cpus)
+            except ProcessLookupError:       # a thread that ended meanwhile
+                pass
+            pinned.add(tid)
 
 
 def final_log(name: str, text: str) -> None:

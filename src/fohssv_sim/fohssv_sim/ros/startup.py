@@ -64,7 +64,6 @@ from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 
 from ..params import ParameterSpec
-from .options import CpusSpec
 
 __all__ = ['EXIT_BAD_PARAMETERS', 'DEFAULT_DISCOVERY_RANGE', 'default_discovery',
            'default_transport', 'localhost_profile', 'NETWORK_VAR',
@@ -365,7 +364,7 @@ def precheck(node: Node, specs: Iterable[ParameterSpec], kinds: Mapping[str, int
                 raise spec.refuse(value, f'is {_a(got)}, not a name')
         elif kind == ParameterType.PARAMETER_NOT_SET:
             if got not in ('double', 'integer', 'string') and not (
-                    got == 'array' and isinstance(spec, CpusSpec)):
+                    got == 'array' and getattr(spec, 'accepts_array', False)):
                 raise spec.refuse(value, f'is {_a(got)}')
         spec.validate(value)   # ParameterError: out of range, not a choice, not 4 numbers
 

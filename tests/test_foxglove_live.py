@@ -16,7 +16,7 @@ from foxglove_client import SUBPROTOCOL, FoxgloveClient
 
 from fohssv_sim import contract
 from fohssv_sim.params import ParameterError
-from fohssv_sim.ros.foxglove_live import TOPICS, LiveServer, Marker, ViewAssembler
+from fohssv_sim.ros.foxglove_live import ENTITY_IDS, TOPICS, LiveServer, Marker, ViewAssembler
 from fohssv_sim.ros.viewer_options import ViewerOptions, is_loopback
 
 #: A sample [t, z, w, theta, q] and Fp (the plant's model signs), V = 75 m/s.
@@ -70,6 +70,30 @@ def test_assembler_gives_the_newest_complete_view_once():
     for s in range(10):
         a.add_twist(100 + s, 'b', (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
     assert len(a._partial) == 3
+
+
+def test_assembler_completes_a_backlog_taken_topic_by_topic():
+    """A viewer behind the run takes each topic's queued messages together: 31 views' poses,
+    then their twists, wrenches and markers. Holding as many incomplete views as that backlog
+    assembles all 31; holding 8 (the viewer's old setting) assembles none: each topic's turn
+    evicts the partial views the previous topics left."""
+    def backlog(a):
+        stamps = [STAMP + k * 10_000_000 for k in range(31)]
+        for s in stamps:
+            a.add_pose(s, 'w', (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+        for s in stamps:
+            a.add_twist(s, 'b', (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+        for s in stamps:
+            a.add_wrench(s, 'b', (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+        for ident in ENTITY_IDS:
+            for s in stamps:
+                a.add_marker(s, Marker(ident, 'w', (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0),
+                                       (1.0, 1.0, 1.0), (1.0, 1.0, 1.0, 1.0)))
+        return a
+
+    deep = backlog(ViewAssembler(keep=100))
+    assert deep.complete == 31 and deep.take().stamp == STAMP + 300_000_000
+    assert backlog(ViewAssembler(keep=8)).complete == 0
 
 
 @pytest.fixture

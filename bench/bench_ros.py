@@ -805,10 +805,8 @@ def case_pinned(domains: Domains, quick: bool) -> dict:
                         'host_steal_share': s.get('host_steal_share')}
         row['gain'] = row['pinned']['samples_per_second'] / row['unpinned']['samples_per_second']
         steal = max(row[k]['host_steal_share'] or 0.0 for k in ('unpinned', 'pinned'))
-        if steal > STEAL_LIMIT and len(rejected) < STEAL_RETRIES:   # the host, not the loop
-            rejected.append(row)
-        else:
-            rounds.append(row)
+        again = steal > STEAL_LIMIT and len(rejected) < STEAL_RETRIES   # the host, not the loop
+        (rejected if again else rounds).append(row)
         print('pinned    lockstep FOM ' + '; '.join(
             f"{k}: echo {r['echo']:.0f}/s, loop {r['samples_per_second']:.0f}/s "
             f"({r['ratio_to_echo']:.2f} of it), CPU plant {r['plant_cpu_per_sample_us']:.0f} / "
@@ -817,7 +815,7 @@ def case_pinned(domains: Domains, quick: bool) -> dict:
             for k, r in ((k, row[k]) for k in ('unpinned', 'pinned')))
             + f"; pinned loop / unpinned {row['gain']:.2f}"
             + (f' (host steal {100 * steal:.1f} % > {100 * STEAL_LIMIT:g} %: the host, not the '
-               'loop; again)' if row is (rejected[-1] if rejected else None) else ''),
+               'loop; again)' if again else ''),
             flush=True)
     out = {'rounds': rounds, 'rejected_rounds': rejected,
            'gain': statistics.median(r['gain'] for r in rounds)}

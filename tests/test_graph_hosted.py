@@ -134,19 +134,19 @@ def _realtime_hosted(env: dict, log: Path, **params) -> object:
         min_state_subscribers=1, end_linger=0.0, **params), env=env, log=log)
 
 
-def _follow(probe: Probe, before: StateFeedback, after: StateFeedback) -> dict[str, int]:
-    """How many of the probe's commands follow each law (those whose state the probe has and
-    for which the two laws differ); raises on a command that follows neither."""
+def _follow(probe: Probe, before: StateFeedback, after: StateFeedback) -> dict[str, list]:
+    """The times of the probe's commands that follow each law (those whose state the probe
+    has and for which the two laws differ); raises on a command that follows neither."""
     states = {row[0]: row[1:] for row in list(probe.states)}
-    matched = {'before': 0, 'after': 0}
+    matched: dict[str, list] = {'before': [], 'after': []}
     for t, df, dc in list(probe.commands):
         x = states.get(t)
         if x is None or before.command(t, x) == after.command(t, x):
             continue
         if (df, dc) == before.command(t, x):
-            matched['before'] += 1
+            matched['before'].append(t)
         elif (df, dc) == after.command(t, x):
-            matched['after'] += 1
+            matched['after'].append(t)
         else:
             raise AssertionError(f'command {(t, df, dc)} follows neither gain')
     return matched
@@ -174,23 +174,15 @@ def test_hosted_parameters_change_at_run_time_and_the_commands_follow(tmp_path):
         assert ok.successful, ok.reason
         # the probe may lag the plant under load: what it receives next can still be commands
         # sent before the change, so wait for commands (and their states) after it
-        probe.wait(lambda: _follow(probe, before, after)['after'] >= 10, 30,
+        probe.wait(lambda: len(_follow(probe, before, after)['after']) >= 10, 30,
                    'commands after the change, with their states')
     finally:
         out = stop_all(plant) + log.read_text()
         probe.close()
     assert 'controller parameters changed: state_feedback(depth_gain=10' in out, out
-    matched = _follow(probe, before, after)
+    old, new = _follow(probe, before, after).values()
     # the commands before the change follow eq. 31, those after it the new gain, in order
-    assert matched['before'] >= 10 and matched['after'] >= 10, matched
-    times = {t: (df, dc) for t, df, dc in probe.commands}
-    states = {row[0]: row[1:] for row in probe.states}
-    old = [t for t, u in times.items() if t in states
-           and before.command(t, states[t]) != after.command(t, states[t])
-           and u == before.command(t, states[t])]
-    new = [t for t, u in times.items() if t in states
-           and before.command(t, states[t]) != after.command(t, states[t])
-           and u == after.command(t, states[t])]
+    assert len(old) >= 10 and len(new) >= 10, (len(old), len(new))
     assert max(old) < min(new), (max(old), min(new))
 
 

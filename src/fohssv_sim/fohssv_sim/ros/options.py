@@ -168,15 +168,13 @@ class CpusSpec(ParameterSpec):
         if spans is None:
             raise self.refuse(value, 'is not a CPU number or a list of them (this process may '
                               f'use CPU {_ranges(usable)})')
-        top = usable[-1]
-        outside = [(max(a, top + 1), b) for a, b in spans if b > top]   # before building one
+        top = usable[-1]       # CPUs above it are refused as spans, never built one by one
         cpus = sorted({c for a, b in spans for c in range(a, min(b, top) + 1)})
-        outside_text = ','.join(f'{a}' if a == b else f'{a}-{b}' for a, b in outside)
-        inside = _ranges(c for c in cpus if c not in usable)
-        if outside or inside:
-            named = ','.join(t for t in (inside, outside_text) if t)
-            raise self.refuse(value, f'names CPU {named}, which this process may not use (it '
-                              f'may use CPU {_ranges(usable)})')
+        bad = _spans(c for c in cpus if c not in usable) + [
+            (max(a, top + 1), b) for a, b in spans if b > top]
+        if bad:
+            raise self.refuse(value, f'names CPU {_span_text(bad)}, which this process may not '
+                              f'use (it may use CPU {_ranges(usable)})')
         return tuple(cpus)
 
     @staticmethod
@@ -216,15 +214,25 @@ def _decimal(text: str) -> bool:
     return text.isascii() and text.isdecimal()
 
 
-def _ranges(cpus: Any) -> str:
-    """CPU numbers in ``taskset -c`` form: ``0-3,6``."""
+def _spans(cpus: Any) -> list[tuple[int, int]]:
+    """CPU numbers as runs of consecutive ones, (first, last) each."""
     out: list[tuple[int, int]] = []
     for c in sorted(cpus):
         if out and out[-1][1] == c - 1:
             out[-1] = (out[-1][0], c)
         else:
             out.append((c, c))
-    return ','.join(f'{a}' if a == b else f'{a}-{b}' for a, b in out)
+    return out
+
+
+def _span_text(spans: list[tuple[int, int]]) -> str:
+    """Spans in ``taskset -c`` form: ``0-3,6``."""
+    return ','.join(f'{a}' if a == b else f'{a}-{b}' for a, b in spans)
+
+
+def _ranges(cpus: Any) -> str:
+    """CPU numbers in ``taskset -c`` form: ``0-3,6``."""
+    return _span_text(_spans(cpus))
 
 
 #: The CPUs a node's threads run on: the plant's and the controller nodes' row.

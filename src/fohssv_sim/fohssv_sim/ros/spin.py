@@ -201,14 +201,13 @@ def pin_threads(cpus: tuple[int, ...]) -> int:
     """
     if not cpus:
         return 0
-    try:
-        os.listdir('/proc/self/task')
-    except OSError:
-        os.sched_setaffinity(0, cpus)
-        return 1
     pinned: set[int] = set()
     while True:
-        new = {int(t) for t in os.listdir('/proc/self/task')} - pinned
+        try:
+            new = {int(t) for t in os.listdir('/proc/self/task')} - pinned
+        except OSError:                      # no /proc
+            os.sched_setaffinity(0, cpus)
+            return 1
         if not new:
             return len(pinned)
         for tid in sorted(new):

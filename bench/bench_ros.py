@@ -40,6 +40,10 @@ each case is one function, so a case can be added without touching the others):
   unpinned, then each process pinned (ping and plant on CPU 0, pong and controller on CPU 1),
   3 rounds: the pinned loop's rate over the unpinned one's, each loop against the echo pinned
   the same way, and the CPU per sample;
+* hops (:func:`case_hops`): the bare echo and the lockstep FOM loop with two timestamps per
+  round trip in each process (``bench/hops.py``): the median time of each hop, the DDS
+  delivery each way and each process's work, echo beside loop (what the loop adds, where on
+  the round trip's path);
 * normal scheduler (:func:`case_fifo`): the hosted 1e-4 s and external 1e-3 s runs again with
   ``realtime_priority:=0`` (the plant runs under SCHED_FIFO 50 by default where permitted);
 * machine floor (:func:`case_wake`, at the start and at the end of the run): a loop with the
@@ -875,6 +879,64 @@ def case_threads(domains: Domains, quick: bool) -> dict:
     return {'window_s': window, 'rounds': rounds}
 
 
+def case_hops(domains: Domains, quick: bool) -> dict:
+    """Where a round trip's time goes, hop by hop: the bare echo and the lockstep FOM loop
+    (plant + eq. 31 node), each with two timestamps per round trip in each process (callback
+    entered, answer published: ``bench/hops.py``, ``ros_echo.py --hops``), 2 rounds (1 with
+    ``quick``), echo first. Per hop (the DDS delivery each way, each process's work) the
+    median over the run and what the loop adds to the echo's: the loop's extra time per round
+    trip, which the threads case shows as CPU, here as time on the round trip's path."""
+    import tempfile
+
+    sys.path.insert(0, str(HERE))
+    from hops import hops
+
+    script, harness = str(HERE / 'ros_echo.py'), str(HERE / 'hops.py')
+    args = ['--ros-args']
+    for k, v in {'mode': 'lockstep', 'model': 'fractional',
+                 'duration': 1.0 if quick else 3.0, **MODEL_PARAMS['fractional']}.items():
+        args += ['-p', f'{k}:={v}']
+    rounds = []
+    for _ in range(1 if quick else 2):
+        with tempfile.TemporaryDirectory() as folder:
+            env = domains.env()
+            pong = subprocess.Popen([sys.executable, script, 'pong', '--hops', folder],
+                                    env=env, stdout=subprocess.DEVNULL,
+                                    stderr=subprocess.STDOUT, start_new_session=True)
+            try:
+                out = subprocess.run([sys.executable, script, 'ping', '--hops', folder,
+                                      '--count', '10000' if quick else '30000'], env=env,
+                                     timeout=300, capture_output=True, text=True)
+            finally:
+                _stop(pong)
+            if out.returncode != 0:
+                raise RuntimeError(f'echo ping exited {out.returncode}:\n{out.stderr}')
+            echo = hops('ping', 'pong', folder)
+            env = domains.env()
+            ctl = subprocess.Popen([sys.executable, harness, 'controller', folder], env=env,
+                                   stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
+                                   start_new_session=True)
+            try:
+                out = subprocess.run([sys.executable, harness, 'plant', folder, *args],
+                                     env=env, timeout=600, capture_output=True, text=True)
+            finally:
+                _stop(ctl)
+            if out.returncode != 0:
+                raise RuntimeError(f'plant exited {out.returncode}:\n{out.stderr[-3000:]}')
+            loop = hops('plant', 'controller', folder)
+        pairs = (('delivery_to_peer', 'delivery_to_peer', 'state delivered'),
+                 ('pong', 'controller', 'controller'),
+                 ('delivery_to_lead', 'delivery_to_lead', 'command delivered'),
+                 ('ping', 'plant', 'plant'), ('round_trip', 'round_trip', 'round trip'))
+        row = {'echo': echo, 'loop': loop, 'added_us': {
+            label: loop[b]['median_us'] - echo[a]['median_us'] for a, b, label in pairs}}
+        rounds.append(row)
+        print('hops      median us on the round trip, echo -> lockstep FOM loop: ' + ', '.join(
+            f"{label} {echo[a]['median_us']:.0f} -> {loop[b]['median_us']:.0f} "
+            f"({row['added_us'][label]:+.0f})" for a, b, label in pairs), flush=True)
+    return {'rounds': rounds}
+
+
 def case_fifo(domains: Domains, sim_time: float) -> list[dict]:
     """The same runs with the normal scheduler (``realtime_priority:=0``; the plant's default
     is SCHED_FIFO 50 where permitted): the hosted law at 1e-4 s and the external node at
@@ -1053,6 +1115,7 @@ def main() -> int:
     callback = case_callback(domains, a.quick)
     threads = case_threads(domains, a.quick)
     pinned = case_pinned(domains, a.quick)
+    hop = case_hops(domains, a.quick)
     fifo = case_fifo(domains, sim_time)
     wake_end = case_wake(sim_time, 'end')
 
@@ -1077,7 +1140,7 @@ def main() -> int:
         'lockstep': lockstep, 'realtime': realtime, 'margin': margin,
         'external_rate': rate, 'inplant_recording': inplant,
         'normal_scheduler': fifo, 'profile': profiles, 'lockstep_callback': callback,
-        'threads': threads, 'pinned': pinned,
+        'threads': threads, 'pinned': pinned, 'hops': hop,
         'targets': rows}, indent=2) + '\n')
     print(f'wrote {a.out}')
     return 0

@@ -12,6 +12,9 @@ Two processes, each one rclpy node on the executor the product's nodes use
   harness that samples the processes meanwhile, bench_ros.py's threads case);
   with ``--cpu N`` either role pins its process's threads to CPU N once its node, publisher
   and subscription exist, as a node's ``cpu_affinity`` does (bench_ros.py's pinned case);
+  with ``--hops DIR`` it times each round trip as ``bench/hops.py`` times the product's nodes
+  (callback entered, answer published; bench_ros.py's hops case; without it the callbacks
+  are not wrapped);
   after ``--count`` round trips it prints one JSON line ``{"round_trips": n, "seconds": s,
   "round_trips_per_second": r}`` and exits.
 
@@ -43,7 +46,24 @@ from fohssv_sim.ros.wire import ArrayReader, ArrayWriter
 STATE_TOPIC, COMMAND_TOPIC = 'echo_state', 'echo_command'
 
 
-def pong(node) -> Future:
+def _timed(stamps, callback, publish):
+    """``callback`` and ``publish`` as they are, or with ``stamps`` (:class:`hops.Stamps`):
+    the callback's entry and the publish's return timed."""
+    if stamps is None:
+        return callback, publish
+
+    def timed_callback(raw: bytes) -> None:
+        stamps.enter()
+        callback(raw)
+
+    def timed_publish(payload) -> None:
+        publish(payload)
+        stamps.answer()
+
+    return timed_callback, timed_publish
+
+
+def pong(node, stamps=None) -> Future:
     command = ArrayWriter(COMMAND)
     out = command.values
     state = ArrayReader(STATE)
@@ -51,14 +71,15 @@ def pong(node) -> Future:
 
     def on_state(raw: bytes) -> None:
         out[0] = state.read(raw)[0]
-        pub.publish(command.payload())
+        send(command.payload())
 
+    on_state, send = _timed(stamps, on_state, pub.publish)
     node.create_subscription(Float64MultiArray, STATE_TOPIC, on_state, profile(STATE),
                              raw=True)
     return Future()   # runs until SIGINT
 
 
-def ping(node, count: int, timeout: float, announce: bool = False) -> Future:
+def ping(node, count: int, timeout: float, announce: bool = False, stamps=None) -> Future:
     done = Future()
     state = ArrayWriter(STATE)
     out = state.values
@@ -77,8 +98,9 @@ def ping(node, count: int, timeout: float, announce: bool = False) -> Future:
                              'round_trips_per_second': n / seconds})
             return
         out[0] = n * 1e-4
-        pub.publish(state.payload())
+        send(state.payload())
 
+    on_echo, send = _timed(stamps, on_echo, pub.publish)
     sub = node.create_subscription(Float64MultiArray, COMMAND_TOPIC, on_echo, profile(COMMAND),
                                    raw=True)
     began = time.monotonic()
@@ -98,7 +120,7 @@ def ping(node, count: int, timeout: float, announce: bool = False) -> Future:
             if announce:     # for a harness that samples the processes while the loop runs
                 print('timing', flush=True)
             start = time.perf_counter()
-            pub.publish(state.payload())
+            send(state.payload())
         elif time.monotonic() - began > timeout:
             node.destroy_timer(timer)
             done.set_result({'error': f'no echo peer within {timeout:g} s'})
@@ -116,10 +138,17 @@ def main() -> int:
                     help="ping: print a line 'timing' when the timed round trips begin")
     ap.add_argument('--cpu', type=int, default=None,
                     help="pin the process's threads to this CPU (as cpu_affinity does)")
+    ap.add_argument('--hops', metavar='DIR', default=None,
+                    help='time each round trip as bench/hops.py does, saved in DIR')
     a = ap.parse_args()
+    stamps = None
+    if a.hops is not None:
+        from hops import Stamps  # bench/hops.py, beside this script
+        stamps = Stamps(a.hops, a.role)
     rclpy.init()
     node = rclpy.create_node(f'echo_{a.role}')
-    done = ping(node, a.count, a.timeout, a.announce) if a.role == 'ping' else pong(node)
+    done = (ping(node, a.count, a.timeout, a.announce, stamps) if a.role == 'ping'
+            else pong(node, stamps))
     if a.cpu is not None:
         pin_threads((a.cpu,))
     executor = make_executor()

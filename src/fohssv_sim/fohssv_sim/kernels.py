@@ -34,6 +34,14 @@ deflection limits (status 3; its two columns are not written). The caller handle
 samples the slow way, so the results equal one kernel call per period with the law evaluated
 in Python (``test/test_kernels.py``).
 
+**Held-input entry point.** A plant stepping the FOM one control period at a time with the
+input held (lockstep, real time with an external controller) calls :func:`fom_soe_run` once
+per sample with 20 arguments; numba's dispatcher checks the type of each, 1.7 us a call warm
+and about 7 us inside the lockstep round trip, as much as the period's arithmetic.
+:class:`FomHeldCall` binds the arrays' addresses once (a table of int64) and calls the same
+kernel through a C entry point (``numba.cfunc``, called with ctypes: 0.5 us warm) with only
+the step index and the step count: the same arithmetic, bit for bit.
+
 Compiled on first use and cached on disk (``cache=True``, next to this file or in numba's
 user cache); :func:`warm_up` compiles all kernels (a few seconds the first time, well under
 a second from the cache). Without numba everything still runs, interpreted.
@@ -41,8 +49,11 @@ a second from the cache). Without numba everything still runs, interpreted.
 
 from __future__ import annotations
 
+import ctypes
+import functools
 import math
-from typing import NamedTuple
+import warnings
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -58,7 +69,7 @@ except ImportError:  # pragma: no cover - numba is pinned in requirements.txt
 __all__ = ['AVAILABLE', 'KernelCoefficients', 'jitable', 'eq17', 'planing_force_law',
            'planing_exact', 'planing_delayed', 'planing_smooth', 'hermite_delayed',
            'delay_free_run', 'delayed_run', 'fom_soe_run', 'delay_free_sampled',
-           'delayed_sampled', 'fom_soe_sampled', 'pack_law', 'warm_up']
+           'delayed_sampled', 'fom_soe_sampled', 'FomHeldCall', 'pack_law', 'warm_up']
 
 #: True when the kernels run compiled (numba importable).
 AVAILABLE = numba is not None
@@ -521,6 +532,137 @@ def fom_soe_sampled(x, x0, n, hold, periods, cv, smooth, law, held, limits, H, W
             return p + 1, status, hold
     return periods, 0, hold
 
+
+# -- held-input entry point: fom_soe_run through a C function, the arrays bound once -----------
+
+#: The int64 table :class:`FomHeldCall` gives the C entry point: slots of the arrays' addresses
+#: (x, x0, cv, law, H, W, fill, eps_k, ET, a0_coef, a0_small, last_f, bad), the flag
+#: ``smooth``, then the arrays' shapes (cv, law, H, W, eps_k, ET, a0_coef, a0_small).
+_T_X, _T_X0, _T_CV, _T_LAW, _T_H, _T_W, _T_FILL, _T_EPS, _T_ET, _T_A0C, _T_A0S = range(11)
+_T_LAST_F, _T_BAD, _T_SMOOTH, _T_SHAPES = 11, 12, 13, 14
+_TABLE = _T_SHAPES + 1 + 1 + 3 + 4 + 3 + 3 + 2 + 2
+#: The array slots with their ndim and dtype, in the table's order (shapes follow for ndim
+#: > 0 arrays whose size is not fixed: x, x0, last_f, bad are 4, fill is 1).
+_T_ARRAYS = (('x', 1, np.float64), ('x0', 1, np.float64), ('cv', 1, np.float64),
+             ('law', 1, np.float64), ('H', 3, np.float64), ('W', 4, np.float64),
+             ('fill', 1, np.int64), ('eps_k', 3, np.float64), ('ET', 3, np.float64),
+             ('a0_coef', 2, np.float64), ('a0_small', 2, np.float64),
+             ('last_f', 1, np.float64), ('bad', 1, np.float64))
+_T_SHAPED = ('cv', 'law', 'H', 'W', 'eps_k', 'ET', 'a0_coef', 'a0_small')
+
+
+if numba is not None:
+    from numba.core import cgutils
+    from numba.extending import intrinsic
+
+    @intrinsic
+    def _as_pointer(typingctx, address):
+        """An int64 address as a void pointer, for ``numba.carray`` (compiled code only)."""
+        def codegen(context, builder, signature, args):
+            return builder.inttoptr(args[0], cgutils.voidptr_t)
+        return numba.types.voidptr(numba.types.int64), codegen
+
+
+def _fom_held_entry(t, f, n, nsteps):   # pragma: no cover - compiled by _fom_held_c
+    """The C entry point's body: :func:`fom_soe_run` with a held input on the arrays whose
+    addresses and shapes the table ``t`` holds, ``f`` = [alpha, cp, cc]."""
+    s = _T_SHAPES
+    x = numba.carray(_as_pointer(t[_T_X]), (4,), np.float64)
+    x0 = numba.carray(_as_pointer(t[_T_X0]), (4,), np.float64)
+    cv = numba.carray(_as_pointer(t[_T_CV]), (t[s],), np.float64)
+    law = numba.carray(_as_pointer(t[_T_LAW]), (t[s + 1],), np.float64)
+    H = numba.carray(_as_pointer(t[_T_H]), (t[s + 2], t[s + 3], t[s + 4]), np.float64)
+    W = numba.carray(_as_pointer(t[_T_W]), (t[s + 5], t[s + 6], t[s + 7], t[s + 8]),
+                     np.float64)
+    fill = numba.carray(_as_pointer(t[_T_FILL]), (1,), np.int64)
+    eps_k = numba.carray(_as_pointer(t[_T_EPS]), (t[s + 9], t[s + 10], t[s + 11]), np.float64)
+    ET = numba.carray(_as_pointer(t[_T_ET]), (t[s + 12], t[s + 13], t[s + 14]), np.float64)
+    a0_coef = numba.carray(_as_pointer(t[_T_A0C]), (t[s + 15], t[s + 16]), np.float64)
+    a0_small = numba.carray(_as_pointer(t[_T_A0S]), (t[s + 17], t[s + 18]), np.float64)
+    last_f = numba.carray(_as_pointer(t[_T_LAST_F]), (4,), np.float64)
+    bad = numba.carray(_as_pointer(t[_T_BAD]), (4,), np.float64)
+    return fom_soe_run(x, x0, n, nsteps, cv, t[_T_SMOOTH] != 0, law, False, H, W, fill, eps_k,
+                       ET, a0_coef, a0_small, f[0], f[1], f[2], last_f, bad)
+
+
+@functools.cache
+def _fom_held_c() -> Any:
+    """The C entry point of :func:`_fom_held_entry` as a ctypes function, compiled on first use
+    (cached on disk); None without numba or where it cannot be built (a warning says why;
+    :class:`FomHeldCall` users then call the dispatcher)."""
+    if numba is None:  # pragma: no cover
+        return None
+    try:
+        from numba import types
+
+        sig = types.int64(types.CPointer(types.int64), types.CPointer(types.float64),
+                          types.int64, types.int64)
+        entry = numba.cfunc(sig, nopython=True, error_model='numpy', cache=True)(
+            _fom_held_entry)
+        proto = ctypes.CFUNCTYPE(ctypes.c_int64, ctypes.c_void_p, ctypes.c_void_p,
+                                 ctypes.c_int64, ctypes.c_int64)
+        return proto(entry.address), entry
+    except Exception as exc:  # noqa: BLE001 - a slower call, not a failure
+        warnings.warn(f'fohssv_sim.kernels: the FOM kernel\'s C entry point could not be '
+                      f'built ({type(exc).__name__}: {exc}); calling it through numba\'s '
+                      'dispatcher', RuntimeWarning, stacklevel=2)
+        return None
+
+
+class FomHeldCall:
+    """:func:`fom_soe_run` with a held input (``continuous`` False) on fixed arrays, called
+    through a C entry point with only the step index and the step count: ``.call(n,
+    nsteps)`` (a ctypes call with the table bound, no Python frame in between) returns the
+    steps taken, exactly as ``fom_soe_run(x, x0, n, nsteps, cv, smooth, law, False, H, W,
+    ...)`` on the same arrays would (the same compiled code, bit for bit).
+
+    The arrays' addresses are bound at construction; the instance keeps the arrays alive, and
+    its owner builds a new one whenever it replaces any of them (the two its callers pass per
+    call are kept as :attr:`x` and :attr:`law` for the caller to compare). :meth:`build`
+    returns None without the C entry point.
+    """
+
+    def __init__(self, entry: Any, arrays: dict[str, np.ndarray], smooth: bool,
+                 alpha: float, cp: float, cc: float) -> None:
+        table = np.zeros(_TABLE, dtype=np.int64)
+        shapes: list[int] = []
+        for slot, (name, ndim, dtype) in enumerate(_T_ARRAYS):
+            a = arrays[name]
+            if (not isinstance(a, np.ndarray) or a.ndim != ndim or a.dtype != dtype
+                    or not a.flags.c_contiguous or not a.flags.writeable):
+                raise ValueError(f'{name}: a writeable C-contiguous {np.dtype(dtype).name} '
+                                 f'array of {ndim} dimension(s) is needed, got '
+                                 f'{getattr(a, "dtype", type(a))!s} {getattr(a, "shape", "")}')
+            if name in ('x', 'x0', 'last_f', 'bad') and a.shape != (4,) or (
+                    name == 'fill' and a.shape != (1,)):
+                raise ValueError(f'{name}: shape {a.shape}, not {(1,) if name == "fill" else (4,)}')
+            table[slot] = a.ctypes.data
+            if name in _T_SHAPED:
+                shapes += a.shape
+        table[_T_SMOOTH] = 1 if smooth else 0
+        table[_T_SHAPES:] = shapes
+        self._arrays = arrays                # alive as long as the table points at them
+        self._table = table
+        self._floats = np.array([alpha, cp, cc], dtype=np.float64)
+        self.x, self.law = arrays['x'], arrays['law']
+        self.call = functools.partial(entry, ctypes.c_void_p(table.ctypes.data),
+                                      ctypes.c_void_p(self._floats.ctypes.data))
+
+    @classmethod
+    def build(cls, x: np.ndarray, x0: np.ndarray, cv: np.ndarray, smooth: bool,
+              law: np.ndarray, H: np.ndarray, W: np.ndarray, fill: np.ndarray,
+              eps_k: np.ndarray, ET: np.ndarray, a0_coef: np.ndarray, a0_small: np.ndarray,
+              alpha: float, cp: float, cc: float, last_f: np.ndarray,
+              bad: np.ndarray) -> FomHeldCall | None:
+        """Bound to :func:`fom_soe_run`'s arguments (but ``n``, ``nsteps`` and
+        ``continuous``), or None without the C entry point."""
+        built = _fom_held_c()
+        if built is None:
+            return None
+        arrays = {'x': x, 'x0': x0, 'cv': cv, 'law': law, 'H': H, 'W': W, 'fill': fill,
+                  'eps_k': eps_k, 'ET': ET, 'a0_coef': a0_coef, 'a0_small': a0_small,
+                  'last_f': last_f, 'bad': bad}
+        return cls(built[0], arrays, smooth, alpha, cp, cc)
 
 
 def warm_up() -> None:

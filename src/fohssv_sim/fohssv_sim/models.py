@@ -512,6 +512,7 @@ class FractionalModel(Plant):
             self.rhs, p.fractional_order, p.step, x0,
             **soe_options(p, self.duration) if p.solver == 'soe' else {})
         self._kernel_args = None
+        self._held_call = None
         if solver.compiled:       # the arrays the compiled kernel advances, gathered once
             hist = st.history
             self._kernel_args = (hist.H, hist.W, hist.fill, hist.eps_k, hist.ET,
@@ -531,10 +532,28 @@ class FractionalModel(Plant):
                       ) -> tuple[int, np.ndarray]:
         st = self._stepper                 # advanced in place: its state array and history
         x = st.live_state()
+        if not continuous:             # a held input (a plant's control period)
+            held = self._held_call
+            if held is None or held is not False and (x is not held.x or law is not held.law):
+                held = self._held_call = self._bind_held(x, law)
+            if held is not False:
+                taken = held.call(st.n, steps)
+                self._stepped(taken, failed=taken < steps)
+                return taken, x
         taken = kernels.fom_soe_run(x, self._x0a, st.n, steps, self._cv, self._smooth, law,
                                     continuous, *self._kernel_args)
         self._stepped(taken, failed=taken < steps)
         return taken, x
+
+    def _bind_held(self, x: np.ndarray, law: np.ndarray) -> kernels.FomHeldCall | bool:
+        """The kernel's held-input call bound to this model's arrays, the stepper's state
+        array ``x`` and the input ``law`` (built on the first held-input call, and again after
+        a reset (new history arrays) or when ``x`` or ``law`` is another array than the bound
+        one: interpreted steps replace the stepper's state array), or False where the C entry
+        point is not available (:class:`fohssv_sim.kernels.FomHeldCall`)."""
+        call = kernels.FomHeldCall.build(x, self._x0a, self._cv, self._smooth, law,
+                                         *self._kernel_args)
+        return False if call is None else call
 
     def _stepped(self, steps: int, failed: bool) -> None:
         """Tell the stepper what a kernel call did (and warn past the SOE horizon)."""

@@ -234,3 +234,82 @@ def test_sampled_bursts_stop_where_the_per_period_path_stops(model):
     assert st == 3 and len(got) == len(ref)
     assert np.array_equal(got[:, :5], ref[:, :5])
     assert np.array_equal(got[:-1], ref[:-1], equal_nan=True)
+
+
+def _fom_arrays(plant):
+    """Copies of every array a FOM plant's kernel advances, and its scalars."""
+    st = plant._stepper
+    H, W, fill, eps_k, ET, a0_coef, a0_small, alpha, cp, cc, last_f, bad = plant._kernel_args
+    arrays = [st.live_state(), plant._x0a, plant._cv, plant._law, H, W, fill, eps_k, ET,
+              a0_coef, a0_small, last_f, bad]
+    return [a.copy() for a in arrays], (alpha, cp, cc)
+
+
+def test_held_call_equals_the_dispatcher_bit_for_bit():
+    """The FOM kernel through its C entry point (kernels.FomHeldCall) against the same kernel
+    through numba's dispatcher, on two copies of the same arrays: 400 control periods of 5
+    steps under eq. 31 held over each (12 folds of the SOE window), every array equal after
+    every period; then a state whose right-hand side overflows stops both at the same step
+    with the same non-finite state reported."""
+    plant = make_plant(ModelParameters(), X_START, duration=1.0)
+    plant.advance((0.0, -0.01), 7)                  # a history that is not the start's
+    (x, x0, cv, law, H, W, fill, eps_k, ET, a0c, a0s, last_f, bad), (alpha, cp, cc) = \
+        _fom_arrays(plant)
+    held = kernels.FomHeldCall.build(x, x0, cv, True, law, H, W, fill, eps_k, ET, a0c, a0s,
+                                     alpha, cp, cc, last_f, bad)
+    assert held is not None and held.x is x
+    ref, _ = _fom_arrays(plant)
+    ctl = StateFeedback()
+    n = plant.n
+    for _ in range(400):
+        law[8:10] = ref[3][8:10] = ctl.command(0.0, tuple(ref[0]))
+        a = held.call(n, 5)
+        b = kernels.fom_soe_run(ref[0], ref[1], n, 5, ref[2], True, ref[3], False, *ref[4:11],
+                                alpha, cp, cc, ref[11], ref[12])
+        assert a == b == 5
+        for mine, theirs in zip((x, H, fill, last_f), (ref[0], ref[4], ref[6], ref[11])):
+            assert np.array_equal(mine, theirs)
+        n += 5
+    assert abs(x[1]) > 0.1                           # a trajectory that moved
+    x[1] = ref[0][1] = 1e307                         # its right-hand side overflows
+    law[8:10] = ref[3][8:10] = (0.0, 0.0)
+    a = held.call(n, 50)
+    b = kernels.fom_soe_run(ref[0], ref[1], n, 50, ref[2], True, ref[3], False, *ref[4:11],
+                            alpha, cp, cc, ref[11], ref[12])
+    assert a == b < 50, (a, b)
+    assert np.array_equal(bad, ref[12], equal_nan=True) and not np.isfinite(bad).all()
+
+
+def test_held_call_refuses_arrays_it_cannot_address():
+    plant = make_plant(ModelParameters(), X_START)
+    (x, x0, cv, law, H, W, fill, eps_k, ET, a0c, a0s, last_f, bad), (alpha, cp, cc) = \
+        _fom_arrays(plant)
+    args = [x, x0, cv, True, law, H, W, fill, eps_k, ET, a0c, a0s, alpha, cp, cc, last_f, bad]
+    for i, wrong, message in ((5, H[:, :, ::2], 'H: a writeable C-contiguous float64'),
+                              (7, fill.astype(np.float64), 'fill: a writeable C-contiguous '
+                               'int64'),
+                              (0, np.zeros(5), r'x: shape \(5,\), not \(4,\)')):
+        bad_args = list(args)
+        bad_args[i] = wrong
+        with pytest.raises(ValueError, match=message):
+            kernels.FomHeldCall.build(*bad_args)
+
+
+def test_fom_plant_binds_its_held_call_again_after_interpreted_steps_and_a_reset():
+    """A plant stepping with a held input uses the C entry point bound to the stepper's state
+    array; interpreted steps replace that array and a reset replaces the history, and the
+    next held-input call binds to the new arrays (test_interpreted_and_compiled_steps_share_
+    the_plant_state checks the numbers across such a switch)."""
+    plant = make_plant(ModelParameters(), X_START)
+    plant.advance((0.0, -0.01), 5)
+    first = plant._held_call
+    assert isinstance(first, kernels.FomHeldCall)
+    assert first.x is plant._stepper.live_state()
+    plant.advance(lambda t, x: (0.0, -0.01), 3)       # interpreted: a new state array
+    assert plant._stepper.live_state() is not first.x
+    plant.advance((0.0, -0.01), 5)
+    assert plant._held_call is not first and plant._held_call.x is plant._stepper.live_state()
+    second = plant._held_call
+    plant.reset()
+    plant.advance((0.0, -0.01), 5)
+    assert plant._held_call is not second and plant.n == 5

@@ -565,7 +565,8 @@ if numba is not None:
 
 def _fom_held_entry(t, f, n, nsteps):   # pragma: no cover - compiled by _fom_held_c
     """The C entry point's body: :func:`fom_soe_run` with a held input on the arrays whose
-    addresses and shapes the table ``t`` holds, ``f`` = [alpha, cp, cc]."""
+    addresses and shapes the table ``t`` holds, ``f`` = [alpha, cp, cc, Fp]; Fp receives the
+    planing force at the state the steps leave (the last finite one if a step failed)."""
     s = _T_SHAPES
     x = numba.carray(_as_pointer(t[_T_X]), (4,), np.float64)
     x0 = numba.carray(_as_pointer(t[_T_X0]), (4,), np.float64)
@@ -581,8 +582,12 @@ def _fom_held_entry(t, f, n, nsteps):   # pragma: no cover - compiled by _fom_he
     a0_small = numba.carray(_as_pointer(t[_T_A0S]), (t[s + 17], t[s + 18]), np.float64)
     last_f = numba.carray(_as_pointer(t[_T_LAST_F]), (4,), np.float64)
     bad = numba.carray(_as_pointer(t[_T_BAD]), (4,), np.float64)
-    return fom_soe_run(x, x0, n, nsteps, cv, t[_T_SMOOTH] != 0, law, False, H, W, fill, eps_k,
-                       ET, a0_coef, a0_small, f[0], f[1], f[2], last_f, bad)
+    smooth = t[_T_SMOOTH] != 0
+    taken = fom_soe_run(x, x0, n, nsteps, cv, smooth, law, False, H, W, fill, eps_k, ET,
+                        a0_coef, a0_small, f[0], f[1], f[2], last_f, bad)
+    c = _coefficients(cv)
+    f[3] = planing_smooth(x[1], c) if smooth else planing_exact(x[1], c)
+    return taken
 
 
 @functools.cache
@@ -614,13 +619,18 @@ class FomHeldCall:
     through a C entry point with only the step index and the step count: ``.call(n,
     nsteps)`` (a ctypes call with the table bound, no Python frame in between) returns the
     steps taken, exactly as ``fom_soe_run(x, x0, n, nsteps, cv, smooth, law, False, H, W,
-    ...)`` on the same arrays would (the same compiled code, bit for bit).
+    ...)`` on the same arrays would (the same compiled code, bit for bit), and leaves the
+    planing force at the state it reached in ``.values[FomHeldCall.FP]`` (as the sampled
+    drivers compute it: what the plant publishes next, without an interpreted evaluation).
 
     The arrays' addresses are bound at construction; the instance keeps the arrays alive, and
     its owner builds a new one whenever it replaces any of them (the two its callers pass per
     call are kept as :attr:`x` and :attr:`law` for the caller to compare). :meth:`build`
     returns None without the C entry point.
     """
+
+    #: The slot of :attr:`values` the planing force is left in.
+    FP = 3
 
     def __init__(self, entry: Any, arrays: dict[str, np.ndarray], smooth: bool,
                  alpha: float, cp: float, cc: float) -> None:
@@ -643,7 +653,8 @@ class FomHeldCall:
         table[_T_SHAPES:] = shapes
         self._arrays = arrays                # alive as long as the table points at them
         self._table = table
-        self._floats = np.array([alpha, cp, cc], dtype=np.float64)
+        self._floats = np.array([alpha, cp, cc, math.nan], dtype=np.float64)
+        self.values = memoryview(self._floats)      # [alpha, cp, cc, Fp] as Python floats
         self.x, self.law = arrays['x'], arrays['law']
         self.call = functools.partial(entry, ctypes.c_void_p(table.ctypes.data),
                                       ctypes.c_void_p(self._floats.ctypes.data))

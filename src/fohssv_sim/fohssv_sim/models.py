@@ -513,6 +513,7 @@ class FractionalModel(Plant):
             **soe_options(p, self.duration) if p.solver == 'soe' else {})
         self._kernel_args = None
         self._held_call = None
+        self._fp_at = -1          # the step count at which _fp_value is the planing force
         if solver.compiled:       # the arrays the compiled kernel advances, gathered once
             hist = st.history
             self._kernel_args = (hist.H, hist.W, hist.fill, hist.eps_k, hist.ET,
@@ -539,6 +540,8 @@ class FractionalModel(Plant):
             if held is not False:
                 taken = held.call(st.n, steps)
                 self._stepped(taken, failed=taken < steps)
+                self._fp_value = held.values[held.FP]   # computed by the kernel at x
+                self._fp_at = st.n
                 return taken, x
         taken = kernels.fom_soe_run(x, self._x0a, st.n, steps, self._cv, self._smooth, law,
                                     continuous, *self._kernel_args)
@@ -598,6 +601,8 @@ class FractionalModel(Plant):
 
     @property
     def planing_force(self) -> float:
+        if self._fp_at == self.n:        # the held-input call left it (the same arithmetic)
+            return self._fp_value
         return self._fp(self._x[1], self.coefficients)
 
 

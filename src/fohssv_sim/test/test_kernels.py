@@ -52,6 +52,8 @@ def test_compiled_equals_interpreted_with_the_command_held(model):
     assert np.max(np.abs(ref.planing_force)) > 1.0        # the planing branches were taken
     assert rel_diff(fast, ref) <= 1e-12, rel_diff(fast, ref)
     assert np.max(np.abs(fast.inputs - ref.inputs)) <= 1e-12 * np.max(np.abs(ref.inputs))
+    scale = np.max(np.abs(ref.planing_force))
+    assert np.max(np.abs(fast.planing_force - ref.planing_force)) <= 1e-12 * scale
 
 
 @pytest.mark.parametrize('model', MODELS)
@@ -269,6 +271,8 @@ def test_held_call_equals_the_dispatcher_bit_for_bit():
         assert a == b == 5
         for mine, theirs in zip((x, H, fill, last_f), (ref[0], ref[4], ref[6], ref[11])):
             assert np.array_equal(mine, theirs)
+        fp = plant._fp(ref[0][1], plant.coefficients)     # interpreted, at the same state
+        assert abs(held.values[held.FP] - fp) <= 1e-12 * max(1.0, abs(fp))
         n += 5
     assert abs(x[1]) > 0.1                           # a trajectory that moved
     x[1] = ref[0][1] = 1e307                         # its right-hand side overflows
@@ -305,8 +309,10 @@ def test_fom_plant_binds_its_held_call_again_after_interpreted_steps_and_a_reset
     first = plant._held_call
     assert isinstance(first, kernels.FomHeldCall)
     assert first.x is plant._stepper.live_state()
+    assert plant.planing_force == plant._fp(plant.x[1], plant.coefficients)   # the kernel's
     plant.advance(lambda t, x: (0.0, -0.01), 3)       # interpreted: a new state array
     assert plant._stepper.live_state() is not first.x
+    assert plant.planing_force == plant._fp(plant.x[1], plant.coefficients)
     plant.advance((0.0, -0.01), 5)
     assert plant._held_call is not first and plant._held_call.x is plant._stepper.live_state()
     second = plant._held_call

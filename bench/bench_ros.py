@@ -44,6 +44,12 @@ each case is one function, so a case can be added without touching the others):
   round trip in each process (``bench/hops.py``): the median time of each hop, the DDS
   delivery each way and each process's work, echo beside loop (what the loop adds, where on
   the round trip's path);
+* latency (:func:`case_latency`): ``cpu_dma_latency`` in lockstep: the echo and the FOM loop
+  with the nodes' default limit held (0 us) and with no request (-1), alternated, 3 rounds:
+  the loop's rate held over not, the echo's likewise, each loop against its echo. Every
+  other case runs the nodes at their default and the echo and the floor loop holding the
+  same limit (where ``/dev/cpu_dma_latency`` is writable), so each ratio compares like with
+  like;
 * normal scheduler (:func:`case_fifo`): the hosted 1e-4 s and external 1e-3 s runs again with
   ``realtime_priority:=0`` (the plant runs under SCHED_FIFO 50 by default where permitted);
 * machine floor (:func:`case_wake`, at the start and at the end of the run): a loop with the
@@ -270,15 +276,18 @@ def _attempt_text(s: dict) -> str:
 
 
 def run_echo(domains: Domains, count: int, profile: str | None = None,
-             cpus: tuple[int, int] | None = None) -> dict:
+             cpus: tuple[int, int] | None = None, latency: int = 0) -> dict:
     """The bare round-trip loop (bench/ros_echo.py) for ``count`` round trips; ``profile``: a
     Fast DDS profile file instead of the package's (``FASTDDS_DEFAULT_PROFILES_FILE``);
-    ``cpus``: the ping's and the pong's CPU (each process pinned, ``--cpu``)."""
+    ``cpus``: the ping's and the pong's CPU (each process pinned, ``--cpu``); ``latency``:
+    the CPU wake-up latency limit both hold (``--cpu-dma-latency``, 0 as the nodes' default;
+    -1 none)."""
     env = domains.env()
     if profile is not None:
         env['FASTDDS_DEFAULT_PROFILES_FILE'] = profile
     script = str(HERE / 'ros_echo.py')
     pin = (['--cpu', str(cpus[0])], ['--cpu', str(cpus[1])]) if cpus else ([], [])
+    pin = tuple([*p, '--cpu-dma-latency', str(latency)] for p in pin)
     pong = subprocess.Popen([sys.executable, script, 'pong', *pin[1]], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             start_new_session=True)
@@ -831,6 +840,57 @@ def case_pinned(domains: Domains, quick: bool) -> dict:
     return out
 
 
+def case_latency(domains: Domains, quick: bool) -> dict:
+    """``cpu_dma_latency`` in lockstep, side by side: each round the bare echo and the lockstep
+    FOM loop (eq. 31 node) with the nodes' default limit held (0 us: idle CPUs poll) and with
+    no request (-1, the echo likewise), 3 rounds (1 with ``quick``), which goes first
+    alternating, each loop against the echo run just before it. The gain is the loop's rate
+    with the limit over without it in the same round. Skipped where this process may not
+    write ``/dev/cpu_dma_latency`` (the nodes then hold nothing either)."""
+    from fohssv_sim.ros.spin import CPU_LATENCY_DEVICE
+
+    if not os.access(CPU_LATENCY_DEVICE, os.W_OK):
+        print(f'latency   skipped: {CPU_LATENCY_DEVICE} is not writable here', flush=True)
+        return {'skipped': True}
+    count = 5000 if quick else 20000
+    params = {'mode': 'lockstep', 'model': 'fractional', 'duration': 1.0 if quick else 3.0,
+              **MODEL_PARAMS['fractional']}
+    rounds = []
+    for n in range(1 if quick else 3):
+        row = {}
+        order = (('none', -1), ('held', 0))
+        for key, us in order if n % 2 == 0 else order[::-1]:   # each first in turn
+            echo = run_echo(domains, count, latency=us)['round_trips_per_second']
+            s = run_plant(domains, {**params, 'cpu_dma_latency': us}, timeout=600.0,
+                          controller_params={'cpu_dma_latency': us})
+            row[key] = {'echo': echo, 'samples_per_second': s['samples_per_second'],
+                        'ratio_to_echo': s['samples_per_second'] / echo,
+                        'plant_cpu_per_sample_us': s['cpu_per_sample_us'],
+                        'controller_cpu_per_sample_us': s.get('controller_cpu_per_sample_us'),
+                        'cpu_dma_latency': s.get('cpu_dma_latency'),
+                        'host_steal_share': s.get('host_steal_share')}
+        row['gain'] = row['held']['samples_per_second'] / row['none']['samples_per_second']
+        row['echo_gain'] = row['held']['echo'] / row['none']['echo']
+        rounds.append(row)
+        print('latency   lockstep FOM ' + '; '.join(
+            f"{label}: echo {r['echo']:.0f}/s, loop {r['samples_per_second']:.0f}/s "
+            f"({r['ratio_to_echo']:.2f} of it), CPU plant {r['plant_cpu_per_sample_us']:.0f} / "
+            f"controller {r['controller_cpu_per_sample_us'] or 0:.0f} us/sample"
+            + _steal_text(r['host_steal_share'])
+            for label, r in (('no request', row['none']), ('0 us held', row['held'])))
+            + f"; loop held / none {row['gain']:.2f}, echo {row['echo_gain']:.2f}", flush=True)
+    out = {'rounds': rounds, 'gain': statistics.median(r['gain'] for r in rounds),
+           'echo_gain': statistics.median(r['echo_gain'] for r in rounds)}
+    for key in ('none', 'held'):
+        out[f'{key}_ratio_to_echo'] = statistics.median(r[key]['ratio_to_echo'] for r in rounds)
+        out[f'{key}_samples_per_second'] = statistics.median(r[key]['samples_per_second']
+                                                             for r in rounds)
+    print(f"latency   median of {len(rounds)}: loop held / none {out['gain']:.2f}, echo "
+          f"{out['echo_gain']:.2f}; loop / echo: none {out['none_ratio_to_echo']:.2f}, held "
+          f"{out['held_ratio_to_echo']:.2f}", flush=True)
+    return out
+
+
 def case_threads(domains: Domains, quick: bool) -> dict:
     """Where a round trip's CPU goes, thread by thread: the bare echo (ping, pong) and the
     lockstep FOM loop (plant, eq. 31 node), alternated (2 rounds, 1 with ``quick``). Each
@@ -963,6 +1023,11 @@ import json, math, os, sys, time, ctypes
 ctypes.CDLL(None).prctl(29, 1, 0, 0, 0)            # 1 ns timer slack, as the plant asks
 if sys.argv[1] == 'fifo':
     os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))
+try:       # the CPU wake-up latency limit the plant holds by default (cpu_dma_latency 0)
+    held = os.open('/dev/cpu_dma_latency', os.O_WRONLY)
+    os.write(held, (0).to_bytes(4, sys.byteorder))
+except OSError:
+    pass
 period, burst, tol, n = float(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4]), int(sys.argv[5])
 late, misses, worst, j = [], 0, 0.0, 0
 c0 = time.process_time()
@@ -1001,10 +1066,11 @@ def case_wake(sim_time: float, when: str) -> dict:
     """The machine's floor: a loop with the hosted plant's schedule that computes and publishes
     nothing (woken every 0.5 ms, when a burst of 5 samples of 1e-4 s is due, its samples counted
     as published at the wake-up), for ``sim_time`` of wall time, under the normal scheduler and
-    SCHED_FIFO 50: the CPU time per wake-up, how late the wake-ups come, and the deadline
-    misses a plant doing no work would have had. A hosted plant's misses are these plus what
-    its own work adds. Run at the start and at the end of the benchmark (the machine drifts),
-    with the hypervisor's steal over each loop."""
+    SCHED_FIFO 50, holding the CPU wake-up latency limit the plant holds (0): the CPU time per
+    wake-up, how late the wake-ups come, and the deadline misses a plant doing no work would
+    have had. A hosted plant's misses are these plus what its own work adds. Run at the start
+    and at the end of the benchmark (the machine drifts), with the hypervisor's steal over each
+    loop."""
     out = {}
     n = round(sim_time / FLOOR_PERIOD)
     for sched in ('normal', 'fifo'):
@@ -1116,6 +1182,7 @@ def main() -> int:
     threads = case_threads(domains, a.quick)
     pinned = case_pinned(domains, a.quick)
     hop = case_hops(domains, a.quick)
+    latency = case_latency(domains, a.quick)
     fifo = case_fifo(domains, sim_time)
     wake_end = case_wake(sim_time, 'end')
 
@@ -1140,7 +1207,7 @@ def main() -> int:
         'lockstep': lockstep, 'realtime': realtime, 'margin': margin,
         'external_rate': rate, 'inplant_recording': inplant,
         'normal_scheduler': fifo, 'profile': profiles, 'lockstep_callback': callback,
-        'threads': threads, 'pinned': pinned, 'hops': hop,
+        'threads': threads, 'pinned': pinned, 'hops': hop, 'cpu_dma_latency': latency,
         'targets': rows}, indent=2) + '\n')
     print(f'wrote {a.out}')
     return 0

@@ -12,6 +12,9 @@ Two processes, each one rclpy node on the executor the product's nodes use
   harness that samples the processes meanwhile, bench_ros.py's threads case);
   with ``--cpu N`` either role pins its process's threads to CPU N once its node, publisher
   and subscription exist, as a node's ``cpu_affinity`` does (bench_ros.py's pinned case);
+  with ``--cpu-dma-latency US`` (0 by default, as the product's nodes; -1: no request)
+  either role holds Linux's CPU wake-up latency limit while it runs, as a node's
+  ``cpu_dma_latency`` does, where it may (bench_ros.py's latency case compares the two);
   with ``--hops DIR`` it times each round trip as ``bench/hops.py`` times the product's nodes
   (callback entered, answer published; bench_ros.py's hops case; without it the callbacks
   are not wrapped);
@@ -40,7 +43,7 @@ from std_msgs.msg import Float64MultiArray
 
 from fohssv_sim.contract import COMMAND, STATE
 from fohssv_sim.ros.qos import profile
-from fohssv_sim.ros.spin import make_executor, pin_threads, spin_until
+from fohssv_sim.ros.spin import hold_cpu_latency, make_executor, pin_threads, spin_until
 from fohssv_sim.ros.wire import ArrayReader, ArrayWriter
 
 STATE_TOPIC, COMMAND_TOPIC = 'echo_state', 'echo_command'
@@ -138,6 +141,9 @@ def main() -> int:
                     help="ping: print a line 'timing' when the timed round trips begin")
     ap.add_argument('--cpu', type=int, default=None,
                     help="pin the process's threads to this CPU (as cpu_affinity does)")
+    ap.add_argument('--cpu-dma-latency', type=int, default=0, metavar='US',
+                    help="hold this CPU wake-up latency limit (us) while the process runs, as "
+                         "a node's cpu_dma_latency does (default 0, as theirs); -1: none")
     ap.add_argument('--hops', metavar='DIR', default=None,
                     help='time each round trip as bench/hops.py does, saved in DIR')
     a = ap.parse_args()
@@ -151,6 +157,12 @@ def main() -> int:
             else pong(node, stamps))
     if a.cpu is not None:
         pin_threads((a.cpu,))
+    if a.cpu_dma_latency >= 0:
+        try:
+            hold_cpu_latency(a.cpu_dma_latency)
+        except OSError as exc:    # as the nodes: said, and the loop runs on
+            print(f'cpu_dma_latency {a.cpu_dma_latency} us not requested: {exc}',
+                  file=sys.stderr, flush=True)
     executor = make_executor()
     executor.add_node(node)
     try:

@@ -20,6 +20,7 @@ from test_graph_support import Probe, batch_samples, plant_args, stop_all
 from fohssv_controller.fractional_pid import FractionalPID
 from fohssv_controller.lqr import LQR
 from fohssv_controller.state_feedback import StateFeedback
+from fohssv_sim.ros.spin import CPU_LATENCY_DEVICE, cpu_latency_limit
 
 import rosproc
 
@@ -231,3 +232,50 @@ def test_cpu_affinity_pins_every_thread_and_the_run_is_unchanged(tmp_path):
     states, forces = probe.state_array(), np.array(probe.forces)
     assert states.shape == ref.shape
     assert np.max(np.abs(states - ref)) <= TOL and np.max(np.abs(forces - fref)) <= TOL
+
+
+def _holds_latency_device(pid: int) -> bool:
+    """Whether the process has the PM QoS device open (its request is held while it is)."""
+    for fd in os.listdir(f'/proc/{pid}/fd'):
+        try:
+            if os.readlink(f'/proc/{pid}/fd/{fd}') == CPU_LATENCY_DEVICE:
+                return True
+        except OSError:            # closed meanwhile
+            continue
+    return False
+
+
+def test_cpu_dma_latency_is_held_by_the_process_while_it_runs(tmp_path):
+    """cpu_dma_latency:=7 on the plant, -1 on the controller node: while the run waits and
+    runs, the plant holds the kernel's PM QoS device open and the kernel's system-wide limit
+    is at most 7 us (the least of the requests held; other tests' nodes may hold 0); the
+    controller holds nothing; the plant's summary says 7. Where this process may not write
+    the device (not root), the plant says in one line that it could not and runs on."""
+    permitted = os.access(CPU_LATENCY_DEVICE, os.W_OK)
+    env = rosproc.ros_env()
+    plant_log, ctl_log = tmp_path / 'plant.log', tmp_path / 'controller.log'
+    plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+        model='delay-free', duration=0.05, cpu_dma_latency=7), env=env, log=plant_log)
+    ctl = None
+    try:
+        # the plant waits for its controller meanwhile: its request is held before the run
+        rosproc.wait_for(lambda: 'cpu_dma_latency: ' in plant_log.read_text(), 60,
+                         what="the plant's latency request")
+        held = _holds_latency_device(plant.pid)
+        limit = cpu_latency_limit()
+        ctl = rosproc.start('fohssv_controller', 'state_feedback',
+                            ['--ros-args', '-p', 'cpu_dma_latency:=-1'], env=env, log=ctl_log)
+        assert rosproc.wait_exit(plant, 60) == 0, plant_log.read_text()
+        ctl_held = _holds_latency_device(ctl.pid)     # it answered the run: fully built
+    finally:
+        stop_all(plant, ctl)
+    text = plant_log.read_text()
+    summary = json.loads(text.split('summary: ', 1)[1].splitlines()[0])
+    assert not ctl_held and 'cpu_dma_latency' not in ctl_log.read_text()
+    if permitted:
+        assert held and limit is not None and 0 <= limit <= 7, (held, limit)
+        assert 'CPU wake-up latency at most 7 us while this process runs' in text, text
+        assert summary['cpu_dma_latency'] == 7
+    else:
+        assert not held and summary['cpu_dma_latency'] is None
+        assert 'cpu_dma_latency: 7 us not requested: /dev/cpu_dma_latency' in text, text

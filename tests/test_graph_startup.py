@@ -93,6 +93,11 @@ def bad_parameter_cases(tmp):
          f'number or a list of them (this process may use CPU {cpu0}'),
         ('controller', ['-p', f'cpu_affinity:=[{cpu0}, 100000]'],
          f'cpu_affinity=[{cpu0}, 100000] names CPU 100000,'),
+        # cpu_dma_latency: whole microseconds, -1 for no request
+        ('plant', ['-p', 'cpu_dma_latency:=-5'],
+         'cpu_dma_latency=-5 is outside the allowed range [-1, 1e+06] us'),
+        ('controller', ['-p', 'cpu_dma_latency:=fast'],
+         "cpu_dma_latency='fast' is a string, not a number; allowed: [-1, 1e+06] us"),
         ('controller', ['-p', 'min_command_subscribers:=0'],
          'min_command_subscribers=0 is outside the allowed range [1, 1000]'),
         ('recorder', ['-p', 'flush_period:=abc', '-p', f'bag_path:={bag}'],

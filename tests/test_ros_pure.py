@@ -44,6 +44,7 @@ from fohssv_sim.ros.options import (
     view_samples,
 )
 from fohssv_sim.ros.ros_params import _coerce, descriptor, python_value, ros_type
+from fohssv_sim.ros.spin import CPU_LATENCY_DEVICE, cpu_latency_limit, hold_cpu_latency
 
 
 # -- loop.py ----------------------------------------------------------------------------------
@@ -289,6 +290,31 @@ def test_cpu_affinity_takes_taskset_lists_numbers_and_arrays_of_usable_cpus():
         text = str(err.value)
         assert text.startswith(f'cpu_affinity={bad!r} {words}'), text
         assert f'may use CPU {first}' in text and "allowed: '' (not pinned)" in text, text
+
+
+
+def test_cpu_dma_latency_is_whole_microseconds_from_minus_one():
+    assert PlantOptions().cpu_dma_latency == 0          # held by default where permitted
+    assert PlantOptions(cpu_dma_latency=-1).cpu_dma_latency == -1
+    assert PlantOptions(cpu_dma_latency=250.0).cpu_dma_latency == 250
+    for bad, words in [(-2, 'is outside the allowed range [-1, 1e+06] us'),
+                       (2_000_000, 'is outside the allowed range [-1, 1e+06] us'),
+                       (0.5, 'is not a whole number')]:
+        with pytest.raises(ParameterError) as err:
+            PlantOptions(cpu_dma_latency=bad)
+        assert str(err.value).startswith(f'cpu_dma_latency={bad!r} {words}'), str(err.value)
+
+
+def test_cpu_latency_request_where_the_device_is_missing_or_not_linux(tmp_path):
+    """No device (a container, not Linux): the request raises (the node says so and runs on),
+    the limit is unknown. Where this process may read the real device, the limit is the
+    kernel's: a whole number of microseconds, 0 to 2000000000 (no request held)."""
+    missing = str(tmp_path / 'cpu_dma_latency')
+    with pytest.raises(FileNotFoundError):
+        hold_cpu_latency(0, missing)
+    assert cpu_latency_limit(missing) is None
+    if os.access(CPU_LATENCY_DEVICE, os.R_OK):
+        assert 0 <= cpu_latency_limit() <= 2_000_000_000
 
 
 # -- ros_params.py ----------------------------------------------------------------------------

@@ -25,6 +25,9 @@ A second publisher of ``state`` (two plants on one domain and namespace, whose s
 controller would answer interleaved) is logged once as a warning naming the nodes.
 ``cpu_affinity`` (as the plant's: ``''`` not pinned, or CPUs such as ``1`` or ``'0,2-3'``) pins
 every thread of the process once the node, its publisher and its subscription exist.
+``cpu_dma_latency`` (as the plant's: 0 µs by default, -1 no request) holds Linux's CPU
+wake-up latency limit while the node runs, where the process may write
+``/dev/cpu_dma_latency``.
 
 Exit codes: 0 on a clean stop, 2 for an unknown controller or invalid parameters.
 """
@@ -45,6 +48,7 @@ from fohssv_sim.control import Controller, NonFiniteCommand, per_sample_command
 from fohssv_sim.params import ParameterSpec, field_specs
 from fohssv_sim.ros.nodekit import (
     CPU_AFFINITY,
+    CPU_DMA_LATENCY,
     ArrayReader,
     ArrayWriter,
     HoldReporter,
@@ -55,6 +59,7 @@ from fohssv_sim.ros.nodekit import (
     declare_rows,
     destroy_on_error,
     final_log,
+    hold_latency,
     install_validation,
     pin_node,
     profile,
@@ -95,7 +100,7 @@ class ControllerNode(Node):
         names = tuple(s.name for s in specs)
         values = declare(self, specs)
         # until the plant's (and a recorder's) subscription is matched a publish is lost
-        own = declare(self, (MIN_COMMAND_SUBSCRIBERS, CPU_AFFINITY))
+        own = declare(self, (MIN_COMMAND_SUBSCRIBERS, CPU_AFFINITY, CPU_DMA_LATENCY))
         minimum = own['min_command_subscribers']
         refuse_unknown(self)
         self.controller = self._build(values)
@@ -133,6 +138,7 @@ class ControllerNode(Node):
         self._log_raised = LogLimiter(logger, _LOG_EACH)
         self.get_logger().info(f'controller {self.controller.describe()}')
         pin_node(self, CPU_AFFINITY.validate(own['cpu_affinity']))
+        self.cpu_latency = hold_latency(self, int(own['cpu_dma_latency']))
 
     def _plugin(self, default_controller: str) -> type[Controller]:
         declare_rows(self, [(
@@ -236,7 +242,7 @@ def main(args: list[str] | None = None,
                   f'{node.raised} raised by the law')
 
     sys.exit(run_node('controller', args, lambda: ControllerNode(default_controller),
-                      specs=(*specs, MIN_COMMAND_SUBSCRIBERS, CPU_AFFINITY),
+                      specs=(*specs, MIN_COMMAND_SUBSCRIBERS, CPU_AFFINITY, CPU_DMA_LATENCY),
                       refused=(control.UnknownController,), on_exit=on_exit))
 
 

@@ -38,13 +38,16 @@ from rclpy.signals import SignalHandlerOptions
 
 from ..params import ParameterSpec
 from .matching import HoldReporter, SecondPublisherWarning, SubscriptionGate
-from .options import CPU_AFFINITY
+from .options import CPU_AFFINITY, CPU_DMA_LATENCY
 from .qos import offered_qos, profile
 from .ros_params import declare, install_validation
 from .spin import (
+    CPU_LATENCY_DEVICE,
     STOP,
     PausedCollector,
+    cpu_latency_limit,
     final_log,
+    hold_cpu_latency,
     make_executor,
     pin_threads,
     set_realtime_priority,
@@ -69,7 +72,7 @@ __all__ = ['run_node', 'spin_node', 'EXIT_OK', 'EXIT_BAD_PARAMETERS',
            'spin_until', 'STOP', 'final_log', 'SubscriptionGate', 'HoldReporter',
            'SecondPublisherWarning',
            'PausedCollector', 'set_realtime_priority', 'tighten_timer_slack', 'init', 'report',
-           'LogLimiter', 'pin_node', 'CPU_AFFINITY']
+           'LogLimiter', 'pin_node', 'CPU_AFFINITY', 'CPU_DMA_LATENCY', 'hold_latency']
 
 EXIT_OK = 0
 
@@ -89,6 +92,29 @@ def pin_node(node: Any, cpus: tuple[int, ...]) -> bool:
         return False
     node.get_logger().info(f"cpu_affinity: the process's {threads} threads run on CPU {text}")
     return True
+
+
+def hold_latency(node: Any, us: int, warn: bool = False) -> int | None:
+    """Hold the node's validated ``cpu_dma_latency`` (``us`` microseconds; -1: no request)
+    until the process ends (:func:`.spin.hold_cpu_latency`) and say so in one line; where
+    the kernel's device cannot be written, say why in one line (a warning with ``warn``,
+    else information: the run does not depend on it) and run on. Returns the limit held, or
+    None."""
+    if us < 0:
+        return None
+    try:
+        hold_cpu_latency(us)
+    except OSError as exc:
+        line = (f'cpu_dma_latency: {us} us not requested: {CPU_LATENCY_DEVICE}: '
+                f'{exc.strerror} (writing it needs root); idle CPUs may take longer to wake '
+                'for a message; cpu_dma_latency:=-1 asks for nothing')
+        (node.get_logger().warning if warn else node.get_logger().info)(line)
+        return None
+    limit = cpu_latency_limit()
+    node.get_logger().info(
+        f'cpu_dma_latency: CPU wake-up latency at most {us} us while this process runs '
+        + ('' if limit is None else f'(system-wide limit now {limit} us)'))
+    return us
 
 
 class LogLimiter:

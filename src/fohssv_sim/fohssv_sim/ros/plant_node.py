@@ -103,6 +103,7 @@ from .nodekit import (
     declare,
     destroy_on_error,
     final_log,
+    hold_latency,
     install_validation,
     make_executor,
     pin_node,
@@ -287,6 +288,7 @@ class PlantNode(Node):
         self._announced = False                   # run_end published
         self.forces_lost = 0                      # planing_force samples not published
         self._cut: tuple[float, int] | None = None  # (t, steps) where a burst ended the run
+        self.cpu_latency: int | None = None    # the cpu_dma_latency held (us), set by _run
         self.publish_retries = 0                  # publishes DDS refused at first
         self.resets = 0
         self._samples_before = 0                  # samples and steps before the last reset
@@ -1212,6 +1214,7 @@ class PlantNode(Node):
             'controller': self.options.controller or 'external',
             'publish_retries': self.publish_retries,
             'cpu_affinity': list(self.options.cpu_affinity),
+            'cpu_dma_latency': self.cpu_latency,
         }
         if self.hosted is not None:
             s.update(hosted_commands=self.commanded, commands_published=self.commands_sent,
@@ -1356,6 +1359,8 @@ def _run(node: PlantNode) -> int:
     executor = make_executor()
     executor.add_node(node)
     pinned = pin_node(node, node.options.cpu_affinity)   # after the in-plant writer started
+    node.cpu_latency = hold_latency(node, node.options.cpu_dma_latency,
+                                    warn=node.options.mode == 'realtime')
     if node.options.mode == 'realtime':
         tighten_timer_slack()
         refused = set_realtime_priority(node.options.realtime_priority)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import signal
+import struct
 import sys
 from typing import Protocol
 
@@ -21,7 +22,8 @@ from rclpy.executors import Executor
 from rclpy.task import Future
 
 __all__ = ['Paced', 'make_executor', 'spin_until', 'tighten_timer_slack', 'final_log',
-           'StopSignal', 'STOP', 'pin_threads']
+           'StopSignal', 'STOP', 'pin_threads', 'hold_cpu_latency', 'cpu_latency_limit',
+           'CPU_LATENCY_DEVICE']
 
 _PR_SET_TIMERSLACK = 29
 
@@ -216,6 +218,50 @@ def pin_threads(cpus: tuple[int, ...]) -> int:
             except ProcessLookupError:       # a thread that ended meanwhile
                 pass
             pinned.add(tid)
+
+
+#: Linux's PM QoS device for the system-wide CPU wake-up latency limit (microseconds).
+CPU_LATENCY_DEVICE = '/dev/cpu_dma_latency'
+
+#: The open requests of this process: the kernel holds a request while its file is open and
+#: drops it when the file closes, which the process's end does however it ends (SIGKILL too).
+_LATENCY_REQUESTS: list[int] = []
+
+
+def hold_cpu_latency(us: int, device: str = CPU_LATENCY_DEVICE) -> None:
+    """Ask Linux to keep every CPU's wake-up latency at most ``us`` microseconds until this
+    process ends (Linux PM QoS, as ``cyclictest`` and real-time Linux guides do): the cpuidle
+    governor then picks no idle state that takes longer to leave; with 0 an idle CPU polls
+    (on a VM: the vCPU does not halt, so the host need not wake it for the next message).
+    The limit is system-wide, the least of all the requests held.
+
+    Raises:
+        OSError: the device is missing (not Linux, a container without it) or not writable
+            (it is root's: mode 0600).
+    """
+    fd = os.open(device, os.O_WRONLY | os.O_CLOEXEC)
+    try:
+        os.write(fd, struct.pack('=i', us))
+    except OSError:
+        os.close(fd)
+        raise
+    _LATENCY_REQUESTS.append(fd)
+
+
+def cpu_latency_limit(device: str = CPU_LATENCY_DEVICE) -> int | None:
+    """The kernel's current system-wide CPU wake-up latency limit in microseconds (the least
+    of the requests held; 2000000000 when none is), or None where it cannot be read."""
+    try:
+        fd = os.open(device, os.O_RDONLY | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        raw = os.read(fd, 4)
+    except OSError:
+        return None
+    finally:
+        os.close(fd)
+    return struct.unpack('=i', raw)[0] if len(raw) == 4 else None
 
 
 def final_log(name: str, text: str) -> None:

@@ -847,7 +847,7 @@ def case_latency(domains: Domains, quick: bool) -> dict:
     alternating, each loop against the echo run just before it. The gain is the loop's rate
     with the limit over without it in the same round. Skipped where this process may not
     write ``/dev/cpu_dma_latency`` (the nodes then hold nothing either)."""
-    from fohssv_sim.ros.spin import CPU_LATENCY_DEVICE
+    from fohssv_sim.ros.spin import CPU_LATENCY_DEVICE, cpu_latency_limit
 
     if not os.access(CPU_LATENCY_DEVICE, os.W_OK):
         print(f'latency   skipped: {CPU_LATENCY_DEVICE} is not writable here', flush=True)
@@ -860,10 +860,24 @@ def case_latency(domains: Domains, quick: bool) -> dict:
         row = {}
         order = (('none', -1), ('held', 0))
         for key, us in order if n % 2 == 0 else order[::-1]:   # each first in turn
-            echo = run_echo(domains, count, latency=us)['round_trips_per_second']
+            # the limit is system-wide: another process holding one makes "none" a held run
+            before = cpu_latency_limit()
+            e = run_echo(domains, count, latency=us)
+            echo = e['round_trips_per_second']
             s = run_plant(domains, {**params, 'cpu_dma_latency': us}, timeout=600.0,
                           controller_params={'cpu_dma_latency': us})
+            after = cpu_latency_limit()
+            expected = None if us < 0 else us
+            if e.get('cpu_dma_latency') != expected or s.get('cpu_dma_latency') != expected:
+                print(f'latency   {key}: the echo held {e.get("cpu_dma_latency")}, the plant '
+                      f'{s.get("cpu_dma_latency")}, not {expected}', flush=True)
+            if us < 0 and min(x for x in (before, after, 2_000_000_000) if x is not None) \
+                    < 2_000_000_000:
+                print(f'latency   none: another process held a limit ({before} us before, '
+                      f'{after} us after): this round does not measure "none"', flush=True)
             row[key] = {'echo': echo, 'samples_per_second': s['samples_per_second'],
+                        'limit_before_us': before, 'limit_after_us': after,
+                        'echo_cpu_dma_latency': e.get('cpu_dma_latency'),
                         'ratio_to_echo': s['samples_per_second'] / echo,
                         'plant_cpu_per_sample_us': s['cpu_per_sample_us'],
                         'controller_cpu_per_sample_us': s.get('controller_cpu_per_sample_us'),

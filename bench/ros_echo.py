@@ -19,7 +19,7 @@ Two processes, each one rclpy node on the executor the product's nodes use
   (callback entered, answer published; bench_ros.py's hops case; without it the callbacks
   are not wrapped);
   after ``--count`` round trips it prints one JSON line ``{"round_trips": n, "seconds": s,
-  "round_trips_per_second": r}`` and exits.
+  "round_trips_per_second": r, "cpu_dma_latency": the limit held or null}`` and exits.
 
 Messages travel as the product's nodes send and take them: serialized once and written in
 place, taken by raw subscriptions and unpacked at their known offset
@@ -157,9 +157,11 @@ def main() -> int:
             else pong(node, stamps))
     if a.cpu is not None:
         pin_threads((a.cpu,))
+    held = None
     if a.cpu_dma_latency >= 0:
         try:
             hold_cpu_latency(a.cpu_dma_latency)
+            held = a.cpu_dma_latency
         except OSError as exc:    # as the nodes: said, and the loop runs on
             print(f'cpu_dma_latency {a.cpu_dma_latency} us not requested: {exc}',
                   file=sys.stderr, flush=True)
@@ -173,7 +175,7 @@ def main() -> int:
         node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
-    print(json.dumps(done.result()), flush=True)
+    print(json.dumps({**done.result(), 'cpu_dma_latency': held}), flush=True)
     return 1 if 'error' in done.result() else 0
 
 

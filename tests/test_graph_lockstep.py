@@ -191,7 +191,8 @@ def _cpus_allowed(pid: int) -> dict[int, str]:
 def test_cpu_affinity_pins_every_thread_and_the_run_is_unchanged(tmp_path):
     """cpu_affinity on the plant and the controller node: every thread of each process (DDS's
     included, and those started after the pin, at matching) runs only on its CPU while the
-    lockstep run gives the batch runner's samples; the plant's summary names its CPUs."""
+    lockstep run gives the batch runner's samples; the plant's summary names its CPUs. The
+    controller node also holds cpu_dma_latency:=5 (the PM QoS device open while it runs)."""
     usable = sorted(os.sched_getaffinity(0))
     if len(usable) < 2:
         pytest.skip('one usable CPU: pinning would not differ from the default')
@@ -208,14 +209,17 @@ def test_cpu_affinity_pins_every_thread_and_the_run_is_unchanged(tmp_path):
     try:
         rosproc.wait_for(lambda: 'cpu_affinity: ' in plant_log.read_text(), 60,
                          what="the plant's pin")
+        # and holds a CPU wake-up latency limit (the controller node's hold, checked below)
         ctl = rosproc.start('fohssv_controller', 'state_feedback',
-                            ['--ros-args', '-p', f'cpu_affinity:={ctl_cpu}'], env=env, log=ctl_log)
+                            ['--ros-args', '-p', f'cpu_affinity:={ctl_cpu}', '-p',
+                             'cpu_dma_latency:=5'], env=env, log=ctl_log)
         rosproc.wait_for(lambda: 'cpu_affinity: ' in ctl_log.read_text(), 60,
                          what="the controller's pin")
         n = round(duration / 1e-4) + 1
         probe.wait(lambda: (len(probe.states) >= n and len(probe.forces) >= n)
                    or plant.poll() is not None, 90, f'{n} samples at the probe')
         threads = {'plant': _cpus_allowed(plant.pid), 'controller': _cpus_allowed(ctl.pid)}
+        ctl_holds = _holds_latency_device(ctl.pid)
         out = stop_all(plant) + plant_log.read_text()
         assert plant.returncode == 0 and 'stopping cleanly at t=' in out, out
     finally:
@@ -226,12 +230,26 @@ def test_cpu_affinity_pins_every_thread_and_the_run_is_unchanged(tmp_path):
         assert len(cpus) >= 5 and set(cpus.values()) == {str(cpu)}, (name, cpus)
     assert f'threads run on CPU {plant_cpu}' in plant_log.read_text()
     assert f'threads run on CPU {ctl_cpu}' in ctl_log.read_text()
+    if _may_hold_latency():
+        assert ctl_holds and 'CPU wake-up latency at most 5 us' in ctl_log.read_text()
+    else:
+        assert not ctl_holds and 'cpu_dma_latency: 5 us not requested' in ctl_log.read_text()
     summary = json.loads(plant_log.read_text().split('summary: ', 1)[1].splitlines()[0])
     assert summary['cpu_affinity'] == [plant_cpu]
     ref, fref = batch_samples('fractional', StateFeedback(), duration)
     states, forces = probe.state_array(), np.array(probe.forces)
     assert states.shape == ref.shape
     assert np.max(np.abs(states - ref)) <= TOL and np.max(np.abs(forces - fref)) <= TOL
+
+
+def _may_hold_latency() -> bool:
+    """Whether a process of this user may open the PM QoS device for writing, as the nodes do
+    (opening it adds a request at the default, no limit, until it is closed)."""
+    try:
+        os.close(os.open(CPU_LATENCY_DEVICE, os.O_WRONLY))
+    except OSError:
+        return False
+    return True
 
 
 def _holds_latency_device(pid: int) -> bool:
@@ -251,7 +269,7 @@ def test_cpu_dma_latency_is_held_by_the_process_while_it_runs(tmp_path):
     is at most 7 us (the least of the requests held; other tests' nodes may hold 0); the
     controller holds nothing; the plant's summary says 7. Where this process may not write
     the device (not root), the plant says in one line that it could not and runs on."""
-    permitted = os.access(CPU_LATENCY_DEVICE, os.W_OK)
+    permitted = _may_hold_latency()
     env = rosproc.ros_env()
     plant_log, ctl_log = tmp_path / 'plant.log', tmp_path / 'controller.log'
     plant = rosproc.start('fohssv_sim', 'plant', plant_args(

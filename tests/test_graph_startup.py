@@ -98,6 +98,8 @@ def bad_parameter_cases(tmp):
          'cpu_dma_latency=-5 is outside the allowed range [-1, 1e+06] us'),
         ('controller', ['-p', 'cpu_dma_latency:=fast'],
          "cpu_dma_latency='fast' is a string, not a number; allowed: [-1, 1e+06] us"),
+        ('controller', ['-p', 'cpu_dma_latency:=5.5'], 'cpu_dma_latency=5.5 is not a whole '
+         'number'),
         ('controller', ['-p', 'min_command_subscribers:=0'],
          'min_command_subscribers=0 is outside the allowed range [1, 1000]'),
         ('recorder', ['-p', 'flush_period:=abc', '-p', f'bag_path:={bag}'],

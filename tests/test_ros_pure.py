@@ -8,11 +8,13 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 
 import pytest
 from rcl_interfaces.msg import ParameterType
 
 from fohssv_sim.params import PARAMETERS, ModelParameters, ParameterError
+from fohssv_sim.ros import spin
 from fohssv_sim.ros.bag_options import (
     PLAYER_PARAMETERS,
     RECORDER_PARAMETERS,
@@ -315,6 +317,25 @@ def test_cpu_latency_request_where_the_device_is_missing_or_not_linux(tmp_path):
     assert cpu_latency_limit(missing) is None
     if os.access(CPU_LATENCY_DEVICE, os.R_OK):
         assert 0 <= cpu_latency_limit() <= 2_000_000_000
+
+
+def test_cpu_latency_request_writes_a_native_s32_and_keeps_the_file_open(tmp_path):
+    """What goes to the device (a regular file stands in for it here; the graph test holds the
+    real one): the limit as a 4-byte signed integer in the machine's byte order, the form
+    Linux's PM QoS device reads (Documentation/power/pm_qos_interface.rst), and the file
+    stays open: the kernel holds a request only while it is."""
+    path = tmp_path / 'device'
+    path.write_bytes(b'')
+    before = list(spin._LATENCY_REQUESTS)
+    hold_cpu_latency(7, str(path))
+    try:
+        fd = spin._LATENCY_REQUESTS[-1]
+        assert spin._LATENCY_REQUESTS[:-1] == before
+        assert path.read_bytes() == (7).to_bytes(4, sys.byteorder, signed=True)
+        assert os.fstat(fd).st_ino == path.stat().st_ino       # still open
+        assert cpu_latency_limit(str(path)) == 7
+    finally:
+        os.close(spin._LATENCY_REQUESTS.pop())
 
 
 # -- ros_params.py ----------------------------------------------------------------------------

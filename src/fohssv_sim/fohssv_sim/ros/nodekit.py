@@ -24,6 +24,7 @@ imports its ROS helpers from here and never from another node's module:
 
 from __future__ import annotations
 
+import errno
 import sys
 from collections.abc import Callable, Iterable
 from time import monotonic
@@ -105,15 +106,16 @@ def hold_latency(node: Any, us: int, warn: bool = False) -> int | None:
     try:
         hold_cpu_latency(us)
     except OSError as exc:
+        why = (' (writing it needs root)' if exc.errno in (errno.EACCES, errno.EPERM) else '')
         line = (f'cpu_dma_latency: {us} us not requested: {CPU_LATENCY_DEVICE}: '
-                f'{exc.strerror} (writing it needs root); idle CPUs may take longer to wake '
-                'for a message; cpu_dma_latency:=-1 asks for nothing')
+                f'{exc.strerror}{why}; idle CPUs may take longer to wake for a message; '
+                'cpu_dma_latency:=-1 asks for nothing')
         (node.get_logger().warning if warn else node.get_logger().info)(line)
         return None
     limit = cpu_latency_limit()
     node.get_logger().info(
-        f'cpu_dma_latency: CPU wake-up latency at most {us} us while this process runs '
-        + ('' if limit is None else f'(system-wide limit now {limit} us)'))
+        f'cpu_dma_latency: CPU wake-up latency at most {us} us while this process runs'
+        + ('' if limit is None else f' (system-wide limit now {limit} us)'))
     return us
 
 

@@ -108,6 +108,20 @@ def _exe(package: str, name: str) -> str:
     return os.path.join(get_package_prefix(package), 'lib', package, name)
 
 
+def ros_args(params: dict | None) -> list[str]:
+    """``--ros-args -p k:=v ...`` for a node's parameters (nothing for none)."""
+    args = ['--ros-args'] if params else []
+    for k, v in (params or {}).items():
+        args += ['-p', f'{k}:={v}']
+    return args
+
+
+def fom_lockstep_args(duration: float) -> list[str]:
+    """The plant's arguments for the lockstep FOM loop of ``duration`` simulated seconds."""
+    return ros_args({'mode': 'lockstep', 'model': 'fractional', 'duration': duration,
+                     **MODEL_PARAMS['fractional']})
+
+
 class Domains:
     """A fresh ROS_DOMAIN_ID per run (a run's late packets never reach the next one)."""
 
@@ -173,12 +187,8 @@ class SecondPlant(RuntimeError):
 def _run_plant(domains: Domains, plant_params: dict, timeout: float,
                env_extra: dict | None = None, controller_params: dict | None = None) -> dict:
     env = dict(domains.env(), **(env_extra or {}))
-    args = ['--ros-args']
-    for k, v in plant_params.items():
-        args += ['-p', f'{k}:={v}']
-    ctl_args = ['--ros-args'] if controller_params else []
-    for k, v in (controller_params or {}).items():
-        ctl_args += ['-p', f'{k}:={v}']
+    args = ros_args(plant_params) or ['--ros-args']
+    ctl_args = ros_args(controller_params)
     ctl = None if plant_params.get('controller') else subprocess.Popen(
         [_exe('fohssv_controller', 'state_feedback'), *ctl_args], env=env,
         stdout=subprocess.PIPE,
@@ -322,9 +332,7 @@ def default_writer_times_profile(folder: str) -> str:
 def _timed_loop(env: dict, plant_params: dict, timeout: float) -> tuple[float, dict]:
     """A lockstep plant + eq. 31 controller node: (wall seconds from the plant's first sample
     to its bag closed (with ``record``) or to its run's end, the plant's summary)."""
-    args = ['--ros-args']
-    for k, v in plant_params.items():
-        args += ['-p', f'{k}:={v}']
+    args = ros_args(plant_params) or ['--ros-args']
     ctl = subprocess.Popen([_exe('fohssv_controller', 'state_feedback')], env=env,
                            stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
                            start_new_session=True)
@@ -916,10 +924,7 @@ def case_threads(domains: Domains, quick: bool) -> dict:
     (its summary) is kept beside the window's, as a check of the estimate."""
     window = 1.0 if quick else 2.0
     script = str(HERE / 'ros_echo.py')
-    args = ['--ros-args']
-    for k, v in {'mode': 'lockstep', 'model': 'fractional',
-                 'duration': 1.5 if quick else 4.0, **MODEL_PARAMS['fractional']}.items():
-        args += ['-p', f'{k}:={v}']
+    args = fom_lockstep_args(1.5 if quick else 4.0)
     rounds = []
     for _ in range(1 if quick else 2):
         env = domains.env()
@@ -966,10 +971,7 @@ def case_hops(domains: Domains, quick: bool) -> dict:
     from hops import hops
 
     script, harness = str(HERE / 'ros_echo.py'), str(HERE / 'hops.py')
-    args = ['--ros-args']
-    for k, v in {'mode': 'lockstep', 'model': 'fractional',
-                 'duration': 1.0 if quick else 3.0, **MODEL_PARAMS['fractional']}.items():
-        args += ['-p', f'{k}:={v}']
+    args = fom_lockstep_args(1.0 if quick else 3.0)
     rounds = []
     for _ in range(1 if quick else 2):
         with tempfile.TemporaryDirectory() as folder:

@@ -9,7 +9,11 @@ from rclpy.node import Node
 from rclpy.publisher import Publisher
 
 __all__ = ['HoldReporter', 'SubscriptionGate', 'SecondPublisherWarning', 'UNKNOWN_NODE',
-           'node_path']
+           'node_path', 'GRAPH_RECHECK']
+
+#: During a :class:`SubscriptionGate`'s grace period, the graph's subscriptions of its topic
+#: are read again at most this often (s); the matched count at every call.
+GRAPH_RECHECK = 1e-3
 
 #: The name DDS gives an endpoint's node until the node itself is discovered (an endpoint is
 #: found before its node's name: seen under load).
@@ -66,7 +70,11 @@ class SubscriptionGate:
 
     The graph lists a remote subscription only once discovery has reached this process, which
     can be after the plant's first sample: ``minimum`` is the guarantee (``minimum=2`` for a
-    plant and a recorder), the graph check a best effort on top of it.
+    plant and a recorder), the graph check a best effort on top of it. The matched count is
+    read at every message; the graph's count of subscriptions at most every
+    :data:`GRAPH_RECHECK` s (a graph query costs about 4 us, most of a lockstep controller's
+    own time per sample during the grace period), so a subscription the graph lists pauses
+    sending at most that long after it is listed.
 
     ``follow`` (a topic name: the controller node's ``state``): the gate also waits, at the
     first message it passes and for at most ``follow_grace`` s from then, until the graph lists a
@@ -89,6 +97,8 @@ class SubscriptionGate:
         self._follow = follow
         self._follow_grace = follow_grace
         self._follow_deadline: float | None = None
+        self._listed = 0              # the graph's subscriptions of the topic, read ...
+        self._listed_until = 0.0      # ... again from this time (monotonic s) on
 
     def __call__(self) -> bool:
         matched = self._pub.get_subscription_count()
@@ -105,7 +115,10 @@ class SubscriptionGate:
             self._follow = None       # met (or waited long enough): not asked again
         if now >= self._deadline:
             return True
-        return matched >= self._node.count_subscribers(self._pub.topic_name)
+        if now >= self._listed_until:
+            self._listed = self._node.count_subscribers(self._pub.topic_name)
+            self._listed_until = now + GRAPH_RECHECK
+        return matched >= self._listed
 
     def _follow_met(self, matched: int) -> bool:
         """Whether the graph lists a publisher of ``follow`` (the state just answered came

@@ -855,7 +855,7 @@ def case_latency(domains: Domains, quick: bool) -> dict:
     alternating, each loop against the echo run just before it. The gain is the loop's rate
     with the limit over without it in the same round. Skipped where this process may not
     write ``/dev/cpu_dma_latency`` (the nodes then hold nothing either)."""
-    from fohssv_sim.ros.spin import CPU_LATENCY_DEVICE, cpu_latency_limit
+    from fohssv_sim.ros.spin import CPU_LATENCY_DEVICE, NO_LATENCY_LIMIT, cpu_latency_limit
 
     if not os.access(CPU_LATENCY_DEVICE, os.W_OK):
         print(f'latency   skipped: {CPU_LATENCY_DEVICE} is not writable here', flush=True)
@@ -879,8 +879,7 @@ def case_latency(domains: Domains, quick: bool) -> dict:
             if e.get('cpu_dma_latency') != expected or s.get('cpu_dma_latency') != expected:
                 print(f'latency   {key}: the echo held {e.get("cpu_dma_latency")}, the plant '
                       f'{s.get("cpu_dma_latency")}, not {expected}', flush=True)
-            if us < 0 and min(x for x in (before, after, 2_000_000_000) if x is not None) \
-                    < 2_000_000_000:
+            if us < 0 and any(x is not None and x < NO_LATENCY_LIMIT for x in (before, after)):
                 print(f'latency   none: another process held a limit ({before} us before, '
                       f'{after} us after): this round does not measure "none"', flush=True)
             row[key] = {'echo': echo, 'samples_per_second': s['samples_per_second'],
@@ -1039,9 +1038,9 @@ import json, math, os, sys, time, ctypes
 ctypes.CDLL(None).prctl(29, 1, 0, 0, 0)            # 1 ns timer slack, as the plant asks
 if sys.argv[1] == 'fifo':
     os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))
+from fohssv_sim.ros.spin import hold_cpu_latency
 try:       # the CPU wake-up latency limit the plant holds by default (cpu_dma_latency 0)
-    held = os.open('/dev/cpu_dma_latency', os.O_WRONLY)
-    os.write(held, (0).to_bytes(4, sys.byteorder))
+    hold_cpu_latency(0)
 except OSError:
     pass
 period, burst, tol, n = float(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4]), int(sys.argv[5])

@@ -42,8 +42,9 @@ from rclpy.task import Future
 from std_msgs.msg import Float64MultiArray
 
 from fohssv_sim.contract import COMMAND, STATE
+from fohssv_sim.ros.nodekit import hold_latency
 from fohssv_sim.ros.qos import profile
-from fohssv_sim.ros.spin import hold_cpu_latency, make_executor, pin_threads, spin_until
+from fohssv_sim.ros.spin import make_executor, pin_threads, spin_until
 from fohssv_sim.ros.wire import ArrayReader, ArrayWriter
 
 STATE_TOPIC, COMMAND_TOPIC = 'echo_state', 'echo_command'
@@ -157,14 +158,7 @@ def main() -> int:
             else pong(node, stamps))
     if a.cpu is not None:
         pin_threads((a.cpu,))
-    held = None
-    if a.cpu_dma_latency >= 0:
-        try:
-            hold_cpu_latency(a.cpu_dma_latency)
-            held = a.cpu_dma_latency
-        except OSError as exc:    # as the nodes: said, and the loop runs on
-            print(f'cpu_dma_latency {a.cpu_dma_latency} us not requested: {exc}',
-                  file=sys.stderr, flush=True)
+    held = hold_latency(node, a.cpu_dma_latency)     # as the nodes: said in one line either way
     executor = make_executor()
     executor.add_node(node)
     try:

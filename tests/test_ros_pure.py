@@ -46,7 +46,12 @@ from fohssv_sim.ros.options import (
     view_samples,
 )
 from fohssv_sim.ros.ros_params import _coerce, descriptor, python_value, ros_type
-from fohssv_sim.ros.spin import CPU_LATENCY_DEVICE, cpu_latency_limit, hold_cpu_latency
+from fohssv_sim.ros.spin import (
+    CPU_LATENCY_DEVICE,
+    NO_LATENCY_LIMIT,
+    cpu_latency_limit,
+    hold_cpu_latency,
+)
 
 
 # -- loop.py ----------------------------------------------------------------------------------
@@ -294,7 +299,6 @@ def test_cpu_affinity_takes_taskset_lists_numbers_and_arrays_of_usable_cpus():
         assert f'may use CPU {first}' in text and "allowed: '' (not pinned)" in text, text
 
 
-
 def test_cpu_dma_latency_is_whole_microseconds_from_minus_one():
     assert PlantOptions().cpu_dma_latency == 0          # held by default where permitted
     assert PlantOptions(cpu_dma_latency=-1).cpu_dma_latency == -1
@@ -310,13 +314,13 @@ def test_cpu_dma_latency_is_whole_microseconds_from_minus_one():
 def test_cpu_latency_request_where_the_device_is_missing_or_not_linux(tmp_path):
     """No device (a container, not Linux): the request raises (the node says so and runs on),
     the limit is unknown. Where this process may read the real device, the limit is the
-    kernel's: a whole number of microseconds, 0 to 2000000000 (no request held)."""
+    kernel's: a whole number of microseconds, 0 to NO_LATENCY_LIMIT (no request held)."""
     missing = str(tmp_path / 'cpu_dma_latency')
     with pytest.raises(FileNotFoundError):
         hold_cpu_latency(0, missing)
     assert cpu_latency_limit(missing) is None
     if os.access(CPU_LATENCY_DEVICE, os.R_OK):
-        assert 0 <= cpu_latency_limit() <= 2_000_000_000
+        assert 0 <= cpu_latency_limit() <= NO_LATENCY_LIMIT
 
 
 def test_cpu_latency_request_writes_a_native_s32_and_keeps_the_file_open(tmp_path):

@@ -23,7 +23,7 @@ from rclpy.task import Future
 
 __all__ = ['Paced', 'make_executor', 'spin_until', 'tighten_timer_slack', 'final_log',
            'StopSignal', 'STOP', 'pin_threads', 'hold_cpu_latency', 'cpu_latency_limit',
-           'CPU_LATENCY_DEVICE']
+           'CPU_LATENCY_DEVICE', 'NO_LATENCY_LIMIT']
 
 _PR_SET_TIMERSLACK = 29
 
@@ -223,6 +223,9 @@ def pin_threads(cpus: tuple[int, ...]) -> int:
 #: Linux's PM QoS device for the system-wide CPU wake-up latency limit (microseconds).
 CPU_LATENCY_DEVICE = '/dev/cpu_dma_latency'
 
+#: What the device reads while no process holds a request (Linux's PM QoS default, 2000 s).
+NO_LATENCY_LIMIT = 2_000_000_000
+
 #: The open requests of this process: the kernel holds a request while its file is open and
 #: drops it when the file closes, which the process's end does however it ends (SIGKILL too).
 _LATENCY_REQUESTS: list[int] = []
@@ -250,7 +253,8 @@ def hold_cpu_latency(us: int, device: str = CPU_LATENCY_DEVICE) -> None:
 
 def cpu_latency_limit(device: str = CPU_LATENCY_DEVICE) -> int | None:
     """The kernel's current system-wide CPU wake-up latency limit in microseconds (the least
-    of the requests held; 2000000000 when none is), or None where it cannot be read."""
+    of the requests held; :data:`NO_LATENCY_LIMIT` when none is), or None where it cannot be
+    read."""
     try:
         fd = os.open(device, os.O_RDONLY | os.O_CLOEXEC)
     except OSError:

@@ -351,7 +351,9 @@ def delayed_run(x, n, nsteps, h, cv, hx, hf, lag, tau, x_init, paper, law, conti
 def _soe_push(H, fill, f, m, n0, K, L, eps_k, ET):
     """Push f_m into the one-group SOE history ``H`` (``fill`` values in its exact window):
     at m = 0 into the f_0 slot; when the window is full its K oldest values are folded into
-    the L modes first."""
+    the L modes first. Each mode's sum over the K values runs in the order r = 0..K-1 from
+    0.0, the modes side by side in the inner loop (contiguous rows of ``ET``, one pass over
+    the K values per component instead of one per mode)."""
     base = 1 + L
     if m == 0:
         for k in range(4):
@@ -359,14 +361,18 @@ def _soe_push(H, fill, f, m, n0, K, L, eps_k, ET):
         return
     fw = fill[0]
     if fw == n0 + K:                     # fold the K oldest values into the modes
+        acc = np.empty(L)
         for k in range(4):
+            for j in range(L):
+                acc[j] = 0.0
+            for r in range(K):
+                v = H[0, k, base + r]
+                for j in range(L):
+                    acc[j] += v * ET[0, r, j]
             for j in range(L):
                 mj = H[0, k, 1 + j]
                 mj -= mj * eps_k[0, 0, j]
-                acc = 0.0
-                for r in range(K):
-                    acc += H[0, k, base + r] * ET[0, r, j]
-                H[0, k, 1 + j] = mj + acc
+                H[0, k, 1 + j] = mj + acc[j]
             for r in range(n0):
                 H[0, k, base + r] = H[0, k, base + K + r]
         fw = n0
@@ -403,8 +409,6 @@ def fom_soe_run(x, x0, n, nsteps, cv, smooth, law, continuous, H, W, fill, eps_k
     K = ET.shape[1]
     n0 = W.shape[0] - 1 - K
     base = 1 + L
-    xp = np.empty(4)
-    xc = np.empty(4)
     for i in range(nsteps):
         m = n + i
         z, w, th, q = x[0], x[1], x[2], x[3]
@@ -415,21 +419,41 @@ def fom_soe_run(x, x0, n, nsteps, cv, smooth, law, continuous, H, W, fill, eps_k
         fw = fill[0]
         bm, a0m = _f0_weights(m, alpha, a0_coef, a0_small)
         rows = base + fw
-        for k in range(4):
-            sp = cp * bm * H[0, k, 0]
-            sc = cc * a0m * H[0, k, 0]
-            for r in range(1, rows):
-                v = H[0, k, r]
-                sp += v * W[fw, 0, r, 0]
-                sc += v * W[fw, 0, r, 1]
-            xp[k] = x0[k] + sp
-            xc[k] = x0[k] + sc
-        uf, uc = _input(law, continuous, xp[0], xp[1], xp[2], xp[3])
-        fq = _rhs_free(c, smooth, xp[1], xp[2], xp[3], uf, uc)
-        zn = xc[0] + cc * fq[0]
-        wn = xc[1] + cc * fq[1]
-        tn = xc[2] + cc * fq[2]
-        qn = xc[3] + cc * fq[3]
+        # the predictor's and the corrector's sums of the four components side by side (eight
+        # independent chains, each summed in the order r = 1..rows-1 as one at a time would)
+        p0 = cp * bm * H[0, 0, 0]
+        p1 = cp * bm * H[0, 1, 0]
+        p2 = cp * bm * H[0, 2, 0]
+        p3 = cp * bm * H[0, 3, 0]
+        c0 = cc * a0m * H[0, 0, 0]
+        c1 = cc * a0m * H[0, 1, 0]
+        c2 = cc * a0m * H[0, 2, 0]
+        c3 = cc * a0m * H[0, 3, 0]
+        for r in range(1, rows):
+            bp = W[fw, 0, r, 0]
+            bc = W[fw, 0, r, 1]
+            v0 = H[0, 0, r]
+            v1 = H[0, 1, r]
+            v2 = H[0, 2, r]
+            v3 = H[0, 3, r]
+            p0 += v0 * bp
+            p1 += v1 * bp
+            p2 += v2 * bp
+            p3 += v3 * bp
+            c0 += v0 * bc
+            c1 += v1 * bc
+            c2 += v2 * bc
+            c3 += v3 * bc
+        zp = x0[0] + p0
+        wp = x0[1] + p1
+        tp = x0[2] + p2
+        qp = x0[3] + p3
+        uf, uc = _input(law, continuous, zp, wp, tp, qp)
+        fq = _rhs_free(c, smooth, wp, tp, qp, uf, uc)
+        zn = (x0[0] + c0) + cc * fq[0]
+        wn = (x0[1] + c1) + cc * fq[1]
+        tn = (x0[2] + c2) + cc * fq[2]
+        qn = (x0[3] + c3) + cc * fq[3]
         if not _finite4(zn, wn, tn, qn):
             _fail(bad, zn, wn, tn, qn)
             return i

@@ -69,9 +69,9 @@ def _cpu(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
-def run(samples: int, rate: float = 0.0) -> dict:
+def run(samples: int, rate: float = 0.0, compiled: bool = True) -> dict:
     """The writer fed ``samples`` lockstep samples, at ``rate`` samples per second (0: as fast
-    as the producer can)."""
+    as the producer can), through its compiled path (bag.ringpack) or its interpreted one."""
     topics = (contract.STATE, contract.PLANING_FORCE, contract.CLOCK, contract.COMMAND)
     specs = tuple(TopicSpec('/' + t.name.lstrip('/'), t.type, (QOS,), kind_of(t.type))
                   for t in topics)
@@ -80,7 +80,7 @@ def run(samples: int, rate: float = 0.0) -> dict:
         proc = subprocess.Popen([sys.executable, '-m', 'fohssv_sim.bag.inplant', str(ring.fd),
                                  str(ring.size)], stdin=subprocess.PIPE,
                                 stdout=subprocess.PIPE, pass_fds=(ring.fd,))
-        send(proc.stdin, ('open', WriterConfig(f'{tmp}/bag', specs, {})))
+        send(proc.stdin, ('open', WriterConfig(f'{tmp}/bag', specs, {}, compiled=compiled)))
         read_reply(proc.stdout)
         idle_cpu = _cpu(proc.pid)
         messages = []
@@ -113,9 +113,10 @@ def run(samples: int, rate: float = 0.0) -> dict:
             writer_cpu = reply['cpu_time']
     ring.close()
     n = 4 * samples
-    if reply is None or reply.get('messages') != n:
+    if reply is None or reply.get('messages') != n or reply.get('compiled') != compiled:
         raise RuntimeError(f'the writer wrote {reply}')
-    return {'messages': n, 'rate_samples_per_second': rate,
+    return {'messages': n, 'rate_samples_per_second': rate, 'compiled': compiled,
+            'writer_load_cpu_time': reply.get('load_cpu_time', 0.0),
             'producer_cpu_per_message_us': producer * 1e6,
             'writer_cpu_per_message_us': writer_cpu / n * 1e6,
             'writer_messages_per_cpu_second': n / writer_cpu if writer_cpu > 0 else 0.0,
@@ -127,21 +128,39 @@ def main() -> int:
     ap.add_argument('--out', type=Path, default=Path('bench/results/inplant.json'))
     ap.add_argument('--quick', action='store_true', help='5000 samples instead of 50000')
     a = ap.parse_args()
-    r = run(5000 if a.quick else 50000)
-    print(f"inplant   {r['messages']} messages (4 per lockstep sample): plant side "
-          f"{r['producer_cpu_per_message_us']:.2f} us CPU per message (ring copy); writer "
-          f"{r['writer_cpu_per_message_us']:.1f} us CPU per message (one core would write "
-          f"{r['writer_messages_per_cpu_second']:.0f}/s; a 10 kHz run makes 40000/s), "
-          f"{r['writer_messages_per_second']:.0f} messages/s to a closed bag on this machine "
-          'now', flush=True)
-    paced = run(2000 if a.quick else 10000, rate=DEMO_RATE)
-    print(f"inplant   paced at {DEMO_RATE:.0f} samples/s (the demo loop's rate), "
-          f"{paced['messages']} messages: writer {paced['writer_cpu_per_message_us']:.1f} us "
-          'CPU per message', flush=True)
+    cases = {}
+    for compiled in (False, True):           # side by side: the writer's two paths
+        key = 'compiled' if compiled else 'interpreted'
+        r = cases[key] = run(5000 if a.quick else 50000, compiled=compiled)
+        print(f"inplant   {key:11s} {r['messages']} messages (4 per lockstep sample): plant "
+              f"side {r['producer_cpu_per_message_us']:.2f} us CPU per message (ring copy); "
+              f"writer {r['writer_cpu_per_message_us']:.2f} us CPU per message (one core would "
+              f"write {r['writer_messages_per_cpu_second']:.0f}/s; a 10 kHz run makes "
+              f"40000/s), {r['writer_messages_per_second']:.0f} messages/s to a closed bag on "
+              f"this machine now; loading the compiled path {r['writer_load_cpu_time']:.2f} s "
+              'CPU once', flush=True)
+    paced = {}
+    for compiled in (False, True):
+        key = 'compiled' if compiled else 'interpreted'
+        p = paced[key] = run(2000 if a.quick else 10000, rate=DEMO_RATE, compiled=compiled)
+        print(f"inplant   {key:11s} paced at {DEMO_RATE:.0f} samples/s (the demo loop's "
+              f"rate), {p['messages']} messages: writer {p['writer_cpu_per_message_us']:.2f} "
+              'us CPU per message', flush=True)
+    ratio = (cases['interpreted']['writer_cpu_per_message_us']
+             / cases['compiled']['writer_cpu_per_message_us'])
+    paced_ratio = (paced['interpreted']['writer_cpu_per_message_us']
+                   / paced['compiled']['writer_cpu_per_message_us'])
+    print(f'inplant   writer CPU per message, interpreted / compiled: {ratio:.1f} (paced '
+          f'{paced_ratio:.1f})', flush=True)
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps({'benchmark': 'in-plant recording', 'cpus': os.cpu_count(),
-                                 'load_average': os.getloadavg(), 'quick': a.quick, **r,
-                                 'paced': paced}, indent=2) + '\n')
+                                 'load_average': os.getloadavg(), 'quick': a.quick,
+                                 **cases['compiled'], 'interpreted': cases['interpreted'],
+                                 'paced': paced['compiled'],
+                                 'paced_interpreted': paced['interpreted'],
+                                 'interpreted_over_compiled': ratio,
+                                 'paced_interpreted_over_compiled': paced_ratio},
+                                indent=2) + '\n')
     print(f'wrote {a.out}')
     return 0
 

@@ -161,3 +161,75 @@ def test_writer_closes_the_bag_when_its_plant_goes_away(tmp_path):
     assert check(bag).ok and load_run(bag).topics['/state'] == 20
     assert 'fohssv.record_interrupted' in load_run(bag).metadata
     ring.close()
+
+
+def _stamped(ns: int, frame: str = 'world') -> bytes:
+    stamp = TS.types['builtin_interfaces/msg/Time'](sec=ns // 10**9, nanosec=ns % 10**9)
+    header = TS.types['std_msgs/msg/Header'](stamp=stamp, frame_id=frame)
+    pose = TS.types['geometry_msgs/msg/Pose'](
+        position=TS.types['geometry_msgs/msg/Point'](x=1.0, y=2.0, z=3.0),
+        orientation=TS.types['geometry_msgs/msg/Quaternion'](x=0.0, y=0.0, z=0.0, w=1.0))
+    msg = TS.types['geometry_msgs/msg/PoseStamped'](header=header, pose=pose)
+    return bytes(TS.serialize_cdr(msg, 'geometry_msgs/msg/PoseStamped'))
+
+
+def _records(path):
+    """Every MCAP record of a bag but those that hold the session's start time (metadata
+    and what indexes or checksums it), as (type, fields)."""
+    from mcap.records import DataEnd, Footer, Metadata, MetadataIndex, SummaryOffset
+    from mcap.stream_reader import StreamReader
+
+    skip = (Metadata, MetadataIndex, DataEnd, Footer, SummaryOffset)
+    with open(next(path.glob('*.mcap')), 'rb') as f:
+        reader = StreamReader(f, emit_chunks=True, validate_crcs=True)
+        return [(type(r).__name__, vars(r)) for r in reader.records if not isinstance(r, skip)]
+
+
+def test_compiled_writer_writes_the_bytes_the_interpreted_one_does(tmp_path):
+    """The in-plant writer's compiled path (bag.ringpack) against its interpreted one, fed the
+    same records through a small ring (wraps) into small chunks (many chunk ends): every MCAP
+    record equal, chunks' bytes included. The records mix what :func:`~bag.ringpack.pack`
+    packs and what it leaves to the interpreted path: a topic's first array, a layout
+    change (another label), arrays whose t is not a time (NaN, negative, empty: the previous
+    log time), /clock, stamped views (a negative stamp: the previous log time) and odd
+    lengths (padding)."""
+    from fohssv_sim.bag.inplant import _Session
+
+    topics = (TopicSpec('/state', contract.FLOAT64_ARRAY, (QOS,), 'array'),
+              TopicSpec('/clock', contract.CLOCK.type, (QOS,), 'clock'),
+              TopicSpec('/pose', 'geometry_msgs/msg/PoseStamped', (QOS,), 'stamped'),
+              TopicSpec('/command', contract.FLOAT64_ARRAY, (QOS,), 'array'))
+    rng = random.Random(7)
+    records = []
+    for k in range(6000):
+        t = k * 1e-4
+        label = 't_z_w_theta_q' if k < 2500 else 'state'
+        values = [t, 0.1, 0.2, 0.3, 0.4] if k % 997 else rng.choice(
+            [[math.nan, 1.0], [-1.0], []])
+        records.append((0, _array(values, label)))
+        records.append((1, _clock(round(t * 1e9))))
+        if k % 50 == 0:
+            records.append((2, _stamped(round(t * 1e9), 'w' * rng.randint(0, 9))))
+        if k % 1500 == 7:
+            records.append((2, _stamped(0)[:4] + (-5).to_bytes(4, 'little', signed=True)
+                            + _stamped(0)[8:]))
+        records.append((3, _array([t, 0.01, -0.02], 't_delta_f_delta_c')))
+    bags = {}
+    for compiled in (False, True):
+        ring = Ring.create(64 * 1024)
+        bag = tmp_path / ('compiled' if compiled else 'interpreted') / 'run'   # one name
+        session = _Session(WriterConfig(str(bag), topics, {}, chunk_size=4096,
+                                        compiled=compiled), ring)
+        assert session.use_compiled() is compiled
+        for index, raw in records:
+            while not ring.put(index, raw):
+                session.drain(rng.choice([1, 300, 5000, 1 << 22]))
+        while session.drain():
+            pass
+        result = session.end(None)
+        assert result['messages'] == len(records) and result['compiled'] is compiled
+        ring.close()
+        bags[compiled] = _records(bag)
+    kinds = [name for name, _ in bags[True]]
+    assert kinds.count('Chunk') > 100 and kinds.count('MessageIndex') > 300
+    assert bags[True] == bags[False]

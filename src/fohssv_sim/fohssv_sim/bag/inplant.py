@@ -248,6 +248,9 @@ class WriterConfig:
     metadata: Mapping[str, Any]
     flush_period: float = 0.1
     chunk_size: int = DEFAULT_CHUNK_SIZE
+    #: Write through the compiled path (:mod:`.ringpack`; the same bytes) where numba is
+    #: available; False: the interpreted one only.
+    compiled: bool = True
 
 
 def kind_of(msgtype: str) -> str:
@@ -328,7 +331,7 @@ class _Session:
             'fohssv.chunk_size_bytes': str(config.chunk_size),
             **config.metadata,
         })
-        times = LogTimes()
+        times = self._times = LogTimes()
         self._log = []
         for t in self.topics:
             if t.kind == 'array':
@@ -340,18 +343,48 @@ class _Session:
         ids = self.writer.channel_ids()
         self._channel = [ids[t.name] for t in self.topics]
         self.expected: dict[str, int] | None = None
+        self.packer: Any = None
+        self._compiled = config.compiled
+        self.load_cpu = 0.0        # CPU seconds loading the compiled path (use_compiled)
         # what is alive now lives to the end: the collector's full passes need not walk it (the
         # writer makes no cycles; its batches are freed by reference counts)
         gc.collect()
         gc.freeze()
         self._cpu0 = time.process_time()      # the bag is open: the writer's work begins
 
+    def use_compiled(self) -> bool:
+        """Write through the compiled path from now on (:class:`.ringpack.Packer`), where the
+        configuration asks for it and numba is available (loaded from its cache, or compiled
+        the first time: the ring holds what comes meanwhile); whether it is in use."""
+        if self._compiled and self.packer is None:
+            begin = time.process_time()
+            try:
+                from .ringpack import Packer
+            except ImportError:       # pragma: no cover - numba is pinned
+                return False
+            self.packer = Packer(self.ring, [t.kind for t in self.topics], self._channel,
+                                 self._times, self.writer, self._write)
+            self.packer.warm_up()
+            gc.collect()           # numba's objects live to the end too (see __init__)
+            gc.freeze()
+            self.load_cpu = time.process_time() - begin
+            self._cpu0 += self.load_cpu         # the writer's work is the messages'
+        return self.packer is not None
+
     def drain(self, limit: int = 1 << 22) -> int:
         """Write what the ring holds (at most ``limit`` bytes of records) in one batch;
         records written."""
+        if self.packer is not None:
+            return self.packer.drain(limit)
         records = self.ring.take(limit)
         if not records:
             return 0
+        self._write(records)
+        self.ring.release()
+        return len(records)
+
+    def _write(self, records: list[tuple[int, memoryview]]) -> None:
+        """The interpreted path: ``(index, bytes)`` records into the bag."""
         channel = self._channel
         log = self._log
         # as a DDS reader receives it (and the recorder node writes it): RTPS pads a
@@ -359,8 +392,6 @@ class _Session:
         self.writer.write_many([
             (channel[i], log[i](raw), bytes(raw) + _PAD[-len(raw) % 4] if len(raw) & 3 else raw)
             for i, raw in records])
-        self.ring.release()
-        return len(records)
 
     def end(self, run_end: str | None) -> dict:
         """Close the bag after ``run_end`` (the plant's JSON; None: the plant died)."""
@@ -384,12 +415,16 @@ class _Session:
         return {'closed': str(w.path), 'messages': total, 'counts': dict(w.counts),
                 'missing': missing, 'lost': lost, 'waits': self.ring.waits,
                 'interrupted': run_end is None,
-                'cpu_time': time.process_time() - self._cpu0}
+                'cpu_time': time.process_time() - self._cpu0,
+                'compiled': self.packer is not None, 'load_cpu_time': self.load_cpu}
 
 
 def _reply(out: BinaryIO, values: Mapping[str, Any]) -> None:
-    out.write((json.dumps(values) + '\n').encode())
-    out.flush()
+    try:
+        out.write((json.dumps(values) + '\n').encode())
+        out.flush()
+    except BrokenPipeError:      # the plant is gone (killed): nobody to tell; the bag is closed
+        pass
 
 
 def _serve(session: _Session, control: _Control, flush_period: float) -> str | None:
@@ -458,6 +493,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         _reply(out, {'error': f'{config.path}: {exc}'})
         return 1
     _reply(out, {'opened': config.path, 'pid': os.getpid()})
+    session.use_compiled()
     run_end = _serve(session, control, config.flush_period)
     while session.drain():
         pass
@@ -472,6 +508,9 @@ if __name__ == '__main__':
     _code = main()
     # the bag is closed and the reply sent: no interpreter teardown (tens of ms freeing the
     # typestore and the modules), which the plant would wait for at the end of its run
-    sys.stdout.flush()
-    sys.stderr.flush()
+    for _stream in (sys.stdout, sys.stderr):
+        try:
+            _stream.flush()
+        except BrokenPipeError:
+            pass
     os._exit(_code)

@@ -37,6 +37,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from mcap.opcode import Opcode
 from mcap.records import MessageIndex
 from mcap.writer import CompressionType, IndexType
@@ -119,9 +120,28 @@ class _MessageIndex(MessageIndex):
     ``write`` makes two calls per message: a tenth of a message's cost here)."""
 
     def write(self, stream) -> None:
-        flat = [v for entry in self.records for v in entry]
-        stream.write(struct.pack(f'<BQHI{len(flat)}Q', Opcode.MESSAGE_INDEX, 6 + 8 * len(flat),
-                                 self.channel_id, 8 * len(flat), *flat))
+        records = self.records
+        if not any(isinstance(entry, np.ndarray) for entry in records):
+            flat = [v for entry in records for v in entry]
+            stream.write(struct.pack(f'<BQHI{len(flat)}Q', Opcode.MESSAGE_INDEX,
+                                     6 + 8 * len(flat), self.channel_id, 8 * len(flat), *flat))
+            return
+        # with blocks of entries from the compiled path (_Messages.add_packed): (n, 2) arrays
+        parts: list[np.ndarray] = []
+        run: list[tuple[int, int]] = []
+        for entry in records:
+            if isinstance(entry, np.ndarray):
+                if run:
+                    parts.append(np.array(run, dtype='<u8').reshape(-1, 2))
+                    run = []
+                parts.append(entry)
+            else:
+                run.append(entry)
+        if run:
+            parts.append(np.array(run, dtype='<u8').reshape(-1, 2))
+        flat = np.concatenate(parts).astype('<u8', copy=False).tobytes()
+        stream.write(struct.pack('<BQHI', Opcode.MESSAGE_INDEX, 6 + len(flat), self.channel_id,
+                                 len(flat)) + flat)
 
 
 class _Messages:
@@ -201,6 +221,47 @@ class _Messages:
             chunk.num_messages += written
             chunk.message_start_time, chunk.message_end_time = lo, hi
             self._count(written, lo, hi)
+
+    def room(self) -> int:
+        """Bytes the chunk in progress takes before it passes ``chunk_size`` (and ends)."""
+        return self._chunk_size - self._chunk.record_writer._buffer.tell()  # noqa: SLF001
+
+    def add_packed(self, block, logs: np.ndarray, offsets: np.ndarray, channels: np.ndarray,
+                   sequence: dict[int, int]) -> None:
+        """Message records packed by the compiled path (:func:`.ringpack.pack`): ``block``
+        holds them end to end, ``logs``, ``offsets`` (in ``block``) and ``channels`` describe
+        each, ``sequence`` is every channel's last sequence number after them. What
+        :meth:`add_many` does for the same messages (the chunk ends once its size passes
+        ``chunk_size``, which the packer stops at)."""
+        chunk = self._chunk
+        buf = chunk.record_writer._buffer                              # noqa: SLF001
+        base = buf.tell()
+        buf.write(block)
+        indices = chunk.message_indices
+        counts = self._stats.channel_message_counts
+        seen, first = np.unique(channels, return_index=True)
+        for ch in seen[np.argsort(first)].tolist():      # in order of appearance, as add_many
+            mine = channels == ch
+            entries = np.empty((int(np.count_nonzero(mine)), 2), dtype='<u8')
+            entries[:, 0] = logs[mine]
+            entries[:, 1] = offsets[mine] + base
+            index = indices.get(ch)
+            if index is None:
+                index = indices[ch] = _MessageIndex(channel_id=ch, records=[])
+            index.records.append(entries)
+            counts[ch] += len(entries)
+        self.sequence.update(sequence)
+        written = len(logs)
+        lo, hi = int(logs.min()), int(logs.max())
+        if chunk.num_messages:
+            lo = min(lo, chunk.message_start_time)
+            hi = max(hi, chunk.message_end_time)
+        if base + len(block) > self._chunk_size:
+            self._end_chunk(lo, hi, written)
+            return
+        chunk.num_messages += written
+        chunk.message_start_time, chunk.message_end_time = lo, hi
+        self._count(written, lo, hi)
 
     def _end_chunk(self, lo: int, hi: int, written: int) -> None:
         chunk = self._chunk
@@ -410,10 +471,30 @@ class RunWriter:
         sink = storage.messages
         before = sink.count
         sink.add_many(messages)
-        if sink.count == before:
-            return
+        if sink.count != before:
+            self._counted(storage)
+
+    @property
+    def sequence(self) -> dict[int, int]:
+        """Each channel's last sequence number (the number of its messages written)."""
+        return self._storage().messages.sequence
+
+    def chunk_room(self) -> int:
+        """Bytes the chunk in progress takes before it ends."""
+        return self._storage().messages.room()
+
+    def write_packed(self, block, logs: np.ndarray, offsets: np.ndarray,
+                     channels: np.ndarray, sequence: dict[int, int]) -> None:
+        """Message records the compiled path packed (:class:`.ringpack.Packer`), what
+        :meth:`write_many` does for the same messages."""
+        storage = self._storage()
+        storage.messages.add_packed(block, logs, offsets, channels, sequence)
+        self._counted(storage)
+
+    def _counted(self, storage: _McapStorage) -> None:
+        """The topics' counts and the bag's time span after messages were added."""
         bag = self._bag
-        sequence = sink.sequence
+        sequence = storage.messages.sequence
         for topic, conn in self._connections.items():
             n = sequence.get(storage.channel_id(conn), 0)
             self.counts[topic] = n

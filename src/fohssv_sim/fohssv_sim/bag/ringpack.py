@@ -31,7 +31,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ['pack', 'Packer', 'DONE', 'SLOW', 'CHUNK_FULL', 'OUT_FULL', 'KIND_CODES']
+__all__ = ['pack', 'Packer', 'warm_up', 'DONE', 'SLOW', 'CHUNK_FULL', 'OUT_FULL', 'KIND_CODES']
 
 #: :func:`pack`'s status: every record up to ``head`` packed; the record at the returned tail
 #: needs the interpreted writer; the chunk passed its size limit (end it, then call again);
@@ -235,6 +235,13 @@ class Packer:
             self.at[index] = at
 
     def warm_up(self) -> None:
-        """Load :func:`pack` (numba's cache, or a compile the first time) with no record."""
-        pack(np.zeros(8, dtype=np.uint8), 8, 0, 0, self.kinds, self.keylen, self.keys, self.at,
-             self.chans, self.seqs, 0, self.out, 0, self.logs, self.offsets, self.topics)
+        """Load :func:`pack` (numba's cache, or a compile the first time)."""
+        warm_up()
+
+
+def warm_up() -> None:
+    """Compile :func:`pack` (or load it from numba's cache) with the argument types
+    :class:`Packer` passes, on no record."""
+    i64 = np.zeros(1, dtype=np.int64)
+    pack(np.zeros(8, dtype=np.uint8), 8, 0, 0, i64, i64, np.zeros((1, 12), dtype=np.uint8),
+         i64, i64, i64, 0, np.zeros(64, dtype=np.uint8), 0, i64, i64, i64)

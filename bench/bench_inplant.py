@@ -81,7 +81,8 @@ def run(samples: int, rate: float = 0.0, compiled: bool = True) -> dict:
                                  str(ring.size)], stdin=subprocess.PIPE,
                                 stdout=subprocess.PIPE, pass_fds=(ring.fd,))
         send(proc.stdin, ('open', WriterConfig(f'{tmp}/bag', specs, {}, compiled=compiled)))
-        read_reply(proc.stdout)
+        read_reply(proc.stdout)                      # opened
+        read_reply(proc.stdout)                      # ready (its compiled path loaded)
         idle_cpu = _cpu(proc.pid)
         messages = []
         for k in range(min(samples, 1000)):

@@ -79,15 +79,23 @@ def test_inplant_bag_equals_the_recorder_bag_of_the_same_run(tmp_path):
     procs = [rec]
     try:
         rosproc.wait_for(lambda: 'recording to' in rlog.read_text(), 90, what='the recorder')
-        procs.append(rosproc.start('fohssv_controller', 'state_feedback', [
-            '--ros-args', '-p', 'min_command_subscribers:=2'], env=env))
         # a 16 KiB ring (about 40 samples) and a writer stopped for the first second: the
-        # ring fills, the plant waits for the writer
+        # ring fills, the plant waits for the writer. Stopped once it is ready and before the
+        # controller node starts, so before the run can start (it needs two subscribers)
         plant = rosproc.start('fohssv_sim', 'plant', plant_args(
             model='delay-free', duration=DURATION, min_state_subscribers=2,
             pace_to_subscribers=512, record=str(ours), record_buffer=16384), env=env, log=plog)
         procs.append(plant)
-        _stall_writer(plog, 1.0)
+        writer = _ready_writer(plog)
+        os.kill(writer, signal.SIGSTOP)
+        try:
+            procs.append(rosproc.start('fohssv_controller', 'state_feedback', [
+                '--ros-args', '-p', 'min_command_subscribers:=2'], env=env))
+            rosproc.wait_for(lambda: 'starting at t = 0' in plog.read_text(), 120,
+                             what='the start')
+            time.sleep(1.0)
+        finally:
+            os.kill(writer, signal.SIGCONT)
         assert rosproc.wait_exit(plant, 240) == 0, plog.read_text()
         assert rosproc.wait_exit(rec, 60) == 0, rlog.read_text()
     finally:
@@ -170,25 +178,32 @@ def _writer(log) -> int:
     return int(re.search(r'writer process (\d+)', log.read_text()).group(1))
 
 
-def _stall_writer(log, seconds: float) -> None:
-    """Stop the plant's writer (SIGSTOP) before the run starts, until ``seconds`` after it
-    started: a writer that falls behind, for certain."""
+def _ready_writer(log) -> int:
+    """The pid of the plant's writer once the plant said it is ready (the plant waits for
+    that before it spins)."""
     writer = _writer(log)
-    os.kill(writer, signal.SIGSTOP)
-    try:
-        rosproc.wait_for(lambda: 'starting at t = 0' in log.read_text(), 120, what='the start')
-        time.sleep(seconds)
-    finally:
-        os.kill(writer, signal.SIGCONT)
+    rosproc.wait_for(lambda: 'in-plant recording: writer ready' in log.read_text(), 120,
+                     what='the writer ready')
+    return writer
 
 
 def test_a_realtime_writer_that_falls_behind_is_reported(tmp_path):
+    """A writer stopped during a real-time run with a 4 KiB ring (about 16 samples): the
+    plant loses messages, says so at once, exits 8, and the bag accounts for every loss.
+    Stopped once the plant started, so the run is long (2 s, the law hosted: no peer, no
+    watchdog) and the stop lands in it."""
     bag, log = tmp_path / 'small', tmp_path / 'plant.log'
     plant = rosproc.start('fohssv_sim', 'plant', plant_args(
-        model='delay-free', mode='realtime', duration=0.1, min_command_publishers=0,
+        model='delay-free', mode='realtime', duration=2.0, controller='state_feedback',
         min_state_subscribers=0, end_linger=0.0, record=str(bag), record_buffer=4096),
         env=rosproc.ros_env(), log=log)
-    _stall_writer(log, 0.5)
+    writer = _ready_writer(log)
+    rosproc.wait_for(lambda: 'starting at t = 0' in log.read_text(), 120, what='the start')
+    os.kill(writer, signal.SIGSTOP)
+    try:
+        time.sleep(0.5)
+    finally:
+        os.kill(writer, signal.SIGCONT)
     code = rosproc.wait_exit(plant, 120)
     text = log.read_text()
     assert code == 8, text

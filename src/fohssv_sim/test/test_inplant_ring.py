@@ -122,6 +122,7 @@ def test_writer_process_writes_a_complete_bag_and_checks_run_end(tmp_path):
                             pass_fds=(ring.fd,))
     send(proc.stdin, ('open', WriterConfig(str(bag), topics, {'fohssv.test': 'yes'})))
     assert 'opened' in read_reply(proc.stdout)
+    assert read_reply(proc.stdout)['ready']
     states = [_array([k * 1e-4, 0.0, float(k), 0.0, 0.0]) for k in range(3000)]
     for k, raw in enumerate(states):                 # 3000 x 2 records through a 64 KiB ring
         while not ring.put(0, raw):
@@ -153,6 +154,7 @@ def test_writer_closes_the_bag_when_its_plant_goes_away(tmp_path):
                             pass_fds=(ring.fd,))
     send(proc.stdin, ('open', WriterConfig(str(bag), topics, {})))
     assert 'opened' in read_reply(proc.stdout)
+    assert read_reply(proc.stdout)['ready']
     for k in range(20):
         assert ring.put(0, _array([k * 1e-4, 0.0, 0.0, 0.0, 0.0]))
     proc.stdin.close()

@@ -24,8 +24,10 @@ stores are atomic and stay in order on x86-64 and ARMv8 for this one-producer, o
 Control goes over the writer's stdin, one length-prefixed pickle per message (the two ends are
 this module, one program): ``('open', config)``, ``('metadata', values)``, ``('wake',)`` (the
 plant found the ring full: write now) and ``('end', run_end_json)``. The writer answers on
-its stdout with one JSON line when the bag is open and one when it is closed
-(:func:`read_reply`; with the writer's CPU time from open to close). End of file on stdin
+its stdout with one JSON line when the bag is open, one when it is ready to write (its
+compiled path loaded: :mod:`.ringpack`; the plant waits for it before its first sample) and
+one when the bag is closed (:func:`read_reply`; with the writer's CPU time from open to
+close). End of file on stdin
 without ``end`` means the plant died (SIGKILL included): the writer takes what the ring holds,
 marks the bag ``fohssv.record_interrupted`` and closes it completely. A writer killed itself
 leaves a bag cut at its last flush (every ``flush_period``, default 0.1 s), which ``fohssv
@@ -493,7 +495,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         _reply(out, {'error': f'{config.path}: {exc}'})
         return 1
     _reply(out, {'opened': config.path, 'pid': os.getpid()})
-    session.use_compiled()
+    compiled = session.use_compiled()   # before the run: the plant waits for 'ready'
+    _reply(out, {'ready': True, 'compiled': compiled, 'load_cpu_time': session.load_cpu})
     run_end = _serve(session, control, config.flush_period)
     while session.drain():
         pass

@@ -51,6 +51,9 @@ _CLOSE_STALL = 30.0
 #: Wall seconds a run that ended waits for the controller node's name (the bag's
 #: ``fohssv.controller``) before its bag is closed without it.
 _NAME_WAIT = 5.0
+#: Wall seconds the run's start waits for the writer to be ready (its compiled path loaded:
+#: 0.4-0.5 s from numba's cache, a few seconds the first time).
+_READY_TIMEOUT = 30.0
 
 
 def check_record(options: PlantOptions) -> Path | None:
@@ -109,6 +112,10 @@ class InPlantRecording:
             [sys.executable, '-m', 'fohssv_sim.bag.inplant', str(self.ring.fd),
              str(self.ring.size)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
             pass_fds=(self.ring.fd,), start_new_session=True)
+        # the replies read unbuffered, a line at a time: a buffered readline could take two
+        # lines ('opened' and 'ready') at once, and select would not see the second
+        self._replies = open(self.proc.stdout.fileno(), 'rb', buffering=0,  # noqa: SIM115
+                             closefd=False)
         send(self.proc.stdin, ('open', self.config))
         reply = self._reply(_OPEN_TIMEOUT)
         if reply is None or 'opened' not in reply:
@@ -118,14 +125,38 @@ class InPlantRecording:
             why = (reply or {}).get('error', 'the writer process did not start')
             raise NODE_PARAMETER_BY_NAME['record'].refuse(str(path), f'cannot be recorded: {why}')
         self.pid = reply['pid']
+        self._readied = False
+
+    def ready(self, timeout: float = _READY_TIMEOUT) -> None:
+        """Wait until the writer is ready to write (its compiled path loaded), so that its
+        heaviest half-second is not spent beside the run's first samples: the plant calls this
+        once, before it spins (and so before it waits for its peers), and says so in one line.
+        A writer still loading after ``timeout`` is said in one line and the plant goes on."""
+        if self._readied:
+            return
+        self._readied = True
+        begin = time.monotonic()
+        reply = self._reply(timeout)
+        if reply is not None and 'ready' in reply:
+            how = 'compiled' if reply.get('compiled') else 'interpreted'
+            self.node.get_logger().info(
+                f'in-plant recording: writer ready ({how} path, waited '
+                f'{time.monotonic() - begin:.2f} s)')
+            return
+        if self.proc.poll() is not None:
+            self._writer_failed()
+            return
+        self.node.get_logger().warning(
+            f'in-plant recording: the writer is not ready after {timeout:g} s (still loading '
+            'its compiled path); starting the run (the ring holds what comes meanwhile)')
 
     def _reply(self, timeout: float) -> dict | None:
         """The writer's next reply line (None when it exited or stayed silent)."""
-        ready, _, _ = select.select([self.proc.stdout], [], [], timeout)
+        ready, _, _ = select.select([self._replies], [], [], timeout)
         if not ready:
             return None
         try:
-            return read_reply(self.proc.stdout)
+            return read_reply(self._replies)
         except (ValueError, OSError):
             return None
 
@@ -355,6 +386,8 @@ class InPlantRecording:
         since = time.monotonic()
         while True:
             reply = self._reply(0.2)
+            if reply is not None and 'ready' in reply:
+                continue                 # a run that never started, or a late 'ready'
             if reply is not None:
                 self.proc.wait(timeout=10)
                 return reply

@@ -1356,6 +1356,8 @@ def _interrupted(node: PlantNode) -> None:
 def _run(node: PlantNode) -> int:
     """Spin the plant until its run ends or a signal (logged as an interruption); then flush
     and linger; the node's exit code."""
+    if node.record is not None:     # the in-plant writer ready before any sample (and peer)
+        node.record.ready()
     executor = make_executor()
     executor.add_node(node)
     pinned = pin_node(node, node.options.cpu_affinity)   # after the in-plant writer started

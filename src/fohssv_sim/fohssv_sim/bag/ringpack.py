@@ -31,6 +31,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from .inplant import _WRAP  # the ring's format is inplant.Ring's (this walks it, compiled)
+
 __all__ = ['pack', 'Packer', 'warm_up', 'DONE', 'SLOW', 'CHUNK_FULL', 'OUT_FULL', 'KIND_CODES']
 
 #: :func:`pack`'s status: every record up to ``head`` packed; the record at the returned tail
@@ -40,7 +42,6 @@ DONE, SLOW, CHUNK_FULL, OUT_FULL = 0, 1, 2, 3
 #: Topic kinds as :func:`pack` takes them (``TopicSpec.kind``).
 KIND_CODES = {'array': 0, 'clock': 1, 'stamped': 2}
 _ARRAY, _CLOCK, _STAMPED = 0, 1, 2
-_WRAP = 0xFFFFFFFF
 _MESSAGE_OPCODE = 0x05
 _MESSAGE_FIELDS = 22      # channel (2), sequence (4), log time (8), publish time (8)
 _HEAD = 9 + _MESSAGE_FIELDS

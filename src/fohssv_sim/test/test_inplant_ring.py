@@ -235,3 +235,25 @@ def test_compiled_writer_writes_the_bytes_the_interpreted_one_does(tmp_path):
     kinds = [name for name, _ in bags[True]]
     assert kinds.count('Chunk') > 100 and kinds.count('MessageIndex') > 300
     assert bags[True] == bags[False]
+
+
+def test_a_writer_whose_compiled_path_cannot_load_writes_interpreted(tmp_path):
+    """The compiled path refuses a topic kind it does not know (KeyError building its tables):
+    the writer says why (the plant logs it at 'ready') and writes every message interpreted."""
+    from fohssv_sim.bag.inplant import _Session
+
+    topics = (TopicSpec('/state', contract.FLOAT64_ARRAY, (QOS,), 'array'),
+              TopicSpec('/odd', contract.CLOCK.type, (QOS,), 'unknown kind'))
+    ring = Ring.create(64 * 1024)
+    session = _Session(WriterConfig(str(tmp_path / 'run'), topics, {}), ring)
+    assert session.use_compiled() is False and session.packer is None
+    assert session.compile_error.startswith('KeyError') and 'unknown kind' in \
+        session.compile_error
+    for k in range(100):
+        assert ring.put(0, _array([k * 1e-4, 0.0, 0.0, 0.0, 0.0]))
+    while session.drain():
+        pass
+    result = session.end(None)
+    assert result['compiled'] is False and result['counts']['/state'] == 100
+    ring.close()
+    assert np.array_equal(load_run(tmp_path / 'run').t, np.arange(100) * 1e-4)

@@ -348,6 +348,7 @@ class _Session:
         self.packer: Any = None
         self._compiled = config.compiled
         self.load_cpu = 0.0        # CPU seconds loading the compiled path (use_compiled)
+        self.compile_error = ''    # why the compiled path could not be loaded
         # what is alive now lives to the end: the collector's full passes need not walk it (the
         # writer makes no cycles; its batches are freed by reference counts)
         gc.collect()
@@ -357,16 +358,19 @@ class _Session:
     def use_compiled(self) -> bool:
         """Write through the compiled path from now on (:class:`.ringpack.Packer`), where the
         configuration asks for it and numba is available (loaded from its cache, or compiled
-        the first time: the ring holds what comes meanwhile); whether it is in use."""
-        if self._compiled and self.packer is None:
+        the first time: the ring holds what comes meanwhile); whether it is in use. Where it
+        cannot be loaded the writer stays interpreted and :attr:`compile_error` says why."""
+        if self._compiled and self.packer is None and not self.compile_error:
             begin = time.process_time()
             try:
                 from .ringpack import Packer
-            except ImportError:       # pragma: no cover - numba is pinned
+                packer = Packer(self.ring, [t.kind for t in self.topics], self._channel,
+                                self._times, self.writer, self._write)
+                packer.warm_up()
+            except Exception as exc:  # noqa: BLE001 - a slower writer, not a failure
+                self.compile_error = f'{type(exc).__name__}: {exc}'
                 return False
-            self.packer = Packer(self.ring, [t.kind for t in self.topics], self._channel,
-                                 self._times, self.writer, self._write)
-            self.packer.warm_up()
+            self.packer = packer
             gc.collect()           # numba's objects live to the end too (see __init__)
             gc.freeze()
             self.load_cpu = time.process_time() - begin
@@ -496,7 +500,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     _reply(out, {'opened': config.path, 'pid': os.getpid()})
     compiled = session.use_compiled()   # before the run: the plant waits for 'ready'
-    _reply(out, {'ready': True, 'compiled': compiled, 'load_cpu_time': session.load_cpu})
+    _reply(out, {'ready': True, 'compiled': compiled, 'load_cpu_time': session.load_cpu,
+                 'error': session.compile_error})
     run_end = _serve(session, control, config.flush_period)
     while session.drain():
         pass

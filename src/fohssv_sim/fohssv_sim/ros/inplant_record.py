@@ -138,10 +138,15 @@ class InPlantRecording:
         begin = time.monotonic()
         reply = self._reply(timeout)
         if reply is not None and 'ready' in reply:
+            waited = time.monotonic() - begin
+            if reply.get('error'):
+                self.node.get_logger().warning(
+                    f'in-plant recording: writer ready (interpreted path: its compiled path '
+                    f'could not be loaded: {reply["error"]}; waited {waited:.2f} s)')
+                return
             how = 'compiled' if reply.get('compiled') else 'interpreted'
             self.node.get_logger().info(
-                f'in-plant recording: writer ready ({how} path, waited '
-                f'{time.monotonic() - begin:.2f} s)')
+                f'in-plant recording: writer ready ({how} path, waited {waited:.2f} s)')
             return
         if self.proc.poll() is not None:
             self._writer_failed()

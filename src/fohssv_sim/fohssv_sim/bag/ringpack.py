@@ -230,7 +230,7 @@ class Packer:
             return
         key = (len(raw), bytes(raw[:12]))
         at = self.times._offsets.get(key)                            # noqa: SLF001
-        if at is not None:
+        if at is not None and key[0] >= 12:
             self.keylen[index] = key[0]
             self.keys[index] = np.frombuffer(key[1], dtype=np.uint8)
             self.at[index] = at

@@ -363,10 +363,10 @@ class _Session:
         if self._compiled and self.packer is None and not self.compile_error:
             begin = time.process_time()
             try:
-                from .ringpack import Packer
+                from .ringpack import Packer, warm_up
                 packer = Packer(self.ring, [t.kind for t in self.topics], self._channel,
                                 self._times, self.writer, self._write)
-                packer.warm_up()
+                warm_up()
             except Exception as exc:  # noqa: BLE001 - a slower writer, not a failure
                 self.compile_error = f'{type(exc).__name__}: {exc}'
                 return False

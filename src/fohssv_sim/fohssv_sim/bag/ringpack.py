@@ -41,7 +41,7 @@ __all__ = ['pack', 'Packer', 'warm_up', 'DONE', 'SLOW', 'CHUNK_FULL', 'OUT_FULL'
 DONE, SLOW, CHUNK_FULL, OUT_FULL = 0, 1, 2, 3
 #: Topic kinds as :func:`pack` takes them (``TopicSpec.kind``).
 KIND_CODES = {'array': 0, 'clock': 1, 'stamped': 2}
-_ARRAY, _CLOCK, _STAMPED = 0, 1, 2
+_ARRAY, _CLOCK, _STAMPED = KIND_CODES['array'], KIND_CODES['clock'], KIND_CODES['stamped']
 _MESSAGE_OPCODE = 0x05
 _MESSAGE_FIELDS = 22      # channel (2), sequence (4), log time (8), publish time (8)
 _HEAD = 9 + _MESSAGE_FIELDS
@@ -234,10 +234,6 @@ class Packer:
             self.keylen[index] = key[0]
             self.keys[index] = np.frombuffer(key[1], dtype=np.uint8)
             self.at[index] = at
-
-    def warm_up(self) -> None:
-        """Load :func:`pack` (numba's cache, or a compile the first time)."""
-        warm_up()
 
 
 def warm_up() -> None:

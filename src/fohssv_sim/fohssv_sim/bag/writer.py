@@ -126,20 +126,10 @@ class _MessageIndex(MessageIndex):
             stream.write(struct.pack(f'<BQHI{len(flat)}Q', Opcode.MESSAGE_INDEX,
                                      6 + 8 * len(flat), self.channel_id, 8 * len(flat), *flat))
             return
-        # with blocks of entries from the compiled path (_Messages.add_packed): (n, 2) arrays
-        parts: list[np.ndarray] = []
-        run: list[tuple[int, int]] = []
-        for entry in records:
-            if isinstance(entry, np.ndarray):
-                if run:
-                    parts.append(np.array(run, dtype='<u8').reshape(-1, 2))
-                    run = []
-                parts.append(entry)
-            else:
-                run.append(entry)
-        if run:
-            parts.append(np.array(run, dtype='<u8').reshape(-1, 2))
-        flat = np.concatenate(parts).astype('<u8', copy=False).tobytes()
+        # blocks of entries from the compiled path (_Messages.add_packed, (n, 2) arrays) and
+        # the few single entries of the records it left to the interpreted one, in order
+        flat = np.concatenate([np.asarray(entry, dtype='<u8').reshape(-1, 2)
+                               for entry in records]).tobytes()
         stream.write(struct.pack('<BQHI', Opcode.MESSAGE_INDEX, 6 + len(flat), self.channel_id,
                                  len(flat)) + flat)
 

@@ -125,33 +125,29 @@ class InPlantRecording:
             why = (reply or {}).get('error', 'the writer process did not start')
             raise NODE_PARAMETER_BY_NAME['record'].refuse(str(path), f'cannot be recorded: {why}')
         self.pid = reply['pid']
-        self._readied = False
 
     def ready(self, timeout: float = _READY_TIMEOUT) -> None:
         """Wait until the writer is ready to write (its compiled path loaded), so that its
         heaviest half-second is not spent beside the run's first samples: the plant calls this
         once, before it spins (and so before it waits for its peers), and says so in one line.
-        A writer still loading after ``timeout`` is said in one line and the plant goes on."""
-        if self._readied:
-            return
-        self._readied = True
+        A writer still loading after ``timeout`` is said in one line and the plant goes on
+        (:meth:`_wait_closed` passes over a late 'ready')."""
         begin = time.monotonic()
         reply = self._reply(timeout)
+        log = self.node.get_logger()
         if reply is not None and 'ready' in reply:
-            waited = time.monotonic() - begin
+            waited = f'waited {time.monotonic() - begin:.2f} s'
             if reply.get('error'):
-                self.node.get_logger().warning(
-                    f'in-plant recording: writer ready (interpreted path: its compiled path '
-                    f'could not be loaded: {reply["error"]}; waited {waited:.2f} s)')
-                return
-            how = 'compiled' if reply.get('compiled') else 'interpreted'
-            self.node.get_logger().info(
-                f'in-plant recording: writer ready ({how} path, waited {waited:.2f} s)')
+                log.warning(f'in-plant recording: writer ready (interpreted path: its compiled '
+                            f'path could not be loaded: {reply["error"]}; {waited})')
+            else:
+                how = 'compiled' if reply.get('compiled') else 'interpreted'
+                log.info(f'in-plant recording: writer ready ({how} path, {waited})')
             return
         if self.proc.poll() is not None:
             self._writer_failed()
             return
-        self.node.get_logger().warning(
+        log.warning(
             f'in-plant recording: the writer is not ready after {timeout:g} s (still loading '
             'its compiled path); starting the run (the ring holds what comes meanwhile)')
 

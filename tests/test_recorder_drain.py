@@ -78,3 +78,46 @@ def test_a_drain_after_sigint_ends_at_drain_timeout_while_messages_keep_coming(t
     assert code == 0, text
     assert 'no run_end heard' in cut[0] and 'the bag ends at t=' in cut[0], text
     assert load_run(bag).topics['/state'] > 0              # closed and readable
+
+
+def test_a_drain_waits_for_what_a_reader_lost_on_the_way(tmp_path):
+    """The recorder is stopped (SIGSTOP) while a source publishes 2000 states in a burst:
+    its shared-memory port takes 512 and drops the rest, which the reliable writer sends
+    again only after its next periodic heartbeat (every 3 s in Fast DDS). Resumed and
+    signalled at once, with no run_end to wait for, the drain must not take the silence after
+    the first 512 for the end: the bag holds all 2000. (Before, the drain closed after 0.5 s
+    of silence: a CI run under load lost the last 28 samples of a run this way.)"""
+    domain = rosproc.unique_domain_id()
+    bag, log = tmp_path / 'bag', tmp_path / 'recorder.log'
+    rec = rosproc.start('fohssv_sim', 'recorder', [
+        '--ros-args', '-p', f'bag_path:={bag}', '-p', 'plant_node:=none', '-p',
+        'topics:=[state]', '-p', 'drain_timeout:=60.0', '-p', 'stop_at_run_end:=false'],
+        env=rosproc.ros_env(domain), log=log)
+    ctx = rosproc.init_context(domain)
+    node = rclpy.create_node('plant', context=ctx)
+    n = 2000
+    try:
+        state = node.create_publisher(Float64MultiArray, 'state', QoSProfile(
+            history=HistoryPolicy.KEEP_LAST, depth=10000, reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        rosproc.wait_for(lambda: state.get_subscription_count() >= 1, 90,
+                         what='the recorder')
+        rosproc.wait_for(lambda: 'recording to' in log.read_text(), 60, what='the bag')
+        rec.send_signal(signal.SIGSTOP)
+        try:
+            for k in range(n):
+                state.publish(Float64MultiArray(data=[k * 1e-4, 0.0, 0.0, 0.0, 0.0]))
+        finally:
+            rec.send_signal(signal.SIGCONT)
+        rec.send_signal(signal.SIGINT)
+        code = rosproc.wait_exit(rec, 90)
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+        stop_all(rec)
+    text = log.read_text()
+    assert code == 0, text
+    assert 'drain_timeout' not in text, text
+    run = load_run(bag)
+    assert run.topics['/state'] == n, (run.topics, text)
+    assert list(run.t) == [k * 1e-4 for k in range(n)]             # all of them, in order

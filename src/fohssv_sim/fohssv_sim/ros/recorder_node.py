@@ -116,8 +116,15 @@ EXIT_LOST = 6
 EXIT_UNCHECKED = 7
 #: Exit code of an OS error: the bag could not be created or written (a full disk).
 EXIT_OS_ERROR = 1
-#: After a signal: stop draining once nothing arrived for this long (s).
+#: After a signal: stop draining once nothing arrived for this long (s) and no publisher of
+#: a recorded topic is left.
 _DRAIN_QUIET = 0.5
+#: ... and while one is left, once nothing arrived for this long (s): a reliable writer sends
+#: again what a reader lost (the full shared-memory port of a recorder that fell behind drops
+#: what comes in) only after its next periodic heartbeat, every 3 s in Fast DDS, so a shorter
+#: silence is not the end of what was published (seen: a recorder stopped for 0.4 s during an
+#: unpaced run, signalled at its end, closed a bag without 1259 states and without run_end).
+_REPAIR_QUIET = 5.0
 
 
 
@@ -434,7 +441,9 @@ class Recorder(Node):
     def drain(self, executor: Any) -> None:
         """After a signal: take what the readers already hold. Once a run_end arrived, until
         the bag holds what it lists (the run ended: its backlog is finite and is written while
-        it keeps arriving); before, until nothing arrived for 0.5 s, and for at most
+        it keeps arriving); before, until nothing arrived for 0.5 s with no publisher of a
+        recorded topic left, or for 5 s with one left (a reliable writer sends again what was
+        lost on the way at its next heartbeat, every 3 s), and for at most
         ``drain_timeout`` s: a plant paced by this recorder (lockstep,
         ``pace_to_subscribers``) runs on while the recorder reads, so without a run_end
         messages may never stop arriving. Either way it ends when nothing arrived for
@@ -444,7 +453,7 @@ class Recorder(Node):
         start = time.monotonic()
         written = sum(self.writer.counts.values())
         self._progress = (written, start)
-        cut = False
+        cut = told = False
         while rclpy.ok() and STOP.count == signals:
             if self._expected is not None and not self.missing():
                 break
@@ -455,14 +464,29 @@ class Recorder(Node):
             executor.spin_once(timeout_sec=0.02)
             if self._stalled():
                 break
-            if self._expected is None and time.monotonic() - self._progress[1] >= _DRAIN_QUIET:
-                break
+            if self._expected is None:
+                quiet = time.monotonic() - self._progress[1]
+                if quiet >= _DRAIN_QUIET and (quiet >= _REPAIR_QUIET
+                                              or not self._publishers_left()):
+                    break
+                if quiet >= _DRAIN_QUIET and not told:
+                    told = True
+                    self.get_logger().info(
+                        f'draining: nothing arrived for {_DRAIN_QUIET:g} s, but the recorded '
+                        'topics still have publishers: waiting until nothing arrived for '
+                        f'{_REPAIR_QUIET:g} s (a reliable writer sends again what was lost on '
+                        'the way at its next heartbeat; a second signal stops now)')
         if self.missing():
             self.exit_code = EXIT_LOST
         elif self._stop_at_end and self.exit_code == 0:
             self._gone_without_end()
         if cut:
             self._report_cut(time.monotonic() - start, sum(self.writer.counts.values()) - written)
+
+    def _publishers_left(self) -> bool:
+        """Whether any recorded topic still has a publisher (a graph query; the drain asks
+        only once it has been quiet for _DRAIN_QUIET)."""
+        return any(self.count_publishers(t) for t in self.topic_names)
 
     def _gone_without_end(self) -> None:
         """After the drain: publishers of the recorded topics that were there and are gone

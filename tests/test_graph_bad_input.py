@@ -21,6 +21,7 @@ import pytest
 from test_graph_support import Probe, batch_samples, finish, plant_args, stop_all
 
 from fohssv_controller.state_feedback import StateFeedback
+from fohssv_sim.ros.faults import STALL_STATE_VAR
 
 import rosproc
 
@@ -206,19 +207,69 @@ def test_lockstep_timeout_counts_from_the_delivery_of_the_state(tmp_path):
         probe.close()
 
 
-def test_lockstep_timeout_names_an_overrunning_plant():
-    """A control period of 25000 steps of the exact, interpreted ABM solver (O(n) per step)
-    takes far longer than command_timeout."""
+def test_a_control_period_stalled_outside_the_plant_is_not_an_overrun(tmp_path):
+    """The publish of sample 100 waits 1.5 s, three times command_timeout, asleep
+    (``FOHSSV_FAULT_STALL_STATE``: a write DDS blocked, as Fast DDS does for up to 1 s when a
+    subscriber's process is stopped; a CI run under load ended this way with exit 3 and "the
+    plant is overrunning"). The plant names the slow period in one warning and runs on."""
+    env = {**rosproc.ros_env(), STALL_STATE_VAR: '100:1.5'}
+    ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
+    log = tmp_path / 'plant.log'
+    plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+        model='delay-free', duration=0.05, command_timeout=0.5), env=env, log=log)
+    try:
+        code = rosproc.wait_exit(plant, 90)
+    finally:
+        stop_all(plant, ctl)
+    text = log.read_text()
+    assert code == 0, text
+    assert re.search(r'one control period \(10 steps\) took 1\.[5-9][0-9]* s > '
+                     r'command_timeout=0\.5 s of wall time at t=0\.01', text), text
+    assert 'stopping cleanly at t=0.05 s' in text, text
+
+
+def test_a_stopped_plant_does_not_blame_its_controller(tmp_path):
+    """The plant's process is stopped (SIGSTOP) for 1.5 s, three times command_timeout, in
+    the middle of a lockstep run: resumed, its timer's check of the controller comes late
+    beside the command that arrived meanwhile; the run goes on to its end."""
     env = rosproc.ros_env()
     ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
-    plant = _plant({'model': 'fractional', 'solver': 'abm', 'control_period': 0.5,
-                    'command_timeout': 0.3}, env)
+    log = tmp_path / 'plant.log'
+    plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+        model='delay-free', duration=2.0, command_timeout=0.5), env=env, log=log)
+    try:
+        rosproc.wait_for(lambda: 'starting at' in log.read_text(), 90, what='the run')
+        time.sleep(0.3)
+        plant.send_signal(signal.SIGSTOP)
+        try:
+            time.sleep(1.5)
+        finally:
+            plant.send_signal(signal.SIGCONT)
+        code = rosproc.wait_exit(plant, 120)
+    finally:
+        stop_all(plant, ctl)
+    text = log.read_text()
+    assert code == 0, text
+    assert 'stopping cleanly at t=2.0 s' in text, text
+
+
+def test_lockstep_timeout_names_an_overrunning_plant():
+    """Control periods of 2500 steps of the exact, interpreted ABM solver (O(n) per step)
+    take longer than command_timeout, in the plant's own CPU time: the first is logged, the
+    second ends the run."""
+    env = rosproc.ros_env()
+    ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
+    plant = _plant({'model': 'fractional', 'solver': 'abm', 'control_period': 0.05,
+                    'command_timeout': 0.02}, env)
     try:
         code, out = finish(plant, 60)
     finally:
         stop_all(ctl)
     assert code == 3, out
-    assert 'lockstep timeout: the plant is overrunning: one control period (25000 steps)' in out
+    assert 'one control period (2500 steps) took' in out and 'not an overrun unless' in out
+    assert 'lockstep timeout: the plant is overrunning: one control period (2500 steps)' in out
+    # more CPU than the timeout (0.02 s) over the second period
+    assert re.search(r'at t=0\.1 s, using (0\.0[2-9]|0\.[1-9]|[1-9])[0-9.]* s of CPU', out), out
 
 
 def test_missing_peers_at_start_exit_4():

@@ -13,6 +13,11 @@ injected, at the one place the plant publishes, with the exception rclpy itself 
 ``FOHSSV_FAULT_REFUSE_STATE=N:M`` refuses only the next ``M`` publishes, then accepts again
 (``M`` below 1000 is a refusal the plant's 1 s of retries, one a millisecond, gets past).
 
+``FOHSSV_FAULT_STALL_STATE=N:S`` (read once, when the plant starts): the publish of ``state``
+after the first ``N`` waits ``S`` seconds (asleep, using no CPU) before it publishes: a write
+that DDS blocked (Fast DDS checks the shared-memory port of a subscriber's stopped process for
+up to 1 s before it gives up on it), or a host that did not run the plant, at a known sample.
+
 Unset (the default), nothing is wrapped: the plant publishes through rclpy's own call and the
 per-sample path costs nothing more. The plant logs a warning when the variable is set.
 """
@@ -25,10 +30,13 @@ from typing import Any
 
 from ..params import ParameterError
 
-__all__ = ['REFUSE_STATE_VAR', 'refused_publishes', 'refusing']
+__all__ = ['REFUSE_STATE_VAR', 'STALL_STATE_VAR', 'refused_publishes', 'refusing',
+           'stalled_publish', 'stalling']
 
 #: The environment variable: ``N`` or ``N:M`` (see the module docstring).
 REFUSE_STATE_VAR = 'FOHSSV_FAULT_REFUSE_STATE'
+#: The environment variable: ``N:S`` (see the module docstring).
+STALL_STATE_VAR = 'FOHSSV_FAULT_STALL_STATE'
 _LIMIT = 10**12
 
 
@@ -73,5 +81,43 @@ def refusing(send: Callable[[Any], Any], after: int, count: int | None) -> Calla
         result = send(payload)
         state['sent'] += 1
         return result
+
+    return publish
+
+
+def stalled_publish(environ: dict[str, str] | None = None) -> tuple[int, float] | None:
+    """``(after, seconds)`` from :data:`STALL_STATE_VAR`; None when it is unset or empty.
+
+    Raises:
+        ParameterError: a value that is not ``N:S`` with a whole ``N`` and ``S`` in range.
+    """
+    text = (os.environ if environ is None else environ).get(STALL_STATE_VAR, '').strip()
+    if not text:
+        return None
+    try:
+        n, sec = text.split(':')
+        after, seconds = int(n), float(sec)
+    except ValueError:
+        after, seconds = -1, -1.0
+    if not (0 <= after <= _LIMIT and 0.0 < seconds <= 3600.0):
+        raise ParameterError(
+            f'{STALL_STATE_VAR}={text!r}: expected N:S, a whole number 0 <= N <= 1e12 and '
+            '0 < S <= 3600 s (the state publish after the first N waits S seconds); a testing '
+            'aid, unset it to run normally')
+    return after, seconds
+
+
+def stalling(send: Callable[[Any], Any], after: int, seconds: float) -> Callable[[Any], Any]:
+    """``send`` (a publish call) whose call after the first ``after`` sleeps ``seconds``
+    first, once."""
+    import time
+
+    state = {'sent': 0}
+
+    def publish(payload: Any) -> Any:
+        if state['sent'] == after:
+            time.sleep(seconds)
+        state['sent'] += 1
+        return send(payload)
 
     return publish

@@ -75,7 +75,14 @@ from ..contract import CLOCK, COMMAND, PLANING_FORCE, RUN_END, STATE, run_end_te
 from ..control import NonFiniteCommand
 from ..models import MAX_PITCH, check_state
 from ..params import PARAMETERS, ModelParameters, ParameterError, ParameterSpec, field_specs
-from .faults import REFUSE_STATE_VAR, refused_publishes, refusing
+from .faults import (
+    REFUSE_STATE_VAR,
+    STALL_STATE_VAR,
+    refused_publishes,
+    refusing,
+    stalled_publish,
+    stalling,
+)
 from .inplant_record import EXIT_RECORD_LOST
 from .inplant_record import start as start_recording
 from .loop import (
@@ -235,6 +242,12 @@ class PlantNode(Node):
                 f'{REFUSE_STATE_VAR}: state publishes after the first {refuse[0]} are refused '
                 + ('for good' if refuse[1] is None else f'{refuse[1]} time(s)')
                 + ' (fault injection, a testing aid: unset it to run normally)')
+        stall = stalled_publish()           # the same
+        if stall is not None:
+            self._send_state = stalling(self._send_state, *stall)
+            self.get_logger().warning(
+                f'{STALL_STATE_VAR}: the state publish after the first {stall[0]} waits '
+                f'{stall[1]:g} s (fault injection, a testing aid: unset it to run normally)')
         self._send_force = raw_publish(self.force_pub)
         self._send_clock = raw_publish(self.clock_pub)
         # hosted: /clock and command (volatile) are published only while someone subscribes;
@@ -312,6 +325,8 @@ class PlantNode(Node):
         self._awaiting: float | None = None       # lockstep: t of the state awaiting a command
         self._published_wall = 0.0                # lockstep: when that state went out
         self._undelivered: float | None = None    # lockstep: t of a state not yet acknowledged
+        self._slow: tuple[int, float] | None = None  # lockstep: (samples, CPU s), slow period
+        self._checked = 0.0                       # lockstep: when the timer last checked
         self._last_command_t: float | None = None  # t of the last command received
         self._last_command_wall: float | None = None
         self._watchdog_warned = False
@@ -558,6 +573,7 @@ class PlantNode(Node):
             self._publish()
             self._await_command()
             period = min(0.05, max(self.options.command_timeout / 4.0, 0.001))
+            self._checked = monotonic()
             self._timer = self.create_timer(period, self._check_lockstep_timeout)
         else:
             o = self.options
@@ -844,11 +860,17 @@ class PlantNode(Node):
         if not self.running:
             return
         self._refresh_matched()
+        now = monotonic()
+        late, self._checked = now - self._checked, now
         if self._awaiting is None:
             return
-        now = time.monotonic()
         waited = now - self._published_wall
         if waited <= self.options.command_timeout:
+            return
+        if late > self.options.command_timeout / 2:
+            # this check (every command_timeout / 4 at most) came that late: the plant itself
+            # was not running (a stalled host, a stopped process), and a command that came
+            # meanwhile may be waiting behind this timer; the next check decides
             return
         if not self.state_pub.wait_for_all_acked(Duration(seconds=0)):
             # not the controller's delay: a subscriber has not got the state yet
@@ -898,16 +920,40 @@ class PlantNode(Node):
         if not self._advance():
             return
         took = monotonic() - begin
-        if took > self.options.command_timeout:
-            self._fail(EXIT_TIMEOUT,
-                       f'lockstep timeout: the plant is overrunning: one control period '
-                       f'({self.sim.hold} steps) took {took:.3f} s > command_timeout='
-                       f'{self.options.command_timeout:g} s at t={self.sim.t!r} s')
+        if took > self.options.command_timeout and self._overrunning(took):
             return
         every = self.options.pace_to_subscribers
         if every and self.sim.samples % every == 0:
             self._keep_subscribers_up()
         self._await_command()
+
+    def _overrunning(self, took: float) -> bool:
+        """A control period took ``took`` s of wall time, more than ``command_timeout``:
+        the plant's own work, or a wait outside it (a publish that DDS blocked: Fast DDS
+        spends up to 1 s checking the shared-memory port of a stopped subscriber's process; a
+        host that did not run the plant). The first such period is logged and its end marks
+        the process's CPU time; when the very next period is too long as well, the plant is
+        overrunning (exit 3) if it used more CPU than ``command_timeout`` since the mark
+        (one period's work and the wait for its command). Nothing is added to a period that
+        is not too long."""
+        cpu = time.process_time()
+        n = self.sim.samples
+        mark, self._slow = self._slow, (n, cpu)
+        timeout = self.options.command_timeout
+        if mark is not None and mark[0] == n - 1 and cpu - mark[1] > timeout:
+            self._fail(EXIT_TIMEOUT,
+                       f'lockstep timeout: the plant is overrunning: one control period '
+                       f'({self.sim.hold} steps) took {took:.3f} s > command_timeout='
+                       f'{timeout:g} s at t={self.sim.t!r} s, using {cpu - mark[1]:.3f} s of '
+                       'CPU with the wait for its command (the one before took too long '
+                       'as well)')
+            return True
+        self.get_logger().warning(
+            f'one control period ({self.sim.hold} steps) took {took:.3f} s > command_timeout='
+            f'{timeout:g} s of wall time at t={self.sim.t!r} s: not an overrun unless the '
+            'next one takes as long in CPU time (a publish blocked by DDS, e.g. for a stopped '
+            'subscriber, or a stalled host)')
+        return False
 
     def _keep_subscribers_up(self) -> None:
         """Lockstep with ``pace_to_subscribers``: wait until every subscriber of the samples

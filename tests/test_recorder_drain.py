@@ -10,6 +10,7 @@ test_graph_run_end.py's drain at the end of a run, under load.)
 
 from __future__ import annotations
 
+import contextlib
 import signal
 import threading
 import time
@@ -29,23 +30,35 @@ pytestmark = pytest.mark.graph
 DRAIN = 1.0
 
 
-def test_a_drain_after_sigint_ends_at_drain_timeout_while_messages_keep_coming(tmp_path):
+@contextlib.contextmanager
+def _recorder_and_source(tmp_path, drain_timeout: float, depth: int):
+    """A recorder of ``state`` alone (no plant to ask, no stop at run_end) and, in this
+    process, a node 'plant' with a reliable transient-local keep-last ``depth`` publisher of
+    ``state`` it has matched: yields (recorder process, publisher, bag, log)."""
     domain = rosproc.unique_domain_id()
     bag, log = tmp_path / 'bag', tmp_path / 'recorder.log'
     rec = rosproc.start('fohssv_sim', 'recorder', [
         '--ros-args', '-p', f'bag_path:={bag}', '-p', 'plant_node:=none', '-p',
-        'topics:=[state]', '-p', f'drain_timeout:={DRAIN}', '-p', 'stop_at_run_end:=false'],
-        env=rosproc.ros_env(domain), log=log)
+        'topics:=[state]', '-p', f'drain_timeout:={drain_timeout}', '-p',
+        'stop_at_run_end:=false'], env=rosproc.ros_env(domain), log=log)
     ctx = rosproc.init_context(domain)
     node = rclpy.create_node('plant', context=ctx)
-    stop = threading.Event()
     try:
         state = node.create_publisher(Float64MultiArray, 'state', QoSProfile(
-            history=HistoryPolicy.KEEP_LAST, depth=2000, reliability=ReliabilityPolicy.RELIABLE,
-            durability=DurabilityPolicy.TRANSIENT_LOCAL))
+            history=HistoryPolicy.KEEP_LAST, depth=depth,
+            reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL))
         rosproc.wait_for(lambda: state.get_subscription_count() >= 1, 90,
                          what='the recorder')
+        yield rec, state, bag, log
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+        stop_all(rec)
 
+
+def test_a_drain_after_sigint_ends_at_drain_timeout_while_messages_keep_coming(tmp_path):
+    stop = threading.Event()
+    with _recorder_and_source(tmp_path, DRAIN, 2000) as (rec, state, bag, log):
         def publish() -> None:            # 1 kHz until the test ends
             k = 0
             while not stop.is_set():
@@ -58,17 +71,16 @@ def test_a_drain_after_sigint_ends_at_drain_timeout_while_messages_keep_coming(t
 
         source = threading.Thread(target=publish, daemon=True)
         source.start()
-        rosproc.wait_for(lambda: 'recording to' in log.read_text(), 60, what='the bag')
-        time.sleep(0.5)
-        rec.send_signal(signal.SIGINT)
-        signalled = time.monotonic()
-        code = rosproc.wait_exit(rec, 30)
-        took = time.monotonic() - signalled
-    finally:
-        stop.set()
-        node.destroy_node()
-        rclpy.shutdown(context=ctx)
-        stop_all(rec)
+        try:
+            rosproc.wait_for(lambda: 'recording to' in log.read_text(), 60, what='the bag')
+            time.sleep(0.5)
+            rec.send_signal(signal.SIGINT)
+            signalled = time.monotonic()
+            code = rosproc.wait_exit(rec, 30)
+            took = time.monotonic() - signalled
+        finally:
+            stop.set()
+            source.join(5.0)
     text = log.read_text()
     cut = [ln for ln in text.splitlines() if 'drain_timeout=1 s reached' in ln]
     assert len(cut) == 1 and 'messages still arriving' in cut[0], text
@@ -87,21 +99,8 @@ def test_a_drain_waits_for_what_a_reader_lost_on_the_way(tmp_path):
     signalled at once, with no run_end to wait for, the drain must not take the silence after
     the first 512 for the end: the bag holds all 2000. (Before, the drain closed after 0.5 s
     of silence: a CI run under load lost the last 28 samples of a run this way.)"""
-    domain = rosproc.unique_domain_id()
-    bag, log = tmp_path / 'bag', tmp_path / 'recorder.log'
-    rec = rosproc.start('fohssv_sim', 'recorder', [
-        '--ros-args', '-p', f'bag_path:={bag}', '-p', 'plant_node:=none', '-p',
-        'topics:=[state]', '-p', 'drain_timeout:=60.0', '-p', 'stop_at_run_end:=false'],
-        env=rosproc.ros_env(domain), log=log)
-    ctx = rosproc.init_context(domain)
-    node = rclpy.create_node('plant', context=ctx)
     n = 2000
-    try:
-        state = node.create_publisher(Float64MultiArray, 'state', QoSProfile(
-            history=HistoryPolicy.KEEP_LAST, depth=10000, reliability=ReliabilityPolicy.RELIABLE,
-            durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        rosproc.wait_for(lambda: state.get_subscription_count() >= 1, 90,
-                         what='the recorder')
+    with _recorder_and_source(tmp_path, 60.0, 10000) as (rec, state, bag, log):
         rosproc.wait_for(lambda: 'recording to' in log.read_text(), 60, what='the bag')
         rec.send_signal(signal.SIGSTOP)
         try:
@@ -111,10 +110,6 @@ def test_a_drain_waits_for_what_a_reader_lost_on_the_way(tmp_path):
             rec.send_signal(signal.SIGCONT)
         rec.send_signal(signal.SIGINT)
         code = rosproc.wait_exit(rec, 90)
-    finally:
-        node.destroy_node()
-        rclpy.shutdown(context=ctx)
-        stop_all(rec)
     text = log.read_text()
     assert code == 0, text
     assert 'drain_timeout' not in text, text

@@ -20,7 +20,7 @@ from test_graph_support import batch_samples, plant_args, stop_all
 
 from fohssv_controller.state_feedback import StateFeedback
 from fohssv_sim.bag import load_run
-from fohssv_sim.ros.faults import REFUSE_STATE_VAR
+from fohssv_sim.ros.faults import REFUSE_STATE_VAR, STALL_STATE_VAR
 from fohssv_sim.ros.plant_node import EXIT_PUBLISH_FAILED
 
 import rosproc
@@ -134,12 +134,16 @@ def test_a_refusal_shorter_than_the_retry_loses_nothing(tmp_path):
     assert bag.metadata['fohssv.run_end']['published']['/state'] == len(ref)
 
 
-@pytest.mark.parametrize('value', ['x', '-1', '5:0', '1:2:3', '1e3'])
-def test_a_bad_fault_injection_value_is_refused_in_one_line(value):
+@pytest.mark.parametrize(('var', 'value', 'expected'), [
+    *((REFUSE_STATE_VAR, v, 'expected N or N:M') for v in ['x', '-1', '5:0', '1:2:3', '1e3']),
+    *((STALL_STATE_VAR, v, 'expected N:S, a whole number 0 <= N <= 1e12 and 0 < S <= 3600 s')
+      for v in ['100', '100:0', '-1:1.5']),
+])
+def test_a_bad_fault_injection_value_is_refused_in_one_line(var, value, expected):
     plant = rosproc.start('fohssv_sim', 'plant', plant_args(model='delay-free'),
-                          env={**rosproc.ros_env(), REFUSE_STATE_VAR: value})
+                          env={**rosproc.ros_env(), var: value})
     code = rosproc.wait_exit(plant, 90)
     out = rosproc.output(plant)
     assert code == 2, out
-    assert f'{REFUSE_STATE_VAR}={value!r}: expected N or N:M' in out, out
+    assert f'{var}={value!r}: {expected}' in out, out
     assert 'Traceback' not in out, out

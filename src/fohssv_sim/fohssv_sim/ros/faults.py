@@ -25,6 +25,7 @@ per-sample path costs nothing more. The plant logs a warning when the variable i
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -40,6 +41,11 @@ STALL_STATE_VAR = 'FOHSSV_FAULT_STALL_STATE'
 _LIMIT = 10**12
 
 
+def _fault_text(var: str, environ: dict[str, str] | None) -> str:
+    """The value of the fault variable ``var`` ('' when unset)."""
+    return (os.environ if environ is None else environ).get(var, '').strip()
+
+
 def refused_publishes(environ: dict[str, str] | None = None) -> tuple[int, int | None] | None:
     """``(after, count)`` from :data:`REFUSE_STATE_VAR` (``count`` None: every publish after
     ``after``); None when it is unset or empty.
@@ -47,7 +53,7 @@ def refused_publishes(environ: dict[str, str] | None = None) -> tuple[int, int |
     Raises:
         ParameterError: a value that is not ``N`` or ``N:M`` with whole numbers in range.
     """
-    text = (os.environ if environ is None else environ).get(REFUSE_STATE_VAR, '').strip()
+    text = _fault_text(REFUSE_STATE_VAR, environ)
     if not text:
         return None
     parts = text.split(':')
@@ -91,7 +97,7 @@ def stalled_publish(environ: dict[str, str] | None = None) -> tuple[int, float] 
     Raises:
         ParameterError: a value that is not ``N:S`` with a whole ``N`` and ``S`` in range.
     """
-    text = (os.environ if environ is None else environ).get(STALL_STATE_VAR, '').strip()
+    text = _fault_text(STALL_STATE_VAR, environ)
     if not text:
         return None
     try:
@@ -110,8 +116,6 @@ def stalled_publish(environ: dict[str, str] | None = None) -> tuple[int, float] 
 def stalling(send: Callable[[Any], Any], after: int, seconds: float) -> Callable[[Any], Any]:
     """``send`` (a publish call) whose call after the first ``after`` sleeps ``seconds``
     first, once."""
-    import time
-
     state = {'sent': 0}
 
     def publish(payload: Any) -> Any:

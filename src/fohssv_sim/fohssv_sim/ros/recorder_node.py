@@ -464,12 +464,11 @@ class Recorder(Node):
             executor.spin_once(timeout_sec=0.02)
             if self._stalled():
                 break
-            if self._expected is None:
-                quiet = time.monotonic() - self._progress[1]
-                if quiet >= _DRAIN_QUIET and (quiet >= _REPAIR_QUIET
-                                              or not self._publishers_left()):
+            quiet = time.monotonic() - self._progress[1]
+            if self._expected is None and quiet >= _DRAIN_QUIET:
+                if quiet >= _REPAIR_QUIET or not self._publishers_left():
                     break
-                if quiet >= _DRAIN_QUIET and not told:
+                if not told:
                     told = True
                     self.get_logger().info(
                         f'draining: nothing arrived for {_DRAIN_QUIET:g} s, but the recorded '

@@ -109,10 +109,12 @@ class FakePlant:
             self.model.step(u)
 
     def close(self) -> None:
+        # the spin thread ends before the node and context it waits on are destroyed (the
+        # other order crashed a test worker with a segfault inside the executor's wait)
         self.executor.shutdown()
+        self.thread.join(timeout=5)
         self.node.destroy_node()
         rclpy.shutdown(context=self.ctx)
-        self.thread.join(timeout=5)
 
 
 @pytest.fixture

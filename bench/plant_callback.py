@@ -8,7 +8,9 @@ publishes of ``state`` and ``planing_force`` (and ``/clock``) and the callback's
 with no DDS round trip and no peer. ``--clock on`` publishes ``/clock`` at every sample as
 the plant did before it published it only while someone subscribes; ``off`` is what the
 plant does with no ``/clock`` reader. Prints one JSON line: wall and CPU microseconds per
-sample over each of ``--repeats`` blocks of ``--samples`` samples.
+sample over each of ``--repeats`` blocks of ``--samples`` samples, and the median time from
+the callback's entry to the call that publishes the state (``to_state_us``: what the round
+trip waits for; the rest of the callback runs while the state travels).
 
     python bench/plant_callback.py --clock off
 """
@@ -20,6 +22,7 @@ import json
 import sys
 import time
 
+import numpy as np
 import rclpy
 from bench_ros import MODEL_PARAMS  # this script's folder, first on sys.path
 from rclpy.parameter import Parameter
@@ -47,20 +50,35 @@ def main() -> int:
         if a.clock == 'on':
             node._clock_on = node._clock_wanted = True
         callback = node._on_command_lockstep
+        sent, k = np.zeros(a.samples, dtype=np.int64), [0]
+        send_state = node._send_state
+
+        def timed_send(payload: bytes) -> None:
+            if k[0] < a.samples:
+                sent[k[0]] = time.perf_counter_ns()
+                k[0] += 1
+            send_state(payload)
+
+        node._send_state = timed_send
+        entered = np.zeros(a.samples, dtype=np.int64)
         command = ArrayWriter(COMMAND)
         out, state = command.values, node._state_data
         node._publish()
         node._await_command()
         blocks = []
         for _ in range(a.repeats):
+            k[0] = 0
             wall, cpu = time.perf_counter(), time.process_time()
-            for _ in range(a.samples):
+            for i in range(a.samples):
                 out[0] = node._awaiting          # eq. 31, fins at zero, clamped to 0.3 rad
                 out[2] = max(-0.3, min(0.3, 15.0 * state[1] - 30.0 * state[3]
                                        - 0.3 * state[4]))
-                callback(command.payload())
+                payload = command.payload()
+                entered[i] = time.perf_counter_ns()
+                callback(payload)
             blocks.append({'wall_us': (time.perf_counter() - wall) / a.samples * 1e6,
-                           'cpu_us': (time.process_time() - cpu) / a.samples * 1e6})
+                           'cpu_us': (time.process_time() - cpu) / a.samples * 1e6,
+                           'to_state_us': float(np.median(sent - entered)) / 1e3})
         if node._awaiting is None:
             raise RuntimeError('the run ended during the benchmark')
         print(json.dumps({'clock': a.clock, 'samples': node.sim.samples, 'blocks': blocks}),

@@ -18,6 +18,9 @@ Two processes, each one rclpy node on the executor the product's nodes use
   with ``--hops DIR`` it times each round trip as ``bench/hops.py`` times the product's nodes
   (callback entered, answer published; bench_ros.py's hops case; without it the callbacks
   are not wrapped);
+  with ``--busy-before US`` / ``--busy-after US`` the ping spins that long (on
+  ``perf_counter``, holding the CPU) before / after each publish, as a plant's work before its
+  state goes out and after it (docs/ros.md: where the plant's work sits);
   after ``--count`` round trips it prints one JSON line ``{"round_trips": n, "seconds": s,
   "round_trips_per_second": r, "cpu_dma_latency": the limit held or null}`` and exits.
 
@@ -83,7 +86,14 @@ def pong(node, stamps=None) -> Future:
     return Future()   # runs until SIGINT
 
 
-def ping(node, count: int, timeout: float, announce: bool = False, stamps=None) -> Future:
+def _busy(seconds: float) -> None:
+    end = time.perf_counter() + seconds
+    while time.perf_counter() < end:
+        pass
+
+
+def ping(node, count: int, timeout: float, announce: bool = False, stamps=None,
+         before: float = 0.0, after: float = 0.0) -> Future:
     done = Future()
     state = ArrayWriter(STATE)
     out = state.values
@@ -102,7 +112,11 @@ def ping(node, count: int, timeout: float, announce: bool = False, stamps=None) 
                              'round_trips_per_second': n / seconds})
             return
         out[0] = n * 1e-4
+        if before:
+            _busy(before)
         send(state.payload())
+        if after:
+            _busy(after)
 
     on_echo, send = _timed(stamps, on_echo, pub.publish)
     sub = node.create_subscription(Float64MultiArray, COMMAND_TOPIC, on_echo, profile(COMMAND),
@@ -145,6 +159,10 @@ def main() -> int:
     ap.add_argument('--cpu-dma-latency', type=int, default=0, metavar='US',
                     help="hold this CPU wake-up latency limit (us) while the process runs, as "
                          "a node's cpu_dma_latency does (default 0, as theirs); -1: none")
+    ap.add_argument('--busy-before', type=float, default=0.0, metavar='US',
+                    help='ping: spin this long before each publish (work on the round trip)')
+    ap.add_argument('--busy-after', type=float, default=0.0, metavar='US',
+                    help='ping: spin this long after each publish (work beside it)')
     ap.add_argument('--hops', metavar='DIR', default=None,
                     help='time each round trip as bench/hops.py does, saved in DIR')
     a = ap.parse_args()
@@ -154,8 +172,8 @@ def main() -> int:
         stamps = Stamps(a.hops, a.role)
     rclpy.init()
     node = rclpy.create_node(f'echo_{a.role}')
-    done = (ping(node, a.count, a.timeout, a.announce, stamps) if a.role == 'ping'
-            else pong(node, stamps))
+    done = (ping(node, a.count, a.timeout, a.announce, stamps, a.busy_before * 1e-6,
+                 a.busy_after * 1e-6) if a.role == 'ping' else pong(node, stamps))
     if a.cpu is not None:
         pin_threads((a.cpu,))
     held = hold_latency(node, a.cpu_dma_latency)     # as the nodes: said in one line either way

@@ -35,8 +35,8 @@ TOL = 1e-12
 
 
 def _run(tmp_path, refuse: str, hosted: bool, duration: float = DURATION,
-         **plant_params) -> SimpleNamespace:
-    """A recorded lockstep loop of the delay-free plant (eq. 31's law, external or hosted)
+         model: str = 'delay-free', **plant_params) -> SimpleNamespace:
+    """A recorded lockstep loop of the ``model`` plant (eq. 31's law, external or hosted)
     with ``FOHSSV_FAULT_REFUSE_STATE=refuse`` in the plant's environment; waits for both the
     plant's and the recorder's exits."""
     env = rosproc.ros_env()
@@ -52,7 +52,7 @@ def _run(tmp_path, refuse: str, hosted: bool, duration: float = DURATION,
             procs.append(rosproc.start('fohssv_controller', 'state_feedback', [
                 '--ros-args', '-p', 'min_command_subscribers:=2'], env=env))
         plant = rosproc.start('fohssv_sim', 'plant', plant_args(
-            model='delay-free', duration=duration, min_state_subscribers=2,
+            model=model, duration=duration, min_state_subscribers=2,
             pace_to_subscribers=512, **extra, **plant_params),
             env={**env, REFUSE_STATE_VAR: refuse}, log=plog)
         procs.append(plant)
@@ -69,13 +69,18 @@ def _summary(text: str) -> dict:
     return json.loads(line.split('summary: ', 1)[1])
 
 
-@pytest.mark.parametrize(('hosted', 'inplant'), [(False, False), (True, False), (False, True)],
-                         ids=['external', 'hosted', 'external-recorded-in-plant'])
+@pytest.mark.parametrize(('hosted', 'inplant', 'model'), [
+    (False, False, 'delay-free'), (True, False, 'delay-free'), (False, True, 'delay-free'),
+    (False, False, 'fractional')],
+    ids=['external', 'hosted', 'external-recorded-in-plant', 'external-fom'])
 def test_a_refused_sample_ends_the_run_with_exit_9_and_the_bag_agrees(tmp_path, hosted,
-                                                                         inplant):
-    ref, fref = batch_samples('delay-free', StateFeedback(), DURATION)
+                                                                         inplant, model):
+    """(The FOM's lockstep sample takes the plant's short path, models.HeldPeriod: its state
+    is published before the model's bookkeeping, which the refusal must not undo.)"""
+    ref, fref = batch_samples(model, StateFeedback(), DURATION)
+    steps = round(1e-4 / (2e-5 if model == 'fractional' else 1e-5))
     extra = {'record': str(tmp_path / 'inplant')} if inplant else {}
-    run = _run(tmp_path, str(N), hosted, **extra)
+    run = _run(tmp_path, str(N), hosted, model=model, **extra)
     text = run.plant
     assert run.code == EXIT_PUBLISH_FAILED, text
     assert 'Traceback' not in text and 'Traceback' not in run.recorder, text
@@ -89,9 +94,9 @@ def test_a_refused_sample_ends_the_run_with_exit_9_and_the_bag_agrees(tmp_path, 
     assert errors[0].rstrip().endswith('; stopping the run'), errors
     summary = _summary(text)
     assert summary['published_states'] == N and summary['publish_retries'] == 1, summary
-    # sample N was made (10 steps of 1e-5 s a control period), never published
+    # sample N was made (the model's default steps in a control period), never published
     assert summary['t'] == ref[N, 0] and summary['samples'] == N, summary
-    assert summary['steps'] == 10 * N, summary
+    assert summary['steps'] == steps * N, summary
 
     # the recorder heard run_end and found everything it lists in the bag
     assert run.rcode == 0, run.recorder

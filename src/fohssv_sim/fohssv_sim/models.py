@@ -42,7 +42,7 @@ from .planing import planing_delayed, planing_exact, planing_smooth
 from .solvers import SOLVERS, soe_options
 
 __all__ = ['Plant', 'DelayFreeModel', 'DelayedModel', 'FractionalModel', 'make_plant',
-           'StateOutOfBounds', 'MAX_PITCH', 'check_state',
+           'StateOutOfBounds', 'MAX_PITCH', 'check_state', 'HeldPeriod',
            'InputLike', 'STATE_NAMES', 'eq17', 'AffineLaw', 'ENGINES']
 
 #: How a plant steps: 'compiled' (numba kernels, :mod:`.kernels`) or 'python' (the interpreted
@@ -604,6 +604,73 @@ class FractionalModel(Plant):
         if self._fp_at == self.n:        # the held-input call left it (the same arithmetic)
             return self._fp_value
         return self._fp(self._x[1], self.coefficients)
+
+
+class HeldPeriod:
+    """One control period of a :class:`FractionalModel` with a held input whose new sample is
+    written out before the model's own bookkeeping: for a loop whose round trip waits for
+    the sample (the lockstep plant publishes it, then lets the model catch up).
+
+    :meth:`run` ``(delta_f, delta_c)`` advances ``steps`` steps in the held-input kernel
+    call (:class:`fohssv_sim.kernels.FomHeldCall`, the one :meth:`Plant.advance` makes for
+    a held input) and, when the state is finite and within |w| <= V, |theta| <= pi/2, writes
+    ``[t, z, w, theta, q]`` into ``out[0:5]`` and returns True; the caller must then call
+    :meth:`settle` before anything else uses the model. After both, the model is exactly
+    where ``advance((delta_f, delta_c), steps)`` leaves it (state, time, history, planing
+    force: the same compiled call on the same arrays). A period that turns non-finite or
+    leaves the bounds is settled at once and raises what :meth:`Plant.advance` and
+    :func:`check_state` raise. :meth:`run` returns False, having done nothing, when the
+    kernel call is not bound to the model's current arrays (before the model's first held
+    advance, after a reset, without the C entry point): the caller advances as usual.
+    """
+
+    def __init__(self, model: FractionalModel, steps: int, out: Any) -> None:
+        self._model = model
+        self._steps = steps
+        self._out = out
+        self._v = model.params.speed
+
+    def run(self, delta_f: float, delta_c: float) -> bool:
+        model = self._model
+        held = model._held_call
+        if not held or model.status == 'failed' or held.x is not model._stepper.live_state():
+            return False
+        law = held.law
+        law[8] = delta_f
+        law[9] = delta_c
+        steps = self._steps
+        taken = held.call(model._stepper.n, steps)
+        z, w, theta, q = held.x.tolist()
+        v = self._v
+        if taken == steps and -v <= w <= v and -MAX_PITCH <= theta <= MAX_PITCH:
+            out = self._out
+            out[0] = (model.n + steps) * model.h
+            out[1] = z
+            out[2] = w
+            out[3] = theta
+            out[4] = q
+            return True
+        self._settle(held, taken)
+        if taken < steps:
+            model._failed(model._bad.tolist(), _show((delta_f, delta_c)))
+        check_state(model)
+        return True                      # not reached: beyond the bounds raises
+
+    def settle(self) -> float:
+        """The model's bookkeeping of the period :meth:`run` wrote out; returns the planing
+        force at the new state."""
+        held = self._model._held_call
+        self._settle(held, self._steps)
+        return held.values[held.FP]
+
+    def _settle(self, held: kernels.FomHeldCall, taken: int) -> None:
+        model = self._model
+        model._stepped(taken, failed=taken < self._steps)
+        model._fp_value = held.values[held.FP]
+        model._fp_at = model._stepper.n
+        model._x = tuple(held.x.tolist())
+        model.n += taken
+        model.status = 'running'
 
 
 def make_plant(params: ModelParameters | None = None,

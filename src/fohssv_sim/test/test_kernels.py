@@ -319,3 +319,91 @@ def test_fom_plant_binds_its_held_call_again_after_interpreted_steps_and_a_reset
     plant.reset()
     plant.advance((0.0, -0.01), 5)
     assert plant._held_call is not second and plant.n == 5
+
+
+def _period(sim, u, state, force):
+    """One control period the general way: the held command, advance, the sample written."""
+    sim.command = u
+    sim.advance()
+    sim.write_sample(state, force)
+
+
+def _quick_period(sim, held, u, state, force):
+    """One control period through the HeldPeriod (as the lockstep plant node runs it), or the
+    general way where it declines; True when it ran."""
+    sim.command = u
+    if not held.run(*u):
+        sim.advance()
+        sim.write_sample(state, force)
+        return False
+    force[1] = held.settle()
+    force[0] = state[0]
+    sim.took(u)
+    return True
+
+
+def test_held_period_writes_the_sample_advance_gives_bit_for_bit():
+    """The lockstep plant's short path (models.HeldPeriod: the sample written before the
+    model's bookkeeping) against the general one (SampledPlant.advance, write_sample) on two
+    FOM plants under eq. 31: every sample, the model's time, step count, state and planing
+    force equal after every period, across the SOE window's folds and a reset (after which
+    the short path declines until the general one has bound the kernel again)."""
+    from fohssv_sim.ros.loop import SampledPlant
+
+    p = ModelParameters()
+    a, b = (SampledPlant(p, 1e-4, X_START, duration=1.0) for _ in range(2))
+    held = b.held_period(sb := [0.0] * 5)
+    assert held is not None
+    sa, fa, fb = [0.0] * 5, [0.0] * 2, [0.0] * 2
+    ctl = StateFeedback()
+    ran = 0
+    for k in range(700):
+        if k == 400:
+            a.reset()
+            b.reset()
+        u = ctl.command(0.0, tuple(sa[1:]))
+        _period(a, u, sa, fa)
+        ran += _quick_period(b, held, u, sb, fb)
+        assert sb == sa and fb == fa, k
+        assert (b.samples, b.t, b.plant.n, b.plant.x, b.plant.planing_force, b.command) == (
+            a.samples, a.t, a.plant.n, a.plant.x, a.plant.planing_force, a.command), k
+    assert ran == 698              # all but the first period and the one after the reset
+    assert b.plant._stepper.n == a.plant._stepper.n == 300 * 5
+    assert abs(sa[2]) > 0.1                    # a trajectory that moved
+    for model in ('delay-free', 'delayed'):   # no short path: the node steps them as before
+        assert SampledPlant(ModelParameters(model=model), 1e-4).held_period([0.0] * 5) is None
+
+
+@pytest.mark.parametrize('start, u, error', [
+    ((0.0, 0.0, 1.5, 40.0), (0.0, 0.0), r'state beyond physical bounds at t='),
+    (X_START, (math.nan, 0.0), r'state became non-finite at t='),
+])
+def test_held_period_fails_where_advance_fails_with_its_words(start, u, error):
+    """A period that leaves the bounds (pitch past pi/2) or turns non-finite (a NaN command)
+    raises from HeldPeriod what SampledPlant.advance raises, at the same sample, with the
+    same text, and leaves the plant failed and its sample count as advance does."""
+    from fohssv_sim.ros.loop import SampledPlant
+
+    p = ModelParameters()
+    out = []
+    for short in (False, True):
+        sim = SampledPlant(p, 1e-4, start, duration=1.0)
+        state, force = [0.0] * 5, [0.0] * 2
+        held = sim.held_period(state)
+        _period(sim, (0.0, 0.0), state, force)       # binds the kernel call
+        with pytest.raises(FloatingPointError, match=error) as info:
+            for _ in range(1000):
+                if not short:
+                    _period(sim, u, state, force)
+                    continue
+                sim.command = u
+                try:
+                    assert held.run(*u)
+                except FloatingPointError as exc:
+                    sim.failed_period(exc)
+                    raise
+                held.settle()
+                sim.took(u)
+        out.append((str(info.value), type(info.value), sim.samples, sim.plant.n,
+                    sim.plant.status))
+    assert out[0] == out[1] and out[0][4] == 'failed', out

@@ -25,7 +25,16 @@ from typing import Any
 
 from ..contract import COMMAND, ContractError, decode
 from ..control import Controller, per_sample_command
-from ..models import MAX_PITCH, AffineLaw, Plant, check_state, make_plant
+from ..models import (
+    MAX_PITCH,
+    AffineLaw,
+    FractionalModel,
+    HeldPeriod,
+    Plant,
+    StateOutOfBounds,
+    check_state,
+    make_plant,
+)
 from ..params import ModelParameters
 from ..simulate import steps_per_period
 
@@ -154,6 +163,24 @@ class SampledPlant:
         """One sample of a burst taken by the caller: count it; ``command`` is now held."""
         self.samples += 1
         self.command = command
+
+    def held_period(self, state: MutableSequence[float]) -> HeldPeriod | None:
+        """A :class:`~fohssv_sim.models.HeldPeriod` of this plant's control period writing
+        its samples into ``state`` ([t, z, w, theta, q]), or None for a plant without one
+        (the integer models, an interpreted FOM). Its sample, once settled, is counted with
+        :meth:`took` (the command held over it set as :attr:`command` before); a period it
+        raised for is passed to :meth:`failed_period`."""
+        plant = self.plant
+        if isinstance(plant, FractionalModel) and plant.engine == 'compiled':
+            return HeldPeriod(plant, self.hold, state)
+        return None
+
+    def failed_period(self, exc: FloatingPointError) -> None:
+        """Count a period that :class:`~fohssv_sim.models.HeldPeriod` ended with ``exc``
+        as :meth:`advance` counts it: a state beyond the bounds is a sample, a non-finite
+        one is not."""
+        if isinstance(exc, StateOutOfBounds):
+            self.samples += 1
 
     def samples_until(self, duration: float) -> int:
         """Samples from now until :meth:`reached` ``duration`` (at least 1; a large number

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import errno
 import sys
+import traceback
 from collections.abc import Callable, Iterable
 from time import monotonic
 from typing import Any
@@ -60,6 +61,8 @@ from .startup import (
     BadParameters,
     declare_rows,
     destroy_on_error,
+    end_process_on_build_error,
+    exit_now,
     init,
     refuse_unknown,
     report,
@@ -214,12 +217,16 @@ def run_node(name: str, args: list[str] | None, build: Callable[[], Node],
        and the loop ends between callbacks (see :class:`.spin.StopSignal`). Bad arguments:
        one line, exit :data:`EXIT_BAD_PARAMETERS`.
     2. ``build()`` makes the node. A ``ValueError`` or rclpy ``ParameterException`` (invalid
-       parameters) gives one line explained with ``specs`` and exit 2 at once; an exception
-       of ``refused`` (e.g. an unknown plugin) is logged under ``name`` and gives exit 2.
+       parameters) gives one line explained with ``specs`` and exit 2; an exception of
+       ``refused`` (e.g. an unknown plugin) is logged under ``name`` and gives exit 2; any
+       other goes to ``on_error(exc)`` for its line and code (without one: its traceback and
+       exit 1); a signal during the build exits 0. Each ends the process at once
+       (:func:`.startup.exit_now`): the half-built node is never torn down
+       (:func:`.startup.destroy_on_error`).
     3. ``run(node)`` spins it (default :func:`spin_node`) and returns the exit code. A
        ``KeyboardInterrupt`` or ``ExternalShutdownException`` ends it; ``on_interrupt(node)``
-       then gives the code (default: 0). Any other exception (in ``build`` or ``run``) goes to
-       ``on_error(exc)``, which reports it and gives the code (default: it propagates).
+       then gives the code (default: 0). Any other exception goes to ``on_error(exc)``,
+       which reports it and gives the code (default: it propagates).
     4. ``on_exit(node)`` (e.g. a final log line), ``node.destroy_node()``, ``rclpy.shutdown``;
        from then on SIGINT/SIGTERM are ignored (the process only exits).
 
@@ -231,6 +238,7 @@ def run_node(name: str, args: list[str] | None, build: Callable[[], Node],
     except BadParameters as exc:
         return report(name, exc)
     STOP.install()
+    end_process_on_build_error()
     code = EXIT_OK
     node = None
     try:
@@ -238,11 +246,17 @@ def run_node(name: str, args: list[str] | None, build: Callable[[], Node],
             node = build()
         except refused as exc:
             rclpy.logging.get_logger(name).error(str(exc))
-            code = EXIT_BAD_PARAMETERS
+            exit_now(EXIT_BAD_PARAMETERS)
         except (ValueError, ParameterException) as exc:   # ParameterError, BadParameters
-            code = report(name, exc, specs)
-        else:
-            code = run(node)
+            report(name, exc, specs)
+        except (KeyboardInterrupt, ExternalShutdownException):
+            exit_now(EXIT_OK)                 # a signal during start-up: nothing ran
+        except Exception as exc:
+            if on_error is None:
+                traceback.print_exc()
+                exit_now(1)
+            exit_now(on_error(exc))
+        code = run(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         if node is not None and on_interrupt is not None:
             code = on_interrupt(node)

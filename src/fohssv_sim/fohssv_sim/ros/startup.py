@@ -38,8 +38,11 @@ Shared by the plant, the controller node, the recorder and the player (one imple
   declaration. Parameters rclpy declares itself (``use_sim_time``,
   ``start_type_description_service``) are declared, hence allowed.
 * :func:`explain` and :func:`report`: the one line for any of these errors, and the exit code.
-* :func:`destroy_on_error`: a node whose construction fails is destroyed at once (a half-built
-  node left for interpreter exit crashed or hung the process after the error line).
+* :func:`destroy_on_error`: a node whose construction fails is destroyed at once when it was
+  built in a process that goes on (a half-built node left for interpreter exit crashed or hung
+  the process after the error line); in a node's own process (:func:`.nodekit.run_node`,
+  which calls :func:`end_process_on_build_error`) it is left alone and the process ends with
+  :func:`exit_now` after its line: tearing it down crashed the process too, now and then.
 
 Every error here is a ``ValueError`` (:class:`BadParameters`, or the table's
 :class:`~fohssv_sim.params.ParameterError`), which every node's ``main`` maps to exit code 2.
@@ -55,7 +58,7 @@ import re
 import sys
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from typing import Any
+from typing import Any, NoReturn
 
 import rclpy
 import rclpy.logging
@@ -69,7 +72,8 @@ __all__ = ['EXIT_BAD_PARAMETERS', 'DEFAULT_DISCOVERY_RANGE', 'default_discovery'
            'default_transport', 'localhost_profile', 'NETWORK_VAR',
            'MAX_PARAMS_BYTES', 'MAX_PARAMS_KEYS', 'read_params_file', 'params_file_args',
            'BadParameters', 'init', 'precheck', 'declare_rows',
-           'refuse_unknown', 'explain', 'one_line', 'report', 'destroy_on_error']
+           'refuse_unknown', 'explain', 'one_line', 'report', 'destroy_on_error',
+           'end_process_on_build_error', 'exit_now']
 
 #: Exit code of every node for invalid arguments or parameters at start.
 EXIT_BAD_PARAMETERS = 2
@@ -155,21 +159,48 @@ class BadParameters(ValueError):
     """Invalid arguments or parameters at start; the message is the one line to print."""
 
 
+#: Set by :func:`end_process_on_build_error`: a failed construction ends the process.
+_ENDS_PROCESS = False
+
+
+def end_process_on_build_error() -> None:
+    """Declare that in this process a node whose construction fails is never used again: the
+    caller reports the error and ends the process with :func:`exit_now` (every node's
+    :func:`.nodekit.run_node`), so :func:`destroy_on_error` leaves the half-built node alone."""
+    global _ENDS_PROCESS
+    _ENDS_PROCESS = True
+
+
+def exit_now(code: int) -> NoReturn:
+    """End the process at once with ``code`` (Python's buffers flushed first; no interpreter
+    finalization, no teardown of a half-built node or of the DDS participant)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
 def destroy_on_error(init: Callable[..., None]) -> Callable[..., None]:
     """Decorate a node's ``__init__``: if it raises (a start-up error), the half-built node
     is destroyed before the error propagates. Otherwise the exception's traceback keeps it
     alive past ``rclpy.shutdown()``, and destroying it then, at interpreter exit, crashed the
-    process (SIGSEGV after the error line) or hung it, in about one start in ten."""
+    process (SIGSEGV after the error line) or hung it, in about one start in ten.
+
+    In a node's own process (after :func:`end_process_on_build_error`) nothing is destroyed:
+    the process ends with :func:`exit_now` after its error line. Destroying the half-built
+    node there crashed as well, rarely (a plant refusing ``fractional_order:=1.5`` died with
+    SIGSEGV inside rclpy's ``destroy_node``, ``destroy_when_not_in_use``, once in a
+    ``make test`` that starts a few hundred refused nodes)."""
 
     @functools.wraps(init)
     def wrapper(self: Node, *args: Any, **kwargs: Any) -> None:
         try:
             init(self, *args, **kwargs)
         except BaseException:
-            try:
-                self.destroy_node()
-            except Exception:  # noqa: BLE001, S110 - Node.__init__ itself may have failed
-                pass
+            if not _ENDS_PROCESS:
+                try:
+                    self.destroy_node()
+                except Exception:  # noqa: BLE001, S110 - Node.__init__ itself may have failed
+                    pass
             raise
 
     return wrapper
@@ -457,7 +488,7 @@ def explain(exc: BaseException, specs: Iterable[ParameterSpec] = ()) -> str:
     return one_line(str(exc))
 
 
-def report(name: str, exc: BaseException, specs: Iterable[ParameterSpec] = ()) -> int:
+def report(name: str, exc: BaseException, specs: Iterable[ParameterSpec] = ()) -> NoReturn:
     """Print the one line for a start-up error (console format, to stderr: rclpy's logging
     may not be initialised when ``rclpy.init`` itself failed) and end the process at once with
     :data:`EXIT_BAD_PARAMETERS`. Nothing ran, so nothing needs tearing down, and tearing down
@@ -467,5 +498,4 @@ def report(name: str, exc: BaseException, specs: Iterable[ParameterSpec] = ()) -
     if not text.startswith('invalid '):
         text = f'invalid parameters: {text}'
     print(f'[ERROR] [{time.time():.9f}] [{name}]: {text}', file=sys.stderr, flush=True)
-    sys.stdout.flush()
-    os._exit(EXIT_BAD_PARAMETERS)
+    exit_now(EXIT_BAD_PARAMETERS)

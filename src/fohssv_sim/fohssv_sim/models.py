@@ -629,6 +629,7 @@ class HeldPeriod:
         self._steps = steps
         self._out = out
         self._v = model.params.speed
+        self._x: list[float] = []       # the state run() left, for settle()
 
     def run(self, delta_f: float, delta_c: float) -> bool:
         model = self._model
@@ -640,7 +641,8 @@ class HeldPeriod:
         law[9] = delta_c
         steps = self._steps
         taken = held.call(model._stepper.n, steps)
-        z, w, theta, q = held.x.tolist()
+        x = self._x = held.x.tolist()
+        z, w, theta, q = x
         v = self._v
         if taken == steps and -v <= w <= v and -MAX_PITCH <= theta <= MAX_PITCH:
             out = self._out
@@ -668,7 +670,7 @@ class HeldPeriod:
         model._stepped(taken, failed=taken < self._steps)
         model._fp_value = held.values[held.FP]
         model._fp_at = model._stepper.n
-        model._x = tuple(held.x.tolist())
+        model._x = tuple(self._x)
         model.n += taken
         model.status = 'running'
 

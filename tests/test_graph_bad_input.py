@@ -228,10 +228,14 @@ def test_a_control_period_stalled_outside_the_plant_is_not_an_overrun(tmp_path):
     assert 'stopping cleanly at t=0.05 s' in text, text
 
 
-def test_a_stopped_plant_does_not_blame_its_controller(tmp_path):
-    """The plant's process is stopped (SIGSTOP) for 1.5 s, three times command_timeout, in
-    the middle of a lockstep run: resumed, its timer's check of the controller comes late
-    beside the command that arrived meanwhile; the run goes on to its end."""
+@pytest.mark.parametrize('stopped', [1.5, 3.0])
+def test_a_stopped_plant_does_not_blame_its_controller(tmp_path, stopped):
+    """The plant's process is stopped (SIGSTOP) for 1.5 or 3 s, three or six times
+    command_timeout, in the middle of a lockstep run: resumed, its timer's check of the
+    controller comes late beside the command that arrived meanwhile, or that was lost at the
+    stopped process's shared-memory port and comes again at the controller's writer's next
+    heartbeat (Fast DDS: up to 3 s; with the plant deciding at the next check, 3 s stops
+    ended with exit 3 one time in two); the run goes on to its end."""
     env = rosproc.ros_env()
     ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
     log = tmp_path / 'plant.log'
@@ -242,7 +246,7 @@ def test_a_stopped_plant_does_not_blame_its_controller(tmp_path):
         time.sleep(0.3)
         plant.send_signal(signal.SIGSTOP)
         try:
-            time.sleep(1.5)
+            time.sleep(stopped)
         finally:
             plant.send_signal(signal.SIGCONT)
         code = rosproc.wait_exit(plant, 120)

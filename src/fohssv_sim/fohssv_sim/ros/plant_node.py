@@ -175,6 +175,14 @@ _STALL_TIMEOUT = 10.0
 #: matched may not have matched the plant's writer yet (discovery is two one-sided halves;
 #: under load the second came seconds later): its timeout counts from the delivery.
 _DELIVERY_GRACE = 30.0
+#: Lockstep: after the plant itself was not running (a timer check more than half of
+#: ``command_timeout`` late: a stopped process, a stalled host), how long past
+#: ``command_timeout`` the controller's command may take (s). A command published meanwhile
+#: may have been dropped at the stopped process's shared-memory port (Fast DDS gives up on a
+#: port whose listener does not answer within 1 s) and comes again only at the writer's next
+#: heartbeat, every 3 s in Fast DDS: a CI run under load had a plant stopped for 1.5 s blame
+#: its controller about 50 ms after it resumed.
+_RESUME_GRACE = 5.0
 #: After the run (and ``end_linger``): the longest wait for the readers of ``run_end`` (the
 #: recorders, which leave once they took it) to leave (s).
 _RUN_END_WAIT = 10.0
@@ -333,6 +341,7 @@ class PlantNode(Node):
         self._undelivered: float | None = None    # lockstep: t of a state not yet acknowledged
         self._slow: tuple[int, float] | None = None  # lockstep: (samples, CPU s), slow period
         self._checked = 0.0                       # lockstep: when the timer last checked
+        self._resumed = -math.inf                 # lockstep: when it last came late
         self._last_command_t: float | None = None  # t of the last command received
         self._last_command_wall: float | None = None
         self._watchdog_warned = False
@@ -885,8 +894,17 @@ class PlantNode(Node):
             return
         if late > self.options.command_timeout / 2:
             # this check (every command_timeout / 4 at most) came that late: the plant itself
-            # was not running (a stalled host, a stopped process), and a command that came
-            # meanwhile may be waiting behind this timer; the next check decides
+            # was not running (a stalled host, a stopped process); a command that came
+            # meanwhile may be waiting behind this timer, or lost on the way and sent again
+            # at its writer's next heartbeat: the controller gets _RESUME_GRACE more
+            self._resumed = now
+            self.get_logger().info(
+                f'lockstep: the plant did not run for {late:.3f} s (a stopped process or a '
+                f'stalled host) while awaiting the command for t={self._awaiting!r} s: its '
+                f'controller gets command_timeout + {_RESUME_GRACE:g} s from now '
+                '(a command lost meanwhile comes again at its writer\'s next heartbeat)')
+            return
+        if now - self._resumed <= self.options.command_timeout + _RESUME_GRACE:
             return
         if not self.state_pub.wait_for_all_acked(Duration(seconds=0)):
             # not the controller's delay: a subscriber has not got the state yet

@@ -251,6 +251,8 @@ def run_node(name: str, args: list[str] | None, build: Callable[[], Node],
             report(name, exc, specs)
         except (KeyboardInterrupt, ExternalShutdownException):
             exit_now(EXIT_OK)                 # a signal during start-up: nothing ran
+        except SystemExit as exc:             # sys.exit() in a constructor: its code
+            exit_now(exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1)
         except Exception as exc:
             if on_error is None:
                 traceback.print_exc()

@@ -887,24 +887,25 @@ class PlantNode(Node):
         self._refresh_matched()
         now = monotonic()
         late, self._checked = now - self._checked, now
-        if self._awaiting is None:
-            return
+        timeout = self.options.command_timeout
         waited = now - self._published_wall
-        if waited <= self.options.command_timeout:
-            return
-        if late > self.options.command_timeout / 2:
+        if late > timeout / 2:
             # this check (every command_timeout / 4 at most) came that late: the plant itself
             # was not running (a stalled host, a stopped process); a command that came
             # meanwhile may be waiting behind this timer, or lost on the way and sent again
-            # at its writer's next heartbeat: the controller gets _RESUME_GRACE more
+            # at its writer's next heartbeat: the controller gets _RESUME_GRACE more (also
+            # when the wait is not over yet: a 3 s stop with the default 5 s timeout)
             self._resumed = now
-            self.get_logger().info(
-                f'lockstep: the plant did not run for {late:.3f} s (a stopped process or a '
-                f'stalled host) while awaiting the command for t={self._awaiting!r} s: its '
-                f'controller gets command_timeout + {_RESUME_GRACE:g} s from now '
-                '(a command lost meanwhile comes again at its writer\'s next heartbeat)')
+            if self._awaiting is not None and waited > timeout:
+                self.get_logger().info(
+                    f'lockstep: the plant did not run for {late:.3f} s (a stopped process or '
+                    f'a stalled host) while awaiting the command for t={self._awaiting!r} s: '
+                    f'its controller gets command_timeout + {_RESUME_GRACE:g} s from now (a '
+                    'command lost meanwhile comes again at its writer\'s next heartbeat)')
             return
-        if now - self._resumed <= self.options.command_timeout + _RESUME_GRACE:
+        if self._awaiting is None or waited <= timeout:
+            return
+        if now - self._resumed <= timeout + _RESUME_GRACE:
             return
         if not self.state_pub.wait_for_all_acked(Duration(seconds=0)):
             # not the controller's delay: a subscriber has not got the state yet

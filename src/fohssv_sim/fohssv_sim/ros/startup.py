@@ -172,10 +172,17 @@ def end_process_on_build_error() -> None:
 
 
 def exit_now(code: int) -> NoReturn:
-    """End the process at once with ``code`` (Python's buffers flushed first; no interpreter
-    finalization, no teardown of a half-built node or of the DDS participant)."""
+    """End the process at once with ``code`` (Python's buffers and the C library's streams,
+    where rclpy's console logging may buffer, flushed first; no interpreter finalization, no
+    teardown of a half-built node or of the DDS participant)."""
     sys.stdout.flush()
     sys.stderr.flush()
+    try:
+        import ctypes
+
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError):   # pragma: no cover - no C library to ask
+        pass
     os._exit(code)
 
 

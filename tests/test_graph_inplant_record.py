@@ -267,6 +267,10 @@ def test_a_killed_plant_leaves_a_bag_that_repair_restores(tmp_path, kill_writer)
     after = _fohssv('check', str(bag))
     assert after.returncode == 0, after.stdout + after.stderr
     run = load_run(bag)
-    assert run.topics['/state'] > 100 and run.topics['/state'] == run.topics['/planing_force']
+    # each sample's state is published (and put into the ring) before its planing_force: a
+    # kill between the two leaves one state without its force (seen in a make test run:
+    # 2040 and 2039), never the other way round
+    states, forces = run.topics['/state'], run.topics['/planing_force']
+    assert states > 100 and states - forces in (0, 1), (states, forces)
     assert_doctor_clean(_mcap(bag))
 

@@ -1151,8 +1151,8 @@ class PlantNode(Node):
     def _quick_sample(self, raw: bytes, t: float, begin: float) -> None:
         """Lockstep: :class:`~fohssv_sim.models.HeldPeriod` ran the period of the command
         answering ``t`` and wrote its sample into the state message. The state goes out
-        first, the round trip waits for nothing else (every microsecond before it costs
-        the loop about 1.4 us, measured); then the model's bookkeeping and what
+        first, the round trip waits for nothing else (work before a publish costs the loop
+        at least as long, work after it is free up to about 7 us: docs/ros.md); then the model's bookkeeping and what
         :meth:`_stepped` does after the state (the same messages, counts and checks)."""
         payload = self._state_out.payload()
         try:

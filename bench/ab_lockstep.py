@@ -1,0 +1,80 @@
+"""Two versions of the plant side by side in the pinned lockstep FOM loop (bench only).
+
+    git worktree add /tmp/before REV
+    scripts/in-env python bench/ab_lockstep.py /tmp/before --rounds 6
+
+Each round runs the installed plant ("new") and the plant of the source tree given ("old":
+its ``src/fohssv_sim`` first on ``PYTHONPATH``) against the same eq. 31 controller node,
+pinned as ``bench_ros.py``'s pinned case pins them (plant and ping on CPU 0, controller and
+pong on CPU 1), 3 s of FOM each, in the order old-new-new-old or new-old-old-new (alternating),
+between two pinned bare echoes. Prints per round both loops' rates, each over the mean of the
+two echoes beside it, and new / old; then the medians. A change of the plant's per-sample path
+is measured so on a machine whose speed drifts between runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+
+import bench_ros as b  # this script's folder, first on sys.path
+
+
+def _loop(domains: b.Domains, old_src: str | None) -> float:
+    env = domains.env()
+    if old_src is not None:
+        env['PYTHONPATH'] = f'{old_src}/src/fohssv_sim:' + env.get('PYTHONPATH', '')
+    args = b.ros_args({'mode': 'lockstep', 'model': 'fractional', 'duration': 3.0,
+                       'cpu_affinity': 0, **b.MODEL_PARAMS['fractional']})
+    ctl = subprocess.Popen([b._exe('fohssv_controller', 'state_feedback'), '--ros-args', '-p',
+                            'cpu_affinity:=1'], env=env, stdout=subprocess.DEVNULL,
+                           stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        out = subprocess.run([sys.executable, '-c', 'from fohssv_sim.ros.plant_node import '
+                              'main; main()', *args], env=env, capture_output=True, text=True,
+                             timeout=600)
+    finally:
+        b._stop(ctl)
+    lines = [ln for ln in out.stderr.splitlines() if 'summary: ' in ln]
+    if out.returncode != 0 or not lines:
+        raise RuntimeError(f'plant exited {out.returncode}:\n{out.stderr[-3000:]}')
+    return json.loads(lines[-1].split('summary: ', 1)[1])['samples_per_second']
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('old_src', help='the other version: a source tree (e.g. a git worktree)')
+    ap.add_argument('--rounds', type=int, default=6)
+    a = ap.parse_args()
+    if not (Path(a.old_src) / 'src' / 'fohssv_sim' / 'fohssv_sim').is_dir():
+        ap.error(f'old_src={a.old_src!r}: no src/fohssv_sim/fohssv_sim in it')
+    domains = b.Domains()
+    ratios: dict[str, list[float]] = {'old': [], 'new': []}
+    gains = []
+    for n in range(a.rounds):
+        before = b.run_echo(domains, 20000, cpus=(0, 1))['round_trips_per_second']
+        order = ('old', 'new', 'new', 'old') if n % 2 == 0 else ('new', 'old', 'old', 'new')
+        rates: dict[str, list[float]] = {'old': [], 'new': []}
+        for which in order:
+            rates[which].append(_loop(domains, a.old_src if which == 'old' else None))
+        after = b.run_echo(domains, 20000, cpus=(0, 1))['round_trips_per_second']
+        echo = (before + after) / 2
+        mean = {k: statistics.mean(v) for k, v in rates.items()}
+        for k in mean:
+            ratios[k].append(mean[k] / echo)
+        gains.append(mean['new'] / mean['old'])
+        print(f"round {n + 1}: pinned echo {before:.0f} / {after:.0f} round trips/s; old "
+              f"{mean['old']:.0f} samples/s ({ratios['old'][-1]:.3f} of the echo), new "
+              f"{mean['new']:.0f} ({ratios['new'][-1]:.3f}); new / old {gains[-1]:.3f}",
+              flush=True)
+    print(f"median new / old {statistics.median(gains):.3f}; loop / echo old "
+          f"{statistics.median(ratios['old']):.3f}, new {statistics.median(ratios['new']):.3f}")
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

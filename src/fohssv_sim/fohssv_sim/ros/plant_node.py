@@ -1152,8 +1152,9 @@ class PlantNode(Node):
         """Lockstep: :class:`~fohssv_sim.models.HeldPeriod` ran the period of the command
         answering ``t`` and wrote its sample into the state message. The state goes out
         first, the round trip waits for nothing else (work before a publish costs the loop
-        at least as long, work after it is free up to about 7 us: docs/ros.md); then the model's bookkeeping and what
-        :meth:`_stepped` does after the state (the same messages, counts and checks)."""
+        at least as long, work after it is free up to about 7 us: docs/ros.md); then the
+        model's bookkeeping and what :meth:`_stepped` does after the state (the same
+        messages, counts and checks)."""
         payload = self._state_out.payload()
         try:
             self._send_state(payload)

@@ -39,7 +39,9 @@ each case is one function, so a case can be added without touching the others):
 * pinned (:func:`case_pinned`): ``cpu_affinity`` in lockstep: the echo and the FOM loop
   unpinned, then each process pinned (ping and plant on CPU 0, pong and controller on CPU 1),
   3 rounds: the pinned loop's rate over the unpinned one's, each loop against the echo pinned
-  the same way, and the CPU per sample;
+  the same way, and the CPU per sample; beside each pinned loop, a plant that does no work
+  (the echo's ping on ``state`` / ``command``) against the same controller node, pinned the
+  same way (:func:`run_null_plant`): the ceiling of the loop / echo ratio with that node;
 * hops (:func:`case_hops`): the bare echo and the lockstep FOM loop with two timestamps per
   round trip in each process (``bench/hops.py``): the median time of each hop, the DDS
   delivery each way and each process's work, echo beside loop (what the loop adds, where on
@@ -309,6 +311,28 @@ def run_echo(domains: Domains, count: int, profile: str | None = None,
     lines = [ln for ln in out.stdout.splitlines() if ln.startswith('{')]
     if out.returncode != 0 or not lines:
         raise RuntimeError(f'echo ping exited {out.returncode}:\n{out.stdout}{out.stderr}')
+    return json.loads(lines[-1])
+
+
+def run_null_plant(domains: Domains, count: int, cpus: tuple[int, int]) -> dict:
+    """A plant that does no work against the real eq. 31 controller node, for ``count`` round
+    trips: the echo's ping on the ``state`` and ``command`` topics (``--topics``), pinned to
+    ``cpus[0]``, the ``state_feedback`` node pinned to ``cpus[1]`` (``cpu_affinity``). Its rate
+    over the echo's is the most any plant's lockstep loop can reach with this controller."""
+    env = domains.env()
+    ctl = subprocess.Popen([_exe('fohssv_controller', 'state_feedback'),
+                            *ros_args({'cpu_affinity': cpus[1]})], env=env,
+                           stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
+                           start_new_session=True)
+    try:
+        out = subprocess.run([sys.executable, str(HERE / 'ros_echo.py'), 'ping', '--count',
+                              str(count), '--cpu', str(cpus[0]), '--topics', 'state', 'command'],
+                             env=env, timeout=300, capture_output=True, text=True)
+    finally:
+        _stop(ctl)
+    lines = [ln for ln in out.stdout.splitlines() if ln.startswith('{')]
+    if out.returncode != 0 or not lines:
+        raise RuntimeError(f'null plant exited {out.returncode}:\n{out.stdout}{out.stderr}')
     return json.loads(lines[-1])
 
 
@@ -800,7 +824,10 @@ def case_pinned(domains: Domains, quick: bool) -> dict:
     :data:`STEAL_RETRIES` times, printed, kept as ``rejected_rounds``). Pinning
     speeds the echo too, so the loop is compared with the echo pinned the same way; the gain
     of pinning is the pinned loop's rate over the unpinned one's in the same round, and the
-    CPU per sample of both processes. Skipped where this process may not use CPUs 0 and 1."""
+    CPU per sample of both processes. After each pinned loop, :func:`run_null_plant` (a plant
+    with no work against the same node, pinned) puts a ceiling beside it: what the loop /
+    echo ratio would be if the plant's callback cost nothing. Skipped where this process may
+    not use CPUs 0 and 1."""
     usable = set(os.sched_getaffinity(0))
     if not {0, 1} <= usable:
         print(f'pinned    skipped: this process may use CPUs {sorted(usable)}, not 0 and 1',
@@ -824,6 +851,9 @@ def case_pinned(domains: Domains, quick: bool) -> dict:
                         'plant_cpu_per_sample_us': s['cpu_per_sample_us'],
                         'controller_cpu_per_sample_us': s.get('controller_cpu_per_sample_us'),
                         'host_steal_share': s.get('host_steal_share')}
+            if cpus:     # the ceiling beside it: no plant work, the same controller node
+                null = run_null_plant(domains, count, cpus)['round_trips_per_second']
+                row[key].update(null_plant=null, null_plant_ratio_to_echo=null / echo)
         row['gain'] = row['pinned']['samples_per_second'] / row['unpinned']['samples_per_second']
         steal = max(row[k]['host_steal_share'] or 0.0 for k in ('unpinned', 'pinned'))
         again = steal > STEAL_LIMIT and len(rejected) < STEAL_RETRIES   # the host, not the loop
@@ -833,6 +863,8 @@ def case_pinned(domains: Domains, quick: bool) -> dict:
             f"({r['ratio_to_echo']:.2f} of it), CPU plant {r['plant_cpu_per_sample_us']:.0f} / "
             f"controller {r['controller_cpu_per_sample_us'] or 0:.0f} us/sample"
             + _steal_text(r['host_steal_share'])
+            + (f"; no-work plant {r['null_plant']:.0f}/s ({r['null_plant_ratio_to_echo']:.2f})"
+               if 'null_plant' in r else '')
             for k, r in ((k, row[k]) for k in ('unpinned', 'pinned')))
             + f"; pinned loop / unpinned {row['gain']:.2f}"
             + (f' (host steal {100 * steal:.1f} % > {100 * STEAL_LIMIT:g} %: the host, not the '
@@ -842,9 +874,13 @@ def case_pinned(domains: Domains, quick: bool) -> dict:
            'gain': statistics.median(r['gain'] for r in rounds)}
     for key in ('unpinned', 'pinned'):
         out[f'{key}_ratio_to_echo'] = statistics.median(r[key]['ratio_to_echo'] for r in rounds)
+    out['null_plant_ratio_to_echo'] = statistics.median(
+        r['pinned']['null_plant_ratio_to_echo'] for r in rounds)
     print(f"pinned    median of {len(rounds)}: pinned loop / unpinned loop {out['gain']:.2f}; "
           f"loop / echo unpinned {out['unpinned_ratio_to_echo']:.2f}, pinned "
-          f"{out['pinned_ratio_to_echo']:.2f}", flush=True)
+          f"{out['pinned_ratio_to_echo']:.2f}; a plant with no work against the same node, "
+          f"pinned, {out['null_plant_ratio_to_echo']:.2f} of the echo (the ceiling with this "
+          'controller)', flush=True)
     return out
 
 
@@ -1155,6 +1191,9 @@ def targets(sim_time: float, lockstep: dict, realtime: list[dict], margin: list[
         r = pinned['pinned_ratio_to_echo']
         rows.append(_row(f"the same, loop and echo pinned (cpu_affinity; median of "
                          f"{len(pinned['rounds'])})", r, '>= 0.85', r >= 0.85, '{:.2f}'))
+        rows.append(_row('ceiling: a plant with no work (the echo ping) against the same node, '
+                         'pinned / echo', pinned['null_plant_ratio_to_echo'], 'printed', True,
+                         '{:.2f}'))
     samples = round(sim_time / 1e-4)
     for pair in inplant['realtime_hosted']:
         counts, rec = pair['bag_counts'], pair['recorded']

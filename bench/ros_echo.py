@@ -21,6 +21,10 @@ Two processes, each one rclpy node on the executor the product's nodes use
   with ``--busy-before US`` / ``--busy-after US`` the ping spins that long (on
   ``perf_counter``, holding the CPU) before / after each publish, as a plant's work before its
   state goes out and after it (docs/ros.md: where the plant's work sits);
+  with ``--topics STATE COMMAND`` the two topics are named so instead of ``echo_state`` and
+  ``echo_command``: ``--topics state command`` makes the ping a plant that does no work at all
+  against a real controller node (bench_ros.py's pinned case: the ceiling of the lockstep
+  loop's rate with that controller);
   after ``--count`` round trips it prints one JSON line ``{"round_trips": n, "seconds": s,
   "round_trips_per_second": r, "cpu_dma_latency": the limit held or null}`` and exits.
 
@@ -70,18 +74,18 @@ def _timed(stamps, callback, publish):
     return timed_callback, timed_publish
 
 
-def pong(node, stamps=None) -> Future:
+def pong(node, stamps=None, topics=(STATE_TOPIC, COMMAND_TOPIC)) -> Future:
     command = ArrayWriter(COMMAND)
     out = command.values
     state = ArrayReader(STATE)
-    pub = node.create_publisher(Float64MultiArray, COMMAND_TOPIC, profile(COMMAND))
+    pub = node.create_publisher(Float64MultiArray, topics[1], profile(COMMAND))
 
     def on_state(raw: bytes) -> None:
         out[0] = state.read(raw)[0]
         send(command.payload())
 
     on_state, send = _timed(stamps, on_state, pub.publish)
-    node.create_subscription(Float64MultiArray, STATE_TOPIC, on_state, profile(STATE),
+    node.create_subscription(Float64MultiArray, topics[0], on_state, profile(STATE),
                              raw=True)
     return Future()   # runs until SIGINT
 
@@ -93,12 +97,13 @@ def _busy(seconds: float) -> None:
 
 
 def ping(node, count: int, timeout: float, announce: bool = False, stamps=None,
-         before: float = 0.0, after: float = 0.0) -> Future:
+         before: float = 0.0, after: float = 0.0,
+         topics: tuple[str, str] = (STATE_TOPIC, COMMAND_TOPIC)) -> Future:
     done = Future()
     state = ArrayWriter(STATE)
     out = state.values
     command = ArrayReader(COMMAND)
-    pub = node.create_publisher(Float64MultiArray, STATE_TOPIC, profile(STATE))
+    pub = node.create_publisher(Float64MultiArray, topics[0], profile(STATE))
     n = 0
     start = 0.0
 
@@ -119,7 +124,7 @@ def ping(node, count: int, timeout: float, announce: bool = False, stamps=None,
             _busy(after)
 
     on_echo, send = _timed(stamps, on_echo, pub.publish)
-    sub = node.create_subscription(Float64MultiArray, COMMAND_TOPIC, on_echo, profile(COMMAND),
+    sub = node.create_subscription(Float64MultiArray, topics[1], on_echo, profile(COMMAND),
                                    raw=True)
     began = time.monotonic()
 
@@ -165,6 +170,10 @@ def main() -> int:
                     help='ping: spin this long after each publish (work beside it)')
     ap.add_argument('--hops', metavar='DIR', default=None,
                     help='time each round trip as bench/hops.py does, saved in DIR')
+    ap.add_argument('--topics', nargs=2, metavar=('STATE', 'COMMAND'),
+                    default=(STATE_TOPIC, COMMAND_TOPIC),
+                    help='the two topics (default: echo_state echo_command; state command: '
+                         'the ping plays a plant that does no work against a controller node)')
     a = ap.parse_args()
     stamps = None
     if a.hops is not None:
@@ -173,7 +182,8 @@ def main() -> int:
     rclpy.init()
     node = rclpy.create_node(f'echo_{a.role}')
     done = (ping(node, a.count, a.timeout, a.announce, stamps, a.busy_before * 1e-6,
-                 a.busy_after * 1e-6) if a.role == 'ping' else pong(node, stamps))
+                 a.busy_after * 1e-6, tuple(a.topics)) if a.role == 'ping'
+            else pong(node, stamps, tuple(a.topics)))
     if a.cpu is not None:
         pin_threads((a.cpu,))
     held = hold_latency(node, a.cpu_dma_latency)     # as the nodes: said in one line either way

@@ -639,8 +639,33 @@ class HeldPeriod:
         law = held.law
         law[8] = delta_f
         law[9] = delta_c
+        taken = held.call(model._stepper.n, self._steps)
+        return self.finish(taken, delta_f, delta_c)
+
+    @property
+    def steps(self) -> int:
+        """Steps per period."""
+        return self._steps
+
+    def bound(self) -> tuple[kernels.FomHeldCall, int, int] | None:
+        """For a caller that makes :meth:`run`'s kernel call itself (the plant's compiled
+        sample): the bound kernel call with the step index it is called with and the model's
+        step count (the sample's time is ``(count + steps) * h``), or None when :meth:`run`
+        would return False."""
+        model = self._model
+        held = model._held_call
+        if not held or model.status == 'failed' or held.x is not model._stepper.live_state():
+            return None
+        return held, model._stepper.n, model.n
+
+    def finish(self, taken: int, delta_f: float, delta_c: float) -> bool:
+        """What :meth:`run` does after its kernel call, which took ``taken`` steps with the
+        input (``delta_f``, ``delta_c``): writes the sample and returns True (call
+        :meth:`settle` next), or settles the period and raises as :meth:`run` does. For a
+        caller that made the call itself (:meth:`bound`)."""
+        model = self._model
+        held = model._held_call
         steps = self._steps
-        taken = held.call(model._stepper.n, steps)
         x = self._x = held.x.tolist()
         z, w, theta, q = x
         v = self._v

@@ -75,6 +75,7 @@ from ..contract import CLOCK, COMMAND, PLANING_FORCE, RUN_END, STATE, run_end_te
 from ..control import NonFiniteCommand
 from ..models import MAX_PITCH, check_state
 from ..params import PARAMETERS, ModelParameters, ParameterError, ParameterSpec, field_specs
+from . import compiled_sample
 from .faults import (
     REFUSE_STATE_VAR,
     STALL_STATE_VAR,
@@ -242,7 +243,7 @@ class PlantNode(Node):
         self.force_pub = self.create_publisher(Float64MultiArray, PLANING_FORCE.name,
                                                profile(PLANING_FORCE))
         self.clock_pub = self.create_publisher(Clock, CLOCK.name, profile(CLOCK))
-        self._send_state = raw_publish(self.state_pub)
+        self._send_state = self._plain_send_state = raw_publish(self.state_pub)
         refuse = refused_publishes()        # a testing aid (faults.py): None unless asked for
         if refuse is not None:
             self._send_state = refusing(self._send_state, *refuse)
@@ -325,6 +326,16 @@ class PlantNode(Node):
         self._quick = (self.sim.held_period(self._state_data) if self._lockstep
                        and self.hosted is None and self.profile is None
                        and self.record is None else None)
+        # ... and that sample's check, kernel call, write and publish in one compiled call
+        # (compiled_sample.py), armed for each awaited sample; None: the interpreted path
+        self._compiled: compiled_sample.CompiledSample | None = None
+        if self._quick is not None:
+            built = compiled_sample.CompiledSample.build(
+                self._quick, self._state_out, self._command_in, self.state_pub.handle.pointer)
+            if isinstance(built, str):
+                self.get_logger().info(f'lockstep: the interpreted sample path ({built})')
+            else:
+                self._compiled = built
 
         self.running = False
         self.rejected = 0
@@ -878,8 +889,17 @@ class PlantNode(Node):
 
     # -- lockstep ----------------------------------------------------------------------------
     def _await_command(self) -> None:
-        self._awaiting = self.sim.t
+        self._awaiting = t = self.sim.t
         self._published_wall = time.monotonic()
+        compiled = self._compiled
+        if compiled is not None:
+            o = self.options
+            if self.running and self._send_state is self._plain_send_state:
+                # (not armed when the model's kernel call is not bound yet: the first sample
+                # and the first after a reset take the interpreted path, which binds it)
+                compiled.arm(t, o.max_fin_deflection, o.max_cavitator_deflection)
+            else:
+                compiled.disarm()
 
     def _check_lockstep_timeout(self) -> None:
         if not self.running:
@@ -947,6 +967,8 @@ class PlantNode(Node):
             return
         self._take(data)
         self._awaiting = None
+        if self._compiled is not None:
+            self._compiled.disarm()
         self._stepped(monotonic())
 
     def _stepped(self, begin: float) -> None:
@@ -1114,7 +1136,15 @@ class PlantNode(Node):
         with the fewest steps before the next state goes out (the round trip waits for it):
         comparisons inline instead of :meth:`_on_command`'s, :meth:`_lockstep_command`'s and
         :meth:`_take`'s calls (the watchdog's flag, real time only, is not looked at). Any
-        other command goes through :meth:`_on_command` (its checks, logs and counts)."""
+        other command goes through :meth:`_on_command` (its checks, logs and counts). Armed
+        for the awaited sample, the compiled sample (compiled_sample.py) takes the good
+        command first and publishes its state before any of this runs."""
+        compiled = self._compiled
+        if compiled is not None:
+            code = compiled.call(raw, len(raw))
+            if code != compiled_sample.NOT_TAKEN:
+                self._compiled_took(raw, code)
+                return
         data = self._command_in.read(raw)
         if len(data) == 3 and self.running:
             t, df, dc = data
@@ -1139,8 +1169,41 @@ class PlantNode(Node):
                 return
         self._on_command(raw)
 
+    def _compiled_took(self, raw: bytes, code: int) -> None:
+        """Lockstep: the compiled sample took the awaited command ``raw`` and returned
+        ``code``: the period's steps when its state went out (the rest of the sample
+        follows, as :meth:`_quick_sample` does after its publish), a refused publish (retried
+        as the interpreted path retries it), or a failed period (settled and reported as
+        :meth:`_on_command_lockstep` reports it)."""
+        begin = monotonic()
+        t, df, dc = self._command_in.read(raw)
+        self.sim.command = (df, dc)
+        compiled = self._compiled
+        failed = None
+        if code >= 0:
+            taken = code
+        elif code == compiled_sample.PUBLISH_REFUSED:
+            taken = compiled.steps
+            compiled.reset_error()
+            failed = RuntimeError(f'rcl_publish_serialized_message returned {compiled.rcl_ret}')
+        else:
+            taken = compiled_sample.FAILED - code
+        try:
+            self._quick.finish(taken, df, dc)   # the sample written again, or it raises
+        except FloatingPointError as exc:
+            self.sim.failed_period(exc)
+            self._took(raw, t, begin)
+            self._diverged(exc)
+            return
+        if code < 0 and failed is None:    # not reached: finish() raised for a failed period
+            self._quick_sample(raw, t, begin)
+            return
+        self._sample_sent(raw, t, begin, failed, self._state_out.payload() if failed else None)
+
     def _took(self, raw: bytes, t: float, begin: float) -> None:
         """Lockstep: the awaited command ``raw`` (answering ``t``) was taken at ``begin``."""
+        if self._compiled is not None:
+            self._compiled.disarm()
         self.received += 1
         if self.record is not None:
             self.record.command(raw)
@@ -1161,6 +1224,12 @@ class PlantNode(Node):
             failed = None
         except Exception as exc:  # noqa: BLE001 - RCLError is not exported by rclpy
             failed = exc
+        self._sample_sent(raw, t, begin, failed, payload)
+
+    def _sample_sent(self, raw: bytes, t: float, begin: float, failed: Exception | None,
+                     payload: bytes | None) -> None:
+        """Lockstep, the short path: the sample's state went out (or its publish failed with
+        ``failed``: ``payload`` is retried); the model's bookkeeping and the rest."""
         force = self._force_data
         force[1] = self._quick.settle()
         force[0] = self._state_data[0]
@@ -1350,6 +1419,8 @@ class PlantNode(Node):
         if self.hosted is not None:
             s.update(hosted_commands=self.commanded, commands_published=self.commands_sent,
                      law_failures=self.law_failures)
+        elif self._lockstep:       # samples the compiled sample took (compiled_sample.py)
+            s['compiled_samples'] = self._compiled.taken if self._compiled is not None else 0
         if self.profile is not None:
             s['profile'] = self.profile.summary()
         if self.record is not None:
@@ -1391,6 +1462,8 @@ class PlantNode(Node):
         self.flush_views()      # the summary counts a view's last messages too
         self.get_logger().info('summary: ' + json.dumps(self.summary()))
         self.running = False
+        if self._compiled is not None:
+            self._compiled.disarm()
         if self._timer is not None:
             self.destroy_timer(self._timer)
             self._timer = None

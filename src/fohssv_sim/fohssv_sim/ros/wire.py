@@ -27,6 +27,7 @@ construction: the encapsulation must be CDR little-endian and the round trip thr
 from __future__ import annotations
 
 import array
+import ctypes
 import struct
 from collections.abc import Sequence
 from typing import Any
@@ -100,11 +101,21 @@ class ArrayWriter:
 
     def __init__(self, topic: Topic) -> None:
         self._buf, offset = _template(topic)
+        self._offset = offset
+        self._c: Any = None        # the ctypes export of _buf, made by address()
         self.values = memoryview(self._buf)[offset:].cast('d')
 
     def payload(self) -> bytes:
         """The message as bytes for ``Publisher.publish`` (a copy: publish it right away)."""
         return bytes(self._buf)
+
+    def address(self) -> tuple[int, int, int]:
+        """(the serialized message's address, its length in bytes, the offset of the doubles)
+        for compiled code that writes and publishes it in place; the buffer stays where it
+        is as long as this writer lives."""
+        if self._c is None:
+            self._c = (ctypes.c_char * len(self._buf)).from_buffer(self._buf)
+        return ctypes.addressof(self._c), len(self._buf), self._offset
 
 
 class ArrayReader:
@@ -126,6 +137,12 @@ class ArrayReader:
         if struct.unpack_from('<I', buf, self._count_at)[0] != self.n:
             raise WireError(f'{topic.name}: no element count at byte {self._count_at}')
         self._format = f'<{self.n}d'
+
+    def layout(self) -> tuple[bytes, int, int, int, int]:
+        """(the first 12 bytes every message of the layout starts with, the offset of the
+        element count, the count, the offset of the doubles, the message's length): what
+        :meth:`read`'s fast path checks, for compiled code that reads the doubles itself."""
+        return self._head, self._count_at, self.n, self.offset, self.size
 
     def read(self, raw: bytes) -> Sequence[float]:
         """The message's doubles: a tuple on the fast path, else rclpy's ``data`` array."""

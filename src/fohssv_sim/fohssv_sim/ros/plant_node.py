@@ -986,6 +986,10 @@ class PlantNode(Node):
         every = self.options.pace_to_subscribers
         if every and self.sim.samples % every == 0:
             self._keep_subscribers_up()
+            # that wait (up to _STALL_TIMEOUT, blocking the timer) was the plant's own: the
+            # next lockstep check must not take the plant for stopped and grant the resume
+            # grace (which hid a stopped controller's undelivered state for 5 s)
+            self._checked = monotonic()
         self._await_command()
 
     def _overrunning(self, took: float) -> bool:

@@ -300,17 +300,23 @@ def run_echo(domains: Domains, count: int, profile: str | None = None,
     script = str(HERE / 'ros_echo.py')
     pin = (['--cpu', str(cpus[0])], ['--cpu', str(cpus[1])]) if cpus else ([], [])
     pin = tuple([*p, '--cpu-dma-latency', str(latency)] for p in pin)
-    pong = subprocess.Popen([sys.executable, script, 'pong', *pin[1]], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True)
+    return _ping_against(env, [sys.executable, script, 'pong', *pin[1]],
+                         ['--count', str(count), *pin[0]], 'echo ping')
+
+
+def _ping_against(env: dict, peer: list[str], ping_args: list[str], name: str) -> dict:
+    """Start ``peer`` (a command), run ``ros_echo.py ping`` with ``ping_args`` against it,
+    stop the peer: the ping's JSON line (raises with its output when it fails)."""
+    peer_proc = subprocess.Popen(peer, env=env, stdout=subprocess.DEVNULL,
+                                 stderr=subprocess.STDOUT, start_new_session=True)
     try:
-        out = subprocess.run([sys.executable, script, 'ping', '--count', str(count), *pin[0]],
+        out = subprocess.run([sys.executable, str(HERE / 'ros_echo.py'), 'ping', *ping_args],
                              env=env, timeout=300, capture_output=True, text=True)
     finally:
-        _stop(pong)
+        _stop(peer_proc)
     lines = [ln for ln in out.stdout.splitlines() if ln.startswith('{')]
     if out.returncode != 0 or not lines:
-        raise RuntimeError(f'echo ping exited {out.returncode}:\n{out.stdout}{out.stderr}')
+        raise RuntimeError(f'{name} exited {out.returncode}:\n{out.stdout}{out.stderr}')
     return json.loads(lines[-1])
 
 
@@ -319,21 +325,10 @@ def run_null_plant(domains: Domains, count: int, cpus: tuple[int, int]) -> dict:
     trips: the echo's ping on the ``state`` and ``command`` topics (``--topics``), pinned to
     ``cpus[0]``, the ``state_feedback`` node pinned to ``cpus[1]`` (``cpu_affinity``). Its rate
     over the echo's is the most any plant's lockstep loop can reach with this controller."""
-    env = domains.env()
-    ctl = subprocess.Popen([_exe('fohssv_controller', 'state_feedback'),
-                            *ros_args({'cpu_affinity': cpus[1]})], env=env,
-                           stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
-                           start_new_session=True)
-    try:
-        out = subprocess.run([sys.executable, str(HERE / 'ros_echo.py'), 'ping', '--count',
-                              str(count), '--cpu', str(cpus[0]), '--topics', 'state', 'command'],
-                             env=env, timeout=300, capture_output=True, text=True)
-    finally:
-        _stop(ctl)
-    lines = [ln for ln in out.stdout.splitlines() if ln.startswith('{')]
-    if out.returncode != 0 or not lines:
-        raise RuntimeError(f'null plant exited {out.returncode}:\n{out.stdout}{out.stderr}')
-    return json.loads(lines[-1])
+    return _ping_against(domains.env(), [_exe('fohssv_controller', 'state_feedback'),
+                                         *ros_args({'cpu_affinity': cpus[1]})],
+                         ['--count', str(count), '--cpu', str(cpus[0]), '--topics', 'state',
+                          'command'], 'null plant')
 
 
 def default_writer_times_profile(folder: str) -> str:

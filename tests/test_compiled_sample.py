@@ -147,6 +147,15 @@ def test_compiled_sample_equals_the_interpreted_path_and_publishes_its_state(gra
             compiled.disarm()
             assert _compiled(b, held_b, compiled, u, good, out.values, fb) == NOT_TAKEN
             assert compiled.arm(awaited, LIMIT, LIMIT)
+            # limits lowered while armed (a parameter change): the awaited command beyond them
+            # (0.3 rad is within LIMIT: only the new limit refuses it)
+            compiled.limit(0.2, LIMIT)
+            raw = _command(awaited, 0.3, u[1])
+            assert _compiled(b, held_b, compiled, u, raw, out.values, fb) == NOT_TAKEN
+            compiled.limit(LIMIT, 0.2)
+            raw = _command(awaited, u[0], -0.3)
+            assert _compiled(b, held_b, compiled, u, raw, out.values, fb) == NOT_TAKEN
+            compiled.limit(LIMIT, LIMIT)
             graph.quiet()
             assert len(graph.got) == k, 'a command it did not take published a state'
             assert (b.plant.x, b.plant.n, b.plant._stepper.n, list(out.values)) == before
@@ -159,6 +168,7 @@ def test_compiled_sample_equals_the_interpreted_path_and_publishes_its_state(gra
         graph.until(lambda n=k + 1: len(graph.got) == n, f'sample {k} received')
         assert reader.read(graph.got[-1]) == tuple(sa), k
     assert compiled.taken == 300 and refused == 50
+    assert compiled.rcl_ret == 0
     assert abs(sa[2]) > 0.1 and a.plant._stepper.n == 301 * 5     # a trajectory that moved
 
 

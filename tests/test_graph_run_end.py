@@ -30,7 +30,7 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, String
-from test_graph_support import batch_samples, finish, plant_args, stop_all
+from test_graph_support import Probe, batch_samples, finish, plant_args, stop_all
 
 from fohssv_controller.state_feedback import StateFeedback
 from fohssv_sim import contract
@@ -71,8 +71,9 @@ def _controller(env):
 
 @contextlib.contextmanager
 def _recorded_loop(tmp_path, recorder_params, **plant_params):
-    """A recorder (``-p`` settings ``recorder_params``), eq. 31's node and a delay-free plant
-    (``plant_params``, logging to ``plant.log``); every process is stopped at the end."""
+    """A recorder (``-p`` settings ``recorder_params``), eq. 31's node and a plant (delay-free
+    unless ``plant_params`` name a model; logging to ``plant.log``); every process is stopped
+    at the end."""
     env = rosproc.ros_env()
     loop = SimpleNamespace(env=env, bag=tmp_path / 'run', log=tmp_path / 'recorder.log',
                            plog=tmp_path / 'plant.log')
@@ -81,7 +82,7 @@ def _recorded_loop(tmp_path, recorder_params, **plant_params):
     try:
         procs.append(_controller(env))
         loop.plant = rosproc.start('fohssv_sim', 'plant', plant_args(
-            model='delay-free', min_state_subscribers=2, **plant_params), env=env,
+            **{'model': 'delay-free', 'min_state_subscribers': 2, **plant_params}), env=env,
             log=loop.plog)
         procs.append(loop.plant)
         yield loop
@@ -230,28 +231,43 @@ def test_a_recorder_stopped_early_does_not_stall_the_loop(tmp_path):
     assert load_run(loop.bag).topics['/state'] >= 1    # the partial bag is readable
 
 
-def test_after_sigint_a_lockstep_plant_steps_and_publishes_nothing(tmp_path):
+@pytest.mark.parametrize('model', ['delay-free', 'fractional'])
+def test_after_sigint_a_lockstep_plant_steps_and_publishes_nothing(tmp_path, model):
     """Issue 21.2: after SIGINT the plant logged its summary and run_end, then kept stepping
     and publishing during its linger (run_end 7528 states, 9273 published, and the recorder
     closed with "every message of the run is in the bag"). Now the bag, the run_end and the
-    summary agree on the states published."""
+    summary agree on the states published. (The FOM's samples take the compiled sample,
+    compiled_sample.py, armed for the command awaited when the signal comes.)"""
     import json
     import time
 
-    with _recorded_loop(tmp_path, [], duration=0.0, pace_to_subscribers=512) as loop:
-        rosproc.wait_for(lambda: 'peers matched' in loop.plog.read_text(), 90,
-                         what='the start of the run')
-        time.sleep(1.0)
-        loop.plant.send_signal(signal.SIGINT)
-        assert rosproc.wait_exit(loop.plant, 60) == 0, loop.plog.read_text()
-        assert rosproc.wait_exit(loop.rec, 60) == 0, loop.log.read_text()
-    text = loop.plog.read_text()
-    line = next(ln for ln in text.splitlines() if 'interrupted; stopping cleanly. summary' in ln)
-    summary = json.loads(line.split('summary: ', 1)[1])
-    ended = scan(loop.bag).run_metadata()['fohssv.run_end']
-    in_bag = load_run(loop.bag).topics['/state']
-    assert ended['published']['/state'] == summary['published_states'] == in_bag, (
-        ended, summary, in_bag)
+    # a probe besides the recorder: it keeps taking states after the run_end (the recorder
+    # closes its bag on it), so a state published after the announced end shows there
+    with _recorded_loop(tmp_path, [], model=model, duration=0.0, min_state_subscribers=3,
+                        pace_to_subscribers=512) as loop:
+        probe = Probe(int(loop.env['ROS_DOMAIN_ID']), command_publisher=False)
+        try:
+            rosproc.wait_for(lambda: 'peers matched' in loop.plog.read_text(), 90,
+                             what='the start of the run')
+            time.sleep(1.0)
+            loop.plant.send_signal(signal.SIGINT)
+            assert rosproc.wait_exit(loop.plant, 60) == 0, loop.plog.read_text()
+            assert rosproc.wait_exit(loop.rec, 60) == 0, loop.log.read_text()
+            text = loop.plog.read_text()
+            line = next(ln for ln in text.splitlines()
+                        if 'interrupted; stopping cleanly. summary' in ln)
+            summary = json.loads(line.split('summary: ', 1)[1])
+            ended = scan(loop.bag).run_metadata()['fohssv.run_end']
+            in_bag = load_run(loop.bag).topics['/state']
+            assert ended['published']['/state'] == summary['published_states'] == in_bag, (
+                ended, summary, in_bag)
+            probe.wait(lambda: len(probe.states) >= in_bag, 30, f'{in_bag} states at the probe')
+            time.sleep(0.5)
+            assert len(probe.states) == in_bag, (len(probe.states), in_bag)
+        finally:
+            probe.close()
+    if model == 'fractional':
+        assert summary['compiled_samples'] >= summary['samples'] - 1 > 0, summary
 
 
 def test_the_plant_keeps_its_run_end_until_a_late_recorder_took_it(tmp_path):

@@ -614,6 +614,97 @@ def _fom_held_entry(t, f, n, nsteps):   # pragma: no cover - compiled by _fom_he
     return taken
 
 
+# -- the serialized sample: fom_soe_run for a command's bytes, the sample handed to a C sink --
+
+#: Slots of the int64 table ``m`` of :func:`_fom_sample_entry`: the command layout (the address
+#: of its first 12 bytes, the offset of its element count, the count, the offset of its
+#: doubles, its length), the address of the sample's doubles, the sink (a C function
+#: ``int32 sink(void *, void *, void *)``'s address and its first two arguments), the step
+#: index and the steps per period, the model's step count, armed (0/1), samples taken.
+(_S_CMD_HEAD, _S_CMD_COUNT_AT, _S_CMD_COUNT, _S_CMD_OFFSET, _S_CMD_SIZE, _S_OUT, _S_SINK,
+ _S_SINK_A, _S_SINK_B, _S_N, _S_STEPS, _S_MODEL_N, _S_ARMED, _S_TAKEN) = range(14)
+_S_M_SIZE = 14
+#: Slots of its float64 table ``g``: the awaited time, the deflection limits, the step, V,
+#: the pitch limit, what the sink returned.
+_S_AWAITED, _S_MAX_FIN, _S_MAX_CAV, _S_H, _S_V, _S_PITCH, _S_RET = range(7)
+_S_G_SIZE = 7
+#: Its results: the command not taken (nothing done); the sample written, the sink refused it
+#: (returned non-zero); below _S_FAILED: the period failed, _S_FAILED - code steps taken
+#: (nothing written, nothing handed on).
+_S_NOT_TAKEN, _S_SINK_REFUSED, _S_FAILED = -1, -2, -10
+
+if numba is not None:
+    @intrinsic
+    def _call_sink(typingctx, fn, a, b):
+        """``fn(a, b, NULL)`` for the C function ``int32 fn(void *, void *, void *)`` at the
+        int64 address ``fn`` (compiled code only)."""
+        def codegen(context, builder, signature, args):
+            from llvmlite import ir
+
+            address, first, second = args
+            ptr = ir.IntType(8).as_pointer()
+            fnty = ir.FunctionType(ir.IntType(32), [ptr, ptr, ptr])
+            function = builder.inttoptr(address, fnty.as_pointer())
+            return builder.call(function, [builder.inttoptr(first, ptr),
+                                           builder.inttoptr(second, ptr),
+                                           ir.Constant(ptr, None)])
+        return numba.types.int32(numba.types.int64, numba.types.int64,
+                                 numba.types.int64), codegen
+
+    _fom_held_jit = numba.njit(error_model='numpy')(_fom_held_entry)
+
+
+def _fom_sample_entry(t, f, m, g, raw, size):   # pragma: no cover - compiled by its user
+    """One held-input period for a serialized command, its sample written into a serialized
+    message and handed to a C sink (fohssv_sim.ros.compiled_sample compiles it, cached by
+    this file): when armed and the ``size`` bytes at ``raw`` have the command layout ``m``
+    names, answer the awaited time with both deflections within their limits, disarm, run
+    :func:`_fom_held_entry` on the tables ``t``, ``f`` with that input and, when the period
+    stayed finite and |w| <= V, |theta| <= pi/2, write ``[t, z, w, theta, q]`` and call the
+    sink. Returns the steps taken (the sink accepted), or one of the ``_S_*`` results."""
+    if m[_S_ARMED] == 0 or size != m[_S_CMD_SIZE]:
+        return _S_NOT_TAKEN
+    head = numba.carray(_as_pointer(m[_S_CMD_HEAD]), (12,), np.uint8)
+    got = numba.carray(_as_pointer(raw), (size,), np.uint8)
+    for i in range(12):
+        if got[i] != head[i]:
+            return _S_NOT_TAKEN
+    at = m[_S_CMD_COUNT_AT]
+    count = (np.int64(got[at]) | (np.int64(got[at + 1]) << 8) | (np.int64(got[at + 2]) << 16)
+             | (np.int64(got[at + 3]) << 24))
+    if count != m[_S_CMD_COUNT]:
+        return _S_NOT_TAKEN
+    cmd = numba.carray(_as_pointer(raw + m[_S_CMD_OFFSET]), (3,), np.float64)
+    t_cmd = cmd[0]
+    delta_f = cmd[1]
+    delta_c = cmd[2]
+    if not (t_cmd == g[_S_AWAITED] and abs(delta_f) <= g[_S_MAX_FIN]
+            and abs(delta_c) <= g[_S_MAX_CAV]):
+        return _S_NOT_TAKEN
+    m[_S_ARMED] = 0
+    law = numba.carray(_as_pointer(t[_T_LAW]), (t[_T_SHAPES + 1],), np.float64)
+    law[8] = delta_f
+    law[9] = delta_c
+    steps = m[_S_STEPS]
+    taken = _fom_held_jit(t, f, m[_S_N], steps)
+    x = numba.carray(_as_pointer(t[_T_X]), (4,), np.float64)
+    w = x[1]
+    theta = x[2]
+    v = g[_S_V]
+    if not (taken == steps and -v <= w <= v and -g[_S_PITCH] <= theta <= g[_S_PITCH]):
+        return _S_FAILED - taken
+    out = numba.carray(_as_pointer(m[_S_OUT]), (5,), np.float64)
+    out[0] = (m[_S_MODEL_N] + steps) * g[_S_H]
+    out[1] = x[0]
+    out[2] = w
+    out[3] = theta
+    out[4] = x[3]
+    m[_S_TAKEN] += 1
+    ret = _call_sink(m[_S_SINK], m[_S_SINK_A], m[_S_SINK_B])
+    g[_S_RET] = ret
+    return steps if ret == 0 else _S_SINK_REFUSED
+
+
 @functools.cache
 def _fom_held_c() -> Any:
     """The C entry point of :func:`_fom_held_entry` as a ctypes function, compiled on first use

@@ -11,7 +11,9 @@ bytes it
    does (``t`` answers the awaited sample, both deflections within their limits);
 2. runs the model's held-input kernel call on the model's own arrays (the body of
    :func:`fohssv_sim.kernels._fom_held_entry`, compiled into this entry point: the same
-   code on the same arrays as :meth:`HeldPeriod.run <fohssv_sim.models.HeldPeriod.run>`);
+   code on the same arrays as :meth:`HeldPeriod.run <fohssv_sim.models.HeldPeriod.run>`;
+   the entry point is :func:`fohssv_sim.kernels._fom_sample_entry`, which knows the sink
+   it hands the sample to only as a C function's address);
 3. when the period stayed finite and within the bounds, writes ``[t, z, w, theta, q]`` into
    the state's serialized message and publishes it with rcl's
    ``rcl_publish_serialized_message`` on the publisher's rcl handle (the address rclpy
@@ -39,114 +41,63 @@ from typing import Any
 import numpy as np
 
 from .. import kernels
+from ..kernels import (
+    _S_ARMED,
+    _S_AWAITED,
+    _S_CMD_COUNT,
+    _S_CMD_COUNT_AT,
+    _S_CMD_HEAD,
+    _S_CMD_OFFSET,
+    _S_CMD_SIZE,
+    _S_FAILED,
+    _S_G_SIZE,
+    _S_H,
+    _S_M_SIZE,
+    _S_MAX_CAV,
+    _S_MAX_FIN,
+    _S_MODEL_N,
+    _S_N,
+    _S_NOT_TAKEN,
+    _S_OUT,
+    _S_PITCH,
+    _S_RET,
+    _S_SINK,
+    _S_SINK_A,
+    _S_SINK_B,
+    _S_SINK_REFUSED,
+    _S_STEPS,
+    _S_TAKEN,
+    _S_V,
+)
 from ..models import MAX_PITCH, HeldPeriod
 from .wire import ArrayReader, ArrayWriter
 
-try:
-    import numba
-    from llvmlite import ir
-    from numba import types
-    from numba.extending import intrinsic
-except ImportError:  # pragma: no cover - numba is a dependency
-    numba = None
-
 #: :meth:`CompiledSample.call`: the command was not taken (the node's interpreted path runs)
-NOT_TAKEN = -1
+NOT_TAKEN = _S_NOT_TAKEN
 #: the sample was written, rcl refused its publish (``rcl_ret`` says what rcl returned)
-PUBLISH_REFUSED = -2
+PUBLISH_REFUSED = _S_SINK_REFUSED
 #: below this: the period failed, ``FAILED - code`` steps were taken (non-finite or beyond
 #: the bounds: nothing was written or published; the node settles it and stops the run)
-FAILED = -10
-
-# the int64 table (m) and float64 table (g) the entry point reads; the node writes them
-(_M_CMD_HEAD, _M_CMD_COUNT_AT, _M_CMD_COUNT, _M_CMD_OFFSET, _M_CMD_SIZE, _M_STATE, _M_PUBLISH,
- _M_PUBLISHER, _M_MESSAGE, _M_N, _M_STEPS, _M_MODEL_N, _M_ARMED, _M_TAKEN) = range(14)
-_M_SIZE = 14
-_G_AWAITED, _G_MAX_FIN, _G_MAX_CAV, _G_H, _G_V, _G_PITCH, _G_RET = range(7)
-_G_SIZE = 7
-
-if numba is not None:
-    @intrinsic
-    def _call3(typingctx, fn, a, b):
-        """``fn(a, b, NULL)`` for a C function ``int32 fn(void *, void *, void *)`` at the
-        int64 address ``fn`` (compiled code only): rcl_publish_serialized_message."""
-        def codegen(context, builder, signature, args):
-            address, first, second = args
-            ptr = ir.IntType(8).as_pointer()
-            fnty = ir.FunctionType(ir.IntType(32), [ptr, ptr, ptr])
-            function = builder.inttoptr(address, fnty.as_pointer())
-            return builder.call(function, [builder.inttoptr(first, ptr),
-                                           builder.inttoptr(second, ptr),
-                                           ir.Constant(ptr, None)])
-        return types.int32(types.int64, types.int64, types.int64), codegen
-
-
-def _sample_entry(t, f, m, g, raw, size):   # pragma: no cover - compiled by _entry
-    """The entry point's body (the module docstring); ``t``, ``f``: the kernel call's tables
-    (:class:`fohssv_sim.kernels.FomHeldCall`), ``m``, ``g``: this module's, ``raw``: the
-    command's address, ``size``: its length."""
-    if m[_M_ARMED] == 0 or size != m[_M_CMD_SIZE]:
-        return NOT_TAKEN
-    head = numba.carray(kernels._as_pointer(m[_M_CMD_HEAD]), (12,), np.uint8)
-    got = numba.carray(kernels._as_pointer(raw), (size,), np.uint8)
-    for i in range(12):
-        if got[i] != head[i]:
-            return NOT_TAKEN
-    at = m[_M_CMD_COUNT_AT]
-    count = (np.int64(got[at]) | (np.int64(got[at + 1]) << 8) | (np.int64(got[at + 2]) << 16)
-             | (np.int64(got[at + 3]) << 24))
-    if count != m[_M_CMD_COUNT]:
-        return NOT_TAKEN
-    cmd = numba.carray(kernels._as_pointer(raw + m[_M_CMD_OFFSET]), (3,), np.float64)
-    t_cmd = cmd[0]
-    delta_f = cmd[1]
-    delta_c = cmd[2]
-    if not (t_cmd == g[_G_AWAITED] and abs(delta_f) <= g[_G_MAX_FIN]
-            and abs(delta_c) <= g[_G_MAX_CAV]):
-        return NOT_TAKEN
-    m[_M_ARMED] = 0
-    law = numba.carray(kernels._as_pointer(t[kernels._T_LAW]), (t[kernels._T_SHAPES + 1],),
-                       np.float64)
-    law[8] = delta_f
-    law[9] = delta_c
-    steps = m[_M_STEPS]
-    taken = _held(t, f, m[_M_N], steps)
-    x = numba.carray(kernels._as_pointer(t[kernels._T_X]), (4,), np.float64)
-    w = x[1]
-    theta = x[2]
-    v = g[_G_V]
-    if not (taken == steps and -v <= w <= v and -g[_G_PITCH] <= theta <= g[_G_PITCH]):
-        return FAILED - taken
-    out = numba.carray(kernels._as_pointer(m[_M_STATE]), (5,), np.float64)
-    out[0] = (m[_M_MODEL_N] + steps) * g[_G_H]
-    out[1] = x[0]
-    out[2] = w
-    out[3] = theta
-    out[4] = x[3]
-    m[_M_TAKEN] += 1
-    ret = _call3(m[_M_PUBLISH], m[_M_PUBLISHER], m[_M_MESSAGE])
-    g[_G_RET] = ret
-    return steps if ret == 0 else PUBLISH_REFUSED
-
-
-if numba is not None:
-    # the kernel entry point's body as a compiled function this entry point calls (not cached
-    # on its own: compiled into the entry point, which is)
-    _held = numba.njit(error_model='numpy')(kernels._fom_held_entry)
+FAILED = _S_FAILED
 
 
 @functools.cache
 def _entry() -> Any:
     """The C entry point as a ctypes function (compiled on first use, cached on disk), or
     the reason it could not be built (a str)."""
-    if numba is None:  # pragma: no cover
+    if kernels.numba is None:  # pragma: no cover
         return 'numba is not installed'
     try:
+        import numba
+        from numba import types
+
         sig = types.int64(types.CPointer(types.int64), types.CPointer(types.float64),
                           types.CPointer(types.int64), types.CPointer(types.float64),
                           types.int64, types.int64)
+        # compiled from kernels.py's function, so numba's cache follows that file (the kernel
+        # it runs lives there)
         entry = numba.cfunc(sig, nopython=True, error_model='numpy', cache=True)(
-            _sample_entry)
+            kernels._fom_sample_entry)
         proto = ctypes.CFUNCTYPE(ctypes.c_int64, ctypes.c_void_p, ctypes.c_void_p,
                                  ctypes.c_void_p, ctypes.c_void_p, ctypes.c_char_p,
                                  ctypes.c_int64)
@@ -155,19 +106,32 @@ def _entry() -> Any:
         return f'the entry point could not be compiled ({type(exc).__name__}: {exc})'
 
 
+class _ErrorString(ctypes.Structure):
+    _fields_ = [('str', ctypes.c_char * 1024)]      # rcutils_error_string_t
+
+
 @functools.cache
 def _rcl() -> Any:
-    """(rcl_publish_serialized_message's address, rcutils_reset_error) from the rcl and
-    rcutils libraries rclpy has loaded, or the reason they are not available (a str)."""
+    """(rcl_publish_serialized_message's address, a function returning rcl's error text and
+    clearing it) from the rcl and rcutils libraries rclpy has loaded, or the reason they are
+    not available (a str)."""
     try:
         rcl = ctypes.CDLL('librcl.so')
         rcutils = ctypes.CDLL('librcutils.so')
         publish = ctypes.cast(rcl.rcl_publish_serialized_message, ctypes.c_void_p).value
+        get = rcutils.rcutils_get_error_string
+        get.argtypes, get.restype = [], _ErrorString
         reset = rcutils.rcutils_reset_error
         reset.argtypes, reset.restype = [], None
     except (OSError, AttributeError) as exc:
         return f'rcl is not loadable here ({exc})'
-    return publish, reset
+
+    def take_error() -> str:
+        text = get().str.decode(errors='replace')
+        reset()
+        return text
+
+    return publish, take_error
 
 
 def _not_taken(raw: bytes, size: int) -> int:
@@ -179,10 +143,10 @@ class CompiledSample:
     len(raw))`` returns the steps taken when it published the sample, or :data:`NOT_TAKEN`,
     :data:`PUBLISH_REFUSED`, or a code below :data:`FAILED`."""
 
-    def __init__(self, entry: Any, publish: int, reset_error: Any, period: HeldPeriod,
+    def __init__(self, entry: Any, publish: int, take_error: Any, period: HeldPeriod,
                  state: ArrayWriter, command: ArrayReader, publisher: int) -> None:
         self._entry = entry
-        self._reset_error = reset_error
+        self._take_error = take_error
         self._period = period
         head, count_at, count, offset, size = command.layout()
         self._head = np.frombuffer(head, dtype=np.uint8).copy()
@@ -192,17 +156,17 @@ class CompiledSample:
         # allocator that rcl does not use to publish (four functions and a state: zeros)
         self._message = np.zeros(8, dtype=np.int64)
         self._message[:3] = (address, length, length)
-        m = np.zeros(_M_SIZE, dtype=np.int64)
-        m[_M_CMD_HEAD] = self._head.ctypes.data
-        m[_M_CMD_COUNT_AT], m[_M_CMD_COUNT] = count_at, count
-        m[_M_CMD_OFFSET], m[_M_CMD_SIZE] = offset, size
-        m[_M_STATE] = address + doubles
-        m[_M_PUBLISH], m[_M_PUBLISHER] = publish, publisher
-        m[_M_MESSAGE] = self._message.ctypes.data
-        m[_M_STEPS] = period.steps
+        m = np.zeros(_S_M_SIZE, dtype=np.int64)
+        m[_S_CMD_HEAD] = self._head.ctypes.data
+        m[_S_CMD_COUNT_AT], m[_S_CMD_COUNT] = count_at, count
+        m[_S_CMD_OFFSET], m[_S_CMD_SIZE] = offset, size
+        m[_S_OUT] = address + doubles
+        m[_S_SINK], m[_S_SINK_A] = publish, publisher
+        m[_S_SINK_B] = self._message.ctypes.data
+        m[_S_STEPS] = period.steps
         self._m = m
-        self._g = np.zeros(_G_SIZE)
-        self._g[_G_PITCH] = MAX_PITCH
+        self._g = np.zeros(_S_G_SIZE)
+        self._g[_S_PITCH] = MAX_PITCH
         self._mv = memoryview(m)               # item writes without numpy scalars
         self._gv = memoryview(self._g)
         self._held: kernels.FomHeldCall | None = None
@@ -226,16 +190,17 @@ class CompiledSample:
     @property
     def taken(self) -> int:
         """Commands taken and samples published by the compiled call so far."""
-        return int(self._m[_M_TAKEN])
+        return int(self._m[_S_TAKEN])
 
     @property
     def rcl_ret(self) -> int:
         """What rcl returned for the last publish (0: published)."""
-        return int(self._g[_G_RET])
+        return int(self._g[_S_RET])
 
-    def reset_error(self) -> None:
-        """Clear rcl's error state after :data:`PUBLISH_REFUSED` (as rclpy does when it raises)."""
-        self._reset_error()
+    def take_error(self) -> str:
+        """rcl's error text after :data:`PUBLISH_REFUSED`, its error state cleared (as
+        rclpy's publish does when it raises)."""
+        return self._take_error()
 
     def arm(self, awaited: float, max_fin: float, max_cav: float) -> bool:
         """Take the command answering the sample at ``awaited`` s if it comes with
@@ -244,7 +209,7 @@ class CompiledSample:
         bound = self._period.bound()
         mv = self._mv
         if bound is None:
-            mv[_M_ARMED] = 0
+            mv[_S_ARMED] = 0
             return False
         held, n, model_n = bound
         if held is not self._held:           # the model's arrays changed (a reset, the start)
@@ -254,23 +219,28 @@ class CompiledSample:
                                           ctypes.c_void_p(self._m.ctypes.data),
                                           ctypes.c_void_p(self._g.ctypes.data))
             model = self._period._model
-            self._gv[_G_H] = model.h
-            self._gv[_G_V] = model.params.speed
+            self._gv[_S_H] = model.h
+            self._gv[_S_V] = model.params.speed
         gv = self._gv
-        mv[_M_N] = n
-        mv[_M_MODEL_N] = model_n
-        gv[_G_AWAITED] = awaited
-        gv[_G_MAX_FIN] = max_fin
-        gv[_G_MAX_CAV] = max_cav
-        mv[_M_ARMED] = 1
+        mv[_S_N] = n
+        mv[_S_MODEL_N] = model_n
+        gv[_S_AWAITED] = awaited
+        gv[_S_MAX_FIN] = max_fin
+        gv[_S_MAX_CAV] = max_cav
+        mv[_S_ARMED] = 1
         return True
+
+    def limit(self, max_fin: float, max_cav: float) -> None:
+        """New deflection limits for the command awaited now (rad)."""
+        self._gv[_S_MAX_FIN] = max_fin
+        self._gv[_S_MAX_CAV] = max_cav
 
     def disarm(self) -> None:
         """Take no command until armed again."""
-        self._mv[_M_ARMED] = 0
+        self._mv[_S_ARMED] = 0
 
     def armed(self) -> bool:
-        return bool(self._mv[_M_ARMED])
+        return bool(self._mv[_S_ARMED])
 
 
 

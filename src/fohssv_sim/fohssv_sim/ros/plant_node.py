@@ -417,6 +417,9 @@ class PlantNode(Node):
         _, options, _ = config
         self.options = options
         self._lag.limit = options.max_command_lag
+        compiled = self._compiled
+        if compiled is not None and compiled.armed():   # the awaited command: the new limits
+            compiled.limit(options.max_fin_deflection, options.max_cavitator_deflection)
         # a lowered deflection limit applies to the command held now, not only to the next
         # ones: a held command beyond it is replaced by the command clamped to the limit
         df, dc = self.sim.command
@@ -676,6 +679,7 @@ class PlantNode(Node):
             time.sleep(0.001)
             try:
                 send(payload)
+                self._checked = monotonic()   # that wait was the plant's own (see _next)
                 return
             except Exception as again:  # noqa: BLE001
                 exc = again
@@ -1144,7 +1148,7 @@ class PlantNode(Node):
         for the awaited sample, the compiled sample (compiled_sample.py) takes the good
         command first and publishes its state before any of this runs."""
         compiled = self._compiled
-        if compiled is not None:
+        if compiled is not None and self.running:
             code = compiled.call(raw, len(raw))
             if code != compiled_sample.NOT_TAKEN:
                 self._compiled_took(raw, code)
@@ -1188,8 +1192,8 @@ class PlantNode(Node):
             taken = code
         elif code == compiled_sample.PUBLISH_REFUSED:
             taken = compiled.steps
-            compiled.reset_error()
-            failed = RuntimeError(f'rcl_publish_serialized_message returned {compiled.rcl_ret}')
+            failed = RuntimeError(f'rcl_publish_serialized_message returned '
+                                  f'{compiled.rcl_ret}: {compiled.take_error()}')
         else:
             taken = compiled_sample.FAILED - code
         try:
@@ -1557,6 +1561,8 @@ def _interrupted(node: PlantNode) -> None:
     # spins the executor, and a lockstep command arriving then would advance the run)
     node.running = False
     node.pacer = None
+    if node._compiled is not None:
+        node._compiled.disarm()
     final_log(node.get_name(), f'interrupted; stopping cleanly. summary: {summary}')
     node.announce_end('interrupted', node.exit_code)
 

@@ -68,8 +68,11 @@ def _summary(log: str) -> dict:
     return json.loads(line.split('summary: ', 1)[1])
 
 
-def test_inplant_bag_equals_the_recorder_bag_of_the_same_run(tmp_path):
-    n = len(batch_samples('delay-free', StateFeedback(), DURATION)[0])   # samples of the run
+@pytest.mark.parametrize('model', ['delay-free', 'fractional'])
+def test_inplant_bag_equals_the_recorder_bag_of_the_same_run(tmp_path, model):
+    """(The FOM's samples but the first take the compiled sample, compiled_sample.py, which
+    publishes the state without the tapped publish call; the plant puts it in the bag.)"""
+    n = len(batch_samples(model, StateFeedback(), DURATION)[0])   # samples of the run
     env = rosproc.ros_env()
     ours, theirs = tmp_path / 'inplant', tmp_path / 'recorder'
     rlog, plog = tmp_path / 'recorder.log', tmp_path / 'plant.log'
@@ -83,7 +86,7 @@ def test_inplant_bag_equals_the_recorder_bag_of_the_same_run(tmp_path):
         # ring fills, the plant waits for the writer. Stopped once it is ready and before the
         # controller node starts, so before the run can start (it needs two subscribers)
         plant = rosproc.start('fohssv_sim', 'plant', plant_args(
-            model='delay-free', duration=DURATION, min_state_subscribers=2,
+            model=model, duration=DURATION, min_state_subscribers=2,
             pace_to_subscribers=512, record=str(ours), record_buffer=16384), env=env, log=plog)
         procs.append(plant)
         writer = _ready_writer(plog)
@@ -104,6 +107,7 @@ def test_inplant_bag_equals_the_recorder_bag_of_the_same_run(tmp_path):
     assert 'every message of the run is in the bag' in text, text
     summary = _summary(text)
     assert summary['record_lost'] == 0 and summary['record_waits'] > 0, summary
+    assert summary['compiled_samples'] == (n - 2 if model == 'fractional' else 0), summary
 
     mine, my_channels, my_meta = _read(ours)
     other, other_channels, other_meta = _read(theirs)

@@ -210,6 +210,13 @@ class InPlantRecording:
 
         setattr(node, attr, send_if_wanted if wanted else send_recorded)
 
+    def put_sent(self, topic_name: str, data: bytes) -> None:
+        """Put a message the plant published without its tapped publish call (the compiled
+        lockstep sample's state) into the ring, as :meth:`tap_send`'s call does."""
+        index = self._index[topic_name]
+        if not self.ring.put(index, data):
+            self._full(index, data)
+
     def command(self, raw: bytes) -> None:
         """A command the plant took while running (the raw bytes it received)."""
         if not self.ring.put(self.command_index, raw):

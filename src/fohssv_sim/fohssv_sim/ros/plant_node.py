@@ -243,7 +243,7 @@ class PlantNode(Node):
         self.force_pub = self.create_publisher(Float64MultiArray, PLANING_FORCE.name,
                                                profile(PLANING_FORCE))
         self.clock_pub = self.create_publisher(Clock, CLOCK.name, profile(CLOCK))
-        self._send_state = self._plain_send_state = raw_publish(self.state_pub)
+        self._send_state = raw_publish(self.state_pub)
         refuse = refused_publishes()        # a testing aid (faults.py): None unless asked for
         if refuse is not None:
             self._send_state = refusing(self._send_state, *refuse)
@@ -320,12 +320,16 @@ class PlantNode(Node):
         self._log_retry = LogLimiter(self.get_logger(), 5, level='warning')
         # record:=PATH: the plant writes its own bag (inplant_record.py); None when off
         self.record = start_recording(self)
-        # lockstep with an external controller, the FOM compiled, no profile, no in-plant
-        # bag: the awaited command's sample is published before the model's bookkeeping
+        # the state's publish call the compiled sample stands in for (publishing, and with
+        # record:=PATH putting into the in-plant bag, as _send_state does): None under fault
+        # injection; a call wrapped later (a bench's stamps) is not it either
+        self._armable_send = (self._send_state if refuse is None and stall is None
+                              else None)
+        # lockstep with an external controller, the FOM compiled, no profile: the awaited
+        # command's sample is published before the model's bookkeeping
         # (_on_command_lockstep); None: every sample takes the general path
         self._quick = (self.sim.held_period(self._state_data) if self._lockstep
-                       and self.hosted is None and self.profile is None
-                       and self.record is None else None)
+                       and self.hosted is None and self.profile is None else None)
         # ... and that sample's check, kernel call, write and publish in one compiled call
         # (compiled_sample.py), armed for each awaited sample; None: the interpreted path
         self._compiled: compiled_sample.CompiledSample | None = None
@@ -898,7 +902,7 @@ class PlantNode(Node):
         compiled = self._compiled
         if compiled is not None:
             o = self.options
-            if self.running and self._send_state is self._plain_send_state:
+            if self.running and self._send_state is self._armable_send:
                 # (not armed when the model's kernel call is not bound yet: the first sample
                 # and the first after a reset take the interpreted path, which binds it)
                 compiled.arm(t, o.max_fin_deflection, o.max_cavitator_deflection)
@@ -1206,7 +1210,12 @@ class PlantNode(Node):
         if code < 0 and failed is None:    # not reached: finish() raised for a failed period
             self._quick_sample(raw, t, begin)
             return
-        self._sample_sent(raw, t, begin, failed, self._state_out.payload() if failed else None)
+        if failed is not None:               # retried through _send_state (and recorded)
+            self._sample_sent(raw, t, begin, failed, self._state_out.payload())
+            return
+        if self.record is not None:          # what _send_state would have put in the bag
+            self.record.put_sent(self.state_pub.topic_name, self._state_out.payload())
+        self._sample_sent(raw, t, begin, None, None)
 
     def _took(self, raw: bytes, t: float, begin: float) -> None:
         """Lockstep: the awaited command ``raw`` (answering ``t``) was taken at ``begin``."""

@@ -121,7 +121,8 @@ def test_compiled_sample_equals_the_interpreted_path_and_publishes_its_state(gra
     a, b, held_a, held_b, sa, fa, fb, out = _plants()
     compiled = CompiledSample.build(held_b, out, ArrayReader(COMMAND), graph.pub.handle.pointer)
     assert not isinstance(compiled, str), compiled
-    assert not compiled.arm(0.0, LIMIT, LIMIT)     # the kernel call is not bound yet
+    compiled.limit(LIMIT, LIMIT)
+    assert not compiled.arm(0.0)                   # the kernel call is not bound yet
     _general(a, (0.0, 0.0), sa, fa)
     _general(b, (0.0, 0.0), out.values, fb)
     reader = ArrayReader(STATE)
@@ -130,7 +131,7 @@ def test_compiled_sample_equals_the_interpreted_path_and_publishes_its_state(gra
     for k in range(300):
         u = ctl.command(0.0, tuple(sa[1:]))
         awaited = b.t
-        assert compiled.arm(awaited, LIMIT, LIMIT)
+        assert compiled.arm(awaited)
         good = _command(awaited, *u)
         if k % 60 == 7:
             # commands it must leave to the interpreted path, each with nothing done
@@ -146,7 +147,7 @@ def test_compiled_sample_equals_the_interpreted_path_and_publishes_its_state(gra
                 refused += 1
             compiled.disarm()
             assert _compiled(b, held_b, compiled, u, good, out.values, fb) == NOT_TAKEN
-            assert compiled.arm(awaited, LIMIT, LIMIT)
+            assert compiled.arm(awaited)
             # limits lowered while armed (a parameter change): the awaited command beyond them
             # (0.3 rad is within LIMIT: only the new limit refuses it)
             compiled.limit(0.2, LIMIT)
@@ -197,9 +198,10 @@ def test_compiled_sample_fails_where_the_interpreted_path_fails_with_its_words(g
                 raise
             held_a.settle()
             a.took(u)
+    compiled.limit(math.inf, math.inf)
     with pytest.raises(FloatingPointError, match=error) as ib:
         for _ in range(1000):
-            assert compiled.arm(b.t, math.inf, math.inf)
+            assert compiled.arm(b.t)
             raw = _command(b.t, *u)
             code = _compiled(b, held_b, compiled, u, raw, out.values, fb)
             if code < 0:

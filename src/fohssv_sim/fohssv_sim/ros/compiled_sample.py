@@ -21,8 +21,9 @@ bytes it
 
 Everything else (the model's bookkeeping, ``planing_force``, ``/clock``, the views, the
 checks) follows in the node, in Python, as on the interpreted path. The call is *armed* by the
-node for one awaited sample (:meth:`CompiledSample.arm`, with the model's step counts and the
-current deflection limits) and disarms itself when it takes the command; any command it does
+node for one awaited sample (:meth:`CompiledSample.arm`, with the model's step counts; the
+deflection limits are the node's to set, :meth:`CompiledSample.limit`, at start and when they
+change) and disarms itself when it takes the command; any command it does
 not take (not armed, another layout, another ``t``, a deflection beyond its limit, a
 non-finite value) is left to the node's interpreted path untouched.
 
@@ -171,7 +172,6 @@ class CompiledSample:
         self._gv = memoryview(self._g)
         self._held: kernels.FomHeldCall | None = None
         self.call: Any = _not_taken         # until first armed (bound to the arrays)
-        self.steps = period.steps
 
     @classmethod
     def build(cls, period: HeldPeriod, state: ArrayWriter, command: ArrayReader,
@@ -202,10 +202,10 @@ class CompiledSample:
         rclpy's publish does when it raises)."""
         return self._take_error()
 
-    def arm(self, awaited: float, max_fin: float, max_cav: float) -> bool:
+    def arm(self, awaited: float) -> bool:
         """Take the command answering the sample at ``awaited`` s if it comes with
-        deflections within ``max_fin`` and ``max_cav`` rad; False (and disarmed) when the
-        model's kernel call is not bound (the interpreted path binds it)."""
+        deflections within the limits (:meth:`limit`); False (and disarmed) when the model's
+        kernel call is not bound (the interpreted path binds it)."""
         bound = self._period.bound()
         mv = self._mv
         if bound is None:
@@ -221,17 +221,15 @@ class CompiledSample:
             model = self._period._model
             self._gv[_S_H] = model.h
             self._gv[_S_V] = model.params.speed
-        gv = self._gv
         mv[_S_N] = n
         mv[_S_MODEL_N] = model_n
-        gv[_S_AWAITED] = awaited
-        gv[_S_MAX_FIN] = max_fin
-        gv[_S_MAX_CAV] = max_cav
+        self._gv[_S_AWAITED] = awaited
         mv[_S_ARMED] = 1
         return True
 
     def limit(self, max_fin: float, max_cav: float) -> None:
-        """New deflection limits for the command awaited now (rad)."""
+        """The deflection limits (rad) of the commands it takes, the one awaited now
+        included (0 until set: it takes none but all-zero deflections)."""
         self._gv[_S_MAX_FIN] = max_fin
         self._gv[_S_MAX_CAV] = max_cav
 
@@ -241,7 +239,6 @@ class CompiledSample:
 
     def armed(self) -> bool:
         return bool(self._mv[_S_ARMED])
-
 
 
 def warm_up() -> None:

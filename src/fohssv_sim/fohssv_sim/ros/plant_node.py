@@ -340,6 +340,8 @@ class PlantNode(Node):
                 self.get_logger().info(f'lockstep: the interpreted sample path ({built})')
             else:
                 self._compiled = built
+                built.limit(self.options.max_fin_deflection,
+                            self.options.max_cavitator_deflection)
 
         self.running = False
         self.rejected = 0
@@ -421,9 +423,8 @@ class PlantNode(Node):
         _, options, _ = config
         self.options = options
         self._lag.limit = options.max_command_lag
-        compiled = self._compiled
-        if compiled is not None and compiled.armed():   # the awaited command: the new limits
-            compiled.limit(options.max_fin_deflection, options.max_cavitator_deflection)
+        if self._compiled is not None:    # the awaited command's too
+            self._compiled.limit(options.max_fin_deflection, options.max_cavitator_deflection)
         # a lowered deflection limit applies to the command held now, not only to the next
         # ones: a held command beyond it is replaced by the command clamped to the limit
         df, dc = self.sim.command
@@ -901,11 +902,10 @@ class PlantNode(Node):
         self._published_wall = time.monotonic()
         compiled = self._compiled
         if compiled is not None:
-            o = self.options
             if self.running and self._send_state is self._armable_send:
                 # (not armed when the model's kernel call is not bound yet: the first sample
                 # and the first after a reset take the interpreted path, which binds it)
-                compiled.arm(t, o.max_fin_deflection, o.max_cavitator_deflection)
+                compiled.arm(t)
             else:
                 compiled.disarm()
 
@@ -975,8 +975,6 @@ class PlantNode(Node):
             return
         self._take(data)
         self._awaiting = None
-        if self._compiled is not None:
-            self._compiled.disarm()
         self._stepped(monotonic())
 
     def _stepped(self, begin: float) -> None:
@@ -1149,8 +1147,10 @@ class PlantNode(Node):
         comparisons inline instead of :meth:`_on_command`'s, :meth:`_lockstep_command`'s and
         :meth:`_take`'s calls (the watchdog's flag, real time only, is not looked at). Any
         other command goes through :meth:`_on_command` (its checks, logs and counts). Armed
-        for the awaited sample, the compiled sample (compiled_sample.py) takes the good
-        command first and publishes its state before any of this runs."""
+        for the awaited sample (by :meth:`_await_command`; it disarms itself when it takes
+        the command, :meth:`_took` when the interpreted path does, and is not called once the
+        run is over), the compiled sample (compiled_sample.py) takes the good command first
+        and publishes its state before any of this runs."""
         compiled = self._compiled
         if compiled is not None and self.running:
             code = compiled.call(raw, len(raw))
@@ -1190,27 +1190,24 @@ class PlantNode(Node):
         begin = monotonic()
         t, df, dc = self._command_in.read(raw)
         self.sim.command = (df, dc)
-        compiled = self._compiled
-        failed = None
-        if code >= 0:
-            taken = code
-        elif code == compiled_sample.PUBLISH_REFUSED:
-            taken = compiled.steps
-            failed = RuntimeError(f'rcl_publish_serialized_message returned '
-                                  f'{compiled.rcl_ret}: {compiled.take_error()}')
-        else:
+        quick = self._quick
+        if code == compiled_sample.PUBLISH_REFUSED:
+            taken = quick.steps
+        elif code < 0:      # the period failed: finish() raises what the interpreted path does
             taken = compiled_sample.FAILED - code
+        else:
+            taken = code
         try:
-            self._quick.finish(taken, df, dc)   # the sample written again, or it raises
+            quick.finish(taken, df, dc)   # the sample written again (for settle), or it raises
         except FloatingPointError as exc:
             self.sim.failed_period(exc)
             self._took(raw, t, begin)
             self._diverged(exc)
             return
-        if code < 0 and failed is None:    # not reached: finish() raised for a failed period
-            self._quick_sample(raw, t, begin)
-            return
-        if failed is not None:               # retried through _send_state (and recorded)
+        if code == compiled_sample.PUBLISH_REFUSED:   # retried through _send_state (recorded)
+            compiled = self._compiled
+            failed = RuntimeError(f'rcl_publish_serialized_message returned '
+                                  f'{compiled.rcl_ret}: {compiled.take_error()}')
             self._sample_sent(raw, t, begin, failed, self._state_out.payload())
             return
         if self.record is not None:          # what _send_state would have put in the bag
@@ -1479,8 +1476,6 @@ class PlantNode(Node):
         self.flush_views()      # the summary counts a view's last messages too
         self.get_logger().info('summary: ' + json.dumps(self.summary()))
         self.running = False
-        if self._compiled is not None:
-            self._compiled.disarm()
         if self._timer is not None:
             self.destroy_timer(self._timer)
             self._timer = None
@@ -1570,8 +1565,6 @@ def _interrupted(node: PlantNode) -> None:
     # spins the executor, and a lockstep command arriving then would advance the run)
     node.running = False
     node.pacer = None
-    if node._compiled is not None:
-        node._compiled.disarm()
     final_log(node.get_name(), f'interrupted; stopping cleanly. summary: {summary}')
     node.announce_end('interrupted', node.exit_code)
 

@@ -1,12 +1,17 @@
 """The plant's compiled lockstep sample (fohssv_sim.ros.compiled_sample) against the interpreted
 short path it replaces (models.HeldPeriod.run, as the node ran it before): on two FOM plants
 under eq. 31, the same state, time, step counts and planing force after every period, bit for
-bit, and the state it publishes through rcl, received over real DDS by a subscription, equal
-to the interpreted sample; every command it must not take is left alone (nothing published,
-the model untouched); a failing period raises what the interpreted path raises."""
+bit, and the state, planing force and clock it publishes through rcl, received over real DDS
+by subscriptions, equal to the interpreted sample's messages serialized by rclpy's path
+(wire.py); the records it puts into an in-plant ring, read back by the writer's side
+(bag.inplant.Ring.take), equal to those messages and the command's bytes, across the ring's
+wraps, and stopping at a full ring where Ring.put would; every command it must not take is
+left alone (nothing published, the model untouched); a failing period raises what the
+interpreted path raises."""
 
 from __future__ import annotations
 
+import ctypes
 import math
 import time
 
@@ -14,15 +19,25 @@ import numpy as np
 import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.serialization import deserialize_message
+from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
 
 from fohssv_controller.state_feedback import StateFeedback
-from fohssv_sim.contract import COMMAND, STATE
+from fohssv_sim.bag.inplant import MIN_RING_BYTES, Ring
+from fohssv_sim.contract import CLOCK, COMMAND, PLANING_FORCE, STATE
 from fohssv_sim.params import ModelParameters
-from fohssv_sim.ros.compiled_sample import FAILED, NOT_TAKEN, CompiledSample
+from fohssv_sim.ros.compiled_sample import (
+    CLOCK_PUBLISH,
+    CLOCK_PUT,
+    FAILED,
+    FORCE_REFUSED,
+    NOT_TAKEN,
+    CompiledSample,
+)
 from fohssv_sim.ros.loop import SampledPlant
 from fohssv_sim.ros.qos import profile
-from fohssv_sim.ros.wire import ArrayReader, ArrayWriter
+from fohssv_sim.ros.wire import ArrayReader, ArrayWriter, ClockWriter
 
 import rosproc
 
@@ -31,20 +46,40 @@ LIMIT = 0.5                        # rad, both deflections (as the plant's optio
 
 
 class _Graph:
-    """One node with the state publisher the compiled sample publishes on and a raw
-    subscription that collects what arrives."""
+    """One node with the publishers the compiled sample publishes on (state, planing force,
+    clock) and raw subscriptions that collect what arrives."""
 
     def __init__(self) -> None:
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=rosproc.unique_domain_id())
         self.node = rclpy.create_node('compiled_sample_test', context=self.context)
         self.pub = self.node.create_publisher(Float64MultiArray, 'state', profile(STATE))
+        self.force_pub = self.node.create_publisher(Float64MultiArray, 'planing_force',
+                                                    profile(PLANING_FORCE))
+        self.clock_pub = self.node.create_publisher(Clock, 'clock', profile(CLOCK))
         self.got: list[bytes] = []
+        self.forces: list[bytes] = []
+        self.clocks: list[bytes] = []
         self.node.create_subscription(Float64MultiArray, 'state', self.got.append,
                                       profile(STATE), raw=True)
+        self.node.create_subscription(Float64MultiArray, 'planing_force', self.forces.append,
+                                      profile(PLANING_FORCE), raw=True)
+        # /clock is keep-last 1: the test waits for each one before the next
+        self.node.create_subscription(Clock, 'clock', self.clocks.append, profile(CLOCK),
+                                      raw=True)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
-        self.until(lambda: self.pub.get_subscription_count() == 1, 'the subscription matched')
+        self.until(lambda: all(p.get_subscription_count() == 1
+                               for p in (self.pub, self.force_pub, self.clock_pub)),
+                   'the subscriptions matched')
+
+    def build(self, held, out: ArrayWriter) -> tuple[CompiledSample, ArrayWriter, ClockWriter]:
+        force, clock = ArrayWriter(PLANING_FORCE), ClockWriter()
+        compiled = CompiledSample.build(held, out, ArrayReader(COMMAND), self.pub.handle.pointer,
+                                        (force, self.force_pub.handle.pointer),
+                                        (clock, self.clock_pub.handle.pointer))
+        assert not isinstance(compiled, str), compiled
+        return compiled, force, clock
 
     def until(self, predicate, what: str, timeout: float = 10.0) -> None:
         deadline = time.monotonic() + timeout
@@ -117,21 +152,51 @@ def _same(a, b) -> tuple:
                 a.plant._stepper.n))
 
 
+def _messages(out: ArrayWriter, force: ArrayWriter, raw: bytes, t: float
+              ) -> tuple[bytes, bytes, bytes, bytes]:
+    """The sample's messages as the interpreted path publishes and records them: the state's
+    and the planing force's messages (``payload()``: their bytes, alignment padding
+    included), the command as received and the clock serialized for ``t`` by wire.py."""
+    return out.payload(), raw, force.payload(), ClockWriter().payload(round(t * 1e9))
+
+
+def _values(records: list[tuple[int, bytes]]) -> list:
+    """The records' contents read back: the doubles of the state, the command and the
+    planing force, the clock's (sec, nanosec)."""
+    readers = {0: ArrayReader(STATE), 1: ArrayReader(COMMAND), 2: ArrayReader(PLANING_FORCE)}
+    return [readers[i].read(data) if i in readers else divmod(
+        deserialize_message(data, Clock).clock.sec * 10**9
+        + deserialize_message(data, Clock).clock.nanosec, 10**9) for i, data in records]
+
+
+def _clock(k: int) -> int:
+    """What the sample ``k`` asks of its clock: every combination in turn."""
+    return (0, CLOCK_PUT, CLOCK_PUBLISH, CLOCK_PUBLISH | CLOCK_PUT)[k % 4]
+
+
+def _records(ring: Ring) -> list[tuple[int, bytes]]:
+    """The records the ring holds, as the in-plant writer takes them (then released)."""
+    records = [(i, bytes(v)) for i, v in ring.take()]
+    ring.release()
+    return records
+
+
 def test_compiled_sample_equals_the_interpreted_path_and_publishes_its_state(graph):
     a, b, held_a, held_b, sa, fa, fb, out = _plants()
-    compiled = CompiledSample.build(held_b, out, ArrayReader(COMMAND), graph.pub.handle.pointer)
-    assert not isinstance(compiled, str), compiled
+    compiled, force_out, _ = graph.build(held_b, out)
+    ring = Ring.create(MIN_RING_BYTES)         # about 15 samples' records: it wraps often
+    compiled.record_into(ring, 0, 1, 2, 3)
     compiled.limit(LIMIT, LIMIT)
     assert not compiled.arm(0.0)                   # the kernel call is not bound yet
     _general(a, (0.0, 0.0), sa, fa)
     _general(b, (0.0, 0.0), out.values, fb)
-    reader = ArrayReader(STATE)
+    reader, force_reader = ArrayReader(STATE), ArrayReader(PLANING_FORCE)
     ctl = StateFeedback()
-    refused = 0
+    refused = clocks = 0
     for k in range(300):
         u = ctl.command(0.0, tuple(sa[1:]))
         awaited = b.t
-        assert compiled.arm(awaited)
+        assert compiled.arm(awaited, _clock(k))
         good = _command(awaited, *u)
         if k % 60 == 7:
             # commands it must leave to the interpreted path, each with nothing done
@@ -147,7 +212,7 @@ def test_compiled_sample_equals_the_interpreted_path_and_publishes_its_state(gra
                 refused += 1
             compiled.disarm()
             assert _compiled(b, held_b, compiled, u, good, out.values, fb) == NOT_TAKEN
-            assert compiled.arm(awaited)
+            assert compiled.arm(awaited, _clock(k))
             # limits lowered while armed (a parameter change): the awaited command beyond them
             # (0.3 rad is within LIMIT: only the new limit refuses it)
             compiled.limit(0.2, LIMIT)
@@ -159,6 +224,8 @@ def test_compiled_sample_equals_the_interpreted_path_and_publishes_its_state(gra
             compiled.limit(LIMIT, LIMIT)
             graph.quiet()
             assert len(graph.got) == k, 'a command it did not take published a state'
+            assert len(graph.forces) == k and len(graph.clocks) == clocks
+            assert ring.used == 0, 'a command it did not take put a record'
             assert (b.plant.x, b.plant.n, b.plant._stepper.n, list(out.values)) == before
         _interpreted(a, held_a, u, sa, fa)
         assert _compiled(b, held_b, compiled, u, good, out.values, fb) == 5, k
@@ -166,11 +233,63 @@ def test_compiled_sample_equals_the_interpreted_path_and_publishes_its_state(gra
         assert compiled.call(good, len(good)) == NOT_TAKEN
         assert list(out.values) == sa and fb == fa, k
         assert _same(a, b), k
-        graph.until(lambda n=k + 1: len(graph.got) == n, f'sample {k} received')
+        state, command, force, clock = _messages(out, force_out, good, sa[0])
+        clocks += bool(_clock(k) & CLOCK_PUBLISH)
+        graph.until(lambda n=k + 1, c=clocks: len(graph.got) == n == len(graph.forces)
+                    and len(graph.clocks) == c, f'sample {k} received')
         assert reader.read(graph.got[-1]) == tuple(sa), k
+        assert force_reader.read(graph.forces[-1]) == tuple(fa), k
+        if _clock(k) & CLOCK_PUBLISH:
+            assert graph.clocks[-1][:12] == clock, k
+        want = [(0, state), (1, command), (2, force)] + (
+            [(3, clock)] if _clock(k) & CLOCK_PUT else [])
+        assert compiled.put == len(want) and _records(ring) == want, k
+        ns = round(sa[0] * 1e9)
+        assert _values(want) == [tuple(sa), (awaited, *u), tuple(fa), divmod(ns, 10**9)][
+            :len(want)], k
     assert compiled.taken == 300 and refused == 50
-    assert compiled.rcl_ret == 0
+    assert compiled.rcl_ret == compiled.force_ret == compiled.clock_ret == 0
+    assert clocks == 150 and ring.lost == 0 and ring.consumed > 15 * ring.capacity   # wrapped
     assert abs(sa[2]) > 0.1 and a.plant._stepper.n == 301 * 5     # a trajectory that moved
+    compiled.record_into(None)
+    ring.close()
+
+
+def test_compiled_sample_stops_putting_at_a_full_ring_where_ring_put_would(graph):
+    """A ring with no room for the whole sample: the compiled sample still publishes, puts the
+    records that fit (in order, none cut) and says how many (the node puts the rest, the
+    interpreted way, once the writer made room: Ring.put after it goes on where it stopped)."""
+    a, b, held_a, held_b, sa, fa, fb, out = _plants()
+    compiled, force_out, _ = graph.build(held_b, out)
+    ring = Ring.create(MIN_RING_BYTES)
+    compiled.record_into(ring, 0, 1, 2, 3)
+    compiled.limit(LIMIT, LIMIT)
+    _general(a, (0.0, 0.0), sa, fa)
+    _general(b, (0.0, 0.0), out.values, fb)
+    ctl = StateFeedback()
+    held: list[tuple[int, bytes]] = []       # what the ring holds, as Ring.take will read it
+    partial = 0
+    for k in range(60):
+        u = ctl.command(0.0, tuple(sa[1:]))
+        assert compiled.arm(b.t, CLOCK_PUT)
+        good = _command(b.t, *u)
+        _interpreted(a, held_a, u, sa, fa)
+        assert _compiled(b, held_b, compiled, u, good, out.values, fb) == 5, k
+        graph.until(lambda n=k + 1: len(graph.got) == n == len(graph.forces),
+                    f'sample {k} published')
+        want = list(enumerate(_messages(out, force_out, good, sa[0])))
+        held += want[:compiled.put]
+        if compiled.put < 4:              # full: the node's interpreted put, after room
+            partial += 1
+            assert ring.capacity - ring.used < 2 * 96, 'refused with room to spare'
+            assert _records(ring) == held, k
+            held = []
+            for index, data in want[compiled.put:]:
+                assert ring.put(index, data)
+            held += want[compiled.put:]
+    assert partial >= 3 and _records(ring) == held
+    compiled.record_into(None)
+    ring.close()
 
 
 @pytest.mark.parametrize('start, u, error', [
@@ -184,8 +303,7 @@ def test_compiled_sample_fails_where_the_interpreted_path_fails_with_its_words(g
     :meth:`HeldPeriod.finish` then raises what the interpreted path raises, at the same sample,
     with the same text, the plant failed and counted as there."""
     a, b, held_a, held_b, sa, fa, fb, out = _plants(start)
-    compiled = CompiledSample.build(held_b, out, ArrayReader(COMMAND), graph.pub.handle.pointer)
-    assert not isinstance(compiled, str), compiled
+    compiled, _, _ = graph.build(held_b, out)
     _general(a, (0.0, 0.0), sa, fa)
     _general(b, (0.0, 0.0), out.values, fb)
     with pytest.raises(FloatingPointError, match=error) as ia:
@@ -219,3 +337,45 @@ def test_compiled_sample_fails_where_the_interpreted_path_fails_with_its_words(g
     graph.quiet()
     assert len(graph.got) == compiled.taken    # the failed period published nothing
     assert np.array_equal(b.plant.x, a.plant.x, equal_nan=True)
+
+
+def test_compiled_sample_reports_a_refused_planing_force_or_clock_and_records_neither(graph):
+    """rcl refusing the planing force's publish (here: a publisher rcl finds invalid, its
+    ``impl`` NULL) after the state went out: FORCE_REFUSED, rcl's return and error text kept
+    for the node's retry, the state's and the command's records put, no clock; rcl refusing
+    the clock: the sample stands, the clock is reported and not recorded (as a clock the
+    interpreted path could not publish)."""
+    invalid = ctypes.create_string_buffer(64)        # an rcl_publisher_t with impl NULL
+    for refused in ('force', 'clock'):
+        a, b, held_a, held_b, sa, fa, fb, out = _plants()
+        force_w, clock_w = ArrayWriter(PLANING_FORCE), ClockWriter()
+        force_pub = ctypes.addressof(invalid) if refused == 'force' else (
+            graph.force_pub.handle.pointer)
+        clock_pub = ctypes.addressof(invalid) if refused == 'clock' else (
+            graph.clock_pub.handle.pointer)
+        compiled = CompiledSample.build(held_b, out, ArrayReader(COMMAND),
+                                        graph.pub.handle.pointer, (force_w, force_pub),
+                                        (clock_w, clock_pub))
+        assert not isinstance(compiled, str), compiled
+        ring = Ring.create(MIN_RING_BYTES)
+        compiled.record_into(ring, 0, 1, 2, 3)
+        compiled.limit(LIMIT, LIMIT)
+        _general(a, (0.0, 0.0), sa, fa)
+        _general(b, (0.0, 0.0), out.values, fb)
+        states = len(graph.got)
+        assert compiled.arm(b.t, CLOCK_PUBLISH | CLOCK_PUT)
+        u = (0.01, -0.01)
+        good = _command(b.t, *u)
+        code = compiled.call(good, len(good))
+        graph.until(lambda n=states + 1: len(graph.got) == n, 'the state received')
+        if refused == 'force':
+            assert code == FORCE_REFUSED and compiled.force_ret != 0
+            assert 'invalid' in compiled.take_error().lower()
+            assert [i for i, _ in _records(ring)] == [0, 1] and compiled.put == 2
+        else:
+            assert code == 5 and compiled.force_ret == 0 and compiled.clock_ret != 0
+            assert 'invalid' in compiled.take_error().lower()
+            assert [i for i, _ in _records(ring)] == [0, 1, 2] and compiled.put == 3
+        assert compiled.rcl_ret == 0
+        compiled.record_into(None)
+        ring.close()

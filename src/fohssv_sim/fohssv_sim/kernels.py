@@ -619,19 +619,35 @@ def _fom_held_entry(t, f, n, nsteps):   # pragma: no cover - compiled by _fom_he
 #: Slots of the int64 table ``m`` of :func:`_fom_sample_entry`: the command layout (the address
 #: of its first 12 bytes, the offset of its element count, the count, the offset of its
 #: doubles, its length), the address of the sample's doubles, the sink (a C function
-#: ``int32 sink(void *, void *, void *)``'s address and its first two arguments), the step
-#: index and the steps per period, the model's step count, armed (0/1), samples taken.
+#: ``int32 sink(void *, void *, void *)``'s address and its first two arguments: the state's
+#: publisher and the address of its serialized message, ``{buffer, length, ...}``), the step
+#: index and the steps per period, the model's step count, armed (0/1), samples taken; then
+#: the planing force's doubles, publisher and message; the clock's message and publisher, what
+#: to do with the clock this sample (:data:`_S_CLOCK_PUBLISH` | :data:`_S_CLOCK_PUT`); the
+#: ring (its data's address, capacity, the address of its head and tail counters; data 0:
+#: no ring) and the record index of the state, the command, the force and the clock; the
+#: records put by the last call.
 (_S_CMD_HEAD, _S_CMD_COUNT_AT, _S_CMD_COUNT, _S_CMD_OFFSET, _S_CMD_SIZE, _S_OUT, _S_SINK,
- _S_SINK_A, _S_SINK_B, _S_N, _S_STEPS, _S_MODEL_N, _S_ARMED, _S_TAKEN) = range(14)
-_S_M_SIZE = 14
+ _S_SINK_A, _S_SINK_B, _S_N, _S_STEPS, _S_MODEL_N, _S_ARMED, _S_TAKEN,
+ _S_FORCE_OUT, _S_FORCE_A, _S_FORCE_B, _S_CLOCK_A, _S_CLOCK_B, _S_CLOCK,
+ _S_RING, _S_RING_CAP, _S_RING_COUNTERS, _S_REC_STATE, _S_REC_COMMAND, _S_REC_FORCE,
+ _S_REC_CLOCK, _S_PUT) = range(28)
+_S_M_SIZE = 28
 #: Slots of its float64 table ``g``: the awaited time, the deflection limits, the step, V,
-#: the pitch limit, what the sink returned.
-_S_AWAITED, _S_MAX_FIN, _S_MAX_CAV, _S_H, _S_V, _S_PITCH, _S_RET = range(7)
-_S_G_SIZE = 7
-#: Its results: the command not taken (nothing done); the sample written, the sink refused it
-#: (returned non-zero); below _S_FAILED: the period failed, _S_FAILED - code steps taken
-#: (nothing written, nothing handed on).
-_S_NOT_TAKEN, _S_SINK_REFUSED, _S_FAILED = -1, -2, -10
+#: the pitch limit, what the sinks returned (state, planing force, clock).
+_S_AWAITED, _S_MAX_FIN, _S_MAX_CAV, _S_H, _S_V, _S_PITCH, _S_RET, _S_FORCE_RET, _S_CLOCK_RET = (
+    range(9))
+_S_G_SIZE = 9
+#: Its results: the command not taken (nothing done); the sample written, the sink refused its
+#: state (nothing else done); the state went out, the sink refused the planing force (the
+#: state's and the command's records put, no clock); below _S_FAILED: the period failed,
+#: _S_FAILED - code steps taken (nothing written, nothing handed on).
+_S_NOT_TAKEN, _S_SINK_REFUSED, _S_FORCE_REFUSED, _S_FAILED = -1, -2, -3, -10
+#: ``m[_S_CLOCK]`` bits: hand the clock to the sink; put it into the ring.
+_S_CLOCK_PUBLISH, _S_CLOCK_PUT = 1, 2
+#: A ring record's header (``bag.inplant``'s ``<IHH``: length, topic index, spare) and the
+#: length that means "continue at the ring's start".
+_RING_WRAP = 0xFFFFFFFF
 
 if numba is not None:
     @intrinsic
@@ -651,17 +667,115 @@ if numba is not None:
         return numba.types.int32(numba.types.int64, numba.types.int64,
                                  numba.types.int64), codegen
 
+    @intrinsic
+    def _release_fence(typingctx):
+        """A release fence: the stores before it are not moved after the stores after it
+        (the ring's record before its head; on x86 only the compiler's order is at stake)."""
+        def codegen(context, builder, signature, args):
+            builder.fence('release')
+            return context.get_dummy_value()
+        return numba.types.none(), codegen
+
+    @numba.njit(error_model='numpy')
+    def _ring_put(ring, cap, counters_at, index, buffer, n):
+        """One record into the plant's ring (``bag.inplant.Ring.put``'s layout and rules, the
+        producer's side: data at ``ring``, ``cap`` bytes, head and tail at ``counters_at``):
+        the ``n`` bytes at ``buffer`` for topic ``index``; False when there is no room
+        (nothing written). The record's bytes are stored before the head that publishes
+        them."""
+        counters = numba.carray(_as_pointer(counters_at), (2,), np.int64)
+        head = counters[0]
+        tail = counters[1]
+        need = 8 + ((n + 7) & ~7)
+        off = head % cap
+        gap = cap - off
+        room = cap - (head - tail)
+        if gap < need:                         # wrap: skip the ring's end
+            if room < gap + need:
+                return False
+            if gap >= 8:
+                mark = numba.carray(_as_pointer(ring + off), (2,), np.uint32)
+                mark[0] = _RING_WRAP
+                mark[1] = 0
+            head += gap
+            off = 0
+        elif room < need:
+            return False
+        header = numba.carray(_as_pointer(ring + off), (2,), np.uint32)
+        header[0] = n
+        header[1] = index
+        data = numba.carray(_as_pointer(ring + off + 8), (n,), np.uint8)
+        got = numba.carray(_as_pointer(buffer), (n,), np.uint8)
+        for i in range(n):
+            data[i] = got[i]
+        _release_fence()
+        counters[0] = head + need
+        return True
+
+    @numba.njit(error_model='numpy')
+    def _ring_put_message(ring, cap, counters_at, index, message):
+        """:func:`_ring_put` of the serialized message whose ``{buffer, length, ...}`` lie at
+        ``message`` (an rcl_serialized_message_t)."""
+        msg = numba.carray(_as_pointer(message), (2,), np.int64)
+        return _ring_put(ring, cap, counters_at, index, msg[0], msg[1])
+
     _fom_held_jit = numba.njit(error_model='numpy')(_fom_held_entry)
+
+    @numba.njit(error_model='numpy')
+    def _after_state(f, m, g, raw, size, t_out):
+        """:func:`_fom_sample_entry` once the sink took the state at ``t_out``: the planing
+        force (False: the sink refused it), the clock as asked, then the ring's records in
+        the order the interpreted path puts them."""
+        force = numba.carray(_as_pointer(m[_S_FORCE_OUT]), (2,), np.float64)
+        force[0] = t_out
+        force[1] = f[3]
+        ret = _call_sink(m[_S_SINK], m[_S_FORCE_A], m[_S_FORCE_B])
+        g[_S_FORCE_RET] = ret
+        g[_S_CLOCK_RET] = 0
+        clock = m[_S_CLOCK] if ret == 0 else 0
+        if clock != 0:
+            message = numba.carray(_as_pointer(m[_S_CLOCK_B]), (2,), np.int64)
+            stamp = numba.carray(_as_pointer(message[0] + 4), (2,), np.uint32)
+            ns = np.int64(np.rint(t_out * 1e9))   # round(t * 1e9): ties to even, as Python's
+            stamp[0] = np.uint32(ns // 1000000000)
+            stamp[1] = np.uint32(ns % 1000000000)
+            if clock & _S_CLOCK_PUBLISH:
+                g[_S_CLOCK_RET] = _call_sink(m[_S_SINK], m[_S_CLOCK_A], m[_S_CLOCK_B])
+                if g[_S_CLOCK_RET] != 0:
+                    clock = 0                     # not published: not recorded either
+        ring = m[_S_RING]
+        if ring == 0:
+            return ret == 0
+        cap = m[_S_RING_CAP]
+        at = m[_S_RING_COUNTERS]
+        if not _ring_put_message(ring, cap, at, m[_S_REC_STATE], m[_S_SINK_B]):
+            return ret == 0
+        m[_S_PUT] = 1
+        if not _ring_put(ring, cap, at, m[_S_REC_COMMAND], raw, size):    # as received
+            return ret == 0
+        m[_S_PUT] = 2
+        if ret != 0 or not _ring_put_message(ring, cap, at, m[_S_REC_FORCE], m[_S_FORCE_B]):
+            return ret == 0
+        m[_S_PUT] = 3
+        if clock & _S_CLOCK_PUT and _ring_put_message(ring, cap, at, m[_S_REC_CLOCK],
+                                                      m[_S_CLOCK_B]):
+            m[_S_PUT] = 4
+        return True
 
 
 def _fom_sample_entry(t, f, m, g, raw, size):   # pragma: no cover - compiled by its user
-    """One held-input period for a serialized command, its sample written into a serialized
-    message and handed to a C sink (fohssv_sim.ros.compiled_sample compiles it, cached by
+    """One held-input period for a serialized command, its sample written into serialized
+    messages and handed to a C sink (fohssv_sim.ros.compiled_sample compiles it, cached by
     this file): when armed and the ``size`` bytes at ``raw`` have the command layout ``m``
     names, answer the awaited time with both deflections within their limits, disarm, run
     :func:`_fom_held_entry` on the tables ``t``, ``f`` with that input and, when the period
-    stayed finite and |w| <= V, |theta| <= pi/2, write ``[t, z, w, theta, q]`` and call the
-    sink. Returns the steps taken (the sink accepted), or one of the ``_S_*`` results."""
+    stayed finite and |w| <= V, |theta| <= pi/2, write ``[t, z, w, theta, q]`` and hand the
+    state to the sink; once it took it, write ``[t, Fp]`` and hand on the planing force, then
+    the clock (``round(t * 1e9)`` ns) as ``m[_S_CLOCK]`` asks, and, with a ring, put the
+    records of the state, the command (its bytes as received), the force and the clock, in
+    that order, until one does not fit (``m[_S_PUT]``: how many were put). Returns the steps
+    taken (state and force went out; ``g[_S_CLOCK_RET]`` says whether the clock did), or one
+    of the ``_S_*`` results."""
     if m[_S_ARMED] == 0 or size != m[_S_CMD_SIZE]:
         return _S_NOT_TAKEN
     head = numba.carray(_as_pointer(m[_S_CMD_HEAD]), (12,), np.uint8)
@@ -694,15 +808,19 @@ def _fom_sample_entry(t, f, m, g, raw, size):   # pragma: no cover - compiled by
     if not (taken == steps and -v <= w <= v and -g[_S_PITCH] <= theta <= g[_S_PITCH]):
         return _S_FAILED - taken
     out = numba.carray(_as_pointer(m[_S_OUT]), (5,), np.float64)
-    out[0] = (m[_S_MODEL_N] + steps) * g[_S_H]
+    t_out = (m[_S_MODEL_N] + steps) * g[_S_H]
+    out[0] = t_out
     out[1] = x[0]
     out[2] = w
     out[3] = theta
     out[4] = x[3]
     m[_S_TAKEN] += 1
+    m[_S_PUT] = 0
     ret = _call_sink(m[_S_SINK], m[_S_SINK_A], m[_S_SINK_B])
     g[_S_RET] = ret
-    return steps if ret == 0 else _S_SINK_REFUSED
+    if ret != 0:
+        return _S_SINK_REFUSED
+    return steps if _after_state(f, m, g, raw, size, t_out) else _S_FORCE_REFUSED
 
 
 @functools.cache

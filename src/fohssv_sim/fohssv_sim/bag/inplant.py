@@ -43,6 +43,7 @@ Pure module: no rclpy.
 
 from __future__ import annotations
 
+import ctypes
 import gc
 import json
 import mmap
@@ -105,7 +106,7 @@ class Ring:
         self._counters = self._buf[:_HEADER].cast('Q')
         self._data = self._buf[_HEADER:]
         self.capacity = size - _HEADER
-        self._head = self._counters[0]      # producer's copy
+        self._c: ctypes.c_char | None = None   # the mapping's ctypes export (address())
         self._limit = self._counters[1] + self.capacity   # head may grow to this (producer)
         self._tail = self._counters[1]      # consumer's copy
         self._taken = self._tail            # consumer: the end of the last take()
@@ -126,24 +127,24 @@ class Ring:
     # -- producer (the plant) ---------------------------------------------------------------
     def put(self, index: int, data: bytes) -> bool:
         """Copy one record (topic ``index``, ``data``); False when there is no room (nothing
-        is written then). The common case is one header pack and one slice assignment."""
+        is written then). The common case is one header pack and one slice assignment. The
+        head is read from the mapping: compiled code of the same process may have put
+        records too (:meth:`address`)."""
         n = len(data)
         need = 8 + ((n + 7) & ~7)
-        head = self._head
+        head = self._counters[0]
         off = head % self.capacity
         if off + need > self.capacity or head + need > self._limit:
             return self._put_slow(index, data, n, need)
         self._data[off:off + 8 + n] = _RECORD.pack(n, index, 0) + data
-        head += need
-        self._head = head
-        self._counters[0] = head              # after the bytes: the record is published
+        self._counters[0] = head + need       # after the bytes: the record is published
         return True
 
     def _put_slow(self, index: int, data: bytes, n: int, need: int) -> bool:
         """:meth:`put` at the ring's end (a wrap) or when the room known is not enough (the
         writer's tail is read again)."""
         cap = self.capacity
-        head = self._head
+        head = self._counters[0]
         tail = self._counters[1]
         self._limit = tail + cap
         off = head % cap
@@ -159,10 +160,18 @@ class Ring:
         elif room < need:
             return False
         self._data[off:off + 8 + n] = _RECORD.pack(n, index, 0) + data
-        head += need
-        self._head = head
-        self._counters[0] = head
+        self._counters[0] = head + need
         return True
+
+    def address(self) -> tuple[int, int, int]:
+        """(the address of the records' area, its capacity in bytes, the address of the head
+        and tail counters, two native 64-bit integers) for compiled code of the producer's
+        process that puts records as :meth:`put` does (``fohssv_sim.kernels._ring_put``); valid
+        until :meth:`close`."""
+        if self._c is None:
+            self._c = ctypes.c_char.from_buffer(self._map)
+        base = ctypes.addressof(self._c)
+        return base + _HEADER, self.capacity, base
 
     def add_lost(self, n: int = 1) -> None:
         self._counters[2] += n
@@ -222,6 +231,7 @@ class Ring:
         self._counters[1] = self._taken
 
     def close(self) -> None:
+        self._c = None                        # the export, before the mapping closes
         self._counters.release()
         self._data.release()
         self._buf.release()

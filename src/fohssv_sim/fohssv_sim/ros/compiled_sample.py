@@ -1,4 +1,4 @@
-"""The lockstep FOM sample compiled up to its publish: the plant's path for the awaited command.
+"""The lockstep FOM sample compiled, its publishes included: the awaited command's path.
 
 In lockstep with an external controller the round trip waits for every microsecond the plant
 spends between the command's arrival and the state's publish, and interpreted code costs
@@ -17,13 +17,21 @@ bytes it
 3. when the period stayed finite and within the bounds, writes ``[t, z, w, theta, q]`` into
    the state's serialized message and publishes it with rcl's
    ``rcl_publish_serialized_message`` on the publisher's rcl handle (the address rclpy
-   exposes as ``handle.pointer``), as rclpy's ``publish_raw`` does.
+   exposes as ``handle.pointer``), as rclpy's ``publish_raw`` does;
+4. then, off the round trip's path (the controller has the state), writes ``[t, Fp]`` into
+   the planing force's message and publishes it the same way, and the clock
+   (``round(t * 1e9)`` ns) when the node asks for it this sample;
+5. with in-plant recording (``record:=PATH``), puts the records of the state, the command (its
+   bytes as received), the planing force and the clock into the writer's ring
+   (:class:`fohssv_sim.bag.inplant.Ring`'s layout, the producer's side), in that order, the
+   order the interpreted path puts them in, until one does not fit: the node puts the rest
+   (:attr:`CompiledSample.put`), where a full ring waits or counts a loss as always.
 
-Everything else (the model's bookkeeping, ``planing_force``, ``/clock``, the views, the
-checks) follows in the node, in Python, as on the interpreted path. The call is *armed* by the
-node for one awaited sample (:meth:`CompiledSample.arm`, with the model's step counts; the
-deflection limits are the node's to set, :meth:`CompiledSample.limit`, at start and when they
-change) and disarms itself when it takes the command; any command it does
+Everything else (the model's bookkeeping, the views, the checks and counts) follows in the
+node, in Python, as on the interpreted path. The call is *armed* by the node for one awaited
+sample (:meth:`CompiledSample.arm`, with the model's step counts and what to do with the
+clock; the deflection limits are the node's to set, :meth:`CompiledSample.limit`, at start
+and when they change) and disarms itself when it takes the command; any command it does
 not take (not armed, another layout, another ``t``, a deflection beyond its limit, a
 non-finite value) is left to the node's interpreted path untouched.
 
@@ -45,12 +53,23 @@ from .. import kernels
 from ..kernels import (
     _S_ARMED,
     _S_AWAITED,
+    _S_CLOCK,
+    _S_CLOCK_A,
+    _S_CLOCK_B,
+    _S_CLOCK_PUBLISH,
+    _S_CLOCK_PUT,
+    _S_CLOCK_RET,
     _S_CMD_COUNT,
     _S_CMD_COUNT_AT,
     _S_CMD_HEAD,
     _S_CMD_OFFSET,
     _S_CMD_SIZE,
     _S_FAILED,
+    _S_FORCE_A,
+    _S_FORCE_B,
+    _S_FORCE_OUT,
+    _S_FORCE_REFUSED,
+    _S_FORCE_RET,
     _S_G_SIZE,
     _S_H,
     _S_M_SIZE,
@@ -61,7 +80,15 @@ from ..kernels import (
     _S_NOT_TAKEN,
     _S_OUT,
     _S_PITCH,
+    _S_PUT,
+    _S_REC_CLOCK,
+    _S_REC_COMMAND,
+    _S_REC_FORCE,
+    _S_REC_STATE,
     _S_RET,
+    _S_RING,
+    _S_RING_CAP,
+    _S_RING_COUNTERS,
     _S_SINK,
     _S_SINK_A,
     _S_SINK_B,
@@ -71,12 +98,17 @@ from ..kernels import (
     _S_V,
 )
 from ..models import MAX_PITCH, HeldPeriod
-from .wire import ArrayReader, ArrayWriter
+from .wire import ArrayReader, ArrayWriter, ClockWriter
 
 #: :meth:`CompiledSample.call`: the command was not taken (the node's interpreted path runs)
 NOT_TAKEN = _S_NOT_TAKEN
 #: the sample was written, rcl refused its publish (``rcl_ret`` says what rcl returned)
 PUBLISH_REFUSED = _S_SINK_REFUSED
+#: the state went out, rcl refused the planing force's publish (``force_ret``); the state's
+#: and the command's records were put (as far as :attr:`CompiledSample.put` says), no clock
+FORCE_REFUSED = _S_FORCE_REFUSED
+#: :meth:`CompiledSample.arm`'s ``clock``: publish the clock this sample; put it into the ring
+CLOCK_PUBLISH, CLOCK_PUT = _S_CLOCK_PUBLISH, _S_CLOCK_PUT
 #: below this: the period failed, ``FAILED - code`` steps were taken (non-finite or beyond
 #: the bounds: nothing was written or published; the node settles it and stops the run)
 FAILED = _S_FAILED
@@ -139,24 +171,35 @@ def _not_taken(raw: bytes, size: int) -> int:
     return NOT_TAKEN
 
 
+def _rcl_message(address: int, length: int) -> np.ndarray:
+    """An rcl_serialized_message_t for the ``length`` bytes at ``address``: buffer,
+    buffer_length, buffer_capacity, then an allocator that rcl does not use to publish (four
+    functions and a state: zeros)."""
+    message = np.zeros(8, dtype=np.int64)
+    message[:3] = (address, length, length)
+    return message
+
+
 class CompiledSample:
     """The compiled sample of one node (the module docstring). :meth:`call` ``(raw,
     len(raw))`` returns the steps taken when it published the sample, or :data:`NOT_TAKEN`,
-    :data:`PUBLISH_REFUSED`, or a code below :data:`FAILED`."""
+    :data:`PUBLISH_REFUSED`, :data:`FORCE_REFUSED`, or a code below :data:`FAILED`."""
 
     def __init__(self, entry: Any, publish: int, take_error: Any, period: HeldPeriod,
-                 state: ArrayWriter, command: ArrayReader, publisher: int) -> None:
+                 state: ArrayWriter, command: ArrayReader, publisher: int,
+                 force: tuple[ArrayWriter, int], clock: tuple[ClockWriter, int]) -> None:
         self._entry = entry
         self._take_error = take_error
         self._period = period
         head, count_at, count, offset, size = command.layout()
         self._head = np.frombuffer(head, dtype=np.uint8).copy()
         address, length, doubles = state.address()
-        self._state = state                    # keeps the message's buffer alive
-        # rcl_serialized_message_t: buffer, buffer_length, buffer_capacity, then an
-        # allocator that rcl does not use to publish (four functions and a state: zeros)
-        self._message = np.zeros(8, dtype=np.int64)
-        self._message[:3] = (address, length, length)
+        force_address, force_length, force_doubles = force[0].address()
+        clock_address, clock_length = clock[0].address()
+        self._writers = (state, force[0], clock[0])     # keep the messages' buffers alive
+        self._message = _rcl_message(address, length)
+        self._force_message = _rcl_message(force_address, force_length)
+        self._clock_message = _rcl_message(clock_address, clock_length)
         m = np.zeros(_S_M_SIZE, dtype=np.int64)
         m[_S_CMD_HEAD] = self._head.ctypes.data
         m[_S_CMD_COUNT_AT], m[_S_CMD_COUNT] = count_at, count
@@ -164,6 +207,9 @@ class CompiledSample:
         m[_S_OUT] = address + doubles
         m[_S_SINK], m[_S_SINK_A] = publish, publisher
         m[_S_SINK_B] = self._message.ctypes.data
+        m[_S_FORCE_OUT] = force_address + force_doubles
+        m[_S_FORCE_A], m[_S_FORCE_B] = force[1], self._force_message.ctypes.data
+        m[_S_CLOCK_A], m[_S_CLOCK_B] = clock[1], self._clock_message.ctypes.data
         m[_S_STEPS] = period.steps
         self._m = m
         self._g = np.zeros(_S_G_SIZE)
@@ -171,21 +217,41 @@ class CompiledSample:
         self._mv = memoryview(m)               # item writes without numpy scalars
         self._gv = memoryview(self._g)
         self._held: kernels.FomHeldCall | None = None
+        self._ring: Any = None
         self.call: Any = _not_taken         # until first armed (bound to the arrays)
 
     @classmethod
     def build(cls, period: HeldPeriod, state: ArrayWriter, command: ArrayReader,
-              publisher: int) -> CompiledSample | str:
+              publisher: int, force: tuple[ArrayWriter, int], clock: tuple[ClockWriter, int]
+              ) -> CompiledSample | str:
         """For ``period`` (the node's :class:`HeldPeriod`, writing into ``state``'s doubles),
-        commands laid out as ``command`` reads them and the rcl publisher at ``publisher``;
-        or why not (a str)."""
+        commands laid out as ``command`` reads them, the rcl publisher of the state at
+        ``publisher``, the planing force's and the clock's messages with their rcl
+        publishers' addresses; or why not (a str)."""
         entry = _entry()
         if isinstance(entry, str):
             return entry
         rcl = _rcl()
         if isinstance(rcl, str):
             return rcl
-        return cls(entry[0], rcl[0], rcl[1], period, state, command, publisher)
+        return cls(entry[0], rcl[0], rcl[1], period, state, command, publisher, force, clock)
+
+    def record_into(self, ring: Any, state: int = 0, command: int = 0, force: int = 0,
+                    clock: int = 0) -> None:
+        """Put each sample's records into ``ring`` (a :class:`fohssv_sim.bag.inplant.Ring`
+        this process produces into), with these record indexes of the state, the command,
+        the planing force and the clock; ``ring`` None: no longer (before it closes)."""
+        mv = self._mv
+        if ring is None:
+            mv[_S_RING] = 0
+            self._ring = None
+            return
+        data, capacity, counters = ring.address()
+        self._ring = ring                      # the mapping stays open while it is used
+        mv[_S_RING_CAP], mv[_S_RING_COUNTERS] = capacity, counters
+        mv[_S_REC_STATE], mv[_S_REC_COMMAND] = state, command
+        mv[_S_REC_FORCE], mv[_S_REC_CLOCK] = force, clock
+        mv[_S_RING] = data
 
     @property
     def taken(self) -> int:
@@ -202,10 +268,34 @@ class CompiledSample:
         rclpy's publish does when it raises)."""
         return self._take_error()
 
-    def arm(self, awaited: float) -> bool:
+    @property
+    def put(self) -> int:
+        """Records the last call put into the ring (of the state, the command, the planing
+        force and, when asked, the clock, in that order)."""
+        return int(self._m[_S_PUT])
+
+    @property
+    def force_ret(self) -> int:
+        """What rcl returned for the last planing force publish (0: published)."""
+        return int(self._g[_S_FORCE_RET])
+
+    @property
+    def clock_asked(self) -> int:
+        """What the last :meth:`arm` asked of the clock (:data:`CLOCK_PUBLISH` |
+        :data:`CLOCK_PUT`)."""
+        return int(self._mv[_S_CLOCK])
+
+    @property
+    def clock_ret(self) -> int:
+        """What rcl returned for the last clock publish (0: published, or not asked)."""
+        return int(self._g[_S_CLOCK_RET])
+
+    def arm(self, awaited: float, clock: int = 0) -> bool:
         """Take the command answering the sample at ``awaited`` s if it comes with
-        deflections within the limits (:meth:`limit`); False (and disarmed) when the model's
-        kernel call is not bound (the interpreted path binds it)."""
+        deflections within the limits (:meth:`limit`), and do with the sample's clock what
+        ``clock`` asks (:data:`CLOCK_PUBLISH` | :data:`CLOCK_PUT`, 0: nothing); False (and
+        disarmed) when the model's kernel call is not bound (the interpreted path binds
+        it)."""
         bound = self._period.bound()
         mv = self._mv
         if bound is None:
@@ -223,6 +313,7 @@ class CompiledSample:
             self._gv[_S_V] = model.params.speed
         mv[_S_N] = n
         mv[_S_MODEL_N] = model_n
+        mv[_S_CLOCK] = clock
         self._gv[_S_AWAITED] = awaited
         mv[_S_ARMED] = 1
         return True

@@ -335,13 +335,20 @@ class PlantNode(Node):
         self._compiled: compiled_sample.CompiledSample | None = None
         if self._quick is not None:
             built = compiled_sample.CompiledSample.build(
-                self._quick, self._state_out, self._command_in, self.state_pub.handle.pointer)
+                self._quick, self._state_out, self._command_in, self.state_pub.handle.pointer,
+                (self._force_out, self.force_pub.handle.pointer),
+                (self._clock_out, self.clock_pub.handle.pointer))
             if isinstance(built, str):
                 self.get_logger().info(f'lockstep: the interpreted sample path ({built})')
             else:
                 self._compiled = built
                 built.limit(self.options.max_fin_deflection,
                             self.options.max_cavitator_deflection)
+                rec = self.record
+                if rec is not None:     # its records too, as _send_state & co. put them
+                    built.record_into(rec.ring, rec.index(self.state_pub.topic_name),
+                                      rec.command_index, rec.index(self.force_pub.topic_name),
+                                      rec.index(self.clock_pub.topic_name))
 
         self.running = False
         self.rejected = 0
@@ -657,11 +664,20 @@ class PlantNode(Node):
             self._send_force(payload)
         except Exception as exc:  # noqa: BLE001
             self._retry_publish(self._send_force, self.force_pub.topic_name, payload, exc)
+        self._send_after_force(sample)
+
+    def _send_after_force(self, sample: int) -> None:
+        """What :meth:`_send_rest` publishes after the planing force: /clock and the views
+        when due."""
         if self._clock_on and sample % self._clock_every == 0:
             try:
                 self._send_clock(self._clock_out.payload(round(self._state_data[0] * 1e9)))
             except Exception as exc:  # noqa: BLE001 - keep-last 1: the next one replaces it
                 self._log_retry(f'/clock at t={self._state_data[0]!r} s not published: {exc}')
+        self._send_views(sample)
+
+    def _send_views(self, sample: int) -> None:
+        """The views' messages of ``sample``, when due (one per sample: views.py)."""
         views = self.views
         if views is not None:     # a view's messages go out one per sample (views.py)
             try:
@@ -905,7 +921,11 @@ class PlantNode(Node):
             if self.running and self._send_state is self._armable_send:
                 # (not armed when the model's kernel call is not bound yet: the first sample
                 # and the first after a reset take the interpreted path, which binds it)
-                compiled.arm(t)
+                clock = 0
+                if self._clock_on and (self.sim.samples + 1) % self._clock_every == 0:
+                    clock = ((compiled_sample.CLOCK_PUBLISH if self._clock_wanted else 0)
+                             | (compiled_sample.CLOCK_PUT if self.record is not None else 0))
+                compiled.arm(t, clock)
             else:
                 compiled.disarm()
 
@@ -1183,15 +1203,16 @@ class PlantNode(Node):
 
     def _compiled_took(self, raw: bytes, code: int) -> None:
         """Lockstep: the compiled sample took the awaited command ``raw`` and returned
-        ``code``: the period's steps when its state went out (the rest of the sample
-        follows, as :meth:`_quick_sample` does after its publish), a refused publish (retried
-        as the interpreted path retries it), or a failed period (settled and reported as
-        :meth:`_on_command_lockstep` reports it)."""
+        ``code``: the period's steps when its state and planing force went out (and its
+        clock, as armed; the rest of the sample follows, as :meth:`_quick_sample` does after
+        its publish), a refused state publish (retried as the interpreted path retries it),
+        a refused planing force publish (the same), or a failed period (settled and reported
+        as :meth:`_on_command_lockstep` reports it)."""
         begin = monotonic()
         t, df, dc = self._command_in.read(raw)
         self.sim.command = (df, dc)
         quick = self._quick
-        if code == compiled_sample.PUBLISH_REFUSED:
+        if code == compiled_sample.PUBLISH_REFUSED or code == compiled_sample.FORCE_REFUSED:
             taken = quick.steps
         elif code < 0:      # the period failed: finish() raises what the interpreted path does
             taken = compiled_sample.FAILED - code
@@ -1204,22 +1225,50 @@ class PlantNode(Node):
             self._took(raw, t, begin)
             self._diverged(exc)
             return
+        compiled = self._compiled
         if code == compiled_sample.PUBLISH_REFUSED:   # retried through _send_state (recorded)
-            compiled = self._compiled
             failed = RuntimeError(f'rcl_publish_serialized_message returned '
                                   f'{compiled.rcl_ret}: {compiled.take_error()}')
             self._sample_sent(raw, t, begin, failed, self._state_out.payload())
             return
-        if self.record is not None:          # what _send_state would have put in the bag
-            self.record.put_sent(self.state_pub.topic_name, self._state_out.payload())
-        self._sample_sent(raw, t, begin, None, None)
+        if self.record is not None:
+            self._put_compiled(compiled.put, raw, code)
+        self._sample_sent(raw, t, begin, None, None, code)
 
-    def _took(self, raw: bytes, t: float, begin: float) -> None:
-        """Lockstep: the awaited command ``raw`` (answering ``t``) was taken at ``begin``."""
+    def _put_compiled(self, put: int, raw: bytes, code: int) -> None:
+        """With ``record``: the records of the compiled sample that did not fit into the
+        ring (it put the first ``put`` of the state, the command, the planing force and the
+        clock) put the interpreted way, which waits for room in lockstep (the ones it
+        published; after a refused planing force only the state and the command)."""
+        rec = self.record
+        records = 2 if code == compiled_sample.FORCE_REFUSED else (
+            4 if self._clock_put() else 3)
+        if put >= records:
+            return
+        if put < 1:
+            rec.put_sent(self.state_pub.topic_name, self._state_out.payload())
+        if put < 2:
+            rec.command(raw)
+        if records > 2 and put < 3:
+            rec.put_sent(self.force_pub.topic_name, self._force_out.payload())
+        if records > 3:
+            rec.put_sent(self.clock_pub.topic_name, self._clock_out.last())
+
+    def _clock_put(self) -> bool:
+        """Whether the compiled sample just taken was to put its clock into the ring and
+        published it if asked to (its clock is recorded as the interpreted path records it:
+        once published, or while nobody subscribes)."""
+        compiled = self._compiled
+        return compiled.clock_asked & compiled_sample.CLOCK_PUT != 0 and (
+            compiled.clock_asked & compiled_sample.CLOCK_PUBLISH == 0 or compiled.clock_ret == 0)
+
+    def _took(self, raw: bytes, t: float, begin: float, recorded: bool = False) -> None:
+        """Lockstep: the awaited command ``raw`` (answering ``t``) was taken at ``begin``
+        (``recorded``: its record is in the in-plant ring already)."""
         if self._compiled is not None:
             self._compiled.disarm()
         self.received += 1
-        if self.record is not None:
+        if self.record is not None and not recorded:
             self.record.command(raw)
         self._last_command_t = t
         self._awaiting = None
@@ -1241,25 +1290,49 @@ class PlantNode(Node):
         self._sample_sent(raw, t, begin, failed, payload)
 
     def _sample_sent(self, raw: bytes, t: float, begin: float, failed: Exception | None,
-                     payload: bytes | None) -> None:
+                     payload: bytes | None, compiled: int | None = None) -> None:
         """Lockstep, the short path: the sample's state went out (or its publish failed with
-        ``failed``: ``payload`` is retried); the model's bookkeeping and the rest."""
+        ``failed``: ``payload`` is retried); the model's bookkeeping and the rest. With
+        ``compiled`` (the compiled sample's code): its planing force and clock went out
+        already, its records are in the ring (``FORCE_REFUSED``: the planing force is
+        retried here, then the clock)."""
         force = self._force_data
         force[1] = self._quick.settle()
         force[0] = self._state_data[0]
         self.sim.took(self.sim.command)
-        self._took(raw, t, begin)
+        self._took(raw, t, begin, compiled is not None)
         self.sent += 1
         try:
             if failed is not None:
                 self._retry_publish(self._send_state, self.state_pub.topic_name, payload,
                                     failed, state=True)
-            self._send_rest(self.sim.samples)
+            if compiled is None:
+                self._send_rest(self.sim.samples)
+            elif compiled == compiled_sample.FORCE_REFUSED:
+                c = self._compiled
+                self._retry_publish(self._send_force, self.force_pub.topic_name,
+                                    self._force_out.payload(), RuntimeError(
+                                        f'rcl_publish_serialized_message returned '
+                                        f'{c.force_ret}: {c.take_error()}'))
+                self._send_after_force(self.sim.samples)
+            else:
+                self._compiled_rest(self.sim.samples)
         except PublishFailed as exc:
             self._fail(EXIT_PUBLISH_FAILED, str(exc))
             return
         if self._published():
             self._next(begin)
+
+    def _compiled_rest(self, sample: int) -> None:
+        """What :meth:`_send_after_force` does after a compiled sample, which published the
+        clock itself: a clock rcl refused is said (as :meth:`_send_after_force` says it),
+        and the views when due."""
+        c = self._compiled
+        if c.clock_asked & compiled_sample.CLOCK_PUBLISH and c.clock_ret != 0:
+            self._log_retry(f'/clock at t={self._state_data[0]!r} s not published: '
+                            f'rcl_publish_serialized_message returned {c.clock_ret}: '
+                            f'{c.take_error()}')
+        self._send_views(sample)
 
     def _on_command(self, raw: bytes) -> None:
         """A serialized ``command`` (the subscription is raw: see wire.py)."""
@@ -1609,7 +1682,12 @@ def _run(node: PlantNode) -> int:
 
 def _recorded(node: PlantNode, code: int) -> int:
     """With ``record``: wait until the writer closed the bag; exit 8 when it misses messages."""
-    return code if node.record is None else node.record.finish(code)
+    if node.record is None:
+        return code
+    if node._compiled is not None:    # the ring closes: the compiled sample puts no more
+        node._compiled.disarm()
+        node._compiled.record_into(None)
+    return node.record.finish(code)
 
 
 def _on_interrupt(node: PlantNode) -> int:

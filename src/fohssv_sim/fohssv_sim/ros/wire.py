@@ -166,10 +166,23 @@ class ClockWriter:
                 12345, 678):
             raise WireError(f'/clock: unexpected serialized form {bytes(raw)!r}')
         self._buf = raw
+        self._c: Any = None        # the ctypes export of _buf, made by address()
 
     def payload(self, nanoseconds: int) -> bytes:
         struct.pack_into('<iI', self._buf, 4, *divmod(nanoseconds, 1_000_000_000))
         return bytes(self._buf)
+
+    def last(self) -> bytes:
+        """The message as last written (by :meth:`payload` or by compiled code in place)."""
+        return bytes(self._buf)
+
+    def address(self) -> tuple[int, int]:
+        """(the serialized message's address, its length in bytes: the stamp's ``sec`` and
+        ``nanosec`` are at bytes 4 and 8) for compiled code that writes and publishes it in
+        place; the buffer stays where it is as long as this writer lives."""
+        if self._c is None:
+            self._c = (ctypes.c_char * len(self._buf)).from_buffer(self._buf)
+        return ctypes.addressof(self._c), len(self._buf)
 
 
 def raw_publish(pub: Any) -> Any:

@@ -683,6 +683,13 @@ class HeldPeriod:
         check_state(model)
         return True                      # not reached: beyond the bounds raises
 
+    def published(self) -> None:
+        """What :meth:`finish` keeps for :meth:`settle`, for a caller whose own compiled call
+        (:meth:`bound`) took all the period's steps, found the state finite and within the
+        bounds and wrote the sample itself (the plant's compiled sample): call
+        :meth:`settle` next."""
+        self._x = self._model._held_call.x.tolist()
+
     def settle(self) -> float:
         """The model's bookkeeping of the period :meth:`run` wrote out; returns the planing
         force at the new state."""

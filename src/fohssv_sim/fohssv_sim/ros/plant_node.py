@@ -55,6 +55,7 @@ import contextlib
 import dataclasses
 import json
 import math
+import struct
 import sys
 import time
 from collections.abc import Mapping
@@ -231,6 +232,9 @@ class PlantNode(Node):
         self._force_data = self._force_out.values
         self._clock_out = ClockWriter()
         self._command_in = ArrayReader(COMMAND)
+        # a command the compiled sample took has its layout: its doubles at a known offset
+        self._command_values = struct.Struct('<3d').unpack_from
+        self._command_offset = self._command_in.layout()[3]
         self._lag = CommandLag(self.options.max_command_lag, self.options.control_period)
         self._free_run = self.hosted is not None and self.options.mode == 'lockstep'
         self._clock_every = clock_samples(self.options)
@@ -1209,6 +1213,14 @@ class PlantNode(Node):
         a refused planing force publish (the same), or a failed period (settled and reported
         as :meth:`_on_command_lockstep` reports it)."""
         begin = monotonic()
+        if code >= 0:       # the common case, the short way (the checks were the entry's)
+            t, df, dc = self._command_values(raw, self._command_offset)
+            self.sim.command = (df, dc)
+            self._quick.published()
+            if self.record is not None:
+                self._put_compiled(self._compiled.put, raw, code)
+            self._sample_sent(raw, t, begin, None, None, code)
+            return
         t, df, dc = self._command_in.read(raw)
         self.sim.command = (df, dc)
         quick = self._quick
@@ -1231,7 +1243,7 @@ class PlantNode(Node):
                                   f'{compiled.rcl_ret}: {compiled.take_error()}')
             self._sample_sent(raw, t, begin, failed, self._state_out.payload())
             return
-        if self.record is not None:
+        if self.record is not None:      # FORCE_REFUSED: the state's and command's records
             self._put_compiled(compiled.put, raw, code)
         self._sample_sent(raw, t, begin, None, None, code)
 
@@ -1262,14 +1274,16 @@ class PlantNode(Node):
         return compiled.clock_asked & compiled_sample.CLOCK_PUT != 0 and (
             compiled.clock_asked & compiled_sample.CLOCK_PUBLISH == 0 or compiled.clock_ret == 0)
 
-    def _took(self, raw: bytes, t: float, begin: float, recorded: bool = False) -> None:
+    def _took(self, raw: bytes, t: float, begin: float, compiled: bool = False) -> None:
         """Lockstep: the awaited command ``raw`` (answering ``t``) was taken at ``begin``
-        (``recorded``: its record is in the in-plant ring already)."""
-        if self._compiled is not None:
-            self._compiled.disarm()
+        (``compiled``: by the compiled sample, which disarmed itself and put its record into
+        the in-plant ring)."""
         self.received += 1
-        if self.record is not None and not recorded:
-            self.record.command(raw)
+        if not compiled:
+            if self._compiled is not None:
+                self._compiled.disarm()
+            if self.record is not None:
+                self.record.command(raw)
         self._last_command_t = t
         self._awaiting = None
         self._last_command_wall = begin
@@ -1296,9 +1310,12 @@ class PlantNode(Node):
         ``compiled`` (the compiled sample's code): its planing force and clock went out
         already, its records are in the ring (``FORCE_REFUSED``: the planing force is
         retried here, then the clock)."""
-        force = self._force_data
-        force[1] = self._quick.settle()
-        force[0] = self._state_data[0]
+        if compiled is None:
+            force = self._force_data
+            force[1] = self._quick.settle()
+            force[0] = self._state_data[0]
+        else:                  # the compiled sample wrote the same [t, Fp] into the message
+            self._quick.settle()
         self.sim.took(self.sim.command)
         self._took(raw, t, begin, compiled is not None)
         self.sent += 1

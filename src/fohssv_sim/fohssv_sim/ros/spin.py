@@ -15,6 +15,7 @@ import os
 import signal
 import struct
 import sys
+from time import monotonic as _monotonic
 from typing import Protocol
 
 import rclpy
@@ -26,6 +27,8 @@ __all__ = ['Paced', 'make_executor', 'spin_until', 'tighten_timer_slack', 'final
            'CPU_LATENCY_DEVICE', 'NO_LATENCY_LIMIT']
 
 _PR_SET_TIMERSLACK = 29
+#: Seconds between two looks at ``rclpy.ok()`` in :func:`spin_until`.
+_OK_EVERY = 0.005
 
 
 class StopSignal:
@@ -95,6 +98,26 @@ class Paced(Protocol):
         """Do the work that is due."""
 
 
+class _ThrottledOk:
+    """``rclpy.ok()`` asked at most every :data:`_OK_EVERY` s (about 1 us a call, with a lock:
+    in a lockstep loop one call per sample, after the sample's publish, where every
+    microsecond before the next command counts; docs/ros.md). The context is shut down only
+    after the loop by these nodes (:class:`StopSignal` ends it first), so a shutdown from
+    elsewhere is seen within that time."""
+
+    def __init__(self) -> None:
+        self._next = 0.0
+
+    def __call__(self) -> bool:
+        now = _monotonic()
+        if now < self._next:
+            return True
+        if not rclpy.ok():
+            return False
+        self._next = now + _OK_EVERY
+        return True
+
+
 def spin_until(executor: Executor, future: Future | None = None, poll: float = 0.1,
                paced: Paced | None = None) -> None:
     """Process callbacks until ``future`` is done (or forever when ``None``), the context
@@ -109,13 +132,14 @@ def spin_until(executor: Executor, future: Future | None = None, poll: float = 0
     """
     spin_once = executor.spin_once
     stop = STOP
+    ok = _ThrottledOk()
     if paced is None:
-        while stop.received is None and rclpy.ok() and (future is None or not future.done()):
+        while stop.received is None and ok() and (future is None or not future.done()):
             spin_once(timeout_sec=poll)
         return
     wait_for = paced.pacing_wait
     publish_due = paced.publish_due
-    while stop.received is None and rclpy.ok() and (future is None or not future.done()):
+    while stop.received is None and ok() and (future is None or not future.done()):
         wait = wait_for()
         if wait is None:
             spin_once(timeout_sec=poll)

@@ -243,7 +243,7 @@ def test_compiled_sample_equals_the_interpreted_path_and_publishes_its_state(gra
             assert graph.clocks[-1][:12] == clock, k
         want = [(0, state), (1, command), (2, force)] + (
             [(3, clock)] if _clock(k) & CLOCK_PUT else [])
-        assert compiled.put == len(want) and _records(ring) == want, k
+        assert compiled.put == compiled.records == len(want) and _records(ring) == want, k
         ns = round(sa[0] * 1e9)
         assert _values(want) == [tuple(sa), (awaited, *u), tuple(fa), divmod(ns, 10**9)][
             :len(want)], k
@@ -278,6 +278,7 @@ def test_compiled_sample_stops_putting_at_a_full_ring_where_ring_put_would(graph
         graph.until(lambda n=k + 1: len(graph.got) == n == len(graph.forces),
                     f'sample {k} published')
         want = list(enumerate(_messages(out, force_out, good, sa[0])))
+        assert compiled.records == 4, k
         held += want[:compiled.put]
         if compiled.put < 4:              # full: the node's interpreted put, after room
             partial += 1
@@ -371,11 +372,13 @@ def test_compiled_sample_reports_a_refused_planing_force_or_clock_and_records_ne
         if refused == 'force':
             assert code == FORCE_REFUSED and compiled.force_ret != 0
             assert 'invalid' in compiled.take_error().lower()
-            assert [i for i, _ in _records(ring)] == [0, 1] and compiled.put == 2
+            assert [i for i, _ in _records(ring)] == [0, 1]
+            assert compiled.put == compiled.records == 2
         else:
             assert code == 5 and compiled.force_ret == 0 and compiled.clock_ret != 0
             assert 'invalid' in compiled.take_error().lower()
-            assert [i for i, _ in _records(ring)] == [0, 1, 2] and compiled.put == 3
+            assert [i for i, _ in _records(ring)] == [0, 1, 2]
+            assert compiled.put == compiled.records == 3
         assert compiled.rcl_ret == 0
         compiled.record_into(None)
         ring.close()

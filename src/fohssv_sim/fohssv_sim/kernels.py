@@ -626,13 +626,14 @@ def _fom_held_entry(t, f, n, nsteps):   # pragma: no cover - compiled by _fom_he
 #: to do with the clock this sample (:data:`_S_CLOCK_PUBLISH` | :data:`_S_CLOCK_PUT`); the
 #: ring (its data's address, capacity, the address of its head and tail counters; data 0:
 #: no ring) and the record index of the state, the command, the force and the clock; the
-#: records put by the last call.
+#: records the last call's sample has (the state, the command, then the force and the clock
+#: as they went out) and how many of them it put.
 (_S_CMD_HEAD, _S_CMD_COUNT_AT, _S_CMD_COUNT, _S_CMD_OFFSET, _S_CMD_SIZE, _S_OUT, _S_SINK,
  _S_SINK_A, _S_SINK_B, _S_N, _S_STEPS, _S_MODEL_N, _S_ARMED, _S_TAKEN,
  _S_FORCE_OUT, _S_FORCE_A, _S_FORCE_B, _S_CLOCK_A, _S_CLOCK_B, _S_CLOCK,
  _S_RING, _S_RING_CAP, _S_RING_COUNTERS, _S_REC_STATE, _S_REC_COMMAND, _S_REC_FORCE,
- _S_REC_CLOCK, _S_PUT) = range(28)
-_S_M_SIZE = 28
+ _S_REC_CLOCK, _S_RECORDS, _S_PUT) = range(29)
+_S_M_SIZE = 29
 #: Slots of its float64 table ``g``: the awaited time, the deflection limits, the step, V,
 #: the pitch limit, what the sinks returned (state, planing force, clock).
 _S_AWAITED, _S_MAX_FIN, _S_MAX_CAV, _S_H, _S_V, _S_PITCH, _S_RET, _S_FORCE_RET, _S_CLOCK_RET = (
@@ -743,24 +744,29 @@ if numba is not None:
                 g[_S_CLOCK_RET] = _call_sink(m[_S_SINK], m[_S_CLOCK_A], m[_S_CLOCK_B])
                 if g[_S_CLOCK_RET] != 0:
                     clock = 0                     # not published: not recorded either
+        # the sample's records: the state and the command, the force and the clock as they
+        # went out (a clock rcl refused is not recorded, as on the interpreted path)
+        m[_S_RECORDS] = 2 if ret != 0 else (4 if clock & _S_CLOCK_PUT else 3)
         ring = m[_S_RING]
         if ring == 0:
             return ret == 0
         cap = m[_S_RING_CAP]
         at = m[_S_RING_COUNTERS]
-        if not _ring_put_message(ring, cap, at, m[_S_REC_STATE], m[_S_SINK_B]):
-            return ret == 0
-        m[_S_PUT] = 1
-        if not _ring_put(ring, cap, at, m[_S_REC_COMMAND], raw, size):    # as received
-            return ret == 0
-        m[_S_PUT] = 2
-        if ret != 0 or not _ring_put_message(ring, cap, at, m[_S_REC_FORCE], m[_S_FORCE_B]):
-            return ret == 0
-        m[_S_PUT] = 3
-        if clock & _S_CLOCK_PUT and _ring_put_message(ring, cap, at, m[_S_REC_CLOCK],
-                                                      m[_S_CLOCK_B]):
-            m[_S_PUT] = 4
-        return True
+        put = 0
+        while put < m[_S_RECORDS]:
+            if put == 0:
+                done = _ring_put_message(ring, cap, at, m[_S_REC_STATE], m[_S_SINK_B])
+            elif put == 1:
+                done = _ring_put(ring, cap, at, m[_S_REC_COMMAND], raw, size)   # as received
+            elif put == 2:
+                done = _ring_put_message(ring, cap, at, m[_S_REC_FORCE], m[_S_FORCE_B])
+            else:
+                done = _ring_put_message(ring, cap, at, m[_S_REC_CLOCK], m[_S_CLOCK_B])
+            if not done:
+                break
+            put += 1
+        m[_S_PUT] = put
+        return ret == 0
 
 
 def _fom_sample_entry(t, f, m, g, raw, size):   # pragma: no cover - compiled by its user
@@ -773,9 +779,9 @@ def _fom_sample_entry(t, f, m, g, raw, size):   # pragma: no cover - compiled by
     state to the sink; once it took it, write ``[t, Fp]`` and hand on the planing force, then
     the clock (``round(t * 1e9)`` ns) as ``m[_S_CLOCK]`` asks, and, with a ring, put the
     records of the state, the command (its bytes as received), the force and the clock, in
-    that order, until one does not fit (``m[_S_PUT]``: how many were put). Returns the steps
-    taken (state and force went out; ``g[_S_CLOCK_RET]`` says whether the clock did), or one
-    of the ``_S_*`` results."""
+    that order, until one does not fit (``m[_S_RECORDS]`` the sample has, ``m[_S_PUT]`` were
+    put). Returns the steps taken (state and force went out; ``g[_S_CLOCK_RET]`` says
+    whether the clock did), or one of the ``_S_*`` results."""
     if m[_S_ARMED] == 0 or size != m[_S_CMD_SIZE]:
         return _S_NOT_TAKEN
     head = numba.carray(_as_pointer(m[_S_CMD_HEAD]), (12,), np.uint8)

@@ -85,6 +85,7 @@ from ..kernels import (
     _S_REC_COMMAND,
     _S_REC_FORCE,
     _S_REC_STATE,
+    _S_RECORDS,
     _S_RET,
     _S_RING,
     _S_RING_CAP,
@@ -269,9 +270,15 @@ class CompiledSample:
         return self._take_error()
 
     @property
+    def records(self) -> int:
+        """Records the last call's sample has for the ring: the state, the command, then the
+        planing force and the clock as far as they went out and were asked for (2, 3 or 4,
+        in that order)."""
+        return int(self._m[_S_RECORDS])
+
+    @property
     def put(self) -> int:
-        """Records the last call put into the ring (of the state, the command, the planing
-        force and, when asked, the clock, in that order)."""
+        """Of those, the records the last call put into the ring (the first ``put``)."""
         return int(self._m[_S_PUT])
 
     @property

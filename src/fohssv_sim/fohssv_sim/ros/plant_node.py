@@ -55,7 +55,6 @@ import contextlib
 import dataclasses
 import json
 import math
-import struct
 import sys
 import time
 from collections.abc import Mapping
@@ -232,9 +231,6 @@ class PlantNode(Node):
         self._force_data = self._force_out.values
         self._clock_out = ClockWriter()
         self._command_in = ArrayReader(COMMAND)
-        # a command the compiled sample took has its layout: its doubles at a known offset
-        self._command_values = struct.Struct('<3d').unpack_from
-        self._command_offset = self._command_in.layout()[3]
         self._lag = CommandLag(self.options.max_command_lag, self.options.control_period)
         self._free_run = self.hosted is not None and self.options.mode == 'lockstep'
         self._clock_every = clock_samples(self.options)
@@ -1209,70 +1205,51 @@ class PlantNode(Node):
         """Lockstep: the compiled sample took the awaited command ``raw`` and returned
         ``code``: the period's steps when its state and planing force went out (and its
         clock, as armed; the rest of the sample follows, as :meth:`_quick_sample` does after
-        its publish), a refused state publish (retried as the interpreted path retries it),
-        a refused planing force publish (the same), or a failed period (settled and reported
-        as :meth:`_on_command_lockstep` reports it)."""
+        its publish), a refused state or planing force publish (retried as the interpreted
+        path retries it), or a failed period (settled and reported as
+        :meth:`_on_command_lockstep` reports it)."""
         begin = monotonic()
-        if code >= 0:       # the common case, the short way (the checks were the entry's)
-            t, df, dc = self._command_values(raw, self._command_offset)
-            self.sim.command = (df, dc)
-            self._quick.published()
-            if self.record is not None:
-                self._put_compiled(self._compiled.put, raw, code)
-            self._sample_sent(raw, t, begin, None, None, code)
-            return
-        t, df, dc = self._command_in.read(raw)
-        self.sim.command = (df, dc)
         quick = self._quick
-        if code == compiled_sample.PUBLISH_REFUSED or code == compiled_sample.FORCE_REFUSED:
-            taken = quick.steps
-        elif code < 0:      # the period failed: finish() raises what the interpreted path does
-            taken = compiled_sample.FAILED - code
-        else:
-            taken = code
-        try:
-            quick.finish(taken, df, dc)   # the sample written again (for settle), or it raises
-        except FloatingPointError as exc:
-            self.sim.failed_period(exc)
-            self._took(raw, t, begin)
-            self._diverged(exc)
-            return
         compiled = self._compiled
+        if code <= compiled_sample.FAILED:   # the period failed: finish() raises as run() does
+            t, df, dc = self._command_in.read(raw)
+            self.sim.command = (df, dc)
+            try:
+                quick.finish(compiled_sample.FAILED - code, df, dc)
+            except FloatingPointError as exc:
+                self.sim.failed_period(exc)
+                self._took(raw, t, begin)
+                self._diverged(exc)
+            return
+        # the entry checked the command and wrote the sample (and, but for a refused state,
+        # published it): what finish() would keep, without its checks
+        t, df, dc = self._command_in.unpack(raw)
+        self.sim.command = (df, dc)
+        quick.published()
         if code == compiled_sample.PUBLISH_REFUSED:   # retried through _send_state (recorded)
             failed = RuntimeError(f'rcl_publish_serialized_message returned '
                                   f'{compiled.rcl_ret}: {compiled.take_error()}')
             self._sample_sent(raw, t, begin, failed, self._state_out.payload())
             return
-        if self.record is not None:      # FORCE_REFUSED: the state's and command's records
-            self._put_compiled(compiled.put, raw, code)
+        if self.record is not None and compiled.put < compiled.records:
+            self._put_rest(compiled.put, compiled.records, raw)
         self._sample_sent(raw, t, begin, None, None, code)
 
-    def _put_compiled(self, put: int, raw: bytes, code: int) -> None:
-        """With ``record``: the records of the compiled sample that did not fit into the
-        ring (it put the first ``put`` of the state, the command, the planing force and the
-        clock) put the interpreted way, which waits for room in lockstep (the ones it
-        published; after a refused planing force only the state and the command)."""
+    def _put_rest(self, put: int, records: int, raw: bytes) -> None:
+        """With ``record``: the records of the compiled sample's ``records`` (the state, the
+        command, the planing force, the clock, in that order) after the ``put`` it put, which
+        did not fit into the ring, put the interpreted way (which waits for room in
+        lockstep)."""
         rec = self.record
-        records = 2 if code == compiled_sample.FORCE_REFUSED else (
-            4 if self._clock_put() else 3)
-        if put >= records:
-            return
-        if put < 1:
-            rec.put_sent(self.state_pub.topic_name, self._state_out.payload())
-        if put < 2:
-            rec.command(raw)
-        if records > 2 and put < 3:
-            rec.put_sent(self.force_pub.topic_name, self._force_out.payload())
-        if records > 3:
-            rec.put_sent(self.clock_pub.topic_name, self._clock_out.last())
-
-    def _clock_put(self) -> bool:
-        """Whether the compiled sample just taken was to put its clock into the ring and
-        published it if asked to (its clock is recorded as the interpreted path records it:
-        once published, or while nobody subscribes)."""
-        compiled = self._compiled
-        return compiled.clock_asked & compiled_sample.CLOCK_PUT != 0 and (
-            compiled.clock_asked & compiled_sample.CLOCK_PUBLISH == 0 or compiled.clock_ret == 0)
+        for i in range(put, records):
+            if i == 0:
+                rec.put_sent(self.state_pub.topic_name, self._state_out.payload())
+            elif i == 1:
+                rec.command(raw)
+            elif i == 2:
+                rec.put_sent(self.force_pub.topic_name, self._force_out.payload())
+            else:
+                rec.put_sent(self.clock_pub.topic_name, self._clock_out.last())
 
     def _took(self, raw: bytes, t: float, begin: float, compiled: bool = False) -> None:
         """Lockstep: the awaited command ``raw`` (answering ``t``) was taken at ``begin``

@@ -248,6 +248,9 @@ def test_compiled_sample_equals_the_interpreted_path_and_publishes_its_state(gra
         assert _values(want) == [tuple(sa), (awaited, *u), tuple(fa), divmod(ns, 10**9)][
             :len(want)], k
     assert compiled.taken == 300 and refused == 50
+    # each period prepared after the sample before it but the first and those armed twice
+    # (k % 60 == 7: the second arm cannot know what ran in between)
+    assert compiled.prepared == 300 - 1 - 5
     assert compiled.rcl_ret == compiled.force_ret == compiled.clock_ret == 0
     assert clocks == 150 and ring.lost == 0 and ring.consumed > 15 * ring.capacity   # wrapped
     assert abs(sa[2]) > 0.1 and a.plant._stepper.n == 301 * 5     # a trajectory that moved

@@ -42,6 +42,15 @@ and about 7 us inside the lockstep round trip, as much as the period's arithmeti
 kernel through a C entry point (``numba.cfunc``, called with ctypes: 0.5 us warm) with only
 the step index and the step count: the same arithmetic, bit for bit.
 
+**A period prepared ahead.** Of an ABM step's sums, those over f_0 and the SOE modes (80 of
+the about 110 rows of each step) and a fold of the window into the modes (every K = 32
+steps, the costliest part) depend only on what came before the period. :func:`_prepare_modes`
+does them ahead for a held-input period and :func:`fom_soe_prepared_run` finishes it once the
+input is known, with the same sums in the same order as :func:`fom_soe_run` (bit for bit,
+``test_kernels.py``): the plant's compiled sample prepares the next period while the state it
+just published travels, and the command's round trip waits for the rest only (about 1 us of
+the period's 2.7 in one process).
+
 Compiled on first use and cached on disk (``cache=True``, next to this file or in numba's
 user cache); :func:`warm_up` compiles all kernels (a few seconds the first time, well under
 a second from the cache). Without numba everything still runs, interpreted.
@@ -347,38 +356,59 @@ def delayed_run(x, n, nsteps, h, cv, hx, hf, lag, tau, x_init, paper, law, conti
 
 # -- fractional model: ABM predictor-corrector with the SOE history -----------------------------
 
-@_njit
-def _soe_push(H, fill, f, m, n0, K, L, eps_k, ET):
-    """Push f_m into the one-group SOE history ``H`` (``fill`` values in its exact window):
-    at m = 0 into the f_0 slot; when the window is full its K oldest values are folded into
-    the L modes first. Each mode's sum over the K values runs in the order r = 0..K-1 from
-    0.0, the modes side by side in the inner loop (contiguous rows of ``ET``, one pass over
-    the K values per component instead of one per mode)."""
+@jitable
+def _fold_into(H, K, L, eps_k, ET, M):
+    """The L modes after folding the K oldest values of the one-group SOE window of ``H``
+    into them, written into ``M`` (4 x L: ``H``'s own modes, a view, or a copy of them made
+    ahead): each mode's sum over the K values runs in the order r = 0..K-1 from 0.0, the
+    modes side by side in the inner loop (contiguous rows of ``ET``, one pass over the K
+    values per component instead of one per mode)."""
     base = 1 + L
-    if m == 0:
-        for k in range(4):
-            H[0, k, 0] = f[k]
-        return
+    acc = np.empty(L)
+    for k in range(4):
+        for j in range(L):
+            acc[j] = 0.0
+        for r in range(K):
+            v = H[0, k, base + r]
+            for j in range(L):
+                acc[j] += v * ET[0, r, j]
+        for j in range(L):
+            mj = H[0, k, 1 + j]
+            mj -= mj * eps_k[0, 0, j]
+            M[k, j] = mj + acc[j]
+
+
+@jitable
+def _window_append(H, fill, f, n0, K, L, M):
+    """Append f to the window of ``H`` (``fill`` values in it); when it is full, its K oldest
+    values are replaced by the modes ``M`` folded from them (:func:`_fold_into`) first."""
+    base = 1 + L
     fw = fill[0]
-    if fw == n0 + K:                     # fold the K oldest values into the modes
-        acc = np.empty(L)
+    if fw == n0 + K:
         for k in range(4):
             for j in range(L):
-                acc[j] = 0.0
-            for r in range(K):
-                v = H[0, k, base + r]
-                for j in range(L):
-                    acc[j] += v * ET[0, r, j]
-            for j in range(L):
-                mj = H[0, k, 1 + j]
-                mj -= mj * eps_k[0, 0, j]
-                H[0, k, 1 + j] = mj + acc[j]
+                H[0, k, 1 + j] = M[k, j]
             for r in range(n0):
                 H[0, k, base + r] = H[0, k, base + K + r]
         fw = n0
     for k in range(4):
         H[0, k, base + fw] = f[k]
     fill[0] = fw + 1
+
+
+@_njit
+def _soe_push(H, fill, f, m, n0, K, L, eps_k, ET):
+    """Push f_m into the one-group SOE history ``H`` (``fill`` values in its exact window):
+    at m = 0 into the f_0 slot; when the window is full its K oldest values are folded into
+    the L modes first (:func:`_fold_into`, in place)."""
+    if m == 0:
+        for k in range(4):
+            H[0, k, 0] = f[k]
+        return
+    modes = H[0, :, 1:1 + L]
+    if fill[0] == n0 + K:
+        _fold_into(H, K, L, eps_k, ET, modes)
+    _window_append(H, fill, f, n0, K, L, modes)
 
 
 @_njit
@@ -397,6 +427,62 @@ def _f0_weights(m, alpha, a0_coef, a0_small):
     return bm, m ** (alpha - 1.0) * acc
 
 
+@jitable
+def _abm_start(H, m, alpha, a0_coef, a0_small, cp, cc):
+    """The predictor's and the corrector's sums of the four components at step m, f_0's terms
+    only (the row r = 0 of ``H``)."""
+    bm, a0m = _f0_weights(m, alpha, a0_coef, a0_small)
+    return (cp * bm * H[0, 0, 0], cp * bm * H[0, 1, 0], cp * bm * H[0, 2, 0],
+            cp * bm * H[0, 3, 0], cc * a0m * H[0, 0, 0], cc * a0m * H[0, 1, 0],
+            cc * a0m * H[0, 2, 0], cc * a0m * H[0, 3, 0])
+
+
+@jitable
+def _abm_sums(V, W, fw, r0, rows, off, s):
+    """The sums ``s`` (predictor's four, corrector's four) continued over the rows r = r0..
+    rows-1 of step ``fw``'s weights, the values of row r at ``V[k, r - off]``: eight
+    independent chains side by side, each summed in the order r as one at a time would."""
+    p0, p1, p2, p3, c0, c1, c2, c3 = s
+    for r in range(r0, rows):
+        bp = W[fw, 0, r, 0]
+        bc = W[fw, 0, r, 1]
+        v0 = V[0, r - off]
+        v1 = V[1, r - off]
+        v2 = V[2, r - off]
+        v3 = V[3, r - off]
+        p0 += v0 * bp
+        p1 += v1 * bp
+        p2 += v2 * bp
+        p3 += v3 * bp
+        c0 += v0 * bc
+        c1 += v1 * bc
+        c2 += v2 * bc
+        c3 += v3 * bc
+    return p0, p1, p2, p3, c0, c1, c2, c3
+
+
+@jitable
+def _abm_correct(x, x0, c, smooth, law, continuous, cc, s, bad):
+    """The step's predictor and corrector from its sums ``s``: ``x`` advanced in place, or
+    False (``bad`` holding the non-finite state, ``x`` unchanged)."""
+    p0, p1, p2, p3, c0, c1, c2, c3 = s
+    zp = x0[0] + p0
+    wp = x0[1] + p1
+    tp = x0[2] + p2
+    qp = x0[3] + p3
+    uf, uc = _input(law, continuous, zp, wp, tp, qp)
+    fq = _rhs_free(c, smooth, wp, tp, qp, uf, uc)
+    zn = (x0[0] + c0) + cc * fq[0]
+    wn = (x0[1] + c1) + cc * fq[1]
+    tn = (x0[2] + c2) + cc * fq[2]
+    qn = (x0[3] + c3) + cc * fq[3]
+    if not _finite4(zn, wn, tn, qn):
+        _fail(bad, zn, wn, tn, qn)
+        return False
+    x[0], x[1], x[2], x[3] = zn, wn, tn, qn
+    return True
+
+
 @_njit
 def fom_soe_run(x, x0, n, nsteps, cv, smooth, law, continuous, H, W, fill, eps_k, ET,
                 a0_coef, a0_small, alpha, cp, cc, last_f, bad):
@@ -409,6 +495,7 @@ def fom_soe_run(x, x0, n, nsteps, cv, smooth, law, continuous, H, W, fill, eps_k
     K = ET.shape[1]
     n0 = W.shape[0] - 1 - K
     base = 1 + L
+    V = H[0]
     for i in range(nsteps):
         m = n + i
         z, w, th, q = x[0], x[1], x[2], x[3]
@@ -417,47 +504,69 @@ def fom_soe_run(x, x0, n, nsteps, cv, smooth, law, continuous, H, W, fill, eps_k
         last_f[0], last_f[1], last_f[2], last_f[3] = f[0], f[1], f[2], f[3]
         _soe_push(H, fill, f, m, n0, K, L, eps_k, ET)
         fw = fill[0]
-        bm, a0m = _f0_weights(m, alpha, a0_coef, a0_small)
-        rows = base + fw
-        # the predictor's and the corrector's sums of the four components side by side (eight
-        # independent chains, each summed in the order r = 1..rows-1 as one at a time would)
-        p0 = cp * bm * H[0, 0, 0]
-        p1 = cp * bm * H[0, 1, 0]
-        p2 = cp * bm * H[0, 2, 0]
-        p3 = cp * bm * H[0, 3, 0]
-        c0 = cc * a0m * H[0, 0, 0]
-        c1 = cc * a0m * H[0, 1, 0]
-        c2 = cc * a0m * H[0, 2, 0]
-        c3 = cc * a0m * H[0, 3, 0]
-        for r in range(1, rows):
-            bp = W[fw, 0, r, 0]
-            bc = W[fw, 0, r, 1]
-            v0 = H[0, 0, r]
-            v1 = H[0, 1, r]
-            v2 = H[0, 2, r]
-            v3 = H[0, 3, r]
-            p0 += v0 * bp
-            p1 += v1 * bp
-            p2 += v2 * bp
-            p3 += v3 * bp
-            c0 += v0 * bc
-            c1 += v1 * bc
-            c2 += v2 * bc
-            c3 += v3 * bc
-        zp = x0[0] + p0
-        wp = x0[1] + p1
-        tp = x0[2] + p2
-        qp = x0[3] + p3
-        uf, uc = _input(law, continuous, zp, wp, tp, qp)
-        fq = _rhs_free(c, smooth, wp, tp, qp, uf, uc)
-        zn = (x0[0] + c0) + cc * fq[0]
-        wn = (x0[1] + c1) + cc * fq[1]
-        tn = (x0[2] + c2) + cc * fq[2]
-        qn = (x0[3] + c3) + cc * fq[3]
-        if not _finite4(zn, wn, tn, qn):
-            _fail(bad, zn, wn, tn, qn)
+        s = _abm_start(H, m, alpha, a0_coef, a0_small, cp, cc)
+        s = _abm_sums(V, W, fw, 1, base + fw, 0, s)
+        if not _abm_correct(x, x0, c, smooth, law, continuous, cc, s, bad):
             return i
-        x[0], x[1], x[2], x[3] = zn, wn, tn, qn
+    return nsteps
+
+
+@jitable
+def _prepare_modes(H, fill, m0, steps, W, eps_k, ET, a0_coef, a0_small, alpha, cp, cc, P, M):
+    """Ahead of a held-input period of ``steps`` steps from step ``m0`` (> 0), what in its
+    steps does not depend on the input: each step's sums over f_0 and the L modes into the
+    rows of ``P`` (:func:`_abm_start`, then :func:`_abm_sums` over r = 1..L, exactly as
+    :func:`fom_soe_run` begins them), and, when the window fills during the period, the
+    modes folded from its K oldest values (all from before the period) into ``M``. False
+    (nothing prepared) when the period is longer than K steps or ``P`` has too few rows."""
+    L = eps_k.shape[2]
+    K = ET.shape[1]
+    n0 = W.shape[0] - 1 - K
+    base = 1 + L
+    if m0 <= 0 or steps > K or steps > P.shape[0]:
+        return False
+    fw = fill[0]
+    folded = False
+    for i in range(steps):
+        if fw == n0 + K:
+            _fold_into(H, K, L, eps_k, ET, M)
+            fw = n0
+            folded = True
+        fw += 1
+        s = _abm_start(H, m0 + i, alpha, a0_coef, a0_small, cp, cc)
+        if folded:
+            s = _abm_sums(M, W, fw, 1, base, 1, s)
+        else:
+            s = _abm_sums(H[0], W, fw, 1, base, 0, s)
+        for j in range(8):
+            P[i, j] = s[j]
+    return True
+
+
+@jitable
+def fom_soe_prepared_run(x, x0, n, nsteps, cv, smooth, law, H, W, fill, eps_k, ET, cc,
+                         last_f, bad, P, M):
+    """:func:`fom_soe_run` with a held input over the period :func:`_prepare_modes` prepared
+    ``P`` and ``M`` for (from step ``n`` > 0, nothing changed since): each step's sums begin
+    at its row of ``P``, a fold takes ``M``'s modes. The same arithmetic in the same order,
+    bit for bit; only what depends on the input is left to compute."""
+    c = _coefficients(cv)
+    L = eps_k.shape[2]
+    K = ET.shape[1]
+    n0 = W.shape[0] - 1 - K
+    base = 1 + L
+    V = H[0]
+    for i in range(nsteps):
+        z, w, th, q = x[0], x[1], x[2], x[3]
+        uf, uc = _input(law, False, z, w, th, q)
+        f = _rhs_free(c, smooth, w, th, q, uf, uc)
+        last_f[0], last_f[1], last_f[2], last_f[3] = f[0], f[1], f[2], f[3]
+        _window_append(H, fill, f, n0, K, L, M)
+        fw = fill[0]
+        s = (P[i, 0], P[i, 1], P[i, 2], P[i, 3], P[i, 4], P[i, 5], P[i, 6], P[i, 7])
+        s = _abm_sums(V, W, fw, base, base + fw, 0, s)
+        if not _abm_correct(x, x0, c, smooth, law, False, cc, s, bad):
+            return i
     return nsteps
 
 # -- sampled drivers: an affine law at every control instant, held over the period -------------
@@ -587,10 +696,10 @@ if numba is not None:
         return numba.types.voidptr(numba.types.int64), codegen
 
 
-def _fom_held_entry(t, f, n, nsteps):   # pragma: no cover - compiled by _fom_held_c
-    """The C entry point's body: :func:`fom_soe_run` with a held input on the arrays whose
-    addresses and shapes the table ``t`` holds, ``f`` = [alpha, cp, cc, Fp]; Fp receives the
-    planing force at the state the steps leave (the last finite one if a step failed)."""
+def _held_arrays(t):   # pragma: no cover - compiled into the entry points below
+    """The arrays of the table ``t`` (:class:`FomHeldCall`), as :func:`fom_soe_run` takes them
+    (but ``law``, which follows): x, x0, cv, H, W, fill, eps_k, ET, a0_coef, a0_small, last_f,
+    bad, law."""
     s = _T_SHAPES
     x = numba.carray(_as_pointer(t[_T_X]), (4,), np.float64)
     x0 = numba.carray(_as_pointer(t[_T_X0]), (4,), np.float64)
@@ -606,12 +715,40 @@ def _fom_held_entry(t, f, n, nsteps):   # pragma: no cover - compiled by _fom_he
     a0_small = numba.carray(_as_pointer(t[_T_A0S]), (t[s + 17], t[s + 18]), np.float64)
     last_f = numba.carray(_as_pointer(t[_T_LAST_F]), (4,), np.float64)
     bad = numba.carray(_as_pointer(t[_T_BAD]), (4,), np.float64)
+    return x, x0, cv, H, W, fill, eps_k, ET, a0_coef, a0_small, last_f, bad, law
+
+
+def _fom_held_entry(t, f, n, nsteps):   # pragma: no cover - compiled by _fom_held_c
+    """The C entry point's body: :func:`fom_soe_run` with a held input on the arrays whose
+    addresses and shapes the table ``t`` holds, ``f`` = [alpha, cp, cc, Fp]; Fp receives the
+    planing force at the state the steps leave (the last finite one if a step failed)."""
+    x, x0, cv, H, W, fill, eps_k, ET, a0_coef, a0_small, last_f, bad, law = _held_arrays(t)
     smooth = t[_T_SMOOTH] != 0
     taken = fom_soe_run(x, x0, n, nsteps, cv, smooth, law, False, H, W, fill, eps_k, ET,
                         a0_coef, a0_small, f[0], f[1], f[2], last_f, bad)
     c = _coefficients(cv)
     f[3] = planing_smooth(x[1], c) if smooth else planing_exact(x[1], c)
     return taken
+
+
+def _fom_prepared_entry(t, f, n, nsteps, P, M):   # pragma: no cover - compiled by its user
+    """:func:`_fom_held_entry` over a period :func:`_fom_prepare_entry` prepared ``P`` and
+    ``M`` for (:func:`fom_soe_prepared_run`: the same results, bit for bit)."""
+    x, x0, cv, H, W, fill, eps_k, ET, a0_coef, a0_small, last_f, bad, law = _held_arrays(t)
+    smooth = t[_T_SMOOTH] != 0
+    taken = fom_soe_prepared_run(x, x0, n, nsteps, cv, smooth, law, H, W, fill, eps_k, ET,
+                                 f[2], last_f, bad, P, M)
+    c = _coefficients(cv)
+    f[3] = planing_smooth(x[1], c) if smooth else planing_exact(x[1], c)
+    return taken
+
+
+def _fom_prepare_entry(t, f, m0, steps, P, M):   # pragma: no cover - compiled by its user
+    """:func:`_prepare_modes` on the table's arrays for the held-input period of ``steps``
+    steps from step ``m0``; False when it cannot be prepared."""
+    x, x0, cv, H, W, fill, eps_k, ET, a0_coef, a0_small, last_f, bad, law = _held_arrays(t)
+    return _prepare_modes(H, fill, m0, steps, W, eps_k, ET, a0_coef, a0_small, f[0], f[1],
+                          f[2], P, M)
 
 
 # -- the serialized sample: fom_soe_run for a command's bytes, the sample handed to a C sink --
@@ -627,13 +764,15 @@ def _fom_held_entry(t, f, n, nsteps):   # pragma: no cover - compiled by _fom_he
 #: ring (its data's address, capacity, the address of its head and tail counters; data 0:
 #: no ring) and the record index of the state, the command, the force and the clock; the
 #: records the last call's sample has (the state, the command, then the force and the clock
-#: as they went out) and how many of them it put.
+#: as they went out) and how many of them it put; the next period's part prepared ahead
+#: (:func:`_prepare_modes`: the address of ``P``, steps x 8, and of ``M``, 4 x L, float64)
+#: and the step it was prepared from (-1: none), the periods taken so prepared.
 (_S_CMD_HEAD, _S_CMD_COUNT_AT, _S_CMD_COUNT, _S_CMD_OFFSET, _S_CMD_SIZE, _S_OUT, _S_SINK,
  _S_SINK_A, _S_SINK_B, _S_N, _S_STEPS, _S_MODEL_N, _S_ARMED, _S_TAKEN,
  _S_FORCE_OUT, _S_FORCE_A, _S_FORCE_B, _S_CLOCK_A, _S_CLOCK_B, _S_CLOCK,
  _S_RING, _S_RING_CAP, _S_RING_COUNTERS, _S_REC_STATE, _S_REC_COMMAND, _S_REC_FORCE,
- _S_REC_CLOCK, _S_RECORDS, _S_PUT) = range(29)
-_S_M_SIZE = 29
+ _S_REC_CLOCK, _S_RECORDS, _S_PUT, _S_PREP_P, _S_PREP_M, _S_PREPARED, _S_PREP_USED) = range(33)
+_S_M_SIZE = 33
 #: Slots of its float64 table ``g``: the awaited time, the deflection limits, the step, V,
 #: the pitch limit, what the sinks returned (state, planing force, clock).
 _S_AWAITED, _S_MAX_FIN, _S_MAX_CAV, _S_H, _S_V, _S_PITCH, _S_RET, _S_FORCE_RET, _S_CLOCK_RET = (
@@ -720,7 +859,10 @@ if numba is not None:
         msg = numba.carray(_as_pointer(message), (2,), np.int64)
         return _ring_put(ring, cap, counters_at, index, msg[0], msg[1])
 
+    _held_arrays = numba.njit(error_model='numpy')(_held_arrays)
     _fom_held_jit = numba.njit(error_model='numpy')(_fom_held_entry)
+    _fom_prepared_jit = numba.njit(error_model='numpy')(_fom_prepared_entry)
+    _fom_prepare_jit = numba.njit(error_model='numpy')(_fom_prepare_entry)
 
     @numba.njit(error_model='numpy')
     def _after_state(f, m, g, raw, size, t_out):
@@ -780,8 +922,11 @@ def _fom_sample_entry(t, f, m, g, raw, size):   # pragma: no cover - compiled by
     the clock (``round(t * 1e9)`` ns) as ``m[_S_CLOCK]`` asks, and, with a ring, put the
     records of the state, the command (its bytes as received), the force and the clock, in
     that order, until one does not fit (``m[_S_RECORDS]`` the sample has, ``m[_S_PUT]`` were
-    put). Returns the steps taken (state and force went out; ``g[_S_CLOCK_RET]`` says
-    whether the clock did), or one of the ``_S_*`` results."""
+    put). Then, the sample out, it prepares the next period (:func:`_prepare_modes`, into the
+    arrays ``m[_S_PREP_P]`` and ``m[_S_PREP_M]``, ``m[_S_PREPARED]`` its first step), which
+    the next call uses when armed for that step (the node sets -1 when anything else may
+    have changed the model's arrays). Returns the steps taken (state and force went out;
+    ``g[_S_CLOCK_RET]`` says whether the clock did), or one of the ``_S_*`` results."""
     if m[_S_ARMED] == 0 or size != m[_S_CMD_SIZE]:
         return _S_NOT_TAKEN
     head = numba.carray(_as_pointer(m[_S_CMD_HEAD]), (12,), np.uint8)
@@ -806,7 +951,15 @@ def _fom_sample_entry(t, f, m, g, raw, size):   # pragma: no cover - compiled by
     law[8] = delta_f
     law[9] = delta_c
     steps = m[_S_STEPS]
-    taken = _fom_held_jit(t, f, m[_S_N], steps)
+    n = m[_S_N]
+    P = numba.carray(_as_pointer(m[_S_PREP_P]), (steps, 8), np.float64)
+    M = numba.carray(_as_pointer(m[_S_PREP_M]), (4, t[_T_SHAPES + 11]), np.float64)
+    if m[_S_PREPARED] == n:   # prepared after the previous sample (the node unsets it else)
+        taken = _fom_prepared_jit(t, f, n, steps, P, M)
+        m[_S_PREP_USED] += 1
+    else:
+        taken = _fom_held_jit(t, f, n, steps)
+    m[_S_PREPARED] = -1
     x = numba.carray(_as_pointer(t[_T_X]), (4,), np.float64)
     w = x[1]
     theta = x[2]
@@ -826,7 +979,12 @@ def _fom_sample_entry(t, f, m, g, raw, size):   # pragma: no cover - compiled by
     g[_S_RET] = ret
     if ret != 0:
         return _S_SINK_REFUSED
-    return steps if _after_state(f, m, g, raw, size, t_out) else _S_FORCE_REFUSED
+    if not _after_state(f, m, g, raw, size, t_out):
+        return _S_FORCE_REFUSED
+    # the state is out: what the next period's steps need that no command changes, now
+    if _fom_prepare_jit(t, f, n + steps, steps, P, M):
+        m[_S_PREPARED] = n + steps
+    return steps
 
 
 @functools.cache

@@ -284,6 +284,50 @@ def test_held_call_equals_the_dispatcher_bit_for_bit():
     assert np.array_equal(bad, ref[12], equal_nan=True) and not np.isfinite(bad).all()
 
 
+@pytest.mark.parametrize('hold', [5, 1, 7, 32, 33])
+def test_period_prepared_ahead_equals_the_kernel_bit_for_bit(hold):
+    """The plant's compiled sample prepares each period's input-free part after the previous
+    sample (kernels._prepare_modes: the sums over f_0 and the SOE modes, a fold of the window
+    due in the period) and finishes it when the command comes (fom_soe_prepared_run). Against
+    fom_soe_run on a copy of the same arrays, through the C entry point's table: every array
+    equal after every one of 1000 / hold periods under eq. 31 (folds at every position of a
+    period), and the planing force; a period longer than the window's K = 32 steps is not
+    prepared (the kernel runs it whole)."""
+    plant = make_plant(ModelParameters(), X_START, duration=1.0)
+    plant.advance((0.0, -0.01), 7)
+    (x, x0, cv, law, H, W, fill, eps_k, ET, a0c, a0s, last_f, bad), (alpha, cp, cc) = \
+        _fom_arrays(plant)
+    assert ET.shape[1] == 32
+    held = kernels.FomHeldCall.build(x, x0, cv, True, law, H, W, fill, eps_k, ET, a0c, a0s,
+                                     alpha, cp, cc, last_f, bad)
+    ref, _ = _fom_arrays(plant)
+    P, M = np.zeros((hold, 8)), np.zeros((4, eps_k.shape[2]))
+    ctl = StateFeedback()
+    n = plant._stepper.n
+    prepared = folds = 0
+    for _ in range(1000 // hold):
+        ok = kernels._fom_prepare_jit(held._table, held._floats, n, hold, P, M)
+        prepared += ok
+        law[8:10] = ref[3][8:10] = ctl.command(0.0, tuple(ref[0]))
+        before = int(fill[0])
+        if ok:
+            a = kernels._fom_prepared_jit(held._table, held._floats, n, hold, P, M)
+        else:
+            a = held.call(n, hold)
+        folds += int(fill[0]) < before + hold
+        b = kernels.fom_soe_run(ref[0], ref[1], n, hold, ref[2], True, ref[3], False,
+                                *ref[4:11], alpha, cp, cc, ref[11], ref[12])
+        assert a == b == hold
+        for mine, theirs in zip((x, H, fill, last_f), (ref[0], ref[4], ref[6], ref[11])):
+            assert np.array_equal(mine, theirs)
+        fp = plant._fp(ref[0][1], plant.coefficients)
+        assert abs(held.values[held.FP] - fp) <= 1e-12 * max(1.0, abs(fp))
+        n += hold
+    assert prepared == (0 if hold > 32 else 1000 // hold)
+    assert folds >= 28                   # about 1000 / 32 folds, at most one per period seen
+    assert abs(x[1]) > 0.1
+
+
 def test_held_call_refuses_arrays_it_cannot_address():
     plant = make_plant(ModelParameters(), X_START)
     (x, x0, cv, law, H, W, fill, eps_k, ET, a0c, a0s, last_f, bad), (alpha, cp, cc) = \

@@ -25,7 +25,14 @@ bytes it
    bytes as received), the planing force and the clock into the writer's ring
    (:class:`fohssv_sim.bag.inplant.Ring`'s layout, the producer's side), in that order, the
    order the interpreted path puts them in, until one does not fit: the node puts the rest
-   (:attr:`CompiledSample.put`), where a full ring waits or counts a loss as always.
+   (:attr:`CompiledSample.put`), where a full ring waits or counts a loss as always;
+6. last, with the state on its way, prepares the next period: the part of its steps that no
+   command changes (:func:`fohssv_sim.kernels._prepare_modes`: each step's sums over f_0 and
+   the SOE history's modes, about 70 % of a step's sums, and the window's fold when one is
+   due in the period), so that the next call, when :meth:`CompiledSample.arm` finds that this
+   call took the sample before it (nothing else ran a period, the arrays are the same), only
+   finishes the steps before it publishes (:func:`fohssv_sim.kernels.fom_soe_prepared_run`:
+   the same sums in the same order, the kernel's results bit for bit).
 
 Everything else (the model's bookkeeping, the views, the checks and counts) follows in the
 node, in Python, as on the interpreted path. The call is *armed* by the node for one awaited
@@ -80,6 +87,10 @@ from ..kernels import (
     _S_NOT_TAKEN,
     _S_OUT,
     _S_PITCH,
+    _S_PREP_M,
+    _S_PREP_P,
+    _S_PREP_USED,
+    _S_PREPARED,
     _S_PUT,
     _S_REC_CLOCK,
     _S_REC_COMMAND,
@@ -218,6 +229,9 @@ class CompiledSample:
         self._mv = memoryview(m)               # item writes without numpy scalars
         self._gv = memoryview(self._g)
         self._held: kernels.FomHeldCall | None = None
+        self._armed_taken = -2                 # m[_S_TAKEN] at the last arm
+        self._prepared: tuple[np.ndarray, np.ndarray] | None = None
+        m[_S_PREPARED] = -1
         self._ring: Any = None
         self.call: Any = _not_taken         # until first armed (bound to the arrays)
 
@@ -258,6 +272,13 @@ class CompiledSample:
     def taken(self) -> int:
         """Commands taken and samples published by the compiled call so far."""
         return int(self._m[_S_TAKEN])
+
+    @property
+    def prepared(self) -> int:
+        """Of those, the samples whose period was prepared after the sample before it (the
+        input-free part of its steps done while the state travelled:
+        :func:`fohssv_sim.kernels._prepare_modes`)."""
+        return int(self._m[_S_PREP_USED])
 
     @property
     def rcl_ret(self) -> int:
@@ -309,8 +330,18 @@ class CompiledSample:
             mv[_S_ARMED] = 0
             return False
         held, n, model_n = bound
+        taken = mv[_S_TAKEN]
+        if held is not self._held or taken != self._armed_taken + 1:
+            # the period prepared after the last sample is good only if this call took that
+            # sample and nothing else ran a period or replaced the arrays since
+            mv[_S_PREPARED] = -1
+        self._armed_taken = taken
         if held is not self._held:           # the model's arrays changed (a reset, the start)
             self._held = held
+            L = held._arrays['eps_k'].shape[2]
+            self._prepared = (np.zeros((self._period.steps, 8)), np.zeros((4, L)))
+            mv[_S_PREP_P] = self._prepared[0].ctypes.data
+            mv[_S_PREP_M] = self._prepared[1].ctypes.data
             self.call = functools.partial(self._entry, ctypes.c_void_p(held._table.ctypes.data),
                                           ctypes.c_void_p(held._floats.ctypes.data),
                                           ctypes.c_void_p(self._m.ctypes.data),

@@ -42,14 +42,16 @@ and about 7 us inside the lockstep round trip, as much as the period's arithmeti
 kernel through a C entry point (``numba.cfunc``, called with ctypes: 0.5 us warm) with only
 the step index and the step count: the same arithmetic, bit for bit.
 
-**A period prepared ahead.** Of an ABM step's sums, those over f_0 and the SOE modes (80 of
-the about 110 rows of each step) and a fold of the window into the modes (every K = 32
-steps, the costliest part) depend only on what came before the period. :func:`_prepare_modes`
+**A period prepared ahead.** Of an ABM step's sums, all but those over the period's own
+values (at step i of a period its last i + 1 rows of the about 110: f_0, 80 modes and a
+window of 16-48 values) and a fold of the window into the modes (every K = 32 steps, the
+costliest part) depend only on what came before the period. :func:`_prepare_period`
 does them ahead for a held-input period and :func:`fom_soe_prepared_run` finishes it once the
 input is known, with the same sums in the same order as :func:`fom_soe_run` (bit for bit,
 ``test_kernels.py``): the plant's compiled sample prepares the next period while the state it
-just published travels, and the command's round trip waits for the rest only (about 1 us of
-the period's 2.7 in one process).
+just published travels, and the command's round trip waits for the rest only (about 0.8 us
+of the period's 2.7 in one process; periods of up to n0 = 16 steps, so that a fold never
+takes a value of the period itself).
 
 Compiled on first use and cached on disk (``cache=True``, next to this file or in numba's
 user cache); :func:`warm_up` compiles all kernels (a few seconds the first time, well under
@@ -512,32 +514,37 @@ def fom_soe_run(x, x0, n, nsteps, cv, smooth, law, continuous, H, W, fill, eps_k
 
 
 @jitable
-def _prepare_modes(H, fill, m0, steps, W, eps_k, ET, a0_coef, a0_small, alpha, cp, cc, P, M):
+def _prepare_period(H, fill, m0, steps, W, eps_k, ET, a0_coef, a0_small, alpha, cp, cc, P, M):
     """Ahead of a held-input period of ``steps`` steps from step ``m0`` (> 0), what in its
-    steps does not depend on the input: each step's sums over f_0 and the L modes into the
-    rows of ``P`` (:func:`_abm_start`, then :func:`_abm_sums` over r = 1..L, exactly as
-    :func:`fom_soe_run` begins them), and, when the window fills during the period, the
-    modes folded from its K oldest values (all from before the period) into ``M``. False
-    (nothing prepared) when the period is longer than K steps or ``P`` has too few rows."""
+    steps does not depend on the input: each step's sums over f_0, the L modes and the
+    window's values from before the period into the rows of ``P`` (:func:`_abm_start`,
+    then :func:`_abm_sums` over r = 1.. up to the period's own values, which are always the
+    step's last rows: exactly as :func:`fom_soe_run` begins them), and, when the window
+    fills during the period, the modes folded from its K oldest values into ``M``. False
+    (nothing prepared) when the period has more steps than the n0 values a fold keeps in the
+    window (a fold would then take values of the period itself) or ``P`` too few rows."""
     L = eps_k.shape[2]
     K = ET.shape[1]
     n0 = W.shape[0] - 1 - K
     base = 1 + L
-    if m0 <= 0 or steps > K or steps > P.shape[0]:
+    if m0 <= 0 or steps > n0 or steps > P.shape[0]:
         return False
     fw = fill[0]
-    folded = False
+    V = H[0]
+    shift = 0              # where a row's value is now: K further on once the period folded
     for i in range(steps):
         if fw == n0 + K:
             _fold_into(H, K, L, eps_k, ET, M)
             fw = n0
-            folded = True
+            shift = K
         fw += 1
+        old = base + fw - (i + 1)       # the rows before the period's i + 1 values
         s = _abm_start(H, m0 + i, alpha, a0_coef, a0_small, cp, cc)
-        if folded:
+        if shift:
             s = _abm_sums(M, W, fw, 1, base, 1, s)
+            s = _abm_sums(V, W, fw, base, old, -shift, s)
         else:
-            s = _abm_sums(H[0], W, fw, 1, base, 0, s)
+            s = _abm_sums(V, W, fw, 1, old, 0, s)
         for j in range(8):
             P[i, j] = s[j]
     return True
@@ -546,10 +553,11 @@ def _prepare_modes(H, fill, m0, steps, W, eps_k, ET, a0_coef, a0_small, alpha, c
 @jitable
 def fom_soe_prepared_run(x, x0, n, nsteps, cv, smooth, law, H, W, fill, eps_k, ET, cc,
                          last_f, bad, P, M):
-    """:func:`fom_soe_run` with a held input over the period :func:`_prepare_modes` prepared
+    """:func:`fom_soe_run` with a held input over the period :func:`_prepare_period` prepared
     ``P`` and ``M`` for (from step ``n`` > 0, nothing changed since): each step's sums begin
-    at its row of ``P``, a fold takes ``M``'s modes. The same arithmetic in the same order,
-    bit for bit; only what depends on the input is left to compute."""
+    at its row of ``P`` and add the period's own values only (the step's last rows), a fold
+    takes ``M``'s modes. The same arithmetic in the same order, bit for bit; only what
+    depends on the input is left to compute."""
     c = _coefficients(cv)
     L = eps_k.shape[2]
     K = ET.shape[1]
@@ -564,7 +572,7 @@ def fom_soe_prepared_run(x, x0, n, nsteps, cv, smooth, law, H, W, fill, eps_k, E
         _window_append(H, fill, f, n0, K, L, M)
         fw = fill[0]
         s = (P[i, 0], P[i, 1], P[i, 2], P[i, 3], P[i, 4], P[i, 5], P[i, 6], P[i, 7])
-        s = _abm_sums(V, W, fw, base, base + fw, 0, s)
+        s = _abm_sums(V, W, fw, base + fw - (i + 1), base + fw, 0, s)
         if not _abm_correct(x, x0, c, smooth, law, False, cc, s, bad):
             return i
     return nsteps
@@ -744,10 +752,10 @@ def _fom_prepared_entry(t, f, n, nsteps, P, M):   # pragma: no cover - compiled 
 
 
 def _fom_prepare_entry(t, f, m0, steps, P, M):   # pragma: no cover - compiled by its user
-    """:func:`_prepare_modes` on the table's arrays for the held-input period of ``steps``
+    """:func:`_prepare_period` on the table's arrays for the held-input period of ``steps``
     steps from step ``m0``; False when it cannot be prepared."""
     x, x0, cv, H, W, fill, eps_k, ET, a0_coef, a0_small, last_f, bad, law = _held_arrays(t)
-    return _prepare_modes(H, fill, m0, steps, W, eps_k, ET, a0_coef, a0_small, f[0], f[1],
+    return _prepare_period(H, fill, m0, steps, W, eps_k, ET, a0_coef, a0_small, f[0], f[1],
                           f[2], P, M)
 
 
@@ -765,7 +773,7 @@ def _fom_prepare_entry(t, f, m0, steps, P, M):   # pragma: no cover - compiled b
 #: no ring) and the record index of the state, the command, the force and the clock; the
 #: records the last call's sample has (the state, the command, then the force and the clock
 #: as they went out) and how many of them it put; the next period's part prepared ahead
-#: (:func:`_prepare_modes`: the address of ``P``, steps x 8, and of ``M``, 4 x L, float64)
+#: (:func:`_prepare_period`: the address of ``P``, steps x 8, and of ``M``, 4 x L, float64)
 #: and the step it was prepared from (-1: none), the periods taken so prepared.
 (_S_CMD_HEAD, _S_CMD_COUNT_AT, _S_CMD_COUNT, _S_CMD_OFFSET, _S_CMD_SIZE, _S_OUT, _S_SINK,
  _S_SINK_A, _S_SINK_B, _S_N, _S_STEPS, _S_MODEL_N, _S_ARMED, _S_TAKEN,
@@ -922,7 +930,7 @@ def _fom_sample_entry(t, f, m, g, raw, size):   # pragma: no cover - compiled by
     the clock (``round(t * 1e9)`` ns) as ``m[_S_CLOCK]`` asks, and, with a ring, put the
     records of the state, the command (its bytes as received), the force and the clock, in
     that order, until one does not fit (``m[_S_RECORDS]`` the sample has, ``m[_S_PUT]`` were
-    put). Then, the sample out, it prepares the next period (:func:`_prepare_modes`, into the
+    put). Then, the sample out, it prepares the next period (:func:`_prepare_period`, into the
     arrays ``m[_S_PREP_P]`` and ``m[_S_PREP_M]``, ``m[_S_PREPARED]`` its first step), which
     the next call uses when armed for that step (the node sets -1 when anything else may
     have changed the model's arrays). Returns the steps taken (state and force went out;

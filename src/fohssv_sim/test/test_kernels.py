@@ -284,47 +284,56 @@ def test_held_call_equals_the_dispatcher_bit_for_bit():
     assert np.array_equal(bad, ref[12], equal_nan=True) and not np.isfinite(bad).all()
 
 
-@pytest.mark.parametrize('hold', [5, 1, 7, 32, 33])
+@pytest.mark.parametrize('hold', [5, 1, 7, 16, 17])
 def test_period_prepared_ahead_equals_the_kernel_bit_for_bit(hold):
     """The plant's compiled sample prepares each period's input-free part after the previous
-    sample (kernels._prepare_modes: the sums over f_0 and the SOE modes, a fold of the window
-    due in the period) and finishes it when the command comes (fom_soe_prepared_run). Against
-    fom_soe_run on a copy of the same arrays, through the C entry point's table: every array
-    equal after every one of 1000 / hold periods under eq. 31 (folds at every position of a
-    period), and the planing force; a period longer than the window's K = 32 steps is not
-    prepared (the kernel runs it whole)."""
+    sample (kernels._prepare_period: the sums over f_0, the SOE modes and the window's values
+    from before the period, a fold of the window due in the period) and finishes it when the
+    command comes (fom_soe_prepared_run). Against fom_soe_run on a copy of the same arrays,
+    through the C entry point's table: every array equal after every period of 4000 steps
+    under eq. 31, and the planing force, with a single step run whole every 7th period (so
+    the window's folds, every K = 32 steps, fall at every position of a period); a period
+    with more steps than the n0 = 16 values a fold keeps is not prepared (the kernel runs it
+    whole)."""
     plant = make_plant(ModelParameters(), X_START, duration=1.0)
     plant.advance((0.0, -0.01), 7)
     (x, x0, cv, law, H, W, fill, eps_k, ET, a0c, a0s, last_f, bad), (alpha, cp, cc) = \
         _fom_arrays(plant)
-    assert ET.shape[1] == 32
+    assert ET.shape[1] == 32 and W.shape[0] - 1 - 32 == 16
     held = kernels.FomHeldCall.build(x, x0, cv, True, law, H, W, fill, eps_k, ET, a0c, a0s,
                                      alpha, cp, cc, last_f, bad)
     ref, _ = _fom_arrays(plant)
     P, M = np.zeros((hold, 8)), np.zeros((4, eps_k.shape[2]))
     ctl = StateFeedback()
     n = plant._stepper.n
-    prepared = folds = 0
-    for _ in range(1000 // hold):
-        ok = kernels._fom_prepare_jit(held._table, held._floats, n, hold, P, M)
+    periods = prepared = shifts = 0
+    fold_at = set()
+    while n < 4000:
+        shift = periods % 7 == 6
+        shifts += shift
+        steps = 1 if shift else hold
+        ok = not shift and kernels._fom_prepare_jit(held._table, held._floats, n, steps, P, M)
         prepared += ok
         law[8:10] = ref[3][8:10] = ctl.command(0.0, tuple(ref[0]))
         before = int(fill[0])
         if ok:
-            a = kernels._fom_prepared_jit(held._table, held._floats, n, hold, P, M)
+            a = kernels._fom_prepared_jit(held._table, held._floats, n, steps, P, M)
         else:
-            a = held.call(n, hold)
-        folds += int(fill[0]) < before + hold
-        b = kernels.fom_soe_run(ref[0], ref[1], n, hold, ref[2], True, ref[3], False,
+            a = held.call(n, steps)
+        if int(fill[0]) < before + steps:               # folded in this period: where
+            fold_at.add(48 - before)
+        b = kernels.fom_soe_run(ref[0], ref[1], n, steps, ref[2], True, ref[3], False,
                                 *ref[4:11], alpha, cp, cc, ref[11], ref[12])
-        assert a == b == hold
+        assert a == b == steps
         for mine, theirs in zip((x, H, fill, last_f), (ref[0], ref[4], ref[6], ref[11])):
             assert np.array_equal(mine, theirs)
         fp = plant._fp(ref[0][1], plant.coefficients)
         assert abs(held.values[held.FP] - fp) <= 1e-12 * max(1.0, abs(fp))
-        n += hold
-    assert prepared == (0 if hold > 32 else 1000 // hold)
-    assert folds >= 28                   # about 1000 / 32 folds, at most one per period seen
+        n += steps
+        periods += 1
+    assert prepared == (0 if hold > 16 else periods - shifts)
+    if hold > 1:
+        assert fold_at >= set(range(min(hold, 16))), fold_at   # at every step of a period
     assert abs(x[1]) > 0.1
 
 

@@ -27,9 +27,10 @@ bytes it
    order the interpreted path puts them in, until one does not fit: the node puts the rest
    (:attr:`CompiledSample.put`), where a full ring waits or counts a loss as always;
 6. last, with the state on its way, prepares the next period: the part of its steps that no
-   command changes (:func:`fohssv_sim.kernels._prepare_modes`: each step's sums over f_0 and
-   the SOE history's modes, about 70 % of a step's sums, and the window's fold when one is
-   due in the period), so that the next call, when :meth:`CompiledSample.arm` finds that this
+   command changes (:func:`fohssv_sim.kernels._prepare_period`: each step's sums over f_0,
+   the SOE history's modes and the window's values from before the period, all but the
+   last i + 1 of the about 110 rows at the period's step i, and the window's fold when one
+   is due in the period), so that the next call, when :meth:`CompiledSample.arm` finds that this
    call took the sample before it (nothing else ran a period, the arrays are the same), only
    finishes the steps before it publishes (:func:`fohssv_sim.kernels.fom_soe_prepared_run`:
    the same sums in the same order, the kernel's results bit for bit).
@@ -277,7 +278,7 @@ class CompiledSample:
     def prepared(self) -> int:
         """Of those, the samples whose period was prepared after the sample before it (the
         input-free part of its steps done while the state travelled:
-        :func:`fohssv_sim.kernels._prepare_modes`)."""
+        :func:`fohssv_sim.kernels._prepare_period`)."""
         return int(self._m[_S_PREP_USED])
 
     @property

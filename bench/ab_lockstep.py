@@ -1,15 +1,16 @@
-"""Two versions of the plant side by side in the pinned lockstep FOM loop (bench only).
+"""Two versions of the plant and controller side by side in the pinned lockstep FOM loop
+(bench only).
 
     git worktree add /tmp/before REV
     scripts/in-env python bench/ab_lockstep.py /tmp/before --rounds 6
 
-Each round runs the installed plant ("new") and the plant of the source tree given ("old":
-its ``src/fohssv_sim`` first on ``PYTHONPATH``) against the same eq. 31 controller node,
-pinned as ``bench_ros.py``'s pinned case pins them (plant and ping on CPU 0, controller and
-pong on CPU 1), 3 s of FOM each, in the order old-new-new-old or new-old-old-new (alternating),
+Each round runs the installed plant and eq. 31 controller node ("new") and those of the
+source tree given ("old": its ``src/fohssv_sim`` and ``src/fohssv_controller`` first on
+``PYTHONPATH``), pinned as ``bench_ros.py``'s pinned case pins them (plant and ping on CPU 0,
+controller and pong on CPU 1), 3 s of FOM each, in the order old-new-new-old or new-old-old-new (alternating),
 between two pinned bare echoes. Prints per round both loops' rates, each over the mean of the
-two echoes beside it, and new / old; then the medians. A change of the plant's per-sample path
-is measured so on a machine whose speed drifts between runs.
+two echoes beside it, and new / old; then the medians. A change of either node's per-sample
+path is measured so on a machine whose speed drifts between runs.
 """
 
 from __future__ import annotations
@@ -27,7 +28,8 @@ import bench_ros as b  # this script's folder, first on sys.path
 def _loop(domains: b.Domains, old_src: str | None) -> float:
     env = domains.env()
     if old_src is not None:
-        env['PYTHONPATH'] = f'{old_src}/src/fohssv_sim:' + env.get('PYTHONPATH', '')
+        env['PYTHONPATH'] = (f'{old_src}/src/fohssv_sim:{old_src}/src/fohssv_controller:'
+                             + env.get('PYTHONPATH', ''))
     args = b.ros_args({'mode': 'lockstep', 'model': 'fractional', 'duration': 3.0,
                        'cpu_affinity': 0, **b.MODEL_PARAMS['fractional']})
     ctl = subprocess.Popen([b._exe('fohssv_controller', 'state_feedback'), '--ros-args', '-p',

@@ -430,6 +430,25 @@ def _f0_weights(m, alpha, a0_coef, a0_small):
 
 
 @jitable
+def _soe_shape(eps_k, ET, W):
+    """L modes, K values per fold, n0 values a fold keeps, and the first window row (1 + L)
+    of a one-group SOE history."""
+    L = eps_k.shape[2]
+    K = ET.shape[1]
+    return L, K, W.shape[0] - 1 - K, 1 + L
+
+
+@jitable
+def _abm_rhs(x, c, smooth, law, continuous, last_f):
+    """f at the step's start ``x`` (the held input, or the law's), also into ``last_f``."""
+    z, w, th, q = x[0], x[1], x[2], x[3]
+    uf, uc = _input(law, continuous, z, w, th, q)
+    f = _rhs_free(c, smooth, w, th, q, uf, uc)
+    last_f[0], last_f[1], last_f[2], last_f[3] = f[0], f[1], f[2], f[3]
+    return f
+
+
+@jitable
 def _abm_start(H, m, alpha, a0_coef, a0_small, cp, cc):
     """The predictor's and the corrector's sums of the four components at step m, f_0's terms
     only (the row r = 0 of ``H``)."""
@@ -493,17 +512,11 @@ def fom_soe_run(x, x0, n, nsteps, cv, smooth, law, continuous, H, W, fill, eps_k
     ``ET``, ``a0_coef``, ``a0_small``), in place; ``last_f`` receives f_n of the last step.
     Returns the steps taken. Same arithmetic as ``SOEStepper.step`` (sums in another order)."""
     c = _coefficients(cv)
-    L = eps_k.shape[2]
-    K = ET.shape[1]
-    n0 = W.shape[0] - 1 - K
-    base = 1 + L
+    L, K, n0, base = _soe_shape(eps_k, ET, W)
     V = H[0]
     for i in range(nsteps):
         m = n + i
-        z, w, th, q = x[0], x[1], x[2], x[3]
-        uf, uc = _input(law, continuous, z, w, th, q)
-        f = _rhs_free(c, smooth, w, th, q, uf, uc)
-        last_f[0], last_f[1], last_f[2], last_f[3] = f[0], f[1], f[2], f[3]
+        f = _abm_rhs(x, c, smooth, law, continuous, last_f)
         _soe_push(H, fill, f, m, n0, K, L, eps_k, ET)
         fw = fill[0]
         s = _abm_start(H, m, alpha, a0_coef, a0_small, cp, cc)
@@ -523,10 +536,7 @@ def _prepare_period(H, fill, m0, steps, W, eps_k, ET, a0_coef, a0_small, alpha, 
     fills during the period, the modes folded from its K oldest values into ``M``. False
     (nothing prepared) when the period has more steps than the n0 values a fold keeps in the
     window (a fold would then take values of the period itself) or ``P`` too few rows."""
-    L = eps_k.shape[2]
-    K = ET.shape[1]
-    n0 = W.shape[0] - 1 - K
-    base = 1 + L
+    L, K, n0, base = _soe_shape(eps_k, ET, W)
     if m0 <= 0 or steps > n0 or steps > P.shape[0]:
         return False
     fw = fill[0]
@@ -559,16 +569,10 @@ def fom_soe_prepared_run(x, x0, n, nsteps, cv, smooth, law, H, W, fill, eps_k, E
     takes ``M``'s modes. The same arithmetic in the same order, bit for bit; only what
     depends on the input is left to compute."""
     c = _coefficients(cv)
-    L = eps_k.shape[2]
-    K = ET.shape[1]
-    n0 = W.shape[0] - 1 - K
-    base = 1 + L
+    L, K, n0, base = _soe_shape(eps_k, ET, W)
     V = H[0]
     for i in range(nsteps):
-        z, w, th, q = x[0], x[1], x[2], x[3]
-        uf, uc = _input(law, False, z, w, th, q)
-        f = _rhs_free(c, smooth, w, th, q, uf, uc)
-        last_f[0], last_f[1], last_f[2], last_f[3] = f[0], f[1], f[2], f[3]
+        f = _abm_rhs(x, c, smooth, law, False, last_f)
         _window_append(H, fill, f, n0, K, L, M)
         fw = fill[0]
         s = (P[i, 0], P[i, 1], P[i, 2], P[i, 3], P[i, 4], P[i, 5], P[i, 6], P[i, 7])

@@ -7,10 +7,11 @@
 Each round runs the installed plant and eq. 31 controller node ("new") and those of the
 source tree given ("old": its ``src/fohssv_sim`` and ``src/fohssv_controller`` first on
 ``PYTHONPATH``), pinned as ``bench_ros.py``'s pinned case pins them (plant and ping on CPU 0,
-controller and pong on CPU 1), 3 s of FOM each, in the order old-new-new-old or new-old-old-new (alternating),
-between two pinned bare echoes. Prints per round both loops' rates, each over the mean of the
-two echoes beside it, and new / old; then the medians. A change of either node's per-sample
-path is measured so on a machine whose speed drifts between runs.
+controller and pong on CPU 1), 3 s of FOM each, in the order old-new-new-old or
+new-old-old-new (alternating), between two pinned bare echoes. Prints per round both loops'
+rates, each over the mean of the two echoes beside it, and new / old; then the medians. A
+change of either node's per-sample path is measured so on a machine whose speed drifts
+between runs.
 """
 
 from __future__ import annotations

@@ -388,6 +388,16 @@ class InPlantRecording:
                  f'({counts}); every message of the run is in the bag{cpu}')
         return code
 
+    def reap(self, timeout: float = 10.0) -> None:
+        """Wait for the writer process to end after it closed the bag (its interpreter's
+        teardown takes tens of milliseconds: the plant lingers meanwhile); killed after
+        ``timeout`` s."""
+        try:
+            self.proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+
     def _wait_closed(self) -> dict | None:
         """The writer's closing reply: waited for while the ring still drains."""
         last_used = self.ring.used
@@ -396,8 +406,7 @@ class InPlantRecording:
             reply = self._reply(0.2)
             if reply is not None and 'ready' in reply:
                 continue                 # a run that never started, or a late 'ready'
-            if reply is not None:
-                self.proc.wait(timeout=10)
+            if reply is not None:     # the bag is closed (the process ends on its own: reap)
                 return reply
             if self.proc.poll() is not None:
                 self._writer_failed()

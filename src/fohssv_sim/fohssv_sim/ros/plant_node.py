@@ -1671,6 +1671,8 @@ def _run(node: PlantNode) -> int:
         node.record.settle(executor)
     code = _recorded(node, code)      # the bag closed before the linger (which may wait 1 s)
     node.linger(executor, signals)
+    if node.record is not None:       # the writer process ended meanwhile
+        node.record.reap()
     return code
 
 
@@ -1687,7 +1689,10 @@ def _recorded(node: PlantNode, code: int) -> int:
 def _on_interrupt(node: PlantNode) -> int:
     if not node.finished.done():
         _interrupted(node)
-    return _recorded(node, node.exit_code)
+    code = _recorded(node, node.exit_code)
+    if node.record is not None:
+        node.record.reap()
+    return code
 
 
 def main(args: list[str] | None = None) -> None:

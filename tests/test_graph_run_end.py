@@ -242,9 +242,12 @@ def test_after_sigint_a_lockstep_plant_steps_and_publishes_nothing(tmp_path, mod
     import time
 
     # a probe besides the recorder: it keeps taking states after the run_end (the recorder
-    # closes its bag on it), so a state published after the announced end shows there
-    with _recorded_loop(tmp_path, [], model=model, duration=0.0, min_state_subscribers=3,
-                        pace_to_subscribers=512) as loop:
+    # closes its bag on it), so a state published after the announced end shows there. The
+    # recorder hears the controller before the run starts (command_publishers: without it a
+    # run that starts before discovery reached the recorder loses its commands to the bag,
+    # which the recorder reports with exit 6, as it did once in CI under load)
+    with _recorded_loop(tmp_path, ['command_publishers:=1'], model=model, duration=0.0,
+                        min_state_subscribers=3, pace_to_subscribers=512) as loop:
         probe = Probe(int(loop.env['ROS_DOMAIN_ID']), command_publisher=False)
         try:
             rosproc.wait_for(lambda: 'peers matched' in loop.plog.read_text(), 90,

@@ -389,9 +389,9 @@ class InPlantRecording:
         return code
 
     def reap(self, timeout: float = 10.0) -> None:
-        """Wait for the writer process to end after it closed the bag (its interpreter's
-        teardown takes tens of milliseconds: the plant lingers meanwhile); killed after
-        ``timeout`` s."""
+        """Wait for the writer process to end after it closed the bag (it exits without the
+        interpreter's teardown, but freeing a process with numba and LLVM loaded still takes
+        15-20 ms here: the plant lingers meanwhile); killed after ``timeout`` s."""
         try:
             self.proc.wait(timeout=timeout)
         except subprocess.TimeoutExpired:

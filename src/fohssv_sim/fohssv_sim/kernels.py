@@ -381,15 +381,13 @@ def _fold_into(H, K, L, eps_k, ET, M):
 
 
 @jitable
-def _window_append(H, fill, f, n0, K, L, M):
+def _window_append(H, fill, f, n0, K, L):
     """Append f to the window of ``H`` (``fill`` values in it); when it is full, its K oldest
-    values are replaced by the modes ``M`` folded from them (:func:`_fold_into`) first."""
+    values, already folded into the modes (:func:`_fold_into`), are dropped first."""
     base = 1 + L
     fw = fill[0]
     if fw == n0 + K:
         for k in range(4):
-            for j in range(L):
-                H[0, k, 1 + j] = M[k, j]
             for r in range(n0):
                 H[0, k, base + r] = H[0, k, base + K + r]
         fw = n0
@@ -407,10 +405,9 @@ def _soe_push(H, fill, f, m, n0, K, L, eps_k, ET):
         for k in range(4):
             H[0, k, 0] = f[k]
         return
-    modes = H[0, :, 1:1 + L]
     if fill[0] == n0 + K:
-        _fold_into(H, K, L, eps_k, ET, modes)
-    _window_append(H, fill, f, n0, K, L, modes)
+        _fold_into(H, K, L, eps_k, ET, H[0, :, 1:1 + L])
+    _window_append(H, fill, f, n0, K, L)
 
 
 @_njit
@@ -573,7 +570,11 @@ def fom_soe_prepared_run(x, x0, n, nsteps, cv, smooth, law, H, W, fill, eps_k, E
     V = H[0]
     for i in range(nsteps):
         f = _abm_rhs(x, c, smooth, law, False, last_f)
-        _window_append(H, fill, f, n0, K, L, M)
+        if fill[0] == n0 + K:               # the fold prepared ahead
+            for k in range(4):
+                for j in range(L):
+                    H[0, k, 1 + j] = M[k, j]
+        _window_append(H, fill, f, n0, K, L)
         fw = fill[0]
         s = (P[i, 0], P[i, 1], P[i, 2], P[i, 3], P[i, 4], P[i, 5], P[i, 6], P[i, 7])
         s = _abm_sums(V, W, fw, base + fw - (i + 1), base + fw, 0, s)

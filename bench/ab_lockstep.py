@@ -12,6 +12,9 @@ new-old-old-new (alternating), between two pinned bare echoes. Prints per round 
 rates, each over the mean of the two echoes beside it, and new / old; then the medians. A
 change of either node's per-sample path is measured so on a machine whose speed drifts
 between runs.
+
+``--demo`` compares instead the demo's loop recorded in-plant and unrecorded (unpinned, as
+``make demo`` runs it) for both trees, beside the bare echo (:func:`demo`).
 """
 
 from __future__ import annotations
@@ -26,11 +29,16 @@ from pathlib import Path
 import bench_ros as b  # this script's folder, first on sys.path
 
 
-def _loop(domains: b.Domains, old_src: str | None) -> float:
+def _env(domains: b.Domains, old_src: str | None) -> dict:
     env = domains.env()
     if old_src is not None:
         env['PYTHONPATH'] = (f'{old_src}/src/fohssv_sim:{old_src}/src/fohssv_controller:'
                              + env.get('PYTHONPATH', ''))
+    return env
+
+
+def _loop(domains: b.Domains, old_src: str | None) -> float:
+    env = _env(domains, old_src)
     args = b.ros_args({'mode': 'lockstep', 'model': 'fractional', 'duration': 3.0,
                        'cpu_affinity': 0, **b.MODEL_PARAMS['fractional']})
     ctl = subprocess.Popen([b._exe('fohssv_controller', 'state_feedback'), '--ros-args', '-p',
@@ -48,14 +56,54 @@ def _loop(domains: b.Domains, old_src: str | None) -> float:
     return json.loads(lines[-1].split('summary: ', 1)[1])['samples_per_second']
 
 
+def demo(domains: b.Domains, old_src: str, rounds: int) -> None:
+    """``--demo``: the demo's loop (``bench_ros.run_inplant_recording``'s: FOM, lockstep, 2 s,
+    unpinned) recorded in-plant and unrecorded, for both trees, each round in alternated
+    order, the bare echo before and after it; per tree the mean loop times and the median of
+    the rounds' recorded / unrecorded ratios (the ``make demo`` target's figure)."""
+    import tempfile
+
+    params = {'model': 'fractional', 'fractional_order': 0.85, 'speed': 75.0,
+              'mode': 'lockstep', 'duration': 2.0}
+    times = {w: {'recorded': [], 'unrecorded': []} for w in ('old', 'new')}
+    with tempfile.TemporaryDirectory() as tmp:
+        for n in range(rounds):
+            before = b.run_echo(domains, 20000)['round_trips_per_second']
+            trees = ('old', 'new') if n % 2 == 0 else ('new', 'old')
+            kinds = ('unrecorded', 'recorded') if n // 2 % 2 == 0 else ('recorded',
+                                                                         'unrecorded')
+            for which in trees:
+                env = _env(domains, old_src if which == 'old' else None)
+                for kind in kinds:
+                    extra = {'record': f'{tmp}/{which}{n}'} if kind == 'recorded' else {}
+                    wall, _ = b._timed_loop(env, {**params, **extra}, timeout=900.0)
+                    times[which][kind].append(wall)
+            after = b.run_echo(domains, 20000)['round_trips_per_second']
+            print(f"round {n + 1}: echo {before:.0f} / {after:.0f} round trips/s; " + '; '.join(
+                f"{w} recorded {times[w]['recorded'][-1]:.2f} s, unrecorded "
+                f"{times[w]['unrecorded'][-1]:.2f} s" for w in ('old', 'new')), flush=True)
+    for w in ('old', 'new'):
+        t = times[w]
+        ratios = [r / u for r, u in zip(t['recorded'], t['unrecorded'])]
+        print(f"{w}: mean recorded {statistics.mean(t['recorded']):.2f} s, unrecorded "
+              f"{statistics.mean(t['unrecorded']):.2f} s; recorded / unrecorded per round "
+              + ', '.join(f'{r:.2f}' for r in ratios)
+              + f', median {statistics.median(ratios):.2f}', flush=True)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('old_src', help='the other version: a source tree (e.g. a git worktree)')
     ap.add_argument('--rounds', type=int, default=6)
+    ap.add_argument('--demo', action='store_true',
+                    help='compare the demo loop recorded in-plant / unrecorded instead')
     a = ap.parse_args()
     if not (Path(a.old_src) / 'src' / 'fohssv_sim' / 'fohssv_sim').is_dir():
         ap.error(f'old_src={a.old_src!r}: no src/fohssv_sim/fohssv_sim in it')
     domains = b.Domains()
+    if a.demo:
+        demo(domains, a.old_src, a.rounds)
+        return 0
     ratios: dict[str, list[float]] = {'old': [], 'new': []}
     gains = []
     for n in range(a.rounds):

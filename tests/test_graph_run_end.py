@@ -63,24 +63,27 @@ def _recorder(env, bag, log, *params: str):
     return rec
 
 
-def _controller(env):
-    """eq. 31's node, answering once the plant and the recorder subscribe to its commands."""
+def _controller(env, subscribers=2):
+    """eq. 31's node, answering once the plant and the recorder (and any other of the
+    ``subscribers``) subscribe to its commands."""
     return rosproc.start('fohssv_controller', 'state_feedback',
-                         ['--ros-args', '-p', 'min_command_subscribers:=2'], env=env)
+                         ['--ros-args', '-p', f'min_command_subscribers:={subscribers}'],
+                         env=env)
 
 
 @contextlib.contextmanager
-def _recorded_loop(tmp_path, recorder_params, **plant_params):
-    """A recorder (``-p`` settings ``recorder_params``), eq. 31's node and a plant (delay-free
-    unless ``plant_params`` name a model; logging to ``plant.log``); every process is stopped
-    at the end."""
+def _recorded_loop(tmp_path, recorder_params, command_subscribers=2, **plant_params):
+    """A recorder (``-p`` settings ``recorder_params``), eq. 31's node (answering once
+    ``command_subscribers`` subscribe to its commands) and a plant (delay-free unless
+    ``plant_params`` name a model; logging to ``plant.log``); every process is stopped at the
+    end."""
     env = rosproc.ros_env()
     loop = SimpleNamespace(env=env, bag=tmp_path / 'run', log=tmp_path / 'recorder.log',
                            plog=tmp_path / 'plant.log')
     loop.rec = _recorder(env, loop.bag, loop.log, *recorder_params)
     procs = [loop.rec]
     try:
-        procs.append(_controller(env))
+        procs.append(_controller(env, command_subscribers))
         loop.plant = rosproc.start('fohssv_sim', 'plant', plant_args(
             **{'model': 'delay-free', 'min_state_subscribers': 2, **plant_params}), env=env,
             log=loop.plog)
@@ -242,12 +245,15 @@ def test_after_sigint_a_lockstep_plant_steps_and_publishes_nothing(tmp_path, mod
     import time
 
     # a probe besides the recorder: it keeps taking states after the run_end (the recorder
-    # closes its bag on it), so a state published after the announced end shows there. The
-    # recorder hears the controller before the run starts (command_publishers: without it a
-    # run that starts before discovery reached the recorder loses its commands to the bag,
-    # which the recorder reports with exit 6, as it did once in CI under load)
-    with _recorded_loop(tmp_path, ['command_publishers:=1'], model=model, duration=0.0,
-                        min_state_subscribers=3, pace_to_subscribers=512) as loop:
+    # closes its bag on it), so a state published after the announced end shows there. It
+    # subscribes to the commands too: the controller waits for three command subscribers,
+    # else the plant's and the probe's met its minimum of two before the controller's writer
+    # had matched the recorder's reader, and the first commands (all of them, or 73 of 931)
+    # never reached the bag: the recorder said so with exit 6 (in CI under load, and in 10 of
+    # 13 runs beside two busy loops)
+    with _recorded_loop(tmp_path, ['command_publishers:=1'], command_subscribers=3,
+                        model=model, duration=0.0, min_state_subscribers=3,
+                        pace_to_subscribers=512) as loop:
         probe = Probe(int(loop.env['ROS_DOMAIN_ID']), command_publisher=False)
         try:
             rosproc.wait_for(lambda: 'peers matched' in loop.plog.read_text(), 90,

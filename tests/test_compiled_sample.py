@@ -7,7 +7,9 @@ by subscriptions, equal to the interpreted sample's messages serialized by rclpy
 (bag.inplant.Ring.take), equal to those messages and the command's bytes, across the ring's
 wraps, and stopping at a full ring where Ring.put would; every command it must not take is
 left alone (nothing published, the model untouched); a failing period raises what the
-interpreted path raises."""
+interpreted path raises. Taken in compiled code (CompiledSample.take_from: rcl's wait and
+take, then the sample), commands published over real DDS give the same samples; what it does
+not take is handed over byte for byte; a wait with nothing to take times out."""
 
 from __future__ import annotations
 
@@ -33,6 +35,8 @@ from fohssv_sim.ros.compiled_sample import (
     FAILED,
     FORCE_REFUSED,
     NOT_TAKEN,
+    RCL_ERROR,
+    TIMED_OUT,
     CompiledSample,
 )
 from fohssv_sim.ros.loop import SampledPlant
@@ -385,3 +389,67 @@ def test_compiled_sample_reports_a_refused_planing_force_or_clock_and_records_ne
         assert compiled.rcl_ret == 0
         compiled.record_into(None)
         ring.close()
+
+
+def test_compiled_take_takes_the_awaited_command_over_dds_and_hands_over_the_rest(graph):
+    """The plant's lockstep loop with commands taken in compiled code: commands published
+    by another node's publisher over DDS, taken by rcl from a subscription no executor
+    spins (a second node), the awaited one run by the compiled sample with the same result
+    as the interpreted path, bit for bit, its state received by a subscriber; a command it
+    must not take (another t, one while disarmed) returned as NOT_TAKEN with its bytes as
+    published; nothing to take: TIMED_OUT after the timeout (not before), at once with
+    none."""
+    a, b, held_a, held_b, sa, fa, fb, out = _plants()
+    compiled, _, _ = graph.build(held_b, out)
+    compiled.limit(LIMIT, LIMIT)
+    taker = rclpy.create_node('compiled_take_test', context=graph.context)   # not spun
+    try:
+        sub = taker.create_subscription(Float64MultiArray, 'command', lambda raw: None,
+                                        profile(COMMAND), raw=True)
+        pub = graph.node.create_publisher(Float64MultiArray, 'command', profile(COMMAND))
+        graph.until(lambda: pub.get_subscription_count() == 1 == sub.get_publisher_count(),
+                    'the command topic matched')
+        assert compiled.take_from(graph.context.handle.pointer, sub.handle.pointer, 0.3) is None
+        begin = time.monotonic()
+        assert compiled.take() == TIMED_OUT
+        assert 0.25 <= time.monotonic() - begin < 10.0
+        _general(a, (0.0, 0.0), sa, fa)
+        _general(b, (0.0, 0.0), out.values, fb)
+        ctl = StateFeedback()
+        compiled.set_timeout(10.0)       # a message within it returns at once
+        for k in range(100):
+            u = ctl.command(0.0, tuple(sa[1:]))
+            awaited = b.t
+            good = _command(awaited, *u)
+            if k % 25 == 3:
+                compiled.disarm()        # not armed: taken by rcl, left to the node
+                pub.publish(good)
+                assert compiled.take() == NOT_TAKEN and compiled.received() == good
+            assert compiled.arm(awaited)
+            if k % 25 == 4:
+                late = _command(awaited - 1e-4, *u)
+                pub.publish(late)
+                assert compiled.take() == NOT_TAKEN and compiled.received() == late
+            pub.publish(good)
+            code = compiled.take()
+            assert code == 5 and compiled.received() == good, k
+            b.command = u
+            assert held_b.finish(code, *u)
+            fb[1] = held_b.settle()
+            fb[0] = out.values[0]
+            b.took(u)
+            _interpreted(a, held_a, u, sa, fa)
+            assert list(out.values) == sa and fb == fa and _same(a, b), k
+            graph.until(lambda n=k + 1: len(graph.got) == n, f'sample {k} received')
+            assert ArrayReader(STATE).read(graph.got[-1]) == tuple(sa), k
+        assert compiled.taken == 100
+        compiled.set_timeout(0.0)
+        begin = time.monotonic()
+        assert compiled.take() == TIMED_OUT and time.monotonic() - begin < 0.2
+        assert compiled.detach_listener() == 0
+        compiled.close()
+        assert compiled.take is None
+        assert abs(sa[2]) > 0.01           # a trajectory that moved
+        assert RCL_ERROR not in (NOT_TAKEN, TIMED_OUT) and min(RCL_ERROR, TIMED_OUT) > FAILED
+    finally:
+        taker.destroy_node()

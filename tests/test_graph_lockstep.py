@@ -71,6 +71,8 @@ def test_lockstep_reproduces_batch_runner(model):
     # integer models' none
     compiled = len(ref) - 2 if model == 'fractional' else 0
     assert f'"compiled_samples": {compiled}' in out, out
+    # ... the FOM's commands taken by rcl in compiled code (PlantNode.spin_taking)
+    assert f'"compiled_take": {"true" if model == "fractional" else "false"}' in out, out
 
 
 def test_swapping_the_controller_changes_only_the_response():

@@ -1000,6 +1000,86 @@ def _fom_sample_entry(t, f, m, g, raw, size):   # pragma: no cover - compiled by
     return steps
 
 
+
+# -- the awaited command taken in compiled code: rcl's wait and take, then the sample --------
+
+#: Slots of the int64 table ``w`` of :func:`_fom_take_entry`: the addresses of rcl's
+#: ``rcl_take_serialized_message``, ``rcl_wait_set_clear``, ``rcl_wait_set_add_subscription``
+#: and ``rcl_wait``; the wait set's, the subscription's and the received message's
+#: (``rcl_serialized_message_t``: buffer, length, capacity, allocator) addresses; the wait's
+#: timeout (ns); what rcl last returned when it was neither a message nor a timeout.
+(_W_TAKE, _W_CLEAR, _W_ADD, _W_WAIT, _W_SET, _W_SUB, _W_MSG, _W_TIMEOUT, _W_RET) = range(9)
+_W_SIZE = 9
+#: :func:`_fom_take_entry`'s own results beside :func:`_fom_sample_entry`'s: nothing came
+#: within the timeout; rcl failed to take or to wait (``w[_W_RET]`` says what it returned).
+_S_TIMED_OUT, _S_RCL_ERROR = -4, -5
+#: rcl's return codes it tells apart (rcl/types.h): a take that found nothing, a wait that
+#: timed out.
+_RCL_TAKE_FAILED, _RCL_TIMEOUT = 401, 2
+
+if numba is not None:
+    def _c_caller(nargs):
+        """An intrinsic calling the C function at an int64 address with ``nargs`` int64
+        arguments (addresses or integers, passed as the C ABI passes both) and an int32
+        result, rcl's ``rcl_ret_t``."""
+        def caller(typingctx, fn, *args):
+            def codegen(context, builder, signature, values):
+                from llvmlite import ir
+
+                i64 = ir.IntType(64)
+                fnty = ir.FunctionType(ir.IntType(32), [i64] * nargs)
+                function = builder.inttoptr(values[0], fnty.as_pointer())
+                return builder.call(function, list(values[1:]))
+            return numba.types.int32(*([numba.types.int64] * (nargs + 1))), codegen
+        return caller
+
+    def _call1(typingctx, fn, a):
+        return _c_caller(1)(typingctx, fn, a)
+
+    def _call2(typingctx, fn, a, b):
+        return _c_caller(2)(typingctx, fn, a, b)
+
+    def _call3(typingctx, fn, a, b, c):
+        return _c_caller(3)(typingctx, fn, a, b, c)
+
+    def _call4(typingctx, fn, a, b, c, d):
+        return _c_caller(4)(typingctx, fn, a, b, c, d)
+
+    _call1, _call2, _call3, _call4 = (intrinsic(_call1), intrinsic(_call2), intrinsic(_call3),
+                                      intrinsic(_call4))
+    _fom_sample_jit = numba.njit(error_model='numpy')(_fom_sample_entry)
+
+
+def _fom_take_entry(t, f, m, g, w):   # pragma: no cover - compiled by its user
+    """Wait for the next message on the subscription ``w`` names, take it and hand it to
+    :func:`_fom_sample_entry` (which takes it as the awaited command, or leaves it:
+    :data:`_S_NOT_TAKEN`, its bytes in ``w``'s message for the node's interpreted path):
+    rcl's take first, and only when it finds nothing, the wait (cleared, the subscription
+    added, at most ``w[_W_TIMEOUT]`` ns) and the take again. Returns the sample entry's
+    result, :data:`_S_TIMED_OUT` when nothing came in time, or :data:`_S_RCL_ERROR`
+    (``w[_W_RET]``: what rcl returned)."""
+    sub = w[_W_SUB]
+    msg = w[_W_MSG]
+    while True:
+        ret = _call4(w[_W_TAKE], sub, msg, 0, 0)
+        if ret == 0:
+            got = numba.carray(_as_pointer(msg), (2,), np.int64)
+            return _fom_sample_jit(t, f, m, g, got[0], got[1])
+        if ret != _RCL_TAKE_FAILED:
+            w[_W_RET] = ret
+            return _S_RCL_ERROR
+        wait_set = w[_W_SET]
+        ret = _call1(w[_W_CLEAR], wait_set)
+        if ret == 0:
+            ret = _call3(w[_W_ADD], wait_set, sub, 0)
+        if ret == 0:
+            ret = _call2(w[_W_WAIT], wait_set, w[_W_TIMEOUT])
+        if ret == _RCL_TIMEOUT:
+            return _S_TIMED_OUT
+        if ret != 0:
+            w[_W_RET] = ret
+            return _S_RCL_ERROR
+
 @functools.cache
 def _fom_held_c() -> Any:
     """The C entry point of :func:`_fom_held_entry` as a ctypes function, compiled on first use

@@ -150,6 +150,13 @@ _LISTED_WAIT = 10.0
 _FREE_BURST = 32
 #: Most samples of one burst (a realtime backlog beyond it is taken in several).
 _BURST_ROWS = 64
+#: Lockstep, commands taken in compiled code (:meth:`PlantNode.spin_taking`): the longest
+#: wait for a command (s) before the executor's turn, and the executor's turn at least this
+#: often while commands come (timers, services, parameters; one ``spin_once`` each, about
+#: 18 us of CPU here); at most an eighth of ``command_timeout`` (whose check is a timer),
+#: at least _TAKE_WAIT_MIN.
+_TAKE_WAIT = 0.005
+_TAKE_WAIT_MIN = 0.001
 #: A sample DDS refused to take for :data:`_PUBLISH_RETRY` s (retried every millisecond).
 EXIT_PUBLISH_FAILED = 9
 _PUBLISH_RETRY = 1.0
@@ -333,6 +340,7 @@ class PlantNode(Node):
         # ... and that sample's check, kernel call, write and publish in one compiled call
         # (compiled_sample.py), armed for each awaited sample; None: the interpreted path
         self._compiled: compiled_sample.CompiledSample | None = None
+        self._taking = False    # its commands taken in compiled code (take_commands)
         if self._quick is not None:
             built = compiled_sample.CompiledSample.build(
                 self._quick, self._state_out, self._command_in, self.state_pub.handle.pointer,
@@ -1201,6 +1209,77 @@ class PlantNode(Node):
                 return
         self._on_command(raw)
 
+    def take_commands(self) -> bool:
+        """Lockstep with the compiled sample: take the commands in compiled code
+        (:meth:`CompiledSample.take_from <fohssv_sim.ros.compiled_sample.CompiledSample.take_from>`)
+        and spin with :meth:`spin_taking`; False (one line says why, unless the compiled
+        sample is off or its publish call is wrapped: the executor's callback then) when
+        not."""
+        compiled = self._compiled
+        if compiled is None or self._send_state is not self._armable_send:
+            return False
+        why = compiled.take_from(self.context.handle.pointer, self.command_sub.handle.pointer,
+                                 0.0)
+        if why is not None:
+            self.get_logger().info(f'lockstep: commands taken by the executor ({why})')
+            return False
+        self._taking = True
+        return True
+
+    def spin_taking(self, executor: Any) -> None:
+        """Lockstep, commands taken in compiled code (:meth:`take_commands`): until the run
+        has finished, a signal came or the context shut down, wait for the next command and
+        take it with rcl, the compiled sample taking the awaited one (its state published
+        before any Python runs); the node's Python then finishes the sample
+        (:meth:`_compiled_took`) or, for a command the compiled sample left, runs the
+        subscription's own callback on its bytes. The executor gets its turn (one
+        ``spin_once``: timers, services, parameters) at least every :data:`_TAKE_WAIT` s
+        (an eighth of ``command_timeout`` if less) and after every wait that long that
+        brought nothing; before the run, the executor waits (at most :data:`_TAKE_WAIT` s)
+        and the commands are taken after it without waiting. The subscription's
+        new-message callback (the event executor's) is unset first and again after each
+        turn."""
+        compiled = self._compiled
+        received, took = compiled.received, self._compiled_took
+        callback = self._command_callback
+        stop, finished, spin_once = STOP, self.finished, executor.spin_once
+        not_taken, timed_out = compiled_sample.NOT_TAKEN, compiled_sample.TIMED_OUT
+        rcl_error = compiled_sample.RCL_ERROR
+        tighten_timer_slack()         # a spin_once with no wait: 18 us of CPU, not 75 us
+        compiled.detach_listener()
+        running_was = None
+        next_service = wait = 0.0
+        while stop.received is None and not finished.done():
+            running = self.running
+            if running is not running_was:
+                wait = max(_TAKE_WAIT_MIN, min(_TAKE_WAIT, self.options.command_timeout / 8))
+                compiled.set_timeout(wait if running else 0.0)
+                running_was = running
+            if not running:
+                compiled.disarm()
+                if not rclpy.ok():
+                    return
+                spin_once(timeout_sec=_TAKE_WAIT)
+                compiled.detach_listener()
+            code = compiled.take()
+            if code == not_taken:
+                callback(received())
+            elif code == timed_out:
+                next_service = 0.0
+            elif code == rcl_error:
+                raise RuntimeError(f'rcl could not wait for or take a command (returned '
+                                   f'{compiled.take_ret}: {compiled.take_error()})')
+            else:
+                took(received(), code)
+            if running:
+                now = monotonic()
+                if now >= next_service:
+                    if not rclpy.ok():
+                        return
+                    spin_once(timeout_sec=0.0)
+                    compiled.detach_listener()
+                    next_service = now + wait
+
     def _compiled_took(self, raw: bytes, code: int) -> None:
         """Lockstep: the compiled sample took the awaited command ``raw`` and returned
         ``code``: the period's steps when its state and planing force went out (and its
@@ -1502,6 +1581,7 @@ class PlantNode(Node):
                      law_failures=self.law_failures)
         elif self._lockstep:       # samples the compiled sample took (compiled_sample.py)
             s['compiled_samples'] = self._compiled.taken if self._compiled is not None else 0
+            s['compiled_take'] = self._taking   # commands taken by rcl in compiled code
         if self.profile is not None:
             s['profile'] = self.profile.summary()
         if self.record is not None:
@@ -1658,6 +1738,11 @@ def _run(node: PlantNode) -> int:
                 'acknowledgements) off that CPU; give the plant two CPUs or realtime_priority:=0')
         with PausedCollector():
             spin_until(executor, node.finished, paced=node)
+    elif node.take_commands():        # lockstep: the awaited command taken in compiled code
+        try:
+            node.spin_taking(executor)
+        finally:
+            node._compiled.close()
     else:
         spin_until(executor, node.finished, paced=node)
     code = node.exit_code

@@ -146,9 +146,12 @@ def test_sigint_at_the_end_of_the_run_drains_what_was_delivered(tmp_path, busy):
     """The recorder is told to stop (SIGINT) the moment the plant logs the end of its run,
     with run_end ignored: what the plant published is in the bag all the same."""
     ref, _ = batch_samples('delay-free', StateFeedback(), DURATION)
-    # unpaced: the recorder lags the plant (by less than the 2000-sample queue)
+    # the recorder lags the plant and has a backlog to drain at the signal, by less than the
+    # 2000-sample queues: the plant waits for its acknowledgements every 512 samples (left
+    # unpaced, a recorder of this loaded machine once lagged by more than the controller's
+    # command queue, whose writer then dropped 37 commands it had not acknowledged)
     with _recorded_loop(tmp_path, ['command_publishers:=1', 'stop_at_run_end:=false'],
-                        duration=DURATION) as loop:
+                        duration=DURATION, pace_to_subscribers=512) as loop:
         rosproc.wait_for(lambda: 'stopping cleanly' in loop.plog.read_text(), 180,
                          interval=0.005, what='the end of the run')
         loop.rec.send_signal(signal.SIGINT)

@@ -5,8 +5,8 @@ each case is one function, so a case can be added without touching the others):
 
 * echo (:func:`case_echo`): the bare DDS round trip, two processes echoing a
   ``std_msgs/Float64MultiArray`` with the executor and the QoS of the ``state``/``command``
-  topics (``bench/ros_echo.py``): round trips per second, the ceiling of any lockstep loop
-  through a controller node, and the figure to scale the others to another machine; and
+  topics (``bench/ros_echo.py``): round trips per second, what a lockstep loop through a
+  controller node is held to, and the figure to scale the others to another machine; and
   beside it, alternately, the same echo with Fast DDS's default writer timings (the package
   profile without its default DataWriter profile): what the profile's
   ``nack_supression_duration`` of 5 ms saves per round trip;
@@ -41,7 +41,8 @@ each case is one function, so a case can be added without touching the others):
   3 rounds: the pinned loop's rate over the unpinned one's, each loop against the echo pinned
   the same way, and the CPU per sample; beside each pinned loop, a plant that does no work
   (the echo's ping on ``state`` / ``command``) against the same controller node, pinned the
-  same way (:func:`run_null_plant`): the ceiling of the loop / echo ratio with that node;
+  same way (:func:`run_null_plant`): a Python plant that costs nothing but rclpy's path,
+  beside the loop (whose plant takes the command in compiled code, so it can run faster);
 * hops (:func:`case_hops`): the bare echo and the lockstep FOM loop with two timestamps per
   round trip in each process (``bench/hops.py``): the median time of each hop, the DDS
   delivery each way and each process's work, echo beside loop (what the loop adds, where on
@@ -822,9 +823,10 @@ def case_pinned(domains: Domains, quick: bool) -> dict:
     speeds the echo too, so the loop is compared with the echo pinned the same way; the gain
     of pinning is the pinned loop's rate over the unpinned one's in the same round, and the
     CPU per sample of both processes. After each pinned loop, :func:`run_null_plant` (a plant
-    with no work against the same node, pinned) puts a ceiling beside it: what the loop /
-    echo ratio would be if the plant's callback cost nothing. Skipped where this process may
-    not use CPUs 0 and 1."""
+    with no work against the same node, pinned) puts beside it what the loop / echo ratio
+    would be with a Python plant whose callback cost nothing (the plant's compiled take of
+    the command skips rclpy's path that this plant pays, so the loop may pass it). Skipped
+    where this process may not use CPUs 0 and 1."""
     usable = set(os.sched_getaffinity(0))
     if not {0, 1} <= usable:
         print(f'pinned    skipped: this process may use CPUs {sorted(usable)}, not 0 and 1',
@@ -848,7 +850,7 @@ def case_pinned(domains: Domains, quick: bool) -> dict:
                         'plant_cpu_per_sample_us': s['cpu_per_sample_us'],
                         'controller_cpu_per_sample_us': s.get('controller_cpu_per_sample_us'),
                         'host_steal_share': s.get('host_steal_share')}
-            if cpus:     # the ceiling beside it: no plant work, the same controller node
+            if cpus:     # beside it: a Python plant with no work, the same controller node
                 null = run_null_plant(domains, count, cpus)['round_trips_per_second']
                 row[key].update(null_plant=null, null_plant_ratio_to_echo=null / echo)
         row['gain'] = row['pinned']['samples_per_second'] / row['unpinned']['samples_per_second']
@@ -876,8 +878,8 @@ def case_pinned(domains: Domains, quick: bool) -> dict:
     print(f"pinned    median of {len(rounds)}: pinned loop / unpinned loop {out['gain']:.2f}; "
           f"loop / echo unpinned {out['unpinned_ratio_to_echo']:.2f}, pinned "
           f"{out['pinned_ratio_to_echo']:.2f}; a plant with no work against the same node, "
-          f"pinned, {out['null_plant_ratio_to_echo']:.2f} of the echo (the ceiling with this "
-          'controller)', flush=True)
+          f"pinned, {out['null_plant_ratio_to_echo']:.2f} of the echo (a Python plant through "
+          "rclpy's executor)", flush=True)
     return out
 
 
@@ -1188,7 +1190,7 @@ def targets(sim_time: float, lockstep: dict, realtime: list[dict], margin: list[
         r = pinned['pinned_ratio_to_echo']
         rows.append(_row(f"the same, loop and echo pinned (cpu_affinity; median of "
                          f"{len(pinned['rounds'])})", r, '>= 0.85', r >= 0.85, '{:.2f}'))
-        rows.append(_row('ceiling: a plant with no work (the echo ping) against the same node, '
+        rows.append(_row('a Python plant with no work (the echo ping) against the same node, '
                          'pinned / echo', pinned['null_plant_ratio_to_echo'], 'printed', True,
                          '{:.2f}'))
     samples = round(sim_time / 1e-4)

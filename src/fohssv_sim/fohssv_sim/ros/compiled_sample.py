@@ -260,6 +260,18 @@ def _rcl() -> Any:
     return publish, take_error
 
 
+def _available(*parts: Any) -> tuple | str:
+    """Each of ``parts`` called (the cached builders above), or the first reason one of them
+    is not available (a str)."""
+    built = []
+    for part in parts:
+        got = part()
+        if isinstance(got, str):
+            return got
+        built.append(got)
+    return tuple(built)
+
+
 def _not_taken(raw: bytes, size: int) -> int:
     return NOT_TAKEN
 
@@ -327,12 +339,10 @@ class CompiledSample:
         commands laid out as ``command`` reads them, the rcl publisher of the state at
         ``publisher``, the planing force's and the clock's messages with their rcl
         publishers' addresses; or why not (a str)."""
-        entry = _entry()
-        if isinstance(entry, str):
-            return entry
-        rcl = _rcl()
-        if isinstance(rcl, str):
-            return rcl
+        built = _available(_entry, _rcl)
+        if isinstance(built, str):
+            return built
+        entry, rcl = built
         return cls(entry[0], rcl[0], rcl[1], period, state, command, publisher, force, clock)
 
     def record_into(self, ring: Any, state: int = 0, command: int = 0, force: int = 0,
@@ -454,12 +464,10 @@ class CompiledSample:
         else why not (a str; nothing changed). The node must then take the subscription's
         messages only this way (:meth:`detach_listener`) and :meth:`close` it before its
         context shuts down."""
-        entry = _take_entry()
-        if isinstance(entry, str):
-            return entry
-        api = _rcl_take()
-        if isinstance(api, str):
-            return api
+        built = _available(_take_entry, _rcl_take)
+        if isinstance(built, str):
+            return built
+        entry, api = built
         allocator = api.allocator()
         wait_set = np.zeros(16, dtype=np.int64)   # an rcl_wait_set_t (13 words) zeroed
         ret = api.wait_set_init(wait_set.ctypes.data, 1, 0, 0, 0, 0, 0, context, allocator)

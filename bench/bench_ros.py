@@ -97,7 +97,7 @@ from pathlib import Path
 from ament_index_python.packages import get_package_prefix
 
 # the hypervisor's steal, read as the plant reads it for its summary (/proc/stat)
-from fohssv_sim.ros.loop import BurstWait, host_cpu_ticks, steal_share
+from fohssv_sim.ros.loop import BurstWait, host_cpu_ticks, kernel_preemption, steal_share
 
 HERE = Path(__file__).resolve().parent
 MODELS = ('delay-free', 'delayed', 'fractional')
@@ -1248,11 +1248,15 @@ def main() -> int:
     for r in rows:
         print(f"  {r['target']:{width}s}  {r['text']:>10s}  {r['goal']:>9s}  "
               f"{'pass' if r['pass'] else 'FAIL'}")
+    model, hz = kernel_preemption()
     print(f'load average at start {load_start[0]:.2f}, at end {os.getloadavg()[0]:.2f} '
-          f'({os.cpu_count()} CPUs)')
+          f'({os.cpu_count()} CPUs); kernel preemption {model or "unknown"}'
+          + (f', {hz} Hz tick' if hz else '') + ' (docs/ros.md, Modes: under none or '
+          'voluntary a SCHED_FIFO plant waits for kernel paths of other tasks)')
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps({
         'benchmark': 'ros graph', 'machine': platform.platform(), 'cpus': os.cpu_count(),
+        'kernel_preemption': model, 'kernel_hz': hz,
         'python': sys.version.split()[0], 'quick': a.quick, 'load_avg_start': load_start,
         'load_avg_end': os.getloadavg(),
         'simulated_time_realtime': sim_time, 'wall_time': time.monotonic() - started,

@@ -33,6 +33,7 @@ from fohssv_sim.ros.loop import (
     answered_time,
     check_command,
     host_cpu_ticks,
+    kernel_preemption,
     steal_share,
 )
 from fohssv_sim.ros.options import (
@@ -234,6 +235,40 @@ def test_host_steal_share_from_two_proc_stat_readings(tmp_path):
     assert host_cpu_ticks(str(tmp_path / 'missing')) is None
     real = host_cpu_ticks()      # this machine's, where Linux gives it
     assert real is None or (real[0] > 0 and 0 <= real[1] <= real[0])
+
+
+def test_kernel_preemption_from_the_config_the_boot_line_and_debugfs(tmp_path):
+    """The running kernel's preemption model as Linux states it: debugfs's bracketed choice
+    first, then a preempt= boot parameter (only on a PREEMPT_DYNAMIC build), then the build's
+    CONFIG_PREEMPT_* (a config line set to y; '# ... is not set' lines are not), the tick
+    from CONFIG_HZ; None for what no file says."""
+    import gzip
+
+    def config(*lines: str) -> str:
+        path = tmp_path / f'config{len(list(tmp_path.iterdir()))}.gz'
+        with gzip.open(path, 'wt') as f:
+            f.write('\n'.join(lines) + '\n')
+        return str(path)
+
+    none_dynamic = config('CONFIG_PREEMPT_BUILD=y', 'CONFIG_PREEMPT_NONE=y',
+                          '# CONFIG_PREEMPT_VOLUNTARY is not set', '# CONFIG_PREEMPT is not set',
+                          'CONFIG_PREEMPT_DYNAMIC=y', 'CONFIG_HZ_250=y', 'CONFIG_HZ=250')
+    cmdline, debugfs = tmp_path / 'cmdline', tmp_path / 'preempt'
+    cmdline.write_text('console=ttyS0 root=/dev/vda rw\n')
+    missing = str(tmp_path / 'missing')
+    assert kernel_preemption(none_dynamic, str(cmdline), missing) == ('none', 250)
+    cmdline.write_text('console=ttyS0 preempt=full rw\n')
+    assert kernel_preemption(none_dynamic, str(cmdline), missing) == ('full', 250)
+    debugfs.write_text('none (voluntary) full lazy\n')
+    assert kernel_preemption(none_dynamic, str(cmdline), str(debugfs)) == ('voluntary', 250)
+    static = config('CONFIG_PREEMPT_VOLUNTARY=y', 'CONFIG_HZ=1000')
+    assert kernel_preemption(static, str(cmdline), missing) == ('voluntary', 1000)  # no dynamic
+    rt = config('CONFIG_PREEMPT=y', 'CONFIG_PREEMPT_RT=y', 'CONFIG_HZ=1000')
+    assert kernel_preemption(rt, missing, missing) == ('rt', 1000)
+    assert kernel_preemption(config('CONFIG_PREEMPT=y'), missing, missing) == ('full', None)
+    assert kernel_preemption(missing, missing, missing) == (None, None)
+    model, hz = kernel_preemption()      # this machine's, where Linux says
+    assert model in (None, 'none', 'voluntary', 'full', 'lazy', 'rt') and (hz is None or hz > 0)
 
 
 # -- options.py -------------------------------------------------------------------------------

@@ -17,6 +17,7 @@ step itself needs; the slow paths (a rejected command, a log line) build their t
 
 from __future__ import annotations
 
+import gzip
 import math
 import time
 from collections.abc import MutableSequence, Sequence
@@ -483,6 +484,55 @@ def host_cpu_ticks(stat: str = '/proc/stat') -> tuple[int, int] | None:
     if len(ticks) < 8:
         return None
     return sum(ticks), ticks[7]
+
+
+#: Kernel preemption models (``/sys/kernel/debug/sched/preempt`` names, Linux 6.x) under which
+#: a woken SCHED_FIFO thread takes its CPU from a task running in the kernel at once.
+PREEMPTIBLE = ('full', 'rt')
+
+
+def kernel_preemption(config: str = '/proc/config.gz', cmdline: str = '/proc/cmdline',
+                      current: str = '/sys/kernel/debug/sched/preempt'
+                      ) -> tuple[str | None, int | None]:
+    """(the running kernel's preemption model, its timer tick in Hz), each None where Linux
+    does not say: the model from ``current`` (the bracketed one of ``none voluntary (full)
+    lazy``, debugfs, root's), else a ``preempt=`` boot parameter in ``cmdline`` (a kernel
+    built with PREEMPT_DYNAMIC), else the build's ``CONFIG_PREEMPT_*`` in ``config``
+    (gzipped, as /proc/config.gz; ``rt``, ``full``, ``lazy``, ``voluntary`` or ``none``);
+    the tick from its ``CONFIG_HZ``. Under ``none`` or ``voluntary`` a SCHED_FIFO thread
+    waits for whatever kernel path another task runs on its CPU to reach a preemption point
+    (docs/ros.md, *Modes*)."""
+    options: dict[str, str] = {}
+    try:
+        with gzip.open(config, 'rt', encoding='ascii', errors='replace') as f:
+            for line in f:
+                if line.startswith('CONFIG_PREEMPT') or line.startswith('CONFIG_HZ='):
+                    key, _, value = line.strip().partition('=')
+                    options[key] = value
+    except (OSError, EOFError):
+        pass
+    hz = options.get('CONFIG_HZ')
+    tick = int(hz) if hz is not None and hz.isdigit() else None
+    try:
+        with open(current, encoding='ascii') as f:
+            text = f.read()
+        if '(' in text:
+            return text.split('(', 1)[1].split(')', 1)[0], tick
+    except OSError:
+        pass
+    try:
+        with open(cmdline, encoding='ascii', errors='replace') as f:
+            for word in f.read().split():
+                if word.startswith('preempt=') and options.get('CONFIG_PREEMPT_DYNAMIC') == 'y':
+                    return word.split('=', 1)[1], tick
+    except OSError:
+        pass
+    for key, model in (('CONFIG_PREEMPT_RT', 'rt'), ('CONFIG_PREEMPT', 'full'),
+                       ('CONFIG_PREEMPT_LAZY', 'lazy'), ('CONFIG_PREEMPT_VOLUNTARY', 'voluntary'),
+                       ('CONFIG_PREEMPT_NONE', 'none')):
+        if options.get(key) == 'y':
+            return model, tick
+    return None, tick
 
 
 def steal_share(before: tuple[int, int] | None, after: tuple[int, int] | None

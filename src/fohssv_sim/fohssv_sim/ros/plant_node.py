@@ -87,6 +87,7 @@ from .faults import (
 from .inplant_record import EXIT_RECORD_LOST
 from .inplant_record import start as start_recording
 from .loop import (
+    PREEMPTIBLE,
     BurstWait,
     CommandLag,
     CommandRejected,
@@ -98,6 +99,7 @@ from .loop import (
     check_command,
     cpu_seconds,
     host_cpu_ticks,
+    kernel_preemption,
     steal_share,
 )
 from .matching import UNKNOWN_NODE, node_path
@@ -318,6 +320,7 @@ class PlantNode(Node):
         self.forces_lost = 0                      # planing_force samples not published
         self._cut: tuple[float, int] | None = None  # (t, steps) where a burst ended the run
         self.cpu_latency: int | None = None    # the cpu_dma_latency held (us), set by _run
+        self.kernel_preemption: str | None = None   # realtime: the kernel's model, set by _run
         self.publish_retries = 0                  # publishes DDS refused at first
         self.resets = 0
         self._samples_before = 0                  # samples and steps before the last reset
@@ -1600,7 +1603,8 @@ class PlantNode(Node):
                      max_command_lag=self._max_lag, stale_commands=self.stale,
                      cpu_share_of_period=(cpu / total / p.period if total else 0.0),
                      host_steal_share=(steal_share(self._ticks_start, host_cpu_ticks())
-                                       if self.running else None))
+                                       if self.running else None),
+                     kernel_preemption=self.kernel_preemption)
             if self.hosted is None:
                 s.update(self._lag.summary())
             elif self.bursts is not None:   # hosted: wake-ups, and how often they backed off
@@ -1729,6 +1733,15 @@ def _run(node: PlantNode) -> int:
     if node.options.mode == 'realtime':
         tighten_timer_slack()
         refused = set_realtime_priority(node.options.realtime_priority)
+        model, hz = kernel_preemption()
+        node.kernel_preemption = model
+        if model is not None and model not in PREEMPTIBLE:
+            node.get_logger().info(
+                f'kernel preemption {model!r}' + (f' ({hz} Hz tick)' if hz else '') + ': the '
+                'pacing thread, SCHED_FIFO or not, waits for any kernel path another task runs '
+                'on its CPU (milliseconds at worst); for deadlines of a 1e-4 s control period, '
+                'a kernel with preempt=full (boot parameter, PREEMPT_DYNAMIC kernels) or '
+                'PREEMPT_RT')
         if refused:
             node.get_logger().warning(f'{refused}; running with the normal scheduler')
         elif pinned and node.options.realtime_priority and len(node.options.cpu_affinity) == 1:

@@ -39,10 +39,13 @@ def _plant(params: dict, env: dict):
     return rosproc.start('fohssv_sim', 'plant', plant_args(**params), env=env)
 
 
-def test_bad_commands_are_rejected_and_the_last_good_one_is_held():
+@pytest.mark.parametrize('model', ['delay-free', 'fractional'])
+def test_bad_commands_are_rejected_and_the_last_good_one_is_held(model):
     """The probe is the controller: good commands delta_c = 0.001 k at sample k, except a NaN,
     an out-of-range and a wrong-length answer at samples 3, 4, 5. The plant must hold the
-    command of sample 2 over those periods: the trajectory is the batch run of that law."""
+    command of sample 2 over those periods: the trajectory is the batch run of that law. The
+    FOM plant takes its commands in compiled code (compiled_take): the bad ones reach the
+    interpreted checks as they came."""
     bad = {3: lambda t: [t, math.nan, 0.0], 4: lambda t: [t, 0.0, 0.9],
            5: lambda t: [t, 0.0]}
 
@@ -57,7 +60,7 @@ def test_bad_commands_are_rejected_and_the_last_good_one_is_held():
     domain = rosproc.unique_domain_id()
     env = rosproc.ros_env(domain)
     probe = Probe(domain, answer=answer)
-    plant = _plant({'model': 'delay-free', 'duration': 0.02}, env)
+    plant = _plant({'model': model, 'duration': 0.02}, env)
     try:
         code, out = finish(plant, 60)
         assert code == 0, out
@@ -73,7 +76,8 @@ def test_bad_commands_are_rejected_and_the_last_good_one_is_held():
     assert all('keeping the last good command delta_f=0.0, delta_c=0.002 rad' in ln
                for ln in rejected)
     assert _summary(out)['rejected_commands'] == 3
-    ref, _ = batch_samples('delay-free', applied, 0.02)
+    assert _summary(out)['compiled_take'] is (model == 'fractional')
+    ref, _ = batch_samples(model, applied, 0.02)
     got = probe.state_array()
     assert got.shape == ref.shape
     assert np.max(np.abs(got - ref)) <= TOL
@@ -228,8 +232,10 @@ def test_a_control_period_stalled_outside_the_plant_is_not_an_overrun(tmp_path):
     assert 'stopping cleanly at t=0.05 s' in text, text
 
 
-@pytest.mark.parametrize(('stopped', 'timeout'), [(1.5, 0.5), (3.0, 0.5), (3.0, 4.0)])
-def test_a_stopped_plant_does_not_blame_its_controller(tmp_path, stopped, timeout):
+@pytest.mark.parametrize(('stopped', 'timeout', 'model'), [
+    (1.5, 0.5, 'delay-free'), (3.0, 0.5, 'delay-free'), (3.0, 4.0, 'delay-free'),
+    (1.5, 0.5, 'fractional')])      # the FOM: stopped inside its compiled wait for a command
+def test_a_stopped_plant_does_not_blame_its_controller(tmp_path, stopped, timeout, model):
     """The plant's process is stopped (SIGSTOP) for 1.5 or 3 s in the middle of a lockstep
     run, longer than command_timeout or (3 s against 4 s) not: resumed, its timer's check of
     the controller comes late beside the command that arrived meanwhile, or that was lost at
@@ -240,7 +246,7 @@ def test_a_stopped_plant_does_not_blame_its_controller(tmp_path, stopped, timeou
     ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
     log = tmp_path / 'plant.log'
     plant = rosproc.start('fohssv_sim', 'plant', plant_args(
-        model='delay-free', duration=2.0, command_timeout=timeout), env=env, log=log)
+        model=model, duration=2.0, command_timeout=timeout), env=env, log=log)
     try:
         rosproc.wait_for(lambda: 'starting at' in log.read_text(), 90, what='the run')
         time.sleep(0.3)

@@ -239,36 +239,59 @@ def test_host_steal_share_from_two_proc_stat_readings(tmp_path):
 
 def test_kernel_preemption_from_the_config_the_boot_line_and_debugfs(tmp_path):
     """The running kernel's preemption model as Linux states it: debugfs's bracketed choice
-    first, then a preempt= boot parameter (only on a PREEMPT_DYNAMIC build), then the build's
-    CONFIG_PREEMPT_* (a config line set to y; '# ... is not set' lines are not), the tick
-    from CONFIG_HZ; None for what no file says."""
+    first, then a preempt= boot parameter (only on a PREEMPT_DYNAMIC kernel: its config or
+    uname -v says so), then the build's CONFIG_PREEMPT_* (a config line set to y; '# ... is
+    not set' lines are not), from /proc/config.gz or else /boot/config-RELEASE (plain text),
+    or uname -v's PREEMPT_RT; the tick from CONFIG_HZ; None for what nothing says. Under
+    none and voluntary a SCHED_FIFO thread waits for kernel paths; full, lazy (which defers
+    only normal tasks) and rt preempt them."""
     import gzip
 
-    def config(*lines: str) -> str:
-        path = tmp_path / f'config{len(list(tmp_path.iterdir()))}.gz'
-        with gzip.open(path, 'wt') as f:
-            f.write('\n'.join(lines) + '\n')
+    from fohssv_sim.ros.loop import PREEMPTIBLE
+
+    def config(*lines: str, gz: bool = True) -> str:
+        path = tmp_path / (f'config{len(list(tmp_path.iterdir()))}' + ('.gz' if gz else ''))
+        text = '\n'.join(lines) + '\n'
+        if gz:
+            with gzip.open(path, 'wt') as f:
+                f.write(text)
+        else:
+            path.write_text(text)
         return str(path)
+
+    missing = str(tmp_path / 'missing')
+
+    def model(cfg, cmd=missing, now=missing, boot=missing, version=''):
+        return kernel_preemption(cfg, cmd, now, boot_config=boot, version=version)
 
     none_dynamic = config('CONFIG_PREEMPT_BUILD=y', 'CONFIG_PREEMPT_NONE=y',
                           '# CONFIG_PREEMPT_VOLUNTARY is not set', '# CONFIG_PREEMPT is not set',
                           'CONFIG_PREEMPT_DYNAMIC=y', 'CONFIG_HZ_250=y', 'CONFIG_HZ=250')
     cmdline, debugfs = tmp_path / 'cmdline', tmp_path / 'preempt'
     cmdline.write_text('console=ttyS0 root=/dev/vda rw\n')
-    missing = str(tmp_path / 'missing')
-    assert kernel_preemption(none_dynamic, str(cmdline), missing) == ('none', 250)
+    assert model(none_dynamic, str(cmdline)) == ('none', 250)
     cmdline.write_text('console=ttyS0 preempt=full rw\n')
-    assert kernel_preemption(none_dynamic, str(cmdline), missing) == ('full', 250)
+    assert model(none_dynamic, str(cmdline)) == ('full', 250)
     debugfs.write_text('none (voluntary) full lazy\n')
-    assert kernel_preemption(none_dynamic, str(cmdline), str(debugfs)) == ('voluntary', 250)
+    assert model(none_dynamic, str(cmdline), str(debugfs)) == ('voluntary', 250)
     static = config('CONFIG_PREEMPT_VOLUNTARY=y', 'CONFIG_HZ=1000')
-    assert kernel_preemption(static, str(cmdline), missing) == ('voluntary', 1000)  # no dynamic
+    assert model(static, str(cmdline)) == ('voluntary', 1000)          # not dynamic
+    # no config at all: uname -v says the kernel is dynamic, so the boot line counts
+    assert model(missing, str(cmdline), version='#1 SMP PREEMPT_DYNAMIC') == ('full', None)
+    assert model(missing, str(cmdline)) == (None, None)
+    plain = config('CONFIG_PREEMPT_LAZY=y', 'CONFIG_HZ=300', gz=False)  # /boot/config-*
+    assert model(missing, boot=plain) == ('lazy', 300)
+    assert model(none_dynamic, boot=plain) == ('none', 250)             # /proc's first
     rt = config('CONFIG_PREEMPT=y', 'CONFIG_PREEMPT_RT=y', 'CONFIG_HZ=1000')
-    assert kernel_preemption(rt, missing, missing) == ('rt', 1000)
-    assert kernel_preemption(config('CONFIG_PREEMPT=y'), missing, missing) == ('full', None)
-    assert kernel_preemption(missing, missing, missing) == (None, None)
-    model, hz = kernel_preemption()      # this machine's, where Linux says
-    assert model in (None, 'none', 'voluntary', 'full', 'lazy', 'rt') and (hz is None or hz > 0)
+    assert model(rt) == ('rt', 1000)
+    assert model(missing, version='#1 SMP PREEMPT_RT Tue') == ('rt', None)
+    assert model(config('CONFIG_PREEMPT=y')) == ('full', None)
+    broken = tmp_path / 'broken.gz'
+    broken.write_bytes(b'\x1f\x8b\x08\x00 not gzip')
+    assert model(str(broken)) == (None, None)
+    assert set(PREEMPTIBLE) == {'full', 'lazy', 'rt'}
+    found, hz = kernel_preemption()      # this machine's, where Linux says
+    assert found in (None, 'none', 'voluntary', 'full', 'lazy', 'rt') and (hz is None or hz > 0)
 
 
 # -- options.py -------------------------------------------------------------------------------

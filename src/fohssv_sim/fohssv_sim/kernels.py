@@ -1011,8 +1011,10 @@ def _fom_sample_entry(t, f, m, g, raw, size):   # pragma: no cover - compiled by
 (_W_TAKE, _W_CLEAR, _W_ADD, _W_WAIT, _W_SET, _W_SUB, _W_MSG, _W_TIMEOUT, _W_RET) = range(9)
 _W_SIZE = 9
 #: :func:`_fom_take_entry`'s own results beside :func:`_fom_sample_entry`'s: nothing came
-#: within the timeout; rcl failed to take or to wait (``w[_W_RET]`` says what it returned).
-_S_TIMED_OUT, _S_RCL_ERROR = -4, -5
+#: within the timeout; rcl failed to take or to wait (``w[_W_RET]`` says what it returned);
+#: the wait ended but there was still nothing to take (the middleware's wait may wake for
+#: a sample that is not data: the caller's turn, so no call outlasts one timeout).
+_S_TIMED_OUT, _S_RCL_ERROR, _S_WOKEN = -4, -5, -6
 #: rcl's return codes it tells apart (rcl/types.h): a take that found nothing, a wait that
 #: timed out.
 _RCL_TAKE_FAILED, _RCL_TIMEOUT = 401, 2
@@ -1055,12 +1057,13 @@ def _fom_take_entry(t, f, m, g, w):   # pragma: no cover - compiled by its user
     :func:`_fom_sample_entry` (which takes it as the awaited command, or leaves it:
     :data:`_S_NOT_TAKEN`, its bytes in ``w``'s message for the node's interpreted path):
     rcl's take first, and only when it finds nothing, the wait (cleared, the subscription
-    added, at most ``w[_W_TIMEOUT]`` ns) and the take again. Returns the sample entry's
-    result, :data:`_S_TIMED_OUT` when nothing came in time, or :data:`_S_RCL_ERROR`
-    (``w[_W_RET]``: what rcl returned)."""
+    added, at most ``w[_W_TIMEOUT]`` ns) and the take again, once. Returns the sample entry's
+    result, :data:`_S_TIMED_OUT` when nothing came in time, :data:`_S_WOKEN` when the wait
+    ended with nothing to take, or :data:`_S_RCL_ERROR` (``w[_W_RET]``: what rcl
+    returned)."""
     sub = w[_W_SUB]
     msg = w[_W_MSG]
-    while True:
+    for attempt in range(2):
         ret = _call4(w[_W_TAKE], sub, msg, 0, 0)
         if ret == 0:
             got = numba.carray(_as_pointer(msg), (2,), np.int64)
@@ -1068,6 +1071,8 @@ def _fom_take_entry(t, f, m, g, w):   # pragma: no cover - compiled by its user
         if ret != _RCL_TAKE_FAILED:
             w[_W_RET] = ret
             return _S_RCL_ERROR
+        if attempt == 1:
+            break
         wait_set = w[_W_SET]
         ret = _call1(w[_W_CLEAR], wait_set)
         if ret == 0:
@@ -1079,6 +1084,7 @@ def _fom_take_entry(t, f, m, g, w):   # pragma: no cover - compiled by its user
         if ret != 0:
             w[_W_RET] = ret
             return _S_RCL_ERROR
+    return _S_WOKEN
 
 @functools.cache
 def _fom_held_c() -> Any:

@@ -144,10 +144,12 @@ CLOCK_PUBLISH, CLOCK_PUT = _S_CLOCK_PUBLISH, _S_CLOCK_PUT
 #: below this: the period failed, ``FAILED - code`` steps were taken (non-finite or beyond
 #: the bounds: nothing was written or published; the node settles it and stops the run)
 FAILED = _S_FAILED
-#: :meth:`CommandTaker.take`: nothing came within its timeout
+#: :meth:`CompiledSample.take`: nothing came within its timeout
 TIMED_OUT = kernels._S_TIMED_OUT
-#: :meth:`CommandTaker.take`: rcl failed to take or to wait (:attr:`CommandTaker.rcl_ret`)
+#: :meth:`CompiledSample.take`: rcl failed to take or to wait (:attr:`CompiledSample.take_ret`)
 RCL_ERROR = kernels._S_RCL_ERROR
+#: :meth:`CompiledSample.take`: the wait ended, but with nothing to take (call it again)
+WOKEN = kernels._S_WOKEN
 
 
 @functools.cache

@@ -19,7 +19,9 @@ from __future__ import annotations
 
 import gzip
 import math
+import os
 import time
+import zlib
 from collections.abc import MutableSequence, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -487,30 +489,51 @@ def host_cpu_ticks(stat: str = '/proc/stat') -> tuple[int, int] | None:
 
 
 #: Kernel preemption models (``/sys/kernel/debug/sched/preempt`` names, Linux 6.x) under which
-#: a woken SCHED_FIFO thread takes its CPU from a task running in the kernel at once.
-PREEMPTIBLE = ('full', 'rt')
+#: a woken SCHED_FIFO thread takes its CPU from a task running in the kernel at once (``lazy``
+#: defers the preemption of normal tasks only).
+PREEMPTIBLE = ('full', 'lazy', 'rt')
+
+
+def _config_lines(config: str) -> list[str]:
+    """The lines of a kernel config, gzipped (``.gz``, as /proc/config.gz) or plain (as
+    /boot/config-RELEASE); none where it cannot be read."""
+    try:
+        if config.endswith('.gz'):
+            with gzip.open(config, 'rt', encoding='ascii', errors='replace') as f:
+                return f.read().splitlines()
+        with open(config, encoding='ascii', errors='replace') as f:
+            return f.read().splitlines()
+    except (OSError, EOFError, zlib.error):
+        return []
 
 
 def kernel_preemption(config: str = '/proc/config.gz', cmdline: str = '/proc/cmdline',
-                      current: str = '/sys/kernel/debug/sched/preempt'
+                      current: str = '/sys/kernel/debug/sched/preempt',
+                      boot_config: str | None = None, version: str | None = None
                       ) -> tuple[str | None, int | None]:
     """(the running kernel's preemption model, its timer tick in Hz), each None where Linux
     does not say: the model from ``current`` (the bracketed one of ``none voluntary (full)
     lazy``, debugfs, root's), else a ``preempt=`` boot parameter in ``cmdline`` (a kernel
     built with PREEMPT_DYNAMIC), else the build's ``CONFIG_PREEMPT_*`` in ``config``
     (gzipped, as /proc/config.gz; ``rt``, ``full``, ``lazy``, ``voluntary`` or ``none``);
-    the tick from its ``CONFIG_HZ``. Under ``none`` or ``voluntary`` a SCHED_FIFO thread
-    waits for whatever kernel path another task runs on its CPU to reach a preemption point
-    (docs/ros.md, *Modes*)."""
+    the tick from its ``CONFIG_HZ``; where there is no ``config``, ``boot_config``
+    (``/boot/config-RELEASE`` by default, as Debian and Ubuntu ship it); ``version``
+    (``uname -v``) says PREEMPT_RT and PREEMPT_DYNAMIC where no config does. Under ``none``
+    or ``voluntary`` a SCHED_FIFO thread waits for whatever kernel path another task runs on
+    its CPU to reach a preemption point (docs/ros.md, *Modes*)."""
+    uname = os.uname()
+    lines = _config_lines(config) or _config_lines(
+        boot_config if boot_config is not None else f'/boot/config-{uname.release}')
     options: dict[str, str] = {}
-    try:
-        with gzip.open(config, 'rt', encoding='ascii', errors='replace') as f:
-            for line in f:
-                if line.startswith('CONFIG_PREEMPT') or line.startswith('CONFIG_HZ='):
-                    key, _, value = line.strip().partition('=')
-                    options[key] = value
-    except (OSError, EOFError):
-        pass
+    for line in lines:
+        if line.startswith('CONFIG_PREEMPT') or line.startswith('CONFIG_HZ='):
+            key, _, value = line.strip().partition('=')
+            options[key] = value
+    words = (uname.version if version is None else version).split()
+    if 'PREEMPT_RT' in words:
+        options.setdefault('CONFIG_PREEMPT_RT', 'y')
+    if 'PREEMPT_DYNAMIC' in words:
+        options.setdefault('CONFIG_PREEMPT_DYNAMIC', 'y')
     hz = options.get('CONFIG_HZ')
     tick = int(hz) if hz is not None and hz.isdigit() else None
     try:

@@ -376,6 +376,7 @@ class PlantNode(Node):
         self._undelivered: float | None = None    # lockstep: t of a state not yet acknowledged
         self._slow: tuple[int, float] | None = None  # lockstep: (samples, CPU s), slow period
         self._checked = 0.0                       # lockstep: when the timer last checked
+        self._check_period = 0.05                 # lockstep: that timer's period (s)
         self._resumed = -math.inf                 # lockstep: when it last came late
         self._last_command_t: float | None = None  # t of the last command received
         self._last_command_wall: float | None = None
@@ -625,6 +626,7 @@ class PlantNode(Node):
             self._publish()
             self._await_command()
             period = min(0.05, max(self.options.command_timeout / 4.0, 0.001))
+            self._check_period = period
             self._checked = monotonic()
             self._timer = self.create_timer(period, self._check_lockstep_timeout)
         else:
@@ -948,7 +950,9 @@ class PlantNode(Node):
         late, self._checked = now - self._checked, now
         timeout = self.options.command_timeout
         waited = now - self._published_wall
-        if late > timeout / 2:
+        # (at least two periods of this timer, whose period command_timeout set at the start:
+        # lowered during the run, it would otherwise take every check for a stopped plant)
+        if late > max(timeout / 2, 2 * self._check_period):
             # this check (every command_timeout / 4 at most) came that late: the plant itself
             # was not running (a stalled host, a stopped process); a command that came
             # meanwhile may be waiting behind this timer, or lost on the way and sent again
@@ -1247,7 +1251,7 @@ class PlantNode(Node):
         callback = self._command_callback
         stop, finished, spin_once = STOP, self.finished, executor.spin_once
         not_taken, timed_out = compiled_sample.NOT_TAKEN, compiled_sample.TIMED_OUT
-        rcl_error = compiled_sample.RCL_ERROR
+        rcl_error, woken = compiled_sample.RCL_ERROR, compiled_sample.WOKEN
         tighten_timer_slack()         # a spin_once with no wait: 18 us of CPU, not 75 us
         compiled.detach_listener()
         running_was = None
@@ -1255,7 +1259,7 @@ class PlantNode(Node):
         while stop.received is None and not finished.done():
             running = self.running
             if running is not running_was:
-                wait = max(_TAKE_WAIT_MIN, min(_TAKE_WAIT, self.options.command_timeout / 8))
+                wait = self._take_wait()
                 compiled.set_timeout(wait if running else 0.0)
                 running_was = running
             if not running:
@@ -1269,6 +1273,8 @@ class PlantNode(Node):
                 callback(received())
             elif code == timed_out:
                 next_service = 0.0
+            elif code == woken:
+                pass
             elif code == rcl_error:
                 raise RuntimeError(f'rcl could not wait for or take a command (returned '
                                    f'{compiled.take_ret}: {compiled.take_error()})')
@@ -1281,7 +1287,13 @@ class PlantNode(Node):
                         return
                     spin_once(timeout_sec=0.0)
                     compiled.detach_listener()
+                    if wait != (wait := self._take_wait()):   # command_timeout changed
+                        compiled.set_timeout(wait)
                     next_service = now + wait
+
+    def _take_wait(self) -> float:
+        """:meth:`spin_taking`'s longest wait for a command and its executor cadence (s)."""
+        return max(_TAKE_WAIT_MIN, min(_TAKE_WAIT, self.options.command_timeout / 8))
 
     def _compiled_took(self, raw: bytes, code: int) -> None:
         """Lockstep: the compiled sample took the awaited command ``raw`` and returned

@@ -174,6 +174,33 @@ def test_lockstep_timeout_names_the_stalled_controller():
             'command_timeout=0.5 s (no command received at all') in out
 
 
+def test_lockstep_timeout_lowered_during_the_run_still_fires():
+    """command_timeout lowered from 5 s to 0.06 s while the run goes (a parameter that needs
+    no reset), then the controller (the probe) stops answering: the plant stops with exit 3
+    naming the lockstep timeout. Its check timer keeps the period the start gave it (50 ms),
+    longer than half the new timeout: that lateness is the timer's, not a stopped plant's
+    (which earlier took every check for one, granting grace each time: it never fired). The
+    FOM plant, whose executor serves the parameter change between compiled takes."""
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    answering = [True]
+    ctl = StateFeedback()
+    probe = Probe(domain, answer=lambda t, x: [t, *ctl.command(t, x)] if answering[0] else None)
+    plant = _plant({'model': 'fractional', 'duration': 60.0, 'min_state_subscribers': 1,
+                    'min_command_publishers': 1}, env)
+    try:
+        probe.wait(lambda: len(probe.states) > 50, 60, 'the run to start')
+        accepted, = probe.set_plant_parameters(command_timeout=0.06)
+        assert accepted.successful, accepted.reason
+        answering[0] = False
+        code, out = finish(plant, 30)
+    finally:
+        stop_all(plant)
+        probe.close()
+    assert code == 3, out
+    assert 'lockstep timeout: ' in out and 'command_timeout=0.06 s' in out, out
+
+
 def test_lockstep_timeout_counts_from_the_delivery_of_the_state(tmp_path):
     """A controller stopped (SIGSTOP) mid-run for 4 s, 8 times command_timeout, then resumed:
     its reader acknowledges nothing while stopped, so the plant says the state is not

@@ -288,6 +288,9 @@ def test_a_stopped_plant_does_not_blame_its_controller(tmp_path, stopped, timeou
     text = log.read_text()
     assert code == 0, text
     assert 'stopping cleanly at t=2.0 s' in text, text
+    # the stop fell inside the run (its wall time holds it), the FOM's inside its compiled take
+    assert _summary(text)['wall_time'] > stopped, text
+    assert f'"compiled_take": {"true" if model == "fractional" else "false"}' in text, text
 
 
 def test_lockstep_timeout_names_an_overrunning_plant():

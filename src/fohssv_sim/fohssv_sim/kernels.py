@@ -803,22 +803,37 @@ _S_CLOCK_PUBLISH, _S_CLOCK_PUT = 1, 2
 _RING_WRAP = 0xFFFFFFFF
 
 if numba is not None:
-    @intrinsic
-    def _call_sink(typingctx, fn, a, b):
-        """``fn(a, b, NULL)`` for the C function ``int32 fn(void *, void *, void *)`` at the
-        int64 address ``fn`` (compiled code only)."""
-        def codegen(context, builder, signature, args):
-            from llvmlite import ir
+    def _c_caller(nargs):
+        """An intrinsic's typing for calling the C function at an int64 address with
+        ``nargs`` int64 arguments (addresses or integers, passed as the C ABI passes both;
+        0 for NULL) and an int32 result (rcl's ``rcl_ret_t``)."""
+        def caller(typingctx, fn, *args):
+            def codegen(context, builder, signature, values):
+                from llvmlite import ir
 
-            address, first, second = args
-            ptr = ir.IntType(8).as_pointer()
-            fnty = ir.FunctionType(ir.IntType(32), [ptr, ptr, ptr])
-            function = builder.inttoptr(address, fnty.as_pointer())
-            return builder.call(function, [builder.inttoptr(first, ptr),
-                                           builder.inttoptr(second, ptr),
-                                           ir.Constant(ptr, None)])
-        return numba.types.int32(numba.types.int64, numba.types.int64,
-                                 numba.types.int64), codegen
+                i64 = ir.IntType(64)
+                fnty = ir.FunctionType(ir.IntType(32), [i64] * nargs)
+                function = builder.inttoptr(values[0], fnty.as_pointer())
+                return builder.call(function, list(values[1:]))
+            return numba.types.int32(*([numba.types.int64] * (nargs + 1))), codegen
+        return caller
+
+    # numba's intrinsic needs a fixed argument list: one per arity
+    @intrinsic
+    def _call1(typingctx, fn, a):
+        return _c_caller(1)(typingctx, fn, a)
+
+    @intrinsic
+    def _call2(typingctx, fn, a, b):
+        return _c_caller(2)(typingctx, fn, a, b)
+
+    @intrinsic
+    def _call3(typingctx, fn, a, b, c):
+        return _c_caller(3)(typingctx, fn, a, b, c)
+
+    @intrinsic
+    def _call4(typingctx, fn, a, b, c, d):
+        return _c_caller(4)(typingctx, fn, a, b, c, d)
 
     @intrinsic
     def _release_fence(typingctx):
@@ -885,7 +900,7 @@ if numba is not None:
         force = numba.carray(_as_pointer(m[_S_FORCE_OUT]), (2,), np.float64)
         force[0] = t_out
         force[1] = f[3]
-        ret = _call_sink(m[_S_SINK], m[_S_FORCE_A], m[_S_FORCE_B])
+        ret = _call3(m[_S_SINK], m[_S_FORCE_A], m[_S_FORCE_B], 0)
         g[_S_FORCE_RET] = ret
         g[_S_CLOCK_RET] = 0
         clock = m[_S_CLOCK] if ret == 0 else 0
@@ -896,7 +911,7 @@ if numba is not None:
             stamp[0] = np.uint32(ns // 1000000000)
             stamp[1] = np.uint32(ns % 1000000000)
             if clock & _S_CLOCK_PUBLISH:
-                g[_S_CLOCK_RET] = _call_sink(m[_S_SINK], m[_S_CLOCK_A], m[_S_CLOCK_B])
+                g[_S_CLOCK_RET] = _call3(m[_S_SINK], m[_S_CLOCK_A], m[_S_CLOCK_B], 0)
                 if g[_S_CLOCK_RET] != 0:
                     clock = 0                     # not published: not recorded either
         # the sample's records: the state and the command, the force and the clock as they
@@ -988,7 +1003,7 @@ def _fom_sample_entry(t, f, m, g, raw, size):   # pragma: no cover - compiled by
     out[4] = x[3]
     m[_S_TAKEN] += 1
     m[_S_PUT] = 0
-    ret = _call_sink(m[_S_SINK], m[_S_SINK_A], m[_S_SINK_B])
+    ret = _call3(m[_S_SINK], m[_S_SINK_A], m[_S_SINK_B], 0)
     g[_S_RET] = ret
     if ret != 0:
         return _S_SINK_REFUSED
@@ -998,7 +1013,6 @@ def _fom_sample_entry(t, f, m, g, raw, size):   # pragma: no cover - compiled by
     if _fom_prepare_jit(t, f, n + steps, steps, P, M):
         m[_S_PREPARED] = n + steps
     return steps
-
 
 
 # -- the awaited command taken in compiled code: rcl's wait and take, then the sample --------
@@ -1020,35 +1034,6 @@ _S_TIMED_OUT, _S_RCL_ERROR, _S_WOKEN = -4, -5, -6
 _RCL_TAKE_FAILED, _RCL_TIMEOUT = 401, 2
 
 if numba is not None:
-    def _c_caller(nargs):
-        """An intrinsic calling the C function at an int64 address with ``nargs`` int64
-        arguments (addresses or integers, passed as the C ABI passes both) and an int32
-        result, rcl's ``rcl_ret_t``."""
-        def caller(typingctx, fn, *args):
-            def codegen(context, builder, signature, values):
-                from llvmlite import ir
-
-                i64 = ir.IntType(64)
-                fnty = ir.FunctionType(ir.IntType(32), [i64] * nargs)
-                function = builder.inttoptr(values[0], fnty.as_pointer())
-                return builder.call(function, list(values[1:]))
-            return numba.types.int32(*([numba.types.int64] * (nargs + 1))), codegen
-        return caller
-
-    def _call1(typingctx, fn, a):
-        return _c_caller(1)(typingctx, fn, a)
-
-    def _call2(typingctx, fn, a, b):
-        return _c_caller(2)(typingctx, fn, a, b)
-
-    def _call3(typingctx, fn, a, b, c):
-        return _c_caller(3)(typingctx, fn, a, b, c)
-
-    def _call4(typingctx, fn, a, b, c, d):
-        return _c_caller(4)(typingctx, fn, a, b, c, d)
-
-    _call1, _call2, _call3, _call4 = (intrinsic(_call1), intrinsic(_call2), intrinsic(_call3),
-                                      intrinsic(_call4))
     _fom_sample_jit = numba.njit(error_model='numpy')(_fom_sample_entry)
 
 
@@ -1085,6 +1070,7 @@ def _fom_take_entry(t, f, m, g, w):   # pragma: no cover - compiled by its user
             w[_W_RET] = ret
             return _S_RCL_ERROR
     return _S_WOKEN
+
 
 @functools.cache
 def _fom_held_c() -> Any:

@@ -61,6 +61,7 @@ passes the handle's address.
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import functools
 from typing import Any
 
@@ -204,8 +205,8 @@ class _Allocator(ctypes.Structure):
 
 @functools.cache
 def _rcl_take() -> Any:
-    """rcl's functions for :class:`CommandTaker` from the libraries rclpy has loaded (a
-    namespace), or the reason they are not available (a str)."""
+    """rcl's functions for :meth:`CompiledSample.take_from` from the libraries rclpy has
+    loaded (a namespace), or the reason they are not available (a str)."""
     try:
         rcl = ctypes.CDLL('librcl.so')
         rcutils = ctypes.CDLL('librcutils.so')
@@ -260,6 +261,21 @@ def _rcl() -> Any:
         return text
 
     return publish, take_error
+
+
+@dataclasses.dataclass
+class _Taking:
+    """:meth:`CompiledSample.take_from`'s rcl objects: its functions, the wait set and the
+    received message (kept alive, freed by :meth:`CompiledSample.close`), the entry's int64
+    table, the subscription's address, the message's first words (buffer, length)."""
+    api: Any
+    wait_set: np.ndarray
+    message: np.ndarray
+    w: np.ndarray
+    entry: Any
+    allocator: Any
+    subscription: int
+    words: memoryview
 
 
 def _available(*parts: Any) -> tuple | str:
@@ -330,7 +346,7 @@ class CompiledSample:
         self._ring: Any = None
         self.call: Any = _not_taken         # until first armed (bound to the arrays)
         self._tables: tuple[int, int] = (0, 0)   # the bound kernel call's t and f
-        self._taking: Any = None            # take_from's rcl objects, until close
+        self._taking: _Taking | None = None  # take_from's rcl objects, until close
         self.take: Any = None               # take_from's compiled wait and take
 
     @classmethod
@@ -484,45 +500,44 @@ class CompiledSample:
         w[_W_TAKE], w[_W_CLEAR], w[_W_ADD], w[_W_WAIT] = api.addresses
         w[_W_SET], w[_W_SUB], w[_W_MSG] = wait_set.ctypes.data, subscription, message.ctypes.data
         w[_W_TIMEOUT] = round(timeout * 1e9)
-        self._taking = (api, wait_set, message, w, entry, allocator, subscription,
-                        memoryview(message))
+        self._taking = _Taking(api, wait_set, message, w, entry, allocator, subscription,
+                               memoryview(message))
         self._bind_take()
         return None
 
     def _bind_take(self) -> None:
-        w = self._taking[3]
-        self.take = functools.partial(self._taking[4][0], *self._pointers(),
-                                      ctypes.c_void_p(w.ctypes.data))
+        taking = self._taking
+        self.take = functools.partial(taking.entry[0], *self._pointers(),
+                                      ctypes.c_void_p(taking.w.ctypes.data))
 
     def received(self) -> bytes:
         """The bytes of the message :meth:`take` took last."""
-        mv = self._taking[7]
-        return ctypes.string_at(mv[0], mv[1])
+        words = self._taking.words
+        return ctypes.string_at(words[0], words[1])
 
     @property
     def take_ret(self) -> int:
         """What rcl returned when :meth:`take` returned :data:`RCL_ERROR`."""
-        return int(self._taking[3][_W_RET])
+        return int(self._taking.w[_W_RET])
 
     def set_timeout(self, timeout: float) -> None:
         """:meth:`take`'s wait, at most ``timeout`` s from now on."""
-        self._taking[3][_W_TIMEOUT] = round(timeout * 1e9)
+        self._taking.w[_W_TIMEOUT] = round(timeout * 1e9)
 
     def detach_listener(self) -> int:
         """Unset the subscription's new-message callback (an event-driven executor's: its
         events would otherwise queue up for messages :meth:`take` took); what rcl
         returned. An executor that sets it again (a new entity) is undone by the next
         call."""
-        api, subscription = self._taking[0], self._taking[6]
-        return int(api.set_listener(subscription, None, None))
+        taking = self._taking
+        return int(taking.api.set_listener(taking.subscription, None, None))
 
     def close(self) -> None:
         """Free the wait set and the received message (before the context shuts down)."""
         taking, self._taking, self.take = self._taking, None, None
         if taking is not None:
-            api, wait_set, message = taking[:3]
-            api.array_fini(message.ctypes.data)
-            api.wait_set_fini(wait_set.ctypes.data)
+            taking.api.array_fini(taking.message.ctypes.data)
+            taking.api.wait_set_fini(taking.wait_set.ctypes.data)
 
     def limit(self, max_fin: float, max_cav: float) -> None:
         """The deflection limits (rad) of the commands it takes, the one awaited now

@@ -1192,6 +1192,11 @@ class PlantNode(Node):
             if code != compiled_sample.NOT_TAKEN:
                 self._compiled_took(raw, code)
                 return
+        self._lockstep_interpreted(raw)
+
+    def _lockstep_interpreted(self, raw: bytes) -> None:
+        """:meth:`_on_command_lockstep` for a command the compiled sample did not take (or
+        where there is none): the short path's inline checks, else :meth:`_on_command`."""
         data = self._command_in.read(raw)
         if len(data) == 3 and self.running:
             t, df, dc = data
@@ -1239,7 +1244,8 @@ class PlantNode(Node):
         take it with rcl, the compiled sample taking the awaited one (its state published
         before any Python runs); the node's Python then finishes the sample
         (:meth:`_compiled_took`) or, for a command the compiled sample left, runs the
-        subscription's own callback on its bytes. The executor gets its turn (one
+        interpreted checks on its bytes (:meth:`_lockstep_interpreted`, as the
+        subscription's callback does after the compiled sample). The executor gets its turn (one
         ``spin_once``: timers, services, parameters) at least every :data:`_TAKE_WAIT` s
         (an eighth of ``command_timeout`` if less) and after every wait that long that
         brought nothing; before the run, the executor waits (at most :data:`_TAKE_WAIT` s)
@@ -1248,7 +1254,7 @@ class PlantNode(Node):
         turn."""
         compiled = self._compiled
         received, took = compiled.received, self._compiled_took
-        callback = self._command_callback
+        left = self._lockstep_interpreted    # the compiled sample looked at it already
         stop, finished, spin_once = STOP, self.finished, executor.spin_once
         not_taken, timed_out = compiled_sample.NOT_TAKEN, compiled_sample.TIMED_OUT
         rcl_error, woken = compiled_sample.RCL_ERROR, compiled_sample.WOKEN
@@ -1270,7 +1276,7 @@ class PlantNode(Node):
                 compiled.detach_listener()
             code = compiled.take()
             if code == not_taken:
-                callback(received())
+                left(received())
             elif code == timed_out:
                 next_service = 0.0
             elif code == woken:

@@ -444,7 +444,7 @@ def _realtime_line(label: str, s: dict) -> str:
 
 
 def _steal_text(share: float | None) -> str:
-    return '' if share is None else f', host steal {100 * share:.1f} %'
+    return '' if share is None else f', host steal {100 * share:.2f} %'
 
 
 

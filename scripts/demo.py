@@ -407,7 +407,9 @@ def _report(args: argparse.Namespace, bag: Path, plant: Started, wall: float,
     if baseline is not None:
         print(f'  recording cost          recorded loop {recorded:.2f} s / unrecorded lockstep '
               f'loop {baseline:.2f} s = {recorded / baseline:.2f} ({args.recorder} recording;'
-              ' first sample to bag closed / to the summary)')
+              ' first sample to bag closed / to the summary; one pair: on a shared host one '
+              'loop time alone varies up to 2x from run to run, bench/bench_ros.py reads the '
+              'median of five pairs)')
     print(f'  plots:                  fohssv plot {bag}')
     return 0
 

@@ -11,6 +11,7 @@ import itertools
 import os
 import signal
 import subprocess
+import sys
 import time
 import zlib
 from collections.abc import Sequence
@@ -138,7 +139,8 @@ def stop(proc: subprocess.Popen, sig: int = signal.SIGINT, timeout: float = 10.0
 def wait_exit(proc: subprocess.Popen, timeout: float) -> int:
     """Wait for ``proc`` to exit by itself; stop it and fail if it does not in time. It is
     stopped with SIGABRT first: with ``PYTHONFAULTHANDLER`` (:func:`ros_env`) a Python
-    process then prints where each of its threads was (in its output or log), then SIGKILL."""
+    process then prints where each of its threads was (in its log, or in the failure's text
+    when its output is a pipe), then SIGKILL."""
     try:
         return proc.wait(timeout=timeout)
     except subprocess.TimeoutExpired:
@@ -148,8 +150,61 @@ def wait_exit(proc: subprocess.Popen, timeout: float) -> int:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(timeout=5)
+        # its output, with the thread dump, into the failure itself (a caller reading it after
+        # a successful wait never gets here): the last 6000 characters and the total, which
+        # is 65536 when the process had filled a pipe nobody read and blocked on it
+        text = _drain(proc, 5.0)
         raise AssertionError(f'{proc.args[0]} did not exit within {timeout} s (stopped with '
-                             'SIGABRT: where its threads were is in its output)') from None
+                             f'SIGABRT; {len(text)} characters of output'
+                             + (f', the last of them:\n{text[-6000:]}' if text else
+                                ': where its threads were is in its log') + ')') from None
+
+
+def clean_shared_memory() -> str | None:
+    """Remove the Fast DDS shared-memory files (``/dev/shm/fastdds_*``) that no live process
+    holds, with Fast DDS's own ``fastdds shm clean`` (``tools/fastdds/shm/clean.py`` of the
+    venv's or a ROS install's prefix): a process killed with SIGKILL, as many tests kill
+    nodes, leaves its segments and ports behind (1.6 GB of them in 6879 files in
+    ``/dev/shm`` after a day of test runs on this machine). A file a live process holds
+    (another run's) is kept: the tool removes only those whose lock file nobody holds. What
+    it printed, or None when the tool is not there."""
+    import contextlib
+    import importlib.util
+    import io
+
+    prefixes = [sys.prefix, *os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep)]
+    for prefix in filter(None, prefixes):
+        tool = Path(prefix) / 'tools' / 'fastdds' / 'shm' / 'clean.py'
+        if tool.is_file():
+            break
+    else:
+        return None
+    spec = importlib.util.spec_from_file_location('_fastdds_shm_clean', tool)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        module.Clean().run(False)
+    return printed.getvalue()
+
+
+def _drain(proc: subprocess.Popen, timeout: float) -> str:
+    """The output of a stopped process started without ``log``, read for at most ``timeout``
+    s (a child it left, e.g. the in-plant writer, may hold the pipe open)."""
+    if proc.stdout is None:
+        return ''
+    import select
+
+    fd, chunks = proc.stdout.fileno(), []
+    deadline = time.monotonic() + timeout
+    while (left := deadline - time.monotonic()) > 0:
+        if not select.select([fd], [], [], left)[0]:
+            break
+        chunk = os.read(fd, 1 << 16)
+        if not chunk:
+            break
+        chunks.append(chunk)
+    return b''.join(chunks).decode(errors='replace')
 
 
 def output(proc: subprocess.Popen) -> str:

@@ -16,12 +16,21 @@ def _kill_leftover_processes():
     rosproc.kill_leftovers()
 
 
-def pytest_sessionfinish(session, exitstatus):
+def _clean_shared_memory(session, when: str) -> None:
     """Once per run (the xdist controller, or a run without workers): the shared-memory files
-    of the nodes the tests killed (:func:`rosproc.clean_shared_memory`)."""
+    of nodes killed before (a run that was itself killed never reached its end) and of those
+    the tests killed (:func:`rosproc.clean_shared_memory`)."""
     if hasattr(session.config, 'workerinput'):
         return
     printed = rosproc.clean_shared_memory()
     if printed:
         lines = [ln.strip() for ln in printed.splitlines() if ln.strip()]
-        print('\nFast DDS shared memory after the run: ' + '; '.join(lines[1:]))
+        print(f'\nFast DDS shared memory {when} the run: ' + '; '.join(lines[1:]))
+
+
+def pytest_sessionstart(session):
+    _clean_shared_memory(session, 'before')
+
+
+def pytest_sessionfinish(session, exitstatus):
+    _clean_shared_memory(session, 'after')

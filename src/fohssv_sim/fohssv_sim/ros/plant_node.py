@@ -376,7 +376,6 @@ class PlantNode(Node):
         self._undelivered: float | None = None    # lockstep: t of a state not yet acknowledged
         self._slow: tuple[int, float] | None = None  # lockstep: (samples, CPU s), slow period
         self._checked = 0.0                       # lockstep: when the timer last checked
-        self._check_period = 0.05                 # lockstep: that timer's period (s)
         self._resumed = -math.inf                 # lockstep: when it last came late
         self._last_command_t: float | None = None  # t of the last command received
         self._last_command_wall: float | None = None
@@ -626,7 +625,6 @@ class PlantNode(Node):
             self._publish()
             self._await_command()
             period = min(0.05, max(self.options.command_timeout / 4.0, 0.001))
-            self._check_period = period
             self._checked = monotonic()
             self._timer = self.create_timer(period, self._check_lockstep_timeout)
         else:
@@ -952,7 +950,7 @@ class PlantNode(Node):
         waited = now - self._published_wall
         # (at least two periods of this timer, whose period command_timeout set at the start:
         # lowered during the run, it would otherwise take every check for a stopped plant)
-        if late > max(timeout / 2, 2 * self._check_period):
+        if late > max(timeout / 2, 2e-9 * self._timer.timer_period_ns):
             # this check (every command_timeout / 4 at most) came that late: the plant itself
             # was not running (a stalled host, a stopped process); a command that came
             # meanwhile may be waiting behind this timer, or lost on the way and sent again

@@ -164,10 +164,10 @@ def clean_shared_memory() -> str | None:
     """Remove the Fast DDS shared-memory files (``/dev/shm/fastdds_*``) that no live process
     holds, with Fast DDS's own ``fastdds shm clean`` (``tools/fastdds/shm/clean.py`` of the
     venv's or a ROS install's prefix): a process killed with SIGKILL, as many tests kill
-    nodes, leaves its segments and ports behind (1.6 GB of them in 6879 files in
-    ``/dev/shm`` after a day of test runs on this machine). A file a live process holds
-    (another run's) is kept: the tool removes only those whose lock file nobody holds. What
-    it printed, or None when the tool is not there."""
+    nodes, leaves its segments and ports behind (1.6 GB in ``/dev/shm`` after a day of
+    test runs on this machine: the first clean removed 222 ports and 2849 segments). A file
+    a live process holds (another run's) is kept: the tool removes only those whose lock
+    file nobody holds. What it printed, or None when the tool is not there."""
     import contextlib
     import importlib.util
     import io

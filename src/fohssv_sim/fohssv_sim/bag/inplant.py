@@ -75,8 +75,10 @@ MIN_RING_BYTES = 4096
 #: ``flush_period``) ends the chunk in progress anyway, so a chunk here is what a lockstep or
 #: 10 kHz run puts in the ring in 0.1 s (0.4-0.5 MB); with 64 KiB it was cut six to eight times
 #: in between, and each cut (the chunk's message indexes, its CRC, the mcap library's Python)
-#: is work beside the plant's loop. The demo's loop (FOM, lockstep, 2 s; 12 rounds, order
-#: rotated): the writer's CPU 0.080 -> 0.060 s, recorded / unrecorded loop 1.28 -> 1.19.
+#: is work beside the plant's loop. The demo's loop against the 64 KiB tree (``python
+#: bench/ab_lockstep.py OLD --demo --rounds 10``, bare echoes 8673-14409 round trips/s):
+#: recorded / unrecorded 1.34 -> 1.12 (medians of the rounds); the writer's CPU over it, in
+#: the plant's ``closed`` line, 0.080 -> 0.060 s.
 CHUNK_SIZE = 1 << 20
 #: Writer exit codes: the bag misses messages its run_end lists; the plant ended without
 #: run_end (it died). 0: complete.

@@ -201,6 +201,54 @@ def test_a_shortfall_against_run_end_is_named_and_exits_6(tmp_path):
     assert load_run(bag).topics['/state'] == 20         # closed and readable
 
 
+def test_a_complete_bag_waits_for_the_plant_parameters_asked(tmp_path):
+    """A run short enough to end before the plant's parameters are answered (seen under load:
+    the recorder closed the bag complete but without them, no word said). The plant here is
+    a node of the test process, named plant, that answers its parameter services only after
+    its 20 states and run_end are out: the recorder, which asked meanwhile, waits for the
+    answer (at most 5 s) and the bag holds them."""
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    bag = tmp_path / 'run'
+    log = tmp_path / 'recorder.log'
+    rec = _recorder(env, bag, log, 'topics:=[state]')
+    ctx = rosproc.init_context(domain)
+    node = rclpy.create_node('plant', context=ctx)
+    try:
+        node.declare_parameter('model', 'fractional')
+        deep = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                          reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        state = node.create_publisher(Float64MultiArray, 'state', deep)
+        end = node.create_publisher(String, 'run_end', QoSProfile(
+            depth=1, reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        # not spun: the recorder's parameter requests wait unanswered (discovery needs no spin)
+        rosproc.wait_for(lambda: state.get_subscription_count() >= 1
+                         and end.get_subscription_count() >= 1, 60, what='the recorder')
+        for k in range(20):
+            state.publish(Float64MultiArray(data=[k * 1e-4, 0.0, 0.0, 0.0, 0.0]))
+        end.publish(String(data=contract.run_end_text('plant', 'test', 0, 19e-4,
+                                                      {'/state': 20})))
+        rosproc.wait_for(lambda: 'every message of the run is in the bag' in log.read_text()
+                         or 'run_end from' in log.read_text(), 60, what='the run_end taken')
+        time.sleep(1.0)                 # the bag is complete; the parameters are not answered
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
+        deadline = time.monotonic() + 60
+        while rec.poll() is None and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.05)
+        code = rosproc.wait_exit(rec, 10)
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+        stop_all(rec)
+    text = log.read_text()
+    assert code == 0, text
+    assert 'stored' in text and 'parameters of /plant' in text, text
+    assert load_run(bag).parameters.get('model') == 'fractional', text
+
+
 _PROBE = ('import os; from fohssv_sim.ros.startup import init; import rclpy; init([]); '
           "print('RANGE=' + os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'], flush=True); "
           'rclpy.shutdown()')

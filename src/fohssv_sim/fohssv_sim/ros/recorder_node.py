@@ -125,6 +125,9 @@ _DRAIN_QUIET = 0.5
 #: silence is not the end of what was published (seen: a recorder stopped for 0.4 s during an
 #: unpaced run, signalled at its end, closed a bag without 1259 states and without run_end).
 _REPAIR_QUIET = 5.0
+#: A complete bag is closed at once unless the plant's parameters are on their way (asked,
+#: or its parameter services ready to be asked): then it waits for them this long at most (s).
+_PARAMS_WAIT = 5.0
 
 
 
@@ -265,6 +268,8 @@ class Recorder(Node):
         self._plant = '' if o.plant_node.lower() == 'none' else o.plant_node
         self._plant_deadline = time.monotonic() + o.plant_timeout
         self._plant_timer = None
+        self._asking = False              # list/get_parameters asked, no answer yet
+        self._complete_at: float | None = None   # when _check_end found the bag complete
         if self._plant:
             self._list = self.create_client(ListParameters, f'/{self._plant}/list_parameters')
             self._get = self.create_client(GetParameters, f'/{self._plant}/get_parameters')
@@ -421,6 +426,8 @@ class Recorder(Node):
         waiting = self._unended()
         if (missing or waiting) and not self._stalled():
             return
+        if not (missing or waiting) and self._parameters_coming():
+            return
         self._end_timer.cancel()
         if missing:
             self.exit_code = EXIT_LOST
@@ -437,6 +444,26 @@ class Recorder(Node):
             self.exit_code = 0
             self.get_logger().info('every message of the run is in the bag; closing')
         self.done.set_result(self.exit_code)
+
+    def _parameters_coming(self) -> bool:
+        """Whether a complete bag waits for the plant's parameters: asked and not answered,
+        or its services ready and about to be asked, for at most :data:`_PARAMS_WAIT` s from
+        the bag's completeness (a short run can end before the answer: the bag then lacked
+        them without a word, seen under load); past that, the bag records why not."""
+        polling = self._plant_timer is not None and not self._plant_timer.is_canceled()
+        if not (self._asking or (polling and self._list.service_is_ready()
+                                 and self._get.service_is_ready())):
+            return False
+        now = time.monotonic()
+        if self._complete_at is None:
+            self._complete_at = now
+        if now - self._complete_at < _PARAMS_WAIT:
+            return True
+        if polling:
+            self._plant_timer.cancel()
+        self._record_plant_error(f'no answer from the parameter services of /{self._plant} '
+                                 f'within {_PARAMS_WAIT:g} s of the run_end')
+        return False
 
     def drain(self, executor: Any) -> None:
         """After a signal: take what the readers already hold. Once a run_end arrived, until
@@ -533,6 +560,7 @@ class Recorder(Node):
     def _poll_plant(self) -> None:
         if self._list.service_is_ready() and self._get.service_is_ready():
             self._plant_timer.cancel()
+            self._asking = True
             req = ListParameters.Request()
             self._list.call_async(req).add_done_callback(self._on_list)
         elif time.monotonic() > self._plant_deadline:
@@ -551,6 +579,7 @@ class Recorder(Node):
             lambda f: self._on_get(names, f))
 
     def _on_get(self, names: list[str], future) -> None:
+        self._asking = False
         result = future.result()
         if result is None or len(result.values) != len(names):
             self._record_plant_error('get_parameters failed')
@@ -566,6 +595,7 @@ class Recorder(Node):
         self.get_logger().info(f'stored {len(params)} parameters of /{self._plant}')
 
     def _record_plant_error(self, text: str) -> None:
+        self._asking = False
         if not self.closed:
             self.writer.add_metadata({'fohssv.plant_parameters_error': text})
         self.get_logger().warning(f'run metadata without plant parameters: {text}')

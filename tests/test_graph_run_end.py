@@ -163,6 +163,20 @@ def test_sigint_at_the_end_of_the_run_drains_what_was_delivered(tmp_path, busy):
     assert run.topics['/state'] == run.topics['/planing_force'] == len(ref), run.topics
 
 
+def _source(ctx, name: str):
+    """A node of the test process publishing ``state`` (100 deep) and ``run_end`` with the
+    contract's reliability and durability: (node, state publisher, run_end publisher)."""
+    node = rclpy.create_node(name, context=ctx)
+    deep = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    state = node.create_publisher(Float64MultiArray, 'state', deep)
+    end = node.create_publisher(String, 'run_end', QoSProfile(
+        depth=1, reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    return node, state, end
+
+
 def test_a_shortfall_against_run_end_is_named_and_exits_6(tmp_path):
     """A source in the test process publishes 20 states and a run_end claiming 25."""
     domain = rosproc.unique_domain_id()
@@ -172,15 +186,8 @@ def test_a_shortfall_against_run_end_is_named_and_exits_6(tmp_path):
     rec = _recorder(env, bag, log, 'plant_node:=none', 'end_timeout:=1.0',
                     'topics:=[state]')
     ctx = rosproc.init_context(domain)          # the nodes' discovery settings
-    node = rclpy.create_node('source', context=ctx)
+    node, state, end = _source(ctx, 'source')
     try:
-        deep = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                          reliability=ReliabilityPolicy.RELIABLE,
-                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        state = node.create_publisher(Float64MultiArray, 'state', deep)
-        end = node.create_publisher(String, 'run_end', QoSProfile(
-            depth=1, reliability=ReliabilityPolicy.RELIABLE,
-            durability=DurabilityPolicy.TRANSIENT_LOCAL))
         ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(node)
         rosproc.wait_for(lambda: (ex.spin_once(timeout_sec=0.01), state.get_subscription_count()
@@ -213,16 +220,9 @@ def test_a_complete_bag_waits_for_the_plant_parameters_asked(tmp_path):
     log = tmp_path / 'recorder.log'
     rec = _recorder(env, bag, log, 'topics:=[state]')
     ctx = rosproc.init_context(domain)
-    node = rclpy.create_node('plant', context=ctx)
+    node, state, end = _source(ctx, 'plant')
     try:
         node.declare_parameter('model', 'fractional')
-        deep = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                          reliability=ReliabilityPolicy.RELIABLE,
-                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        state = node.create_publisher(Float64MultiArray, 'state', deep)
-        end = node.create_publisher(String, 'run_end', QoSProfile(
-            depth=1, reliability=ReliabilityPolicy.RELIABLE,
-            durability=DurabilityPolicy.TRANSIENT_LOCAL))
         # not spun: the recorder's parameter requests wait unanswered (discovery needs no spin)
         rosproc.wait_for(lambda: state.get_subscription_count() >= 1
                          and end.get_subscription_count() >= 1, 60, what='the recorder')

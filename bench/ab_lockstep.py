@@ -13,8 +13,9 @@ rates, each over the mean of the two echoes beside it, and new / old; then the m
 change of either node's per-sample path is measured so on a machine whose speed drifts
 between runs.
 
-``--demo`` compares instead the demo's loop recorded in-plant and unrecorded (unpinned, as
-``make demo`` runs it) for both trees, beside the bare echo (:func:`demo`).
+``--demo`` compares instead the demo's loop recorded in-plant and unrecorded (plant and
+controller placed as ``make demo`` places them, ``bench_ros.demo_cpus``) for both trees,
+beside the bare echo (:func:`demo`).
 """
 
 from __future__ import annotations
@@ -58,13 +59,15 @@ def _loop(domains: b.Domains, old_src: str | None) -> float:
 
 def demo(domains: b.Domains, old_src: str, rounds: int) -> None:
     """``--demo``: the demo's loop (``bench_ros.run_inplant_recording``'s: FOM, lockstep, 2 s,
-    unpinned) recorded in-plant and unrecorded, for both trees, each round in alternated
-    order, the bare echo before and after it; per tree the mean loop times and the median of
-    the rounds' recorded / unrecorded ratios (the ``make demo`` target's figure)."""
+    placed as the demo places it) recorded in-plant and unrecorded, for both trees, each
+    round in alternated order, the bare echo before and after it; per tree the mean loop
+    times and the median of the rounds' recorded / unrecorded ratios (the ``make demo``
+    target's figure)."""
     import tempfile
 
     params = {'model': 'fractional', 'fractional_order': 0.85, 'speed': 75.0,
               'mode': 'lockstep', 'duration': 2.0}
+    cpus = b.demo_cpus()
     times = {w: {'recorded': [], 'unrecorded': []} for w in ('old', 'new')}
     with tempfile.TemporaryDirectory() as tmp:
         for n in range(rounds):
@@ -76,7 +79,8 @@ def demo(domains: b.Domains, old_src: str, rounds: int) -> None:
                 env = _env(domains, old_src if which == 'old' else None)
                 for kind in kinds:
                     extra = {'record': f'{tmp}/{which}{n}'} if kind == 'recorded' else {}
-                    wall, _ = b._timed_loop(env, {**params, **extra}, timeout=900.0)
+                    wall, _ = b._timed_loop(env, {**params, **cpus['plant'], **extra},
+                                            timeout=900.0, controller_params=cpus['controller'])
                     times[which][kind].append(wall)
             after = b.run_echo(domains, 20000)['round_trips_per_second']
             print(f"round {n + 1}: echo {before:.0f} / {after:.0f} round trips/s; " + '; '.join(

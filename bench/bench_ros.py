@@ -349,11 +349,32 @@ def default_writer_times_profile(folder: str) -> str:
     return str(path)
 
 
-def _timed_loop(env: dict, plant_params: dict, timeout: float) -> tuple[float, dict]:
+def demo_cpus() -> dict[str, dict]:
+    """The demo's placement (``scripts/demo.py``'s default ``--pin auto``): the plant's and the
+    controller node's ``cpu_affinity`` parameters, as :func:`fohssv_sim.closed_loop.pinned`
+    sets them ({} each with fewer than two CPUs)."""
+    from fohssv_sim.closed_loop import loop_cpus
+
+    cpus = loop_cpus()
+    if cpus is None:
+        return {'plant': {}, 'controller': {}}
+    return {'plant': {'cpu_affinity': cpus[0]}, 'controller': {'cpu_affinity': cpus[1]}}
+
+
+def _placement(cpus: dict[str, dict]) -> str:
+    if not cpus['plant']:
+        return 'unpinned'
+    return (f"plant on CPU {cpus['plant']['cpu_affinity']}, controller on CPU "
+            f"{cpus['controller']['cpu_affinity']}")
+
+
+def _timed_loop(env: dict, plant_params: dict, timeout: float,
+                controller_params: dict | None = None) -> tuple[float, dict]:
     """A lockstep plant + eq. 31 controller node: (wall seconds from the plant's first sample
     to its bag closed (with ``record``) or to its run's end, the plant's summary)."""
     args = ros_args(plant_params) or ['--ros-args']
-    ctl = subprocess.Popen([_exe('fohssv_controller', 'state_feedback')], env=env,
+    ctl = subprocess.Popen([_exe('fohssv_controller', 'state_feedback'),
+                            *ros_args(controller_params or {})], env=env,
                            stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
                            start_new_session=True)
     times: dict[str, float] = {}
@@ -378,34 +399,38 @@ def _timed_loop(env: dict, plant_params: dict, timeout: float) -> tuple[float, d
 
 
 def run_inplant_recording(domains: Domains, quick: bool) -> dict:
-    """In-plant recorded vs unrecorded: the demo's loop (FOM, lockstep, eq. 31 node), pairs of
-    runs side by side (5 pairs, 2 with ``quick``; unrecorded first in even pairs, recorded
-    first in odd ones, so that neither gains from its place): each pair's ratio of the loop
-    times (first sample to bag closed / to the run's end) and the median pair's, as the
-    machine's speed drifts between pairs (single pairs read 0.9-1.4 here); each plant's CPU
-    per sample."""
+    """In-plant recorded vs unrecorded: the demo's loop (FOM, lockstep, eq. 31 node, placed
+    as ``make demo`` places them: :func:`demo_cpus`), pairs of runs side by side (5 pairs, 2
+    with ``quick``; unrecorded first in even pairs, recorded first in odd ones, so that
+    neither gains from its place): each pair's ratio of the loop times (first sample to bag
+    closed / to the run's end) and the median pair's, as the machine's speed drifts between
+    pairs; each plant's CPU per sample."""
     import statistics
     import tempfile
 
     params = {'model': 'fractional', 'fractional_order': 0.85, 'speed': 75.0,
               'mode': 'lockstep', 'duration': 0.5 if quick else 2.0}
+    cpus = demo_cpus()
     runs: dict[str, list] = {'recorded': [], 'unrecorded': []}
     ratios = []
     with tempfile.TemporaryDirectory() as tmp:
         for i in range(2 if quick else 5):
             for key in ('unrecorded', 'recorded')[::1 if i % 2 == 0 else -1]:
                 extra = {'record': f'{tmp}/run{i}'} if key == 'recorded' else {}
-                wall, s = _timed_loop(domains.env(), {**params, **extra}, timeout=900.0)
+                wall, s = _timed_loop(domains.env(), {**params, **cpus['plant'], **extra},
+                                      timeout=900.0, controller_params=cpus['controller'])
                 runs[key].append({'loop_time': wall, 'cpu_per_sample_us': s['cpu_per_sample_us'],
                                   'record_waits': s.get('record_waits'),
                                   'record_lost': s.get('record_lost')})
             ratios.append(runs['recorded'][-1]['loop_time'] / runs['unrecorded'][-1]['loop_time'])
     mean = {k: sum(r['loop_time'] for r in v) / len(v) for k, v in runs.items()}
     out = {'runs': runs, 'mean_loop_time': mean, 'pair_ratios': ratios,
-           'ratio': statistics.median(ratios), 'duration': params['duration']}
+           'ratio': statistics.median(ratios), 'duration': params['duration'],
+           'cpu_affinity': {k: v.get('cpu_affinity') for k, v in cpus.items()}}
     cpu = {k: sum(r['cpu_per_sample_us'] for r in v) / len(v) for k, v in runs.items()}
     print(f"record    in-plant recorded vs unrecorded lockstep FOM loop ({params['duration']:g} s"
-          f" simulated, {len(ratios)} pairs): mean {mean['recorded']:.2f} s / "
+          f" simulated, {len(ratios)} pairs, {_placement(cpus)}): mean {mean['recorded']:.2f} s"
+          " / "
           f"{mean['unrecorded']:.2f} s; pair ratios " + ', '.join(f'{r:.2f}' for r in ratios)
           + f", median {out['ratio']:.2f}; plant CPU {cpu['recorded']:.0f} / "
           f"{cpu['unrecorded']:.0f} us/sample", flush=True)

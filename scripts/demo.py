@@ -16,10 +16,17 @@ time runs from the plant's first sample to its bag closed (recorded) or to its s
 
     python scripts/demo.py [--model fractional] [--duration 2.0] [--controller state_feedback]
                            [--bag runs/demo-...] [--recorder plant|node] [--no-baseline]
-                           [--hosted] [--viewer [PORT]]
+                           [--hosted] [--viewer [PORT]] [--pin auto|off]
 
 ``--hosted`` (``make demo DEMO_ARGS=--hosted``): the plant hosts the controller itself
 (``controller:=NAME`` on the plant): no controller process, no DDS in the loop.
+
+``--pin`` (default ``auto``): with a controller node and at least two CPUs to run on, the
+plant runs on the first of them and the controller node on the second (``cpu_affinity``, as
+:func:`fohssv_sim.closed_loop.pinned` sets it; the in-plant writer, the recorder node and a
+viewer stay the scheduler's): in lockstep the two wake each other every sample, and left to
+the scheduler they often share one CPU for stretches of the run, which made the demo's loop
+time vary twofold from run to run here. ``--pin off``: the scheduler's choice.
 
 ``--viewer`` (``make demo DEMO_ARGS=--viewer``) also starts the Foxglove viewer on
 ws://localhost:8765 (or PORT) and starts the run once a Foxglove client has subscribed (at
@@ -63,6 +70,8 @@ from fohssv_sim.closed_loop import (
     NodeSpec,
     closed_loop,
     exit_verdict,
+    loop_cpus,
+    pinned,
     reason_line,
     ros_args,
     viewer,
@@ -95,10 +104,12 @@ def command(spec: NodeSpec) -> list[str]:
 
 def specs(args: argparse.Namespace, bag: Path) -> tuple[NodeSpec, ...]:
     """The nodes of the demo: the launch file's list (fohssv_sim.closed_loop) with the
-    command line's choices (plant, controller, recorder; plant and recorder when hosted)."""
-    return closed_loop(controller=args.controller, duration=args.duration, bag_path=str(bag),
-                       plant={'model': args.model, 'fractional_order': args.alpha,
-                              'speed': args.speed}, hosted=args.hosted)
+    command line's choices (plant, controller, recorder; plant and recorder when hosted),
+    plant and controller node pinned apart unless ``--pin off`` (:func:`loop_cpus`)."""
+    nodes = closed_loop(controller=args.controller, duration=args.duration, bag_path=str(bag),
+                        plant={'model': args.model, 'fractional_order': args.alpha,
+                               'speed': args.speed}, hosted=args.hosted)
+    return pinned(nodes, loop_cpus() if args.pin == 'auto' else None)
 
 
 def in_plant(nodes: tuple[NodeSpec, ...], bag: Path | None
@@ -345,6 +356,10 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument('--hosted', action='store_true',
                     help='the plant hosts the controller law (controller:=NAME on the plant): '
                          'no controller process')
+    ap.add_argument('--pin', choices=('auto', 'off'), default='auto',
+                    help="'auto' (default): the plant on the first CPU this process may use, the "
+                         "controller node on the second (cpu_affinity), when there are two; "
+                         "'off': the scheduler's choice")
     ap.add_argument('--no-baseline', dest='baseline', action='store_false',
                     help='skip the unrecorded run that measures what recording costs')
     ap.add_argument('--viewer', type=int, nargs='?', const=DEFAULT_VIEWER_PORT, default=None,
@@ -372,8 +387,11 @@ def _describe(args: argparse.Namespace, domain: int) -> str:
     rec = ('in-plant recording (record:=BAG)' if args.recorder == 'plant' else
            'the recorder node records it')
     procs = 1 + (not args.hosted) + (args.recorder == 'node')
+    cpus = loop_cpus() if args.pin == 'auto' and not args.hosted else None
+    where = ('' if args.hosted else f'; plant on CPU {cpus[0]}, controller on CPU {cpus[1]}'
+             if cpus else "; plant and controller where the scheduler puts them")
     return (f'demo: plant ({args.model}, alpha={args.alpha:g}, V={args.speed:g} m/s, x(0)=0, '
-            f'lockstep, {args.duration:g} s), {law}; {rec}; {procs} process(es), '
+            f'lockstep, {args.duration:g} s), {law}; {rec}; {procs} process(es){where}, '
             f'ROS_DOMAIN_ID={domain}')
 
 
@@ -407,9 +425,9 @@ def _report(args: argparse.Namespace, bag: Path, plant: Started, wall: float,
     if baseline is not None:
         print(f'  recording cost          recorded loop {recorded:.2f} s / unrecorded lockstep '
               f'loop {baseline:.2f} s = {recorded / baseline:.2f} ({args.recorder} recording;'
-              ' first sample to bag closed / to the summary; one pair: on a shared host one '
-              'loop time alone varies up to 2x from run to run, bench/bench_ros.py reads the '
-              'median of five pairs)')
+              ' first sample to bag closed / to the summary; one pair: on a shared host a loop '
+              'time varies from run to run, bench/bench_ros.py reads the median of five '
+              'pairs)')
     print(f'  plots:                  fohssv plot {bag}')
     return 0
 

@@ -15,9 +15,11 @@ from __future__ import annotations
 import ast
 import importlib.util
 import inspect
+import os
 import re
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -128,7 +130,7 @@ def test_launch_file_starts_the_viewer_on_request():
 
 def test_demo_starts_the_launch_files_list_with_its_defaults(tmp_path):
     demo = _demo()
-    args = demo.parser().parse_args([])
+    args = demo.parser().parse_args(['--pin', 'off'])
     bag = tmp_path / 'bag'
     assert demo.specs(args, bag) == cl.closed_loop(bag_path=str(bag))
     plant, ctl, rec = demo.specs(args, bag)
@@ -136,6 +138,16 @@ def test_demo_starts_the_launch_files_list_with_its_defaults(tmp_path):
                                         '-p', 'pace_to_subscribers:=512']
     assert plant.parameters['duration'] == 2.0 and plant.parameters['model'] == 'fractional'
     assert ctl.parameters == {'controller': 'state_feedback', 'min_command_subscribers': 2}
+    # by default (--pin auto) the same list with the plant and the controller pinned apart
+    usable = sorted(os.sched_getaffinity(0))
+    pinned = demo.specs(demo.parser().parse_args([]), bag)
+    if len(usable) >= 2:
+        assert pinned == (replace(plant, parameters={**plant.parameters,
+                                                     'cpu_affinity': usable[0]}),
+                          replace(ctl, parameters={**ctl.parameters, 'cpu_affinity': usable[1]}),
+                          rec)
+    else:
+        assert pinned == (plant, ctl, rec)
     assert rec.parameters == {'bag_path': str(bag), 'command_publishers': 1}
     for spec in (plant, ctl, rec):
         assert Path(demo.command(spec)[0]) == rosproc.executable(spec.package, spec.executable)
@@ -308,6 +320,20 @@ def test_a_signal_while_a_node_still_imports_ends_it_quietly(tmp_path, executabl
     code = rosproc.wait_exit(proc, 30)
     out = rosproc.output(proc)
     assert code == 0 and 'Traceback' not in out and 'KeyboardInterrupt' not in out, out
+
+
+def test_the_loop_is_pinned_to_the_first_two_usable_cpus_and_nothing_else_is():
+    assert cl.loop_cpus([0, 1]) == (0, 1)
+    assert cl.loop_cpus({7, 2, 5}) == (2, 5)
+    assert cl.loop_cpus([3]) is None and cl.loop_cpus([]) is None
+    plant, ctl, rec = cl.closed_loop()
+    assert cl.pinned((plant, ctl, rec), None) == (plant, ctl, rec)
+    got = cl.pinned(cl.watched((plant, ctl, rec)) + (cl.viewer(),), (2, 5))
+    assert [s.parameters.get('cpu_affinity') for s in got] == [2, 5, None, None]
+    assert got[1].parameters == {**ctl.parameters, 'cpu_affinity': 5}
+    # a hosted plant has no controller node to keep apart from: left alone
+    hosted = cl.closed_loop(hosted=True)
+    assert cl.pinned(hosted, (0, 1)) == hosted
 
 
 def test_demo_domain_honours_ros_domain_id_then_its_own_variable():

@@ -144,6 +144,7 @@ def wait_exit(proc: subprocess.Popen, timeout: float) -> int:
     try:
         return proc.wait(timeout=timeout)
     except subprocess.TimeoutExpired:
+        native = native_stacks(proc.pid)
         proc.send_signal(signal.SIGABRT)
         try:
             proc.wait(timeout=3)
@@ -157,7 +158,31 @@ def wait_exit(proc: subprocess.Popen, timeout: float) -> int:
         raise AssertionError(f'{proc.args[0]} did not exit within {timeout} s (stopped with '
                              f'SIGABRT; {len(text)} characters of output'
                              + (f', the last of them:\n{text[-6000:]}' if text else
-                                ': where its threads were is in its log') + ')') from None
+                                ': where its threads were is in its log') + ')'
+                             + (f'\nits threads in native code (gdb):\n{native}' if native
+                                else '')) from None
+
+
+def native_stacks(pid: int, timeout: float = 60.0, limit: int = 12000) -> str:
+    """Where each thread of process ``pid`` is in native code, from ``gdb -batch``'s
+    backtraces (the frames only, at most ``limit`` characters), or '' without gdb or when
+    it cannot attach. Python's own dump (SIGABRT, faulthandler) stops at the call into a C
+    extension: a node stuck inside rclpy or Fast DDS shows only the Python line that called
+    it, this shows the lock or the wait."""
+    import shutil
+
+    gdb = shutil.which('gdb')
+    if gdb is None:
+        return ''
+    try:
+        out = subprocess.run([gdb, '-p', str(pid), '-batch', '-nx', '-ex',
+                              'thread apply all bt'], capture_output=True, text=True,
+                             timeout=timeout, stdin=subprocess.DEVNULL).stdout
+    except (OSError, subprocess.TimeoutExpired):
+        return ''
+    frames = [ln for ln in out.splitlines() if ln.startswith(('Thread ', '#'))]
+    text = '\n'.join(ln if len(ln) < 240 else ln[:240] + '...' for ln in frames)
+    return text[:limit]
 
 
 def clean_shared_memory() -> str | None:

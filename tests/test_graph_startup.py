@@ -192,3 +192,26 @@ def test_standard_rclpy_parameters_stay_allowed(tmp_path, node):
     code = rosproc.wait_exit(proc, 60)
     out = rosproc.output(proc)
     assert code == 1 and 'no such file or directory' in out and 'unknown' not in out, out
+
+
+@pytest.mark.graph
+def test_a_node_that_does_not_exit_in_time_fails_saying_where_its_threads_are():
+    """``rosproc.wait_exit`` on a node that never ends by itself (a plant with no controller
+    waits for one as long as it takes): the failure carries the Python stacks (faulthandler,
+    on SIGABRT) and, where gdb is installed, each thread's native frames, which show the lock
+    or wait a node stuck inside rclpy or Fast DDS is in (the Python dump stops at the call)."""
+    import shutil
+
+    proc = rosproc.start('fohssv_sim', 'plant', ['--ros-args', '-p', 'duration:=1.0'],
+                         env=rosproc.ros_env())
+    # the node is up (its wait line) before the deadline passes: its stacks are the wait's
+    with pytest.raises(AssertionError) as failure:
+        rosproc.wait_exit(proc, 12)
+    text = str(failure.value)
+    assert proc.poll() is not None
+    assert 'did not exit within 12 s (stopped with SIGABRT' in text, text
+    assert 'Fatal Python error: Aborted' in text and 'plant_node.py' in text, text
+    if shutil.which('gdb') is not None:
+        native = text.split('its threads in native code (gdb):\n', 1)[1]
+        threads = [ln for ln in native.splitlines() if ln.startswith('Thread ')]
+        assert len(threads) > 5 and '#0 ' in native, native     # rclpy's and Fast DDS's too

@@ -19,9 +19,9 @@ both follow it): the plant's exit 0 ends the run (the others are stopped, the re
 the bag); any node's non-zero exit ends it too, with that node's exit code and last line, and
 the launch or demo exits non-zero instead of waiting for a node that will never come.
 
-Where the lockstep loop's two processes run (:func:`loop_cpus`, :func:`pinned`; the demo's
-default, ``scripts/demo.py --pin off`` leaves the scheduler's choice, the launch file leaves it
-unless given ``cpu_affinity``): in lockstep, plant and controller node wake each other once
+Where the lockstep loop's two processes run (:func:`loop_cpus`, :func:`pinned`: the demo's
+default; ``scripts/demo.py --pin off`` and the launch file leave it to the scheduler, as
+several loops may share a machine): in lockstep, plant and controller node wake each other once
 per sample. Left to the scheduler, a wake-up often lands the woken process on the CPU of the
 one that woke it, and the two take turns on one CPU for stretches of the run: on this project's
 2-core VM the demo's unrecorded loop took 0.95-1.94 s run to run unpinned, 0.87-0.95 s with

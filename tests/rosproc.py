@@ -146,6 +146,7 @@ def wait_exit(proc: subprocess.Popen, timeout: float) -> int:
         return proc.wait(timeout=timeout)
     except subprocess.TimeoutExpired:
         native = native_stacks(proc.pid)
+        proc.send_signal(signal.SIGCONT)      # gdb killed mid-attach may leave it stopped
         proc.send_signal(signal.SIGABRT)
         try:
             proc.wait(timeout=3)
@@ -164,20 +165,23 @@ def wait_exit(proc: subprocess.Popen, timeout: float) -> int:
                                 else '')) from None
 
 
-def native_stacks(pid: int, timeout: float = 60.0, limit: int = 12000) -> str:
+def native_stacks(pid: int, timeout: float = 20.0, limit: int = 12000) -> str:
     """Where each thread of process ``pid`` is in native code, from ``gdb -batch``'s
-    backtraces (the frames only, at most ``limit`` characters), or '' without gdb or when
-    it cannot attach. Python's own dump (SIGABRT, faulthandler) stops at the call into a C
-    extension: a node stuck inside rclpy or Fast DDS shows only the Python line that called
-    it, this shows the lock or the wait."""
+    backtraces (the frames only, at most ``limit`` characters), or '' without gdb, when it
+    may not attach (ptrace refused: Yama's ``ptrace_scope``, a container without
+    CAP_SYS_PTRACE) or takes longer than ``timeout`` s. Python's own dump (SIGABRT,
+    faulthandler) stops at the call into a C extension: a node stuck inside rclpy or Fast DDS
+    shows only the Python line that called it, this shows the lock or the wait. gdb reads no
+    debug info from the network and loads no per-library scripts."""
     import shutil
 
     gdb = shutil.which('gdb')
     if gdb is None:
         return ''
     try:
-        out = subprocess.run([gdb, '-p', str(pid), '-batch', '-nx', '-ex',
-                              'thread apply all bt'], capture_output=True, text=True,
+        out = subprocess.run([gdb, '-p', str(pid), '-batch', '-nx',
+                              '-iex', 'set debuginfod enabled off', '-iex', 'set auto-load off',
+                              '-ex', 'thread apply all bt'], capture_output=True, text=True,
                              timeout=timeout, stdin=subprocess.DEVNULL).stdout
     except (OSError, subprocess.TimeoutExpired):
         return ''

@@ -128,7 +128,12 @@ def loop_cpus(usable: Iterable[int] | None = None) -> tuple[int, int] | None:
     """The CPUs that keep the lockstep loop's plant and controller node apart: the first two
     of ``usable`` (default: the CPUs this process may run on, as ``taskset`` shows them), or
     None when there are fewer than two."""
-    cpus = sorted(os.sched_getaffinity(0) if usable is None else set(usable))
+    if usable is None:
+        try:
+            usable = os.sched_getaffinity(0)
+        except AttributeError:  # pragma: no cover - not Linux: every CPU
+            usable = range(os.cpu_count() or 1)
+    cpus = sorted(set(usable))
     return (cpus[0], cpus[1]) if len(cpus) >= 2 else None
 
 

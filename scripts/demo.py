@@ -381,15 +381,15 @@ def dominant_frequency(t: np.ndarray, x: np.ndarray, pad: int = 16) -> float:
     return float(freqs[int(np.argmax(spec))])
 
 
-def _describe(args: argparse.Namespace, domain: int) -> str:
+def _describe(args: argparse.Namespace, nodes: tuple[NodeSpec, ...], domain: int) -> str:
     law = (f'controller {args.controller!r} hosted in the plant' if args.hosted else
            f'controller {args.controller!r} as a node')
     rec = ('in-plant recording (record:=BAG)' if args.recorder == 'plant' else
            'the recorder node records it')
     procs = 1 + (not args.hosted) + (args.recorder == 'node')
-    cpus = loop_cpus() if args.pin == 'auto' and not args.hosted else None
-    where = ('' if args.hosted else f'; plant on CPU {cpus[0]}, controller on CPU {cpus[1]}'
-             if cpus else "; plant and controller where the scheduler puts them")
+    pins = [n.parameters.get('cpu_affinity') for n in nodes[:2]]    # as specs() placed them
+    where = ('' if args.hosted else f'; plant on CPU {pins[0]}, controller on CPU {pins[1]}'
+             if pins[0] is not None else '; plant and controller where the scheduler puts them')
     return (f'demo: plant ({args.model}, alpha={args.alpha:g}, V={args.speed:g} m/s, x(0)=0, '
             f'lockstep, {args.duration:g} s), {law}; {rec}; {procs} process(es){where}, '
             f'ROS_DOMAIN_ID={domain}')
@@ -450,7 +450,7 @@ def main() -> int:
     # the launch file's nodes and parameters (closed_loop.py: the settings that make the bag
     # complete are explained there)
     nodes = specs(args, bag)
-    print(_describe(args, domain), flush=True)
+    print(_describe(args, nodes, domain), flush=True)
     print(f'demo: recording to {bag}', flush=True)
     bag.parent.mkdir(parents=True, exist_ok=True)
     wall0 = time.monotonic()

@@ -177,7 +177,7 @@ def _check(cases, procs) -> list[str]:
             continue
         # ten processes starting at once in one domain may race for a Fast DDS shared-memory
         # port: the loser logs one line and takes the next port (rosproc.FASTDDS_PORT_RACE)
-        out, _ = rosproc.without_port_race(rosproc.output(proc))
+        out = rosproc.without_port_race(rosproc.output(proc))
         lines = [ln for ln in out.splitlines() if ln.strip()]
         if not (code == 2 and len(lines) == 1 and words in lines[0]
                 and 'Traceback' not in out and f'[{node}]' in lines[0]):
@@ -202,8 +202,6 @@ def test_a_node_that_does_not_exit_in_time_fails_saying_where_its_threads_are():
     waits for one as long as it takes): the failure carries the Python stacks (faulthandler,
     on SIGABRT) and, where gdb is installed, each thread's native frames, which show the lock
     or wait a node stuck inside rclpy or Fast DDS is in (the Python dump stops at the call)."""
-    import shutil
-
     proc = rosproc.start('fohssv_sim', 'plant', ['--ros-args', '-p', 'duration:=1.0'],
                          env=rosproc.ros_env())
     # the node is up (its wait line) before the deadline passes: its stacks are the wait's
@@ -213,7 +211,7 @@ def test_a_node_that_does_not_exit_in_time_fails_saying_where_its_threads_are():
     assert proc.poll() is not None
     assert 'did not exit within 12 s (stopped with SIGABRT' in text, text
     assert 'Fatal Python error: Aborted' in text and 'plant_node.py' in text, text
-    if shutil.which('gdb') is not None and _gdb_may_attach():
+    if _gdb_may_attach():
         native = text.split('its threads in native code (gdb):\n', 1)[1]
         threads = [ln for ln in native.splitlines() if ln.startswith('Thread ')]
         assert len(threads) > 5 and '#0 ' in native, native     # rclpy's and Fast DDS's too
@@ -222,7 +220,8 @@ def test_a_node_that_does_not_exit_in_time_fails_saying_where_its_threads_are():
 
 
 def _gdb_may_attach() -> bool:
-    """Whether gdb may attach to a child of this process here (ptrace permitted)."""
+    """Whether gdb is installed and may attach to a child of this process here (ptrace
+    permitted)."""
     import subprocess
 
     child = subprocess.Popen(['sleep', '30'])

@@ -24,9 +24,8 @@ default; ``scripts/demo.py --pin off`` and the launch file leave it to the sched
 several loops may share a machine): in lockstep, plant and controller node wake each other once
 per sample. Left to the scheduler, a wake-up often lands the woken process on the CPU of the
 one that woke it, and the two take turns on one CPU for stretches of the run: on this project's
-2-core VM the demo's unrecorded loop took 0.95-1.94 s run to run unpinned, 0.87-0.95 s with
-the plant on CPU 0 and the controller on CPU 1 (eight runs each, in turn, ad hoc), the slow runs
-those in which the two shared a CPU most of the time (sampled from /proc).
+2-core VM the pinned lockstep FOM loop ran 1.09-1.26 times as fast as unpinned
+(``bench/bench_ros.py``, its pinned case) and the demo's loop time varied much less.
 
 Pure: no rclpy, no launch.
 """

@@ -254,8 +254,11 @@ def test_the_views_are_decimated_to_the_viewer_rate(tmp_path):
     states = client.messages('/state')
     received, sent = map(int, re.search(r'(\d+) views received, (\d+) sent',
                                         vlog.read_text()).groups())
+    # the span is measured where the views arrive, which is shorter than the span they were
+    # sent over when the first arrived late (a busy client: CI read 4 views over 0.15 s):
+    # at most one view a tick, plus the first, plus one tick of that delivery delay
     span = states[-1].arrived - states[0].arrived
-    assert sent == len(states) <= 10.0 * span + 2, (sent, span)
+    assert sent == len(states) <= 10.0 * span + 3, (sent, span)
     assert 25 <= received <= 31 and sent < received, (received, sent)
     stamps = [r.log_time for r in states]
     assert stamps == sorted(set(stamps))

@@ -44,6 +44,10 @@ TRACING = Path('/sys/kernel/tracing')
 EVENTS = ('sched:sched_switch', 'sched:sched_waking', 'timer:hrtimer_start',
           'timer:hrtimer_expire_entry')
 
+#: The timers whose lateness is read: a sleeping thread's and the scheduler tick's (others,
+#: e.g. the deadline server's, are moved forward in their callbacks without a new start).
+_WITNESSES = ('hrtimer_wakeup', 'tick_nohz_handler', 'tick_sched_timer')
+
 #: A sleep of the pacing thread shorter than this (s) is a burst's: the run is being paced.
 _SHORT_SLEEP = 0.005
 
@@ -162,7 +166,7 @@ def analyse(lines, prio: int = 49, threshold: float = 1e-3,
     timers: dict[str, tuple[int, int]] = {}   # hrtimer -> (expires ns, the pid starting it)
     late_by_cpu: dict[int, list] = collections.defaultdict(list)
     for pid, cpu, ts, name, f in evs:
-        if name == 'hrtimer_start':
+        if name == 'hrtimer_start' and f.get('function') in _WITNESSES:
             timers[f['hrtimer']] = (int(f['expires']), pid)
         elif name == 'hrtimer_expire_entry' and f.get('hrtimer') in timers:
             expires, owner = timers.pop(f['hrtimer'])

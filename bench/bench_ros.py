@@ -64,9 +64,14 @@ each case is one function, so a case can be added without touching the others):
 The hypervisor's steal over each run (``/proc/stat``: the time this virtual machine had work
 and the host ran something else) is printed beside each plant run and floor loop: on this kind
 of machine a stalled vCPU for milliseconds at a time, the cause of most deadline misses.
-A real-time run whose steal exceeded 1 % (the real-time, margin and in-plant cases) is run
-again, at most twice: every attempt is printed and kept in the JSON, the figure is the attempt
-with the least steal, and the target table names it with every attempt's steal.
+A real-time run held to a deadline-miss target (hosted at 1e-4 s, external at 1e-3 s, the
+margin and in-plant cases) whose steal exceeded that target's budget of late time is run
+again, at most twice (:func:`steal_limit`: a target of 0.1 % of the samples late allows about
+0.1 % of the run's time lost on the plant's CPU, 10 ms over 10 s, 0.05 % of a 2-CPU machine's
+time, and the steal counter's tick of 10 ms is read as half a tick more: a host that took two
+ticks or more measured itself, not the plant); other real-time runs at more than 1 % steal.
+Every attempt is printed and kept in the JSON, the figure is the attempt with the least
+steal, and the target table names it with every attempt's steal.
 External lockstep runs of the FOM are repeated three times, each between two echoes (its
 ratio is to their mean), and the median is reported (the ratio is a target, and one pair
 varied from 0.54 to 1.32 within a run on a noisy host); a run with more than 1 % steal is
@@ -253,23 +258,43 @@ def _run_plant(domains: Domains, plant_params: dict, timeout: float,
 STEAL_LIMIT, STEAL_RETRIES = 0.01, 2
 
 
-def run_steady(domains: Domains, make_params, label: str, timeout: float = 900.0) -> dict:
+def steal_limit(miss_target: float | None, wall_time: float | None = None,
+                cpus: int | None = None) -> float:
+    """The host steal (share of all CPUs' time, as ``host_steal_share``) above which a
+    real-time run of ``wall_time`` seconds held to ``miss_target`` (the share of samples
+    allowed late) measured the host rather than the plant: the target's budget of late time,
+    ``miss_target * wall_time`` on one of the machine's ``cpus`` CPUs (``os.cpu_count()``),
+    plus half of /proc/stat's tick (1/100 s), within which a steal counter cannot tell more
+    from less. A vCPU the host holds for d seconds makes about d / control_period samples
+    late (a kernel trace of this machine's stalls: bench/stalls.py, docs/ros.md, *Modes*).
+    :data:`STEAL_LIMIT` for a run with no target (None) or no wall time."""
+    if miss_target is None or not wall_time:
+        return STEAL_LIMIT
+    n = max(1, cpus if cpus is not None else (os.cpu_count() or 1))
+    tick = 1.0 / os.sysconf('SC_CLK_TCK') if hasattr(os, 'sysconf') else 0.01
+    return (miss_target * wall_time + tick / 2) / (wall_time * n)
+
+
+def run_steady(domains: Domains, make_params, label: str, timeout: float = 900.0,
+               miss_target: float | None = None) -> dict:
     """A real-time run (``make_params(attempt)`` gives the plant's parameters), run again
-    while the host's steal over it exceeds :data:`STEAL_LIMIT`; printed per attempt with
-    ``label``. Returns the attempt with the least steal, with ``attempts`` (each attempt's
-    misses, steal and exit code) and ``attempt`` (which one it is, from 1)."""
+    while the host's steal over it exceeds :func:`steal_limit` of its ``miss_target``;
+    printed per attempt with ``label``. Returns the attempt with the least steal, with
+    ``attempts`` (each attempt's misses, steal and exit code), ``attempt`` (which one it is,
+    from 1) and ``steal_limit``."""
     tried = []
     for attempt in range(1 + STEAL_RETRIES):
         s = run_plant(domains, make_params(attempt), timeout=timeout)
+        s['steal_limit'] = limit = steal_limit(miss_target, s.get('wall_time'))
         tried.append(s)
         print(_realtime_line(label, s), flush=True)
         steal = s.get('host_steal_share')
-        if steal is None or steal <= STEAL_LIMIT:
+        if steal is None or steal <= limit:
             break
         if attempt < STEAL_RETRIES:
-            print(f'          (host steal {100 * steal:.1f} % > {100 * STEAL_LIMIT:g} %: the '
-                  f'host, not the plant; again, attempt {attempt + 2} of '
-                  f'{1 + STEAL_RETRIES})', flush=True)
+            print(f'          (host steal {100 * steal:.3f} % > {100 * limit:.3f} %, the '
+                  f'budget of the run\'s target: the host, not the plant; again, attempt '
+                  f'{attempt + 2} of {1 + STEAL_RETRIES})', flush=True)
     best = min(range(len(tried)), key=lambda i: tried[i].get('host_steal_share') or 0.0)
     s = tried[best]
     s['attempt'] = best + 1
@@ -284,7 +309,7 @@ def _attempt_text(s: dict) -> str:
     n = len(s.get('attempts', ()))
     if n < 2:
         return ''
-    steals = ', '.join(f"{100 * (a['host_steal_share'] or 0):.1f}" for a in s['attempts'])
+    steals = ', '.join(f"{100 * (a['host_steal_share'] or 0):.2f}" for a in s['attempts'])
     return f" [attempt {s['attempt']} of {n}, steal {steals} %]"
 
 
@@ -615,9 +640,12 @@ def case_realtime(domains: Domains, sim_time: float) -> list[dict]:
     for model in MODELS:
         for period in (1e-4, 1e-3):
             for how, extra in (('external', {}), ('hosted', HOSTED)):
+                # the targets: hosted at 1e-4 s, external at 1e-3 s, each <= 0.1 % late
+                held = (how == 'hosted') == (period < 5e-4)
                 s = run_steady(domains, lambda _, m=model, p=period, e=extra:
                                _realtime_params(m, p, sim_time, **e),
-                               f'{model:10s} T={period:g} s {how:8s}')
+                               f'{model:10s} T={period:g} s {how:8s}',
+                               miss_target=0.001 if held else None)
                 s['how'] = how
                 runs.append(s)
     return runs
@@ -629,7 +657,7 @@ def case_margin(domains: Domains, sim_time: float) -> list[dict]:
     for model in MODELS:
         s = run_steady(domains, lambda _, m=model: _realtime_params(
             m, 1e-4, sim_time, real_time_factor=2.0, **HOSTED),
-            f'{model:10s} T=1e-4 s hosted, real_time_factor 2')
+            f'{model:10s} T=1e-4 s hosted, real_time_factor 2', miss_target=0.01)
         runs.append(s)
     return runs
 
@@ -686,7 +714,8 @@ def case_inplant_recording(domains: Domains, sim_time: float, quick: bool) -> di
                     extra = {'record': f'{tmp}/{m}-{attempt}'} if k == 'recorded' else {}
                     return _realtime_params(m, 1e-4, sim_time, **HOSTED, **extra)
 
-                s = run_steady(domains, params, f'{model:10s} T=1e-4 s hosted {key:10s}')
+                s = run_steady(domains, params, f'{model:10s} T=1e-4 s hosted {key:10s}',
+                               miss_target=0.001)
                 s['how'] = f'hosted, {key}'
                 pair[key] = s
             # the bag of the recorded attempt the figures read

@@ -14,13 +14,19 @@ root only) say why, for every late wake-up of the pacing thread:
   while other tasks ran on its CPU (with the tasks named): the kernel's preemption model or a
   higher priority (woken, and its CPU ran nothing else meanwhile: **vcpu**);
 * **work** (its own work): the thread ran without a break for longer than the threshold.
-  A host stall while it runs looks the same unless a timer of that CPU was due meanwhile
-  and fired late (then **vcpu**): the trace cannot tell the rest apart.
+  A host stall while it runs looks the same unless a timer of that CPU came due meanwhile
+  and fired late (then **vcpu**, as long as that timer was late, the span beside it): the
+  trace cannot tell the rest apart.
 
-Besides the pacing thread, every CPU's late timers are listed (``cpu_stalls``): a vCPU not
-running shows on all its timers at once, whichever thread was waiting.
+Each is listed with when it was due (``at``) and how late it came (``seconds``). Only a
+sleeping thread's timers and the scheduler tick are read for lateness (a timer moved forward
+in its own callback, as the deadline server's, has no new start to read from). Besides the
+pacing thread, every CPU's late timers are listed (``cpu_stalls``): a vCPU not running shows
+on all its timers at once, whichever thread was waiting. A trace whose buffer overflowed
+says so (``lost_events``).
 
     sudo python bench/stalls.py [--model delayed] [--runs 3] [--seconds 10] [--out FILE]
+                                [--keep DIR]
 
 Prints, per run, the plant's deadline misses, worst lateness and host steal beside the late
 wake-ups by cause, and writes them to ``--out`` (JSON). The tracer's state is restored at
@@ -55,18 +61,22 @@ _LINE = re.compile(r'^\s*(.+?)-(\d+)\s+\[(\d+)\]\s+\S+\s+([\d.]+): (\w+): (.*)$'
 _KV = re.compile(r'(\w+)=(\S+)')
 
 
-def events(lines):
-    """(pid, cpu, seconds, event, fields) of each event line of an ftrace text."""
+_LOST = re.compile(r'\[LOST (\d+) EVENTS\]')
+
+
+def events(lines, lost: list[int] | None = None):
+    """(pid, cpu, seconds, event, fields) of each event line of an ftrace text; the counts
+    of ``[LOST n EVENTS]`` lines (a full buffer) are appended to ``lost``."""
     for line in lines:
         m = _LINE.match(line)
         if m is None:
+            gone = _LOST.search(line)
+            if gone is not None and lost is not None:
+                lost.append(int(gone.group(1)))
             continue
         _comm, pid, cpu, ts, name, rest = m.groups()
-        if name == 'sched_switch':
-            fields = dict(_KV.findall(rest))     # prev_* before '==>', next_* after
-        else:
-            fields = dict(_KV.findall(rest))
-        yield int(pid), int(cpu), float(ts), name, fields
+        # sched_switch: prev_* before '==>', next_* after
+        yield int(pid), int(cpu), float(ts), name, dict(_KV.findall(rest))
 
 
 def pacing_thread(evs: list, prio: int) -> int | None:
@@ -84,6 +94,7 @@ def _paced_window(evs: list, tid: int | None, paced: float | None) -> tuple[floa
     start-up and shutdown wait 1 ms and more at a time): (first, last) such sleep in it.
     The whole trace when ``paced`` is None."""
     short = [ts for pid, _, ts, name, f in evs if name == 'hrtimer_start' and pid == tid
+             and f.get('function') == 'hrtimer_wakeup'
              and int(f['expires']) / 1e9 - ts < _SHORT_SLEEP]
     if paced is None or not short:
         return float('-inf'), float('inf')
@@ -117,6 +128,8 @@ class _Thread:
         self._add('vcpu' if idle else 'irq', ts - late, late, cpu)
 
     def woken(self, ts: float) -> None:
+        if self.state == 'running':     # woken as it runs (a futex it was about to wait on)
+            return
         self.state, self.since = 'waiting', ts
         self.ran_on.clear()
         for c, comm in self.current.items():
@@ -156,48 +169,61 @@ def _merged(late: list[tuple[float, float]]) -> list[tuple[float, float]]:
 def analyse(lines, prio: int = 49, threshold: float = 1e-3,
             paced: float | None = None) -> dict:
     """The pacing thread's (:func:`pacing_thread`) late wake-ups longer than ``threshold``
-    seconds by cause (module docstring), and every CPU's late timers (``cpu_stalls``: the
-    fire time and the worst lateness of the timers that fired together, in seconds).
-    ``paced``: the run's wall time (the plant's summary): the thread's long spans of work
-    count within the paced window only (:func:`_paced_window`)."""
-    evs = list(events(lines))
+    seconds by cause (module docstring; ``at``: when it was due, ``seconds``: how late),
+    every CPU's late timers (``cpu_stalls``: the fire time and the worst lateness of the
+    timers that fired within 1 ms of each other) and ``lost_events`` (a full trace buffer
+    drops events: then some causes are missing). ``paced``: the run's wall time (the
+    plant's summary): wake-ups count within the paced window only (:func:`_paced_window`)."""
+    lost: list[int] = []
+    evs = list(events(lines, lost))
     tid = pacing_thread(evs, prio)
     thread = _Thread(tid, threshold, *_paced_window(evs, tid, paced))
-    timers: dict[str, tuple[int, int]] = {}   # hrtimer -> (expires ns, the pid starting it)
-    late_by_cpu: dict[int, list] = collections.defaultdict(list)
+    timers: dict[str, tuple[int, int, str]] = {}   # hrtimer -> (expires ns, starter, function)
+    late_by_cpu: dict[int, list] = collections.defaultdict(list)   # (fire time, lateness)
     for pid, cpu, ts, name, f in evs:
-        if name == 'hrtimer_start' and f.get('function') in _WITNESSES:
-            timers[f['hrtimer']] = (int(f['expires']), pid)
-        elif name == 'hrtimer_expire_entry' and f.get('hrtimer') in timers:
-            expires, owner = timers.pop(f['hrtimer'])
-            late = (int(f['now']) - expires) / 1e9
+        if name == 'hrtimer_start':
+            timers.pop(f['hrtimer'], None)
+            if f.get('function') in _WITNESSES:
+                timers[f['hrtimer']] = (int(f['expires']), pid, f['function'])
+        elif name == 'hrtimer_expire_entry':
+            started = timers.pop(f.get('hrtimer'), None)
+            if started is None:        # not a witness (every start drops the address's last)
+                continue
+            late = (int(f['now']) - started[0]) / 1e9
             if threshold < late < 1e3:
                 late_by_cpu[cpu].append((ts, late))
-                if owner == tid:
+                # the thread's own sleep (a tick re-armed in an interrupt while it ran
+                # carries its pid too, and is not)
+                if started[1] == tid and started[2] == 'hrtimer_wakeup':
                     thread.timer_late(cpu, ts, late, idle=pid == 0)
         elif name == 'sched_waking' and tid is not None and int(f['pid']) == tid:
             thread.woken(ts)
         elif name == 'sched_switch':
             thread.switch(cpu, ts, f)
-    stalls = {cpu: _merged(late) for cpu, late in sorted(late_by_cpu.items())}
-    for f in thread.found:   # a span of work in which a timer of its CPU came due and fired
-        if f['cause'] == 'work' and any(           # late: the vCPU stopped as it ran
-                f['at'] <= ts - late <= f['at'] + f['seconds']
-                for ts, late in stalls.get(f['cpu'], ())):
-            f['cause'] = 'vcpu'
+    for f in thread.found:   # a span of work through which a timer of its CPU came due and
+        if f['cause'] != 'work':         # fired late: the vCPU stopped as it ran
+            continue
+        stopped = [(ts - late, late) for ts, late in late_by_cpu.get(f['cpu'], ())
+                   if f['at'] <= ts - late <= f['at'] + f['seconds']]
+        if stopped:
+            due, late = max(stopped, key=lambda d: d[1])
+            f.update(cause='vcpu', at=due, seconds=late, span=f['seconds'])
     return {'pacing_thread': tid, 'late_wakeups': _one_per_stall(thread.found),
-            'cpu_stalls': stalls}
+            'cpu_stalls': {cpu: _merged(late) for cpu, late in sorted(late_by_cpu.items())},
+            'lost_events': sum(lost)}
 
 
 def _one_per_stall(found: list[dict]) -> list[dict]:
-    """The late wake-ups in time order, overlapping **vcpu** ones as one (a stop of the vCPU
-    shows both as a span of work and as its timer firing late)."""
+    """The late wake-ups in time order, overlapping ones of one cause as one, the longest
+    (a stop of the vCPU as the thread ran shows both as a span of work through a late
+    timer and as its own timer firing late)."""
     out: list[dict] = []
     for f in sorted(found, key=lambda f: f['at']):
         last = out[-1] if out else None
-        if (last is not None and f['cause'] == last['cause'] == 'vcpu'
-                and f['cpu'] == last['cpu'] and f['at'] <= last['at'] + last['seconds']):
-            last['seconds'] = max(last['seconds'], f['at'] + f['seconds'] - last['at'])
+        if (last is not None and f['cause'] == last['cause'] and f['cpu'] == last['cpu']
+                and f['at'] < last['at'] + last['seconds']):
+            if f['seconds'] > last['seconds']:
+                out[-1] = dict(f)
         else:
             out.append(dict(f))
     return out
@@ -222,6 +248,20 @@ def _write(name: str, text: str, append: bool = False) -> None:
         os.close(fd)
 
 
+def _read(name: str) -> str:
+    return (TRACING / name).read_text()
+
+
+def _saved() -> dict[str, str]:
+    """What :func:`_start` changes, to put back: tracing on or off, the clock (the bracketed
+    one of ``trace_clock``), the enabled events and the buffer size."""
+    clock = _read('trace_clock')
+    return {'tracing_on': _read('tracing_on').strip(),
+            'trace_clock': clock.split('[', 1)[1].split(']', 1)[0] if '[' in clock else 'local',
+            'set_event': _read('set_event'),
+            'buffer_size_kb': _read('buffer_size_kb').split()[0]}
+
+
 def _start() -> None:
     _write('tracing_on', '0')
     _write('trace', '')
@@ -233,12 +273,15 @@ def _start() -> None:
     _write('tracing_on', '1')
 
 
-def _restore(buffer_kb: str) -> None:
+def _restore(saved: dict[str, str]) -> None:
     _write('tracing_on', '0')
-    _write('set_event', '')
     _write('trace', '')
-    _write('buffer_size_kb', buffer_kb)
-    _write('tracing_on', '1')
+    _write('set_event', '')
+    for ev in saved['set_event'].split():
+        _write('set_event', ev, append=True)
+    _write('trace_clock', saved['trace_clock'])
+    _write('buffer_size_kb', saved['buffer_size_kb'])
+    _write('tracing_on', saved['tracing_on'])
 
 
 def main() -> int:
@@ -252,6 +295,8 @@ def main() -> int:
     ap.add_argument('--priority', type=int, default=50,
                     help="the plant's realtime_priority (SCHED_FIFO, 1-99)")
     ap.add_argument('--out', type=Path)
+    ap.add_argument('--keep', type=Path, help='a folder to keep each run\'s trace text in '
+                    '(run-N.txt, about 20 MB each), to read again with analyse()')
     args = ap.parse_args()
     if not (TRACING / 'set_event').exists() or not os.access(TRACING / 'set_event', os.W_OK):
         print(f'stalls: needs write access to {TRACING} (root, tracefs mounted)',
@@ -260,7 +305,7 @@ def main() -> int:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import bench_ros as b
 
-    buffer_kb = (TRACING / 'buffer_size_kb').read_text().split()[0]
+    saved = _saved()
     domains, runs = b.Domains(), []
     try:
         for i in range(args.runs):
@@ -269,9 +314,12 @@ def main() -> int:
                                         realtime_priority=args.priority, **b.HOSTED)
             s = b.run_plant(domains, params, timeout=60 + 3 * args.seconds)
             _write('tracing_on', '0')
-            with open(TRACING / 'trace', errors='replace') as f:
-                found = analyse(f, prio=99 - args.priority, threshold=args.threshold,
-                                paced=s.get('wall_time'))
+            text = (TRACING / 'trace').read_text(errors='replace')
+            if args.keep:
+                args.keep.mkdir(parents=True, exist_ok=True)
+                (args.keep / f'run-{i + 1}.txt').write_text(text)
+            found = analyse(text.splitlines(), prio=99 - args.priority,
+                            threshold=args.threshold, paced=s.get('wall_time'))
             causes = by_cause(found['late_wakeups'])
             runs.append({'summary': s, **found, 'by_cause': causes})
             print(b._realtime_line(f'run {i + 1} {args.model}', s), flush=True)
@@ -281,13 +329,16 @@ def main() -> int:
                     print(f"          {cause}: {c['count']} late wake-ups, "
                           f"{1e3 * c['seconds']:.1f} ms in all, longest "
                           f"{1e3 * c['longest']:.1f} ms", flush=True)
+            if found['lost_events']:
+                print(f"          the trace buffer lost {found['lost_events']} events: some "
+                      'late wake-ups may be missing or misread', flush=True)
             for cpu, stalls in found['cpu_stalls'].items():
                 print(f'          cpu {cpu}: {len(stalls)} stalls > {1e3 * args.threshold:g} '
                       'ms (every timer late): ' + ', '.join(
                           f'{1e3 * late:.1f} ms at {at:.3f}' for at, late in stalls[:8]),
                       flush=True)
     finally:
-        _restore(buffer_kb)
+        _restore(saved)
     if args.out:
         args.out.write_text(json.dumps({'model': args.model, 'runs': runs}, indent=2) + '\n')
     return 0

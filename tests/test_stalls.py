@@ -26,17 +26,25 @@ def test_each_late_wake_up_of_the_pacing_thread_gets_its_cause():
     found = stalls.analyse(TRACE.splitlines(), prio=49, threshold=1e-3)
     assert found['pacing_thread'] == 700
     # timer due 100.001000, fired 100.004700 on the idle CPU (its tick late with it): the
-    # vCPU; woken 100.005000, the kworker ran until 100.007000: another task; running
-    # 100.007505-100.009110: its own work (1.605 ms); running 100.010105-100.013655 while
-    # the CPU's tick, due 100.012000, fired at 100.013600: the vCPU stopped as it ran
+    # vCPU; woken 100.005000, the kworker ran until 100.007000: another task (the tick the
+    # thread's interrupt re-armed, due .005500, fired .006800 while the kworker ran: not the
+    # thread's timer); running 100.007505-100.009110 (woken at .008 as it ran): its own work
+    # (1.605 ms); running 100.010105-100.013655 while the CPU's tick, due 100.012000, fired
+    # at 100.013600: the vCPU stopped as it ran, 1.6 ms
     assert _causes(found) == [('vcpu', 0.0037), ('task', 0.002), ('work', 0.001605),
-                              ('vcpu', 0.00355)]
+                              ('vcpu', 0.0016)]
+    assert [f['at'] for f in found['late_wakeups']] == pytest.approx(
+        [100.001, 100.005, 100.007505, 100.012])
     assert found['late_wakeups'][1]['tasks'] == ['kworker/1:1']
+    assert found['late_wakeups'][3]['span'] == pytest.approx(0.00355)
     # CPU 1's late timers (the thread's, 3.7 ms, with the tick, 0.7005 ms, under the
-    # threshold: one stall; the tick, 1.6 ms); CPU 0 had none
-    assert found['cpu_stalls'] == {1: [(100.0047, 0.0037), (100.0136, 0.0016)]}
+    # threshold: one stall; the re-armed tick, 1.3 ms; the tick, 1.6 ms); CPU 0's deadline
+    # server timer is not read (moved forward in its callback, it would read 8.7 ms late)
+    assert found['cpu_stalls'] == {1: [(100.0047, 0.0037), (100.0068, 0.0013),
+                                       (100.0136, 0.0016)]}
+    assert found['lost_events'] == 12
     summary = stalls.by_cause(found['late_wakeups'])
-    assert summary['vcpu'] == {'count': 2, 'seconds': pytest.approx(0.00725),
+    assert summary['vcpu'] == {'count': 2, 'seconds': pytest.approx(0.0053),
                                'longest': pytest.approx(0.0037)}
     assert summary['work']['count'] == 1
 
@@ -45,6 +53,7 @@ def test_a_higher_threshold_lists_only_the_longer_ones():
     # 1.6 ms of the tick is under it: nothing says the last span was not the thread's work
     found = stalls.analyse(TRACE.splitlines(), prio=49, threshold=0.0019)
     assert _causes(found) == [('vcpu', 0.0037), ('task', 0.002), ('work', 0.00355)]
+    assert found['cpu_stalls'] == {1: [(100.0047, 0.0037)]}
 
 
 def test_late_wake_ups_count_within_the_paced_window_only():
@@ -78,7 +87,9 @@ def test_a_vcpu_stopped_as_the_thread_ran_is_one_stall():
     ]
     found = stalls.analyse(lines, prio=49, threshold=1e-3)
     assert found['pacing_thread'] == 700
-    assert _causes(found) == [('vcpu', 0.00401)]      # 100.020000 to 100.024010
+    # its timer due 100.020500 fired 3.51 ms late, inside the span: one stop, not two
+    assert _causes(found) == [('vcpu', 0.00351)]
+    assert found['late_wakeups'][0]['span'] == pytest.approx(0.004)
     assert found['cpu_stalls'] == {1: [(100.02401, pytest.approx(0.00351))]}
 
 
@@ -86,4 +97,5 @@ def test_a_trace_without_the_priority_finds_no_pacing_thread():
     found = stalls.analyse(TRACE.splitlines(), prio=10, threshold=1e-3)
     assert found['pacing_thread'] is None
     assert found['late_wakeups'] == []
-    assert found['cpu_stalls'] == {1: [(100.0047, 0.0037), (100.0136, 0.0016)]}
+    assert found['cpu_stalls'] == {1: [(100.0047, 0.0037), (100.0068, 0.0013),
+                                       (100.0136, 0.0016)]}

@@ -7,6 +7,7 @@ are.
 from __future__ import annotations
 
 import json
+import os
 import time
 
 import pytest
@@ -89,6 +90,9 @@ def test_realtime_summary_profile_and_clock_decimation():
     assert s['cpu_per_sample_us'] == pytest.approx(s['cpu_time'] / 100 * 1e6)
     # the host's steal over the run (5 s of wall time): a share of all CPU time
     assert 0.0 <= s['host_steal_share'] <= 1.0
+    # and in seconds of CPU time: at most the run's wall time on each CPU, +1 tick
+    assert 0.0 <= s['host_steal_seconds'] <= s['wall_time'] * os.cpu_count() + 0.01
+    assert (s['host_steal_seconds'] == 0.0) == (s['host_steal_share'] == 0.0)
     prof = s['profile']
     assert tuple(prof) == PARTS
     assert prof['advance']['calls'] == 100

@@ -34,6 +34,7 @@ from fohssv_sim.ros.loop import (
     check_command,
     host_cpu_ticks,
     kernel_preemption,
+    steal_seconds,
     steal_share,
 )
 from fohssv_sim.ros.options import (
@@ -230,6 +231,11 @@ def test_host_steal_share_from_two_proc_stat_readings(tmp_path):
     assert after == (1300, 70)
     assert steal_share(before, after) == pytest.approx(30 / 300)
     assert steal_share(after, after) is None and steal_share(None, after) is None
+    # 30 ticks of 1/100 s (SC_CLK_TCK) stolen: 0.3 s of CPU time; 1/250 s ticks: 0.12 s
+    assert steal_seconds(before, after, 100) == pytest.approx(0.3)
+    assert steal_seconds(before, after, 250) == pytest.approx(0.12)
+    assert steal_seconds(before, after) == pytest.approx(30 / os.sysconf('SC_CLK_TCK'))
+    assert steal_seconds(None, after) is None and steal_seconds(after, after) == 0.0
     stat.write_text('intr 1 2 3\n')
     assert host_cpu_ticks(str(stat)) is None
     assert host_cpu_ticks(str(tmp_path / 'missing')) is None

@@ -558,6 +558,17 @@ def kernel_preemption(config: str = '/proc/config.gz', cmdline: str = '/proc/cmd
     return None, tick
 
 
+def steal_seconds(before: tuple[int, int] | None, after: tuple[int, int] | None,
+                  ticks_per_second: int | None = None) -> float | None:
+    """The CPU time (s, all CPUs) stolen by the hypervisor between two
+    :func:`host_cpu_ticks` readings (None when either is missing): /proc/stat counts in
+    ticks of 1 / ``ticks_per_second`` s (``SC_CLK_TCK``, 100 on Linux), so +-1 tick."""
+    if before is None or after is None:
+        return None
+    hz = ticks_per_second or (os.sysconf('SC_CLK_TCK') if hasattr(os, 'sysconf') else 100)
+    return (after[1] - before[1]) / hz
+
+
 def steal_share(before: tuple[int, int] | None, after: tuple[int, int] | None
                 ) -> float | None:
     """The share of all CPU time stolen by the hypervisor between two

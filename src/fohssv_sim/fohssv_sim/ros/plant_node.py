@@ -1608,7 +1608,7 @@ class PlantNode(Node):
             s.update(self.record.summary())
         if self.pacer is not None:
             p = self.pacer
-            ticks = host_cpu_ticks() if self.running else None
+            ticks = host_cpu_ticks() if self.running else None   # None: no steal figures
             s.update(real_time_factor=self.options.real_time_factor,
                      achieved_real_time_factor=(total * self.options.control_period / wall
                                                 if wall > 0 else 0.0),
@@ -1620,10 +1620,8 @@ class PlantNode(Node):
                      slips=p.slips, worst_lateness=p.worst_lateness,
                      max_command_lag=self._max_lag, stale_commands=self.stale,
                      cpu_share_of_period=(cpu / total / p.period if total else 0.0),
-                     host_steal_share=(steal_share(self._ticks_start, ticks)
-                                       if self.running else None),
-                     host_steal_seconds=(steal_seconds(self._ticks_start, ticks)
-                                         if self.running else None),
+                     host_steal_share=steal_share(self._ticks_start, ticks),
+                     host_steal_seconds=steal_seconds(self._ticks_start, ticks),
                      kernel_preemption=self.kernel_preemption)
             if self.hosted is None:
                 s.update(self._lag.summary())

@@ -28,10 +28,10 @@ says so (``lost_events``).
     sudo python bench/stalls.py [--model delayed] [--runs 3] [--seconds 10] [--out FILE]
                                 [--keep DIR]
 
-Prints, per run, the plant's deadline misses, worst lateness and host steal beside the late
-wake-ups by cause, and writes them to ``--out`` (JSON). The tracer's state is restored at
-the end. The analysis (:func:`analyse`) reads any ``trace`` text with the events of
-:data:`EVENTS`.
+Prints the bare DDS echo's rate (as ``bench_ros.py``, to scale by) and, per run, the plant's
+deadline misses, worst lateness and host steal beside the late wake-ups by cause, and writes
+them to ``--out`` (JSON). The tracer's state is restored at the end. The analysis
+(:func:`analyse`) reads any ``trace`` text with the events of :data:`EVENTS`.
 """
 
 from __future__ import annotations
@@ -59,8 +59,6 @@ _SHORT_SLEEP = 0.005
 
 _LINE = re.compile(r'^\s*(.+?)-(\d+)\s+\[(\d+)\]\s+\S+\s+([\d.]+): (\w+): (.*)$')
 _KV = re.compile(r'(\w+)=(\S+)')
-
-
 _LOST = re.compile(r'\[LOST (\d+) EVENTS\]')
 
 
@@ -307,6 +305,9 @@ def main() -> int:
 
     saved = _saved()
     domains, runs = b.Domains(), []
+    # the bare DDS echo of this machine now, beside the runs (as bench_ros.py prints it)
+    echo = b.run_echo(domains, 20000)['round_trips_per_second']
+    print(f'echo      bare DDS round trip: {echo:.0f} round trips/s', flush=True)
     try:
         for i in range(args.runs):
             _start()
@@ -340,7 +341,8 @@ def main() -> int:
     finally:
         _restore(saved)
     if args.out:
-        args.out.write_text(json.dumps({'model': args.model, 'runs': runs}, indent=2) + '\n')
+        args.out.write_text(json.dumps({'model': args.model, 'echo_round_trips_per_second':
+                                        echo, 'runs': runs}, indent=2) + '\n')
     return 0
 
 

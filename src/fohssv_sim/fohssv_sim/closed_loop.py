@@ -24,8 +24,9 @@ default; ``scripts/demo.py --pin off`` and the launch file leave it to the sched
 several loops may share a machine): in lockstep, plant and controller node wake each other once
 per sample. Left to the scheduler, a wake-up often lands the woken process on the CPU of the
 one that woke it, and the two take turns on one CPU for stretches of the run: on this project's
-2-core VM the pinned lockstep FOM loop ran 1.09-1.26 times as fast as unpinned
-(``bench/bench_ros.py``, its pinned case) and the demo's loop time varied much less.
+2-core VM the pinned lockstep FOM loop ran 1.02-1.30 times as fast as unpinned (median 1.17
+of eight full runs of ``bench/bench_ros.py``, its pinned case) and the demo's loop time varied
+much less.
 
 Pure: no rclpy, no launch.
 """

@@ -239,8 +239,9 @@ def test_the_hosted_node_list_runs_to_a_complete_bag(tmp_path):
 
 
 def _walkthrough() -> str:
-    block = re.search(r'## The ROS 2 graph\n.*?```bash\n(.*?)```', README, re.S)
-    assert block, 'README: no bash block in "The ROS 2 graph"'
+    block = re.search(r'<!-- tests/test_launch.py runs this block -->\n```bash\n(.*?)```',
+                      README, re.S)
+    assert block, 'README: no bash block marked for tests/test_launch.py'
     return block.group(1)
 
 

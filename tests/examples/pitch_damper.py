@@ -1,5 +1,5 @@
-"""Write your own controller: a complete minimal example (docs/ros.md runs it; so does
-tests/test_graph_controllers.py, against the real plant).
+"""Write your own controller: a complete minimal example (the README shows it;
+tests/test_graph_controllers.py runs it against the real plant; docs/controllers.md packages it).
 
 Eq. 31 with a stronger pitch-rate term and fins that damp the pitch rate too. Run it as a node
 without any packaging::

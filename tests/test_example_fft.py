@@ -1,4 +1,4 @@
-"""The README's compiled-rhs example runs and returns the exact solution of its linear system.
+"""The compiled-rhs example of docs/model.md runs and returns the exact solution of its linear system.
 
 Independent reference: x(t) = E_a(A t^a) x0 (Mittag-Leffler function, pymittagleffler), which
 the ABM scheme approaches at order 1 + a; at h = 1e-4 over 10 s its error is about 3e-8.
@@ -15,9 +15,9 @@ ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / 'tests' / 'examples' / 'fast_fft.py'
 
 
-def test_readme_shows_the_example_verbatim():
+def test_model_doc_shows_the_example_verbatim():
     code = EXAMPLE.read_text().rstrip()
-    assert f'```python\n{code}\n```' in (ROOT / 'README.md').read_text()
+    assert f'```python\n{code}\n```' in (ROOT / 'docs' / 'model.md').read_text()
 
 
 def test_example_matches_mittag_leffler_solution():

@@ -1,4 +1,5 @@
-"""The compiled-rhs example of docs/model.md runs and returns the exact solution of its linear system.
+"""The compiled-rhs example of docs/model.md runs and returns the exact solution of its linear
+system.
 
 Independent reference: x(t) = E_a(A t^a) x0 (Mittag-Leffler function, pymittagleffler), which
 the ABM scheme approaches at order 1 + a; at h = 1e-4 over 10 s its error is about 3e-8.

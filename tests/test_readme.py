@@ -71,11 +71,12 @@ def bash_blocks() -> list[tuple[str, str]]:
 
 
 def commands(block: str) -> list[list[str]]:
-    """The simple commands of a bash block: continuations joined, comments dropped, split at
+    """The simple commands of a bash block: continuations joined as bash joins them (the
+    backslash and the newline removed), comments dropped, split at
     ; & && | ||, variables of simple assignments earlier in the block expanded."""
     assigned: dict[str, str] = {}
     out = []
-    for line in block.replace('\\\n', ' ').splitlines():
+    for line in block.replace('\\\n', '').splitlines():
         lexer = shlex.shlex(line, posix=True, punctuation_chars=True)
         lexer.whitespace_split = True
         lexer.commenters = '#'
@@ -135,7 +136,7 @@ def check_node(package: str, executable: str, args: list[str]) -> None:
             name = value.split(':=', 1)[0]
             assert name in declared or name.startswith('controller.'), (
                 f'{executable} declares no parameter {name!r}')
-        if flag == '--params-file':
+        if flag == '--params-file' and '/config/' in value:    # a file the project ships
             assert list(ROOT.glob(f'src/*/config/{Path(value).name}')), value
 
 

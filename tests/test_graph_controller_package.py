@@ -85,13 +85,10 @@ def test_the_package_built_with_colcon_is_listed_run_by_name_and_hosted(tmp_path
     env = _overlay(tmp_path, rosproc.unique_domain_id())
     ref, _ = batch_samples('delay-free', PitchDamper(pitch_damping=0.9), DURATION)
 
-    # the unknown-controller message lists it: the overlay is seen
-    code, out = finish(rosproc.start('fohssv_controller', 'controller',
-                                     ['--ros-args', '-p', 'controller:=nope'], env=env), 60)
-    assert code == 2 and re.search(r"unknown controller 'nope'; valid controllers .*"
-                                   r'pitch_damper', out), out
-
-    # the generic node by name beside a plant, and the plant hosting it, each in its domain
+    # the unknown-controller message lists it (the overlay is seen); the generic node by name
+    # beside a plant, and the plant hosting it: started together, each in a domain of its own
+    unknown = rosproc.start('fohssv_controller', 'controller',
+                            ['--ros-args', '-p', 'controller:=nope'], env=env)
     external = dict(env, ROS_DOMAIN_ID=str(rosproc.unique_domain_id()))
     hosted = dict(env, ROS_DOMAIN_ID=str(rosproc.unique_domain_id()))
     plant = ['--ros-args', '-p', 'model:=delay-free', '-p', f'duration:={DURATION}']
@@ -105,11 +102,14 @@ def test_the_package_built_with_colcon_is_listed_run_by_name_and_hosted(tmp_path
             *plant, '-p', 'controller:=pitch_damper', '-p', 'controller.pitch_damping:=0.9',
             '-p', f"record:={tmp_path / 'hosted'}"], env=hosted)]
     try:
+        code, out = finish(unknown, 60)
+        assert code == 2 and re.search(r"unknown controller 'nope'; valid controllers .*"
+                                       r'pitch_damper', out), out
         for proc in plants:
             code, out = finish(proc, 120)
             assert code == 0, out
     finally:
-        stop_all(ctl, *plants)
+        stop_all(unknown, ctl, *plants)
     for bag in ('ext', 'hosted'):
         run = load_run(tmp_path / bag)
         states = np.column_stack([run.t, run.state])

@@ -1,4 +1,4 @@
-"""Your own controller as a package, the ROS way (docs/controllers.md; issue 50 item 4).
+"""Your own controller as a package (docs/controllers.md; issue 50 item 4), the ROS way.
 
 The package is made from the page's own template (its files as the page shows them, the
 controller module being the README's example), built with the page's colcon command in a
@@ -10,6 +10,7 @@ plant hosts it. Both runs must give the in-process batch run of the same class t
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -115,3 +116,19 @@ def test_the_package_built_with_colcon_is_listed_run_by_name_and_hosted(tmp_path
         states = np.column_stack([run.t, run.state])
         assert states.shape == ref.shape, bag
         assert np.max(np.abs(states - ref)) <= 1e-12, bag
+
+
+def test_the_pip_way_registers_the_controller_for_the_nodes(tmp_path):
+    """The same package installed by pip (into a folder here, not into the shared venv): the
+    registry the nodes read lists the law."""
+    for path, text in template_files().items():
+        (tmp_path / 'my_controllers' / path).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / 'my_controllers' / path).write_text(text)
+    subprocess.run([sys.executable, '-m', 'pip', 'install', '-q', '--no-deps',
+                    '--no-build-isolation', '--target', str(tmp_path / 'site'),
+                    str(tmp_path / 'my_controllers')], check=True, timeout=300)
+    out = subprocess.run(
+        [sys.executable, '-c', 'from fohssv_sim import control; print(control.available())'],
+        env=rosproc.ros_env(PYTHONPATH=f"{tmp_path / 'site'}:{os.environ.get('PYTHONPATH', '')}"),
+        capture_output=True, text=True, check=True, timeout=120).stdout
+    assert 'pitch_damper' in out, out

@@ -4,7 +4,7 @@ Every ```bash block of README.md and docs/*.md is checked here without running a
 each ``fohssv`` command is parsed by the CLI's own parser, each node started (``ros2 run P E``
 or ``ros2_ws/install/P/lib/P/E``) is an executable its package installs and every ``-p NAME``
 given to it is a parameter that node declares, each ``make`` target, script and launch
-argument exists. Blocks marked with :data:`RUN_MARKER` are also run in order, as written; the
+argument exists, and every link between the pages resolves. Blocks marked with :data:`RUN_MARKER` are also run in order, as written; the
 README's record block is run by tests/test_launch.py, the controller package of
 docs/controllers.md by tests/test_graph_controller_package.py.
 """
@@ -306,3 +306,34 @@ def test_docs_full_size_commands_get_distinct_folders():
         assert folder.parts[:2] == ('reports', args.command)
         folders.add(folder)
     assert len(folders) == len(commands)
+
+
+def _slug(heading: str) -> str:
+    """GitHub's anchor of a heading: lower case, punctuation dropped, spaces to hyphens."""
+    return re.sub(r'[^\w\- ]', '', heading.strip().lower()).replace(' ', '-')
+
+
+#: Pages other engineers write on branches of their own (the lead merges them): linked from
+#: the index already. The lead empties this set at merge.
+WRITTEN_ELSEWHERE = {'docs/fit.md', 'docs/continuation.md', 'docs/environments.md'}
+
+
+def test_every_link_between_the_pages_resolves():
+    """A relative link names a file of the repository and, with #anchor, a heading of it:
+    pages moved or renamed leave no dead link behind."""
+    dead = []
+    for page, text in PAGES.items():
+        base = (ROOT / page).parent
+        for target in re.findall(r'\]\(([^)\s]+)\)', text):
+            if re.match(r'[a-z]+:', target):
+                continue                                  # http(s), mailto
+            path, _, anchor = target.partition('#')
+            file = (base / path).resolve() if path else ROOT / page
+            if not file.exists():
+                if file.relative_to(ROOT).as_posix() not in WRITTEN_ELSEWHERE:
+                    dead.append((page, target))
+            elif anchor and file.suffix == '.md':
+                heads = re.findall(r'^#+ (.*)$', file.read_text(), re.M)
+                if anchor not in {_slug(h) for h in heads}:
+                    dead.append((page, target))
+    assert not dead, dead

@@ -4,9 +4,10 @@ Every ```bash block of README.md and docs/*.md is checked here without running a
 each ``fohssv`` command is parsed by the CLI's own parser, each node started (``ros2 run P E``
 or ``ros2_ws/install/P/lib/P/E``) is an executable its package installs and every ``-p NAME``
 given to it is a parameter that node declares, each ``make`` target, script and launch
-argument exists, and every link between the pages resolves. Blocks marked with :data:`RUN_MARKER` are also run in order, as written; the
-README's record block is run by tests/test_launch.py, the controller package of
-docs/controllers.md by tests/test_graph_controller_package.py.
+argument exists, and every link between the pages resolves. Blocks marked with
+:data:`RUN_MARKER` are also run in order, as written; the README's record block is run by
+tests/test_launch.py, the controller package of docs/controllers.md by
+tests/test_graph_controller_package.py.
 """
 
 import re

@@ -1,13 +1,13 @@
 """Generated text for the ROS interface: parameter YAML files and markdown tables.
 
 ``config/plant.yaml``, the controllers' ``config/<name>.yaml`` and the tables of
-``docs/ros.md`` (topics; parameters of the model, the plant node, the recorder, the player,
+``docs/parameters.md`` (topics; parameters of the model, the plant node, the recorder, the player,
 the viewer and each controller) are generated from the tables (one source of truth); a test checks
 that the committed files equal what this module generates. Regenerate with::
 
     python -m fohssv_sim.ros.docs plant-yaml > src/fohssv_sim/config/plant.yaml
     python -m fohssv_sim.ros.docs controller-yaml lqr > src/fohssv_controller/config/lqr.yaml
-    python -m fohssv_sim.ros.docs tables      # the markdown tables for docs/ros.md
+    python -m fohssv_sim.ros.docs tables      # the markdown tables for docs/parameters.md
 
 Pure: no rclpy (the ROS type of a row is named by :func:`.options.ros_type_name`, which
 :func:`.ros_params.ros_type` maps to rclpy's types). Controllers are found through the plugin
@@ -108,7 +108,7 @@ def topic_table(topics=TOPICS) -> str:
 
 
 def tables() -> str:
-    """Every generated table of docs/ros.md, each after a marker comment."""
+    """Every generated table of docs/parameters.md, each after a marker comment."""
     parts = ['<!-- generated: topics -->\n' + topic_table(),
              '<!-- generated: view topics -->\n' + topic_table(VIEW_TOPICS),
              '<!-- generated: model parameters -->\n' + parameter_table(PARAMETERS),

@@ -1,0 +1,267 @@
+"""``HSSV-v0`` vectorised: N vehicles, one compiled call per control period.
+
+:class:`HSSVVectorEnv` is a :class:`gymnasium.vector.VectorEnv` whose sub-environment ``i``
+is the ``HSSV-v0`` built from the shared keyword arguments updated with ``vehicles[i]`` (each
+vehicle its own model parameters, e.g. ``vehicles=[{'speed': 70}, {'speed': 80}]``) and
+seeded with ``seed + i``, as :class:`gymnasium.vector.SyncVectorEnv` seeds its copies: its
+observations equal those of that single environment (tested to 1e-12).
+
+For the fractional model with the compiled 'soe' solver (the default) one compiled call per
+control period advances every vehicle by its integration steps: the plant's own kernel
+(:func:`fohssv_sim.kernels.fom_soe_run`) on each vehicle's slice of one SOE history with a
+group per vehicle, the layout of :mod:`fohssv_sim.analysis.population`. The vehicles must
+then share the step, the planing form and the 'soe' settings, and ``order_range`` is refused
+(a new alpha needs a new history layout). Other models step each vehicle's plant in turn
+(each one compiled call).
+
+Autoreset: Gymnasium's next-step mode (``AutoresetMode.NEXT_STEP``): the step after a
+vehicle's episode ended resets it (its action is ignored) and returns its first observation
+with reward 0.
+
+Pure: numpy, numba, Gymnasium and the core; no rclpy.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from .. import kernels
+from ..analysis.population import _soe_arrays, check_population
+from ..coefficients import coefficients
+from ..models import make_plant
+from ..params import ParameterError
+from .single import spaces_of
+from .task import make_task
+
+__all__ = ['HSSVVectorEnv', 'fom_periods']
+
+
+@kernels._njit
+def fom_periods(X, X0, N, hold, CV, smooth, U, active, H, W, fill, eps_k, ET, a0_coef,
+                a0_small, alphas, cp, cc, FP, taken):
+    """One control period of ``hold`` steps for every vehicle p with ``active[p]``, input
+    ``U[p]`` held: the plant's kernel on p's slice of the arrays (state ``X[p]``, start
+    ``X0[p]``, step count ``N[p]``, history group p). ``taken[p]``: steps done (fewer when the
+    state turned non-finite, then ``X[p]`` is the last finite state); ``FP[p]``: Fp at X[p]."""
+    held = np.zeros(12)
+    held[10] = math.inf
+    held[11] = math.inf
+    last_f = np.empty(4)
+    bad = np.empty(4)
+    for p in range(X.shape[0]):
+        if not active[p]:
+            continue
+        held[8] = U[p, 0]
+        held[9] = U[p, 1]
+        x = X[p]
+        k = kernels.fom_soe_run(x, X0[p], N[p], hold, CV[p], smooth, held, False, H[p:p + 1],
+                                W[:, p:p + 1], fill[p:p + 1], eps_k[p:p + 1], ET[p:p + 1],
+                                a0_coef[p:p + 1], a0_small[p:p + 1], alphas[p], cp[p], cc[p],
+                                last_f, bad)
+        N[p] += k
+        taken[p] = k
+        c = kernels._coefficients(CV[p])
+        FP[p] = kernels.planing_smooth(x[1], c) if smooth else kernels.planing_exact(x[1], c)
+
+
+class HSSVVectorEnv(VectorEnv):
+    """N ``HSSV-v0`` vehicles stepped together; see the module docstring.
+
+    Args:
+        num_envs: N >= 1.
+        vehicles: None, or N mappings of per-vehicle keyword arguments (model parameters or
+            any other ``HSSV-v0`` keyword) applied over ``kwargs``.
+        kwargs: the ``HSSV-v0`` keyword arguments shared by every vehicle.
+
+    ``infos`` holds ``t``, ``planing_force``, ``delta_f``, ``delta_c`` arrays (and ``lost``,
+    an object array of texts, when a vehicle was lost), with Gymnasium's ``_name`` masks.
+
+    Raises:
+        ParameterError: a bad keyword argument, ``vehicles`` of the wrong length, or FOM
+            vehicles that cannot share one compiled call.
+    """
+
+    metadata = {'render_modes': [], 'autoreset_mode': AutoresetMode.NEXT_STEP}
+
+    def __init__(self, num_envs: int = 1, vehicles: Sequence[Mapping[str, Any]] | None = None,
+                 **kwargs: Any) -> None:
+        if isinstance(num_envs, bool) or int(num_envs) != num_envs or num_envs < 1:
+            raise ParameterError(f'num_envs={num_envs!r} is not valid; allowed: a whole '
+                                 'number >= 1')
+        self.num_envs = n = int(num_envs)
+        if vehicles is not None and len(vehicles) != n:
+            raise ParameterError(f'vehicles has {len(vehicles)} entries; allowed: one mapping '
+                                 f'per vehicle (num_envs={n})')
+        self.tasks = [make_task({**kwargs, **(vehicles[i] if vehicles else {})})
+                      for i in range(n)]
+        t0 = self.tasks[0]
+        self.single_observation_space, self.single_action_space = spaces_of(t0)
+        for t in self.tasks[1:]:
+            if (t.observation_size, t.action_size) != (t0.observation_size, t0.action_size):
+                raise ParameterError('vehicles must share fin, observe_planing_force and '
+                                     'observe_depth_error (one observation and action space)')
+        self.observation_space = batch_space(self.single_observation_space, n)
+        self.action_space = batch_space(self.single_action_space, n)
+        params = [t.params for t in self.tasks]
+        self._compiled = all(p.model == 'fractional' and p.solver == 'soe' for p in params)
+        if self._compiled:
+            try:
+                check_population(params)
+            except ValueError as exc:
+                raise ParameterError(f'vehicles of one vectorised FOM env: {exc}') from None
+            if any(t.order_range is not None for t in self.tasks):
+                raise ParameterError('order_range is not supported by the vectorised FOM env '
+                                     '(each alpha has its own history layout); give each '
+                                     'vehicle its fractional_order through vehicles')
+            self._build_fom(params)
+        self._plants = [None] * n
+        self._params = params
+        self._rngs = [np.random.default_rng() for _ in range(n)]
+        self.X = np.zeros((n, 4))
+        self.FP = np.zeros(n)
+        self.U = np.zeros((n, 2))
+        self._speed = np.array([p.speed for p in params])
+        self._steps = np.zeros(n, dtype=np.int64)
+        self._ended = np.ones(n, dtype=bool)
+        self._started = False
+
+    def _build_fom(self, params) -> None:
+        hist, alphas, cp, cc = _soe_arrays(params, self.tasks[0].duration)
+        n = self.num_envs
+        self._hist = hist
+        self._fom = dict(X0=np.zeros((n, 4)), N=np.zeros(n, dtype=np.int64),
+                         CV=np.array([coefficients(p).kernel for p in params], dtype=float),
+                         smooth=params[0].planing_form == 'smooth', alphas=alphas, cp=cp, cc=cc,
+                         taken=np.zeros(n, dtype=np.int64))
+
+    # -- reset ------------------------------------------------------------------------------
+    def reset(self, *, seed: int | Sequence[int | None] | None = None,
+              options: dict | None = None) -> tuple[np.ndarray, dict]:
+        """Reset every vehicle; ``seed`` an int (vehicle i gets ``seed + i``), a list of N
+        seeds or None; ``options`` as ``HSSV-v0``'s (``initial_state`` for every vehicle)."""
+        n = self.num_envs
+        if seed is None:
+            seeds = [None] * n
+        elif isinstance(seed, (int, np.integer)):
+            seeds = [int(seed) + i for i in range(n)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != n:
+                raise ValueError(f'seed has {len(seeds)} entries; allowed: an int, None or '
+                                 f'{n} seeds')
+        for i, s in enumerate(seeds):
+            if s is not None or not self._started:
+                self._rngs[i] = gym.utils.seeding.np_random(s)[0]
+        x0 = (options or {}).get('initial_state')
+        for i in range(n):
+            self._reset_one(i, x0)
+        self._started = True
+        return self._observe(), self._infos(np.ones(n, dtype=bool), [''] * n)
+
+    def _reset_one(self, i: int, initial_state: Any = None) -> None:
+        task = self.tasks[i]
+        params, x0 = task.draw(self._rngs[i], initial_state)
+        self._params[i] = params
+        self._speed[i] = params.speed
+        self.X[i] = x0
+        self.U[i] = 0.0
+        self._steps[i] = 0
+        self._ended[i] = False
+        if self._compiled:
+            f = self._fom
+            f['X0'][i] = x0
+            f['N'][i] = 0
+            f['CV'][i] = coefficients(params).kernel
+            self._hist.H[i] = 0.0
+            self._hist.fill[i] = 0
+            c = kernels._coefficients(f['CV'][i])
+            w = float(x0[1])
+            self.FP[i] = kernels.planing_smooth(w, c) if f['smooth'] else \
+                kernels.planing_exact(w, c)
+        else:
+            plant = self._plants[i]
+            if plant is not None and plant.params == params:
+                plant.reset(x0)
+            else:
+                plant = self._plants[i] = make_plant(params, x0, duration=task.duration)
+            self.FP[i] = plant.planing_force
+
+    # -- step -------------------------------------------------------------------------------
+    def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+        if not self._started:
+            raise RuntimeError('call reset() before step()')
+        n = self.num_envs
+        actions = np.asarray(actions, dtype=float).reshape(n, -1)
+        restart = self._ended.copy()
+        active = ~restart
+        previous = self.U.copy()
+        for i in np.flatnonzero(restart):
+            self._reset_one(int(i))
+        for i in np.flatnonzero(active):
+            self.U[i] = self.tasks[i].action(actions[i])
+        why = [''] * n
+        if self._compiled:
+            f = self._fom
+            h = self._hist
+            fom_periods(self.X, f['X0'], f['N'], self.tasks[0].hold, f['CV'], f['smooth'],
+                        self.U, active, h.H, h.W, h.fill, h.eps_k, h.ET, h.a0_coef, h.a0_small,
+                        f['alphas'], f['cp'], f['cc'], self.FP, f['taken'])
+            failed = active & (f['taken'] < self.tasks[0].hold)
+            for i in np.flatnonzero(failed):
+                why[i] = f'state became non-finite at t={self._time(i):.9g} s'
+        else:
+            for i in np.flatnonzero(active):
+                plant = self._plants[i]
+                try:
+                    plant.advance((self.U[i, 0], self.U[i, 1]), self.tasks[i].hold)
+                except FloatingPointError as exc:
+                    why[i] = str(exc)
+                self.X[i] = plant.x
+                self.FP[i] = plant.planing_force
+        x = self.X
+        speed = self._speed
+        out = active & ~((-speed <= x[:, 1]) & (x[:, 1] <= speed)
+                         & (np.abs(x[:, 2]) <= math.pi / 2) & np.isfinite(x).all(1))
+        for i in np.flatnonzero(out):
+            if not why[i]:
+                why[i] = (f'state beyond physical bounds at t={self._time(i):.9g} s: '
+                          f'[z, w, theta, q] = {x[i].tolist()}')
+        lost = np.array([bool(w) for w in why])
+        rewards = np.zeros(n)
+        for i in np.flatnonzero(active):
+            rewards[i] = self.tasks[i].score(x[i].copy(), self.U[i].copy(), previous[i],
+                                             float(self.FP[i]), bool(lost[i]))
+        self._steps[active] += 1
+        truncated = active & ~lost & (self._steps >= np.array([t.episode_steps
+                                                                for t in self.tasks]))
+        self._ended = lost | truncated
+        return self._observe(), rewards, lost, truncated, self._infos(np.ones(n, bool), why)
+
+    def _time(self, i: int) -> float:
+        t = self.tasks[i]
+        return float(self._steps[i] + 1) * t.hold * t.params.step if self._compiled else \
+            self._plants[i].t
+
+    def _observe(self) -> np.ndarray:
+        return np.stack([t.observe(self.X[i], float(self.FP[i]))
+                         for i, t in enumerate(self.tasks)])
+
+    def _infos(self, mask: np.ndarray, why: list[str]) -> dict[str, Any]:
+        steps = self._steps.astype(float)
+        t = np.array([s * task.hold * p.step for s, task, p in
+                      zip(steps, self.tasks, self._params)])
+        infos = {'t': t, 'planing_force': self.FP.copy(), 'delta_f': self.U[:, 0].copy(),
+                 'delta_c': self.U[:, 1].copy()}
+        for k in list(infos):
+            infos['_' + k] = mask.copy()
+        if any(why):
+            infos['lost'] = np.array(why, dtype=object)
+            infos['_lost'] = np.array([bool(w) for w in why])
+        return infos

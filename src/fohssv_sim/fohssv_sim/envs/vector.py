@@ -139,7 +139,8 @@ class HSSVVectorEnv(VectorEnv):
         self._fom = dict(X0=np.zeros((n, 4)), N=np.zeros(n, dtype=np.int64),
                          CV=np.array([coefficients(p).kernel for p in params], dtype=float),
                          smooth=params[0].planing_form == 'smooth', alphas=alphas, cp=cp, cc=cc,
-                         taken=np.zeros(n, dtype=np.int64))
+                         taken=np.zeros(n, dtype=np.int64),
+                         fill=np.zeros(n, dtype=np.int64))   # each group's buffer fill
 
     # -- reset ------------------------------------------------------------------------------
     def reset(self, *, seed: int | Sequence[int | None] | None = None,
@@ -180,7 +181,7 @@ class HSSVVectorEnv(VectorEnv):
             f['N'][i] = 0
             f['CV'][i] = coefficients(params).kernel
             self._hist.H[i] = 0.0
-            self._hist.fill[i] = 0
+            f['fill'][i] = 0
             c = kernels._coefficients(f['CV'][i])
             w = float(x0[1])
             self.FP[i] = kernels.planing_smooth(w, c) if f['smooth'] else \
@@ -211,7 +212,7 @@ class HSSVVectorEnv(VectorEnv):
             f = self._fom
             h = self._hist
             fom_periods(self.X, f['X0'], f['N'], self.tasks[0].hold, f['CV'], f['smooth'],
-                        self.U, active, h.H, h.W, h.fill, h.eps_k, h.ET, h.a0_coef, h.a0_small,
+                        self.U, active, h.H, h.W, f['fill'], h.eps_k, h.ET, h.a0_coef, h.a0_small,
                         f['alphas'], f['cp'], f['cc'], self.FP, f['taken'])
             failed = active & (f['taken'] < self.tasks[0].hold)
             for i in np.flatnonzero(failed):

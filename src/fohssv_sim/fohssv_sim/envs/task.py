@@ -208,14 +208,19 @@ class Task:
                                  '_deflection)')
         return (a[0], a[1]) if self.fin else (0.0, a[0])
 
-    def observe(self, state: Sequence[float], planing_force: float) -> np.ndarray:
-        """The observation: [z, w, theta, q] (+ Fp) (+ z - target_depth)."""
-        out = list(state)
+    def observe(self, state: Any, planing_force: Any, target_depth: Any = None) -> np.ndarray:
+        """The observation [z, w, theta, q] (+ Fp) (+ z - target_depth), vectorised over
+        leading axes (``target_depth`` default: this task's)."""
+        state = np.asarray(state, dtype=np.float64)
+        if not (self.observe_planing_force or self.observe_depth_error):
+            return state.copy()
+        parts = [state]
         if self.observe_planing_force:
-            out.append(planing_force)
+            parts.append(np.asarray(planing_force, dtype=np.float64)[..., None])
         if self.observe_depth_error:
-            out.append(out[0] - self.target_depth)
-        return np.array(out, dtype=np.float64)
+            target = self.target_depth if target_depth is None else target_depth
+            parts.append((state[..., 0] - target)[..., None])
+        return np.concatenate(parts, axis=-1)
 
     def score(self, state: np.ndarray, action: np.ndarray, previous: np.ndarray,
               planing_force: float, lost: bool) -> float:

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from types import SimpleNamespace
 from typing import Any
 
 import gymnasium as gym
@@ -38,7 +39,7 @@ from ..coefficients import coefficients
 from ..models import make_plant
 from ..params import ParameterError
 from .single import spaces_of
-from .task import make_task
+from .task import default_reward, make_task
 
 __all__ = ['HSSVVectorEnv', 'fom_periods']
 
@@ -48,8 +49,10 @@ def fom_periods(X, X0, N, hold, CV, smooth, U, active, H, W, fill, eps_k, ET, a0
                 a0_small, alphas, cp, cc, FP, taken):
     """One control period of ``hold`` steps for every vehicle p with ``active[p]``, input
     ``U[p]`` held: the plant's kernel on p's slice of the arrays (state ``X[p]``, start
-    ``X0[p]``, step count ``N[p]``, history group p). ``taken[p]``: steps done (fewer when the
-    state turned non-finite, then ``X[p]`` is the last finite state); ``FP[p]``: Fp at X[p]."""
+    ``X0[p]``, step count ``N[p]``, history group p, whose weights ``W[p]`` are stored
+    together: the history's (steps, group, ...) table regrouped by vehicle, so each vehicle's
+    period reads one contiguous block). ``taken[p]``: steps done (fewer when the state turned
+    non-finite, then ``X[p]`` is the last finite state); ``FP[p]``: Fp at X[p]."""
     held = np.zeros(12)
     held[10] = math.inf
     held[11] = math.inf
@@ -62,7 +65,7 @@ def fom_periods(X, X0, N, hold, CV, smooth, U, active, H, W, fill, eps_k, ET, a0
         held[9] = U[p, 1]
         x = X[p]
         k = kernels.fom_soe_run(x, X0[p], N[p], hold, CV[p], smooth, held, False, H[p:p + 1],
-                                W[:, p:p + 1], fill[p:p + 1], eps_k[p:p + 1], ET[p:p + 1],
+                                W[p], fill[p:p + 1], eps_k[p:p + 1], ET[p:p + 1],
                                 a0_coef[p:p + 1], a0_small[p:p + 1], alphas[p], cp[p], cc[p],
                                 last_f, bad)
         N[p] += k
@@ -107,6 +110,17 @@ class HSSVVectorEnv(VectorEnv):
             if (t.observation_size, t.action_size) != (t0.observation_size, t0.action_size):
                 raise ParameterError('vehicles must share fin, observe_planing_force and '
                                      'observe_depth_error (one observation and action space)')
+        ts = self.tasks
+        # the per-vehicle task values the vectorised rules read (default_reward, bounds)
+        self._rw = SimpleNamespace(
+            limits=np.stack([t.limits for t in ts]),
+            **{k: np.array([getattr(t, k) for t in ts], dtype=float) for k in (
+                'target_depth', 'depth_scale', 'planing_weight', 'rate_weight', 'lost_penalty')})
+        self._act_limits = self._rw.limits if t0.fin else self._rw.limits[:, 1:]
+        self._episode_steps = np.array([t.episode_steps for t in ts])
+        self._holds = np.array([t.hold for t in ts])
+        self._h = np.array([t.params.step for t in ts])
+        self._user_reward = any(t.reward is not None for t in ts)
         self.observation_space = batch_space(self.single_observation_space, n)
         self.action_space = batch_space(self.single_action_space, n)
         params = [t.params for t in self.tasks]
@@ -136,6 +150,11 @@ class HSSVVectorEnv(VectorEnv):
         hist, alphas, cp, cc = _soe_arrays(params, self.tasks[0].duration)
         n = self.num_envs
         self._hist = hist
+        if len({t.hold for t in self.tasks}) > 1:
+            raise ParameterError('vehicles of one vectorised FOM env must share control_period')
+        # the weights regrouped by vehicle: (vehicle, fill, 1, row, 2), one block each
+        self._W = np.ascontiguousarray(hist.W.transpose(1, 0, 2, 3))[:, :, None]
+        self._hist = hist
         self._fom = dict(X0=np.zeros((n, 4)), N=np.zeros(n, dtype=np.int64),
                          CV=np.array([coefficients(p).kernel for p in params], dtype=float),
                          smooth=params[0].planing_form == 'smooth', alphas=alphas, cp=cp, cc=cc,
@@ -164,7 +183,7 @@ class HSSVVectorEnv(VectorEnv):
         for i in range(n):
             self._reset_one(i, x0)
         self._started = True
-        return self._observe(), self._infos(np.ones(n, dtype=bool), [''] * n)
+        return self._observe(), self._infos([''] * n)
 
     def _reset_one(self, i: int, initial_state: Any = None) -> None:
         task = self.tasks[i]
@@ -196,26 +215,59 @@ class HSSVVectorEnv(VectorEnv):
 
     # -- step -------------------------------------------------------------------------------
     def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+        """One control period of every vehicle (see the module docstring for autoreset).
+
+        Raises:
+            RuntimeError: before the first reset.
+            ValueError: actions of the wrong shape, or an active vehicle's action non-finite
+                or beyond its limit (as ``HSSV-v0`` words it); nothing is stepped then.
+        """
         if not self._started:
             raise RuntimeError('call reset() before step()')
-        n = self.num_envs
-        actions = np.asarray(actions, dtype=float).reshape(n, -1)
-        restart = self._ended.copy()
-        active = ~restart
+        active = ~self._ended
         previous = self.U.copy()
-        for i in np.flatnonzero(restart):
+        self._take(actions, active)
+        why = self._run(active)
+        lost = active & np.array([bool(w) for w in why])
+        x = self.X
+        if self._user_reward:
+            rewards = np.zeros(self.num_envs)
+            for i in np.flatnonzero(active):
+                rewards[i] = self.tasks[i].score(x[i].copy(), self.U[i].copy(), previous[i],
+                                                 float(self.FP[i]), bool(lost[i]))
+        else:
+            rewards = default_reward(self._rw, x, self.U, previous, self.FP)
+            rewards = np.where(active, rewards - lost * self._rw.lost_penalty, 0.0)
+        self._steps[active] += 1
+        truncated = active & ~lost & (self._steps >= self._episode_steps)
+        self._ended = lost | truncated
+        return self._observe(), rewards, lost, truncated, self._infos(why)
+
+    def _take(self, actions: Any, active: np.ndarray) -> None:
+        """Check the actions of the ``active`` vehicles (nothing changes when one is bad),
+        reset the others, hold the actions in ``U``."""
+        lim = self._act_limits
+        a = np.asarray(actions, dtype=float)
+        if a.shape != lim.shape:
+            raise ValueError(f'actions of shape {a.shape} must have the shape {lim.shape} '
+                             '(num_envs, action size)')
+        bad = active & ~(np.abs(a) <= lim).all(1)
+        for i in np.flatnonzero(bad):
+            self.tasks[i].action(a[i])                   # raises, naming value and range
+        col = slice(None) if lim.shape[1] == 2 else slice(1, 2)
+        if active.all():
+            self.U[:, col] = a
+            return
+        for i in np.flatnonzero(~active):
             self._reset_one(int(i))
-        for i in np.flatnonzero(active):
-            self.U[i] = self.tasks[i].action(actions[i])
-        why = [''] * n
+        self.U[active, col] = a[active]
+
+    def _run(self, active: np.ndarray) -> list[str]:
+        """One control period of the ``active`` vehicles; why each was lost ('' if not)."""
+        why = [''] * self.num_envs
         if self._compiled:
-            f = self._fom
-            h = self._hist
-            fom_periods(self.X, f['X0'], f['N'], self.tasks[0].hold, f['CV'], f['smooth'],
-                        self.U, active, h.H, h.W, f['fill'], h.eps_k, h.ET, h.a0_coef, h.a0_small,
-                        f['alphas'], f['cp'], f['cc'], self.FP, f['taken'])
-            failed = active & (f['taken'] < self.tasks[0].hold)
-            for i in np.flatnonzero(failed):
+            self._advance(active)
+            for i in np.flatnonzero(active & (self._fom['taken'] < self.tasks[0].hold)):
                 why[i] = f'state became non-finite at t={self._time(i):.9g} s'
         else:
             for i in np.flatnonzero(active):
@@ -234,16 +286,16 @@ class HSSVVectorEnv(VectorEnv):
             if not why[i]:
                 why[i] = (f'state beyond physical bounds at t={self._time(i):.9g} s: '
                           f'[z, w, theta, q] = {x[i].tolist()}')
-        lost = np.array([bool(w) for w in why])
-        rewards = np.zeros(n)
-        for i in np.flatnonzero(active):
-            rewards[i] = self.tasks[i].score(x[i].copy(), self.U[i].copy(), previous[i],
-                                             float(self.FP[i]), bool(lost[i]))
-        self._steps[active] += 1
-        truncated = active & ~lost & (self._steps >= np.array([t.episode_steps
-                                                                for t in self.tasks]))
-        self._ended = lost | truncated
-        return self._observe(), rewards, lost, truncated, self._infos(np.ones(n, bool), why)
+        return why
+
+    def _advance(self, active: np.ndarray) -> None:
+        """The one compiled call: a control period of every ``active`` FOM vehicle with its
+        input ``U`` held (no checks, no rewards; the benchmark times it alone)."""
+        f = self._fom
+        h = self._hist
+        fom_periods(self.X, f['X0'], f['N'], self.tasks[0].hold, f['CV'], f['smooth'], self.U,
+                    active, h.H, self._W, f['fill'], h.eps_k, h.ET, h.a0_coef, h.a0_small,
+                    f['alphas'], f['cp'], f['cc'], self.FP, f['taken'])
 
     def _time(self, i: int) -> float:
         t = self.tasks[i]
@@ -251,17 +303,16 @@ class HSSVVectorEnv(VectorEnv):
             self._plants[i].t
 
     def _observe(self) -> np.ndarray:
-        return np.stack([t.observe(self.X[i], float(self.FP[i]))
-                         for i, t in enumerate(self.tasks)])
+        return self.tasks[0].observe(self.X, self.FP, self._rw.target_depth)
 
-    def _infos(self, mask: np.ndarray, why: list[str]) -> dict[str, Any]:
-        steps = self._steps.astype(float)
-        t = np.array([s * task.hold * p.step for s, task, p in
-                      zip(steps, self.tasks, self._params)])
+    def _infos(self, why: list[str]) -> dict[str, Any]:
+        # t = n h with n the steps taken, as the plant counts it
+        t = (self._steps * self._holds) * self._h
         infos = {'t': t, 'planing_force': self.FP.copy(), 'delta_f': self.U[:, 0].copy(),
                  'delta_c': self.U[:, 1].copy()}
+        every = np.ones(self.num_envs, dtype=bool)
         for k in list(infos):
-            infos['_' + k] = mask.copy()
+            infos['_' + k] = every
         if any(why):
             infos['lost'] = np.array(why, dtype=object)
             infos['_lost'] = np.array([bool(w) for w in why])

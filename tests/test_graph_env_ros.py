@@ -2,11 +2,12 @@
 
 import numpy as np
 import pytest
-import rosproc
 
 from fohssv_sim import control
 from fohssv_sim.envs import HSSVEnv
 from fohssv_sim.params import ParameterError
+
+import rosproc
 
 pytestmark = pytest.mark.graph
 

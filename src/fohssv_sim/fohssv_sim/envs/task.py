@@ -85,7 +85,7 @@ ENV_PARAMETERS: tuple[ParameterSpec, ...] = (
        'episode is truncated', low=1.0, low_open=False, high=1e9, high_open=False),
     _P('target_depth', 'z_ref', 0.0, 'm', 'depth the default reward tracks', low=-100.0,
        high=100.0, low_open=False, high_open=False),
-    _P('depth_scale', '-', 0.01, 'm', 'depth error that costs 1 per step in the default reward',
+    _P('depth_scale', '-', 0.1, 'm', 'depth error that costs 1 per step in the default reward',
        low=0.0),
     _P('planing_weight', '-', 1e-4, 's^4/m^4', 'weight of Fp^2 in the default reward',
        low=0.0, low_open=False),

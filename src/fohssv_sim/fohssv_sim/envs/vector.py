@@ -46,13 +46,14 @@ __all__ = ['HSSVVectorEnv', 'fom_periods']
 
 @kernels._njit
 def fom_periods(X, X0, N, hold, CV, smooth, U, active, H, W, fill, eps_k, ET, a0_coef,
-                a0_small, alphas, cp, cc, FP, taken):
+                a0_small, alphas, cp, cc, speeds, FP, status):
     """One control period of ``hold`` steps for every vehicle p with ``active[p]``, input
     ``U[p]`` held: the plant's kernel on p's slice of the arrays (state ``X[p]``, start
     ``X0[p]``, step count ``N[p]``, history group p, whose weights ``W[p]`` are stored
     together: the history's (steps, group, ...) table regrouped by vehicle, so each vehicle's
-    period reads one contiguous block). ``taken[p]``: steps done (fewer when the state turned
-    non-finite, then ``X[p]`` is the last finite state); ``FP[p]``: Fp at X[p]."""
+    period reads one contiguous block). ``status[p]``: 0 done, 1 the state turned non-finite
+    (``X[p]`` is the last finite state), 2 it left the plant's bounds |w| <= ``speeds[p]``,
+    |theta| <= pi/2 (0 for a vehicle not active); ``FP[p]``: Fp at X[p]."""
     held = np.zeros(12)
     held[10] = math.inf
     held[11] = math.inf
@@ -60,6 +61,7 @@ def fom_periods(X, X0, N, hold, CV, smooth, U, active, H, W, fill, eps_k, ET, a0
     bad = np.empty(4)
     for p in range(X.shape[0]):
         if not active[p]:
+            status[p] = 0
             continue
         held[8] = U[p, 0]
         held[9] = U[p, 1]
@@ -69,9 +71,11 @@ def fom_periods(X, X0, N, hold, CV, smooth, U, active, H, W, fill, eps_k, ET, a0
                                 a0_coef[p:p + 1], a0_small[p:p + 1], alphas[p], cp[p], cc[p],
                                 last_f, bad)
         N[p] += k
-        taken[p] = k
         c = kernels._coefficients(CV[p])
         FP[p] = kernels.planing_smooth(x[1], c) if smooth else kernels.planing_exact(x[1], c)
+        v = speeds[p]
+        status[p] = 1 if k < hold else (
+            0 if -v <= x[1] <= v and -1.5707963267948966 <= x[2] <= 1.5707963267948966 else 2)
 
 
 class HSSVVectorEnv(VectorEnv):
@@ -144,6 +148,9 @@ class HSSVVectorEnv(VectorEnv):
         self._speed = np.array([p.speed for p in params])
         self._steps = np.zeros(n, dtype=np.int64)
         self._ended = np.ones(n, dtype=bool)
+        self._status = np.zeros(n, dtype=np.int64)
+        self._every = np.ones(n, dtype=bool)
+        self._why: dict[int, str] = {}
         self._started = False
 
     def _build_fom(self, params) -> None:
@@ -158,7 +165,6 @@ class HSSVVectorEnv(VectorEnv):
         self._fom = dict(X0=np.zeros((n, 4)), N=np.zeros(n, dtype=np.int64),
                          CV=np.array([coefficients(p).kernel for p in params], dtype=float),
                          smooth=params[0].planing_form == 'smooth', alphas=alphas, cp=cp, cc=cc,
-                         taken=np.zeros(n, dtype=np.int64),
                          fill=np.zeros(n, dtype=np.int64))   # each group's buffer fill
 
     # -- reset ------------------------------------------------------------------------------
@@ -183,7 +189,7 @@ class HSSVVectorEnv(VectorEnv):
         for i in range(n):
             self._reset_one(i, x0)
         self._started = True
-        return self._observe(), self._infos([''] * n)
+        return self._observe(), self._infos()
 
     def _reset_one(self, i: int, initial_state: Any = None) -> None:
         task = self.tasks[i]
@@ -227,8 +233,8 @@ class HSSVVectorEnv(VectorEnv):
         active = ~self._ended
         previous = self.U.copy()
         self._take(actions, active)
-        why = self._run(active)
-        lost = active & np.array([bool(w) for w in why])
+        status = self._run(active)
+        lost = status > 0
         x = self.X
         if self._user_reward:
             rewards = np.zeros(self.num_envs)
@@ -241,7 +247,7 @@ class HSSVVectorEnv(VectorEnv):
         self._steps[active] += 1
         truncated = active & ~lost & (self._steps >= self._episode_steps)
         self._ended = lost | truncated
-        return self._observe(), rewards, lost, truncated, self._infos(why)
+        return self._observe(), rewards, lost, truncated, self._infos(status)
 
     def _take(self, actions: Any, active: np.ndarray) -> None:
         """Check the actions of the ``active`` vehicles (nothing changes when one is bad),
@@ -262,58 +268,60 @@ class HSSVVectorEnv(VectorEnv):
             self._reset_one(int(i))
         self.U[active, col] = a[active]
 
-    def _run(self, active: np.ndarray) -> list[str]:
-        """One control period of the ``active`` vehicles; why each was lost ('' if not)."""
-        why = [''] * self.num_envs
+    def _run(self, active: np.ndarray) -> np.ndarray:
+        """One control period of the ``active`` vehicles; each one's status (0 fine, 1 the
+        state turned non-finite, 2 it left the plant's bounds)."""
+        status = self._status
         if self._compiled:
             self._advance(active)
-            for i in np.flatnonzero(active & (self._fom['taken'] < self.tasks[0].hold)):
-                why[i] = f'state became non-finite at t={self._time(i):.9g} s'
-        else:
-            for i in np.flatnonzero(active):
-                plant = self._plants[i]
-                try:
-                    plant.advance((self.U[i, 0], self.U[i, 1]), self.tasks[i].hold)
-                except FloatingPointError as exc:
-                    why[i] = str(exc)
-                self.X[i] = plant.x
-                self.FP[i] = plant.planing_force
-        x = self.X
-        speed = self._speed
-        out = active & ~((-speed <= x[:, 1]) & (x[:, 1] <= speed)
-                         & (np.abs(x[:, 2]) <= math.pi / 2) & np.isfinite(x).all(1))
-        for i in np.flatnonzero(out):
-            if not why[i]:
-                why[i] = (f'state beyond physical bounds at t={self._time(i):.9g} s: '
-                          f'[z, w, theta, q] = {x[i].tolist()}')
-        return why
+            return status
+        self._why = {}
+        status[:] = 0
+        for i in np.flatnonzero(active):
+            plant = self._plants[i]
+            try:
+                plant.advance((self.U[i, 0], self.U[i, 1]), self.tasks[i].hold)
+            except FloatingPointError as exc:
+                status[i] = 1
+                self._why[i] = str(exc)
+            self.X[i] = plant.x
+            self.FP[i] = plant.planing_force
+            if not (status[i] or self.tasks[i].in_bounds(self.X[i], self._speed[i])):
+                status[i] = 2
+        return status
 
     def _advance(self, active: np.ndarray) -> None:
         """The one compiled call: a control period of every ``active`` FOM vehicle with its
-        input ``U`` held (no checks, no rewards; the benchmark times it alone)."""
+        input ``U`` held (no rewards, no observations; the benchmark times it alone)."""
         f = self._fom
         h = self._hist
         fom_periods(self.X, f['X0'], f['N'], self.tasks[0].hold, f['CV'], f['smooth'], self.U,
                     active, h.H, self._W, f['fill'], h.eps_k, h.ET, h.a0_coef, h.a0_small,
-                    f['alphas'], f['cp'], f['cc'], self.FP, f['taken'])
+                    f['alphas'], f['cp'], f['cc'], self._speed, self.FP, self._status)
 
-    def _time(self, i: int) -> float:
-        t = self.tasks[i]
-        return float(self._steps[i] + 1) * t.hold * t.params.step if self._compiled else \
-            self._plants[i].t
+    def _lost_text(self, i: int, status: int) -> str:
+        """Why vehicle ``i`` was lost in the step just taken."""
+        t = float(self._steps[i] * self._holds[i]) * self._h[i]
+        if status == 1:
+            return self._why.get(i) or f'state became non-finite at t={t:.9g} s'
+        return (f'state beyond physical bounds at t={t:.9g} s: [z, w, theta, q] = '
+                f'{self.X[i].tolist()} (|w| <= V = {self._speed[i]:g} m/s, |theta| <= pi/2 '
+                'rad)')
 
     def _observe(self) -> np.ndarray:
         return self.tasks[0].observe(self.X, self.FP, self._rw.target_depth)
 
-    def _infos(self, why: list[str]) -> dict[str, Any]:
+    def _infos(self, status: np.ndarray | None = None) -> dict[str, Any]:
         # t = n h with n the steps taken, as the plant counts it
         t = (self._steps * self._holds) * self._h
         infos = {'t': t, 'planing_force': self.FP.copy(), 'delta_f': self.U[:, 0].copy(),
                  'delta_c': self.U[:, 1].copy()}
-        every = np.ones(self.num_envs, dtype=bool)
+        every = self._every
         for k in list(infos):
             infos['_' + k] = every
-        if any(why):
-            infos['lost'] = np.array(why, dtype=object)
-            infos['_lost'] = np.array([bool(w) for w in why])
+        if status is not None and status.any():
+            lost = status > 0
+            infos['lost'] = np.array([self._lost_text(i, s) if s else ''
+                                      for i, s in enumerate(status.tolist())], dtype=object)
+            infos['_lost'] = lost
         return infos

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from ..control import deflection_limit
+from ..kernels import jitable
 from ..models import MAX_PITCH
 from ..params import (
     PARAMETER_BY_NAME,
@@ -124,20 +125,21 @@ _TAKEN = {'control_period': _NODE['control_period'], 'initial_state': _NODE['ini
 RewardFunction = Callable[[np.ndarray, np.ndarray, np.ndarray, float, float], float]
 
 
-def default_reward(task: Task, state: np.ndarray, action: np.ndarray,
-                   previous_action: np.ndarray, planing_force: float) -> float:
-    """The default reward of one step (vectorised over leading axes):
+@jitable
+def default_reward(z, planing_force, delta_f, delta_c, previous_f, previous_c, target_depth,
+                   depth_scale, planing_weight, rate_weight, max_fin, max_cavitator):
+    """The default reward of one step (scalars; the one rule, called interpreted by the
+    single env and compiled by the vectorised one):
 
     -((z - z_ref) / depth_scale)^2 - planing_weight Fp^2
     - rate_weight [((delta_f - delta_f') / max_fin_deflection)^2
                    + ((delta_c - delta_c') / max_cavitator_deflection)^2]
 
     with the primed deflections those of the previous step (0 at the first step)."""
-    state = np.asarray(state)
-    du = (np.asarray(action) - np.asarray(previous_action)) / task.limits
-    e = (state[..., 0] - task.target_depth) / task.depth_scale
-    fp = np.asarray(planing_force)
-    return -(e * e) - task.planing_weight * fp * fp - task.rate_weight * (du * du).sum(-1)
+    e = (z - target_depth) / depth_scale
+    a = (delta_f - previous_f) / max_fin
+    b = (delta_c - previous_c) / max_cavitator
+    return -(e * e) - planing_weight * planing_force * planing_force - rate_weight * (a * a + b * b)
 
 
 @dataclass(frozen=True)
@@ -229,7 +231,11 @@ class Task:
         if self.reward is not None:
             r = float(self.reward(state, action, previous, planing_force, self.target_depth))
         else:
-            r = float(default_reward(self, state, action, previous, planing_force))
+            lf, lc = self.limits.tolist()
+            r = default_reward(float(state[0]), planing_force, float(action[0]),
+                               float(action[1]), float(previous[0]), float(previous[1]),
+                               self.target_depth, self.depth_scale, self.planing_weight,
+                               self.rate_weight, lf, lc)
         return r - self.lost_penalty if lost else r
 
     @staticmethod

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from types import SimpleNamespace
 from typing import Any
 
 import gymnasium as gym
@@ -41,7 +40,7 @@ from ..params import ParameterError
 from .single import spaces_of
 from .task import default_reward, make_task
 
-__all__ = ['HSSVVectorEnv', 'fom_periods']
+__all__ = ['HSSVVectorEnv', 'fom_periods', 'take_actions', 'score_step']
 
 
 @kernels._njit
@@ -76,6 +75,53 @@ def fom_periods(X, X0, N, hold, CV, smooth, U, active, H, W, fill, eps_k, ET, a0
         v = speeds[p]
         status[p] = 1 if k < hold else (
             0 if -v <= x[1] <= v and -1.5707963267948966 <= x[2] <= 1.5707963267948966 else 2)
+
+
+@kernels._njit
+def take_actions(A, lim, fin, active, U, previous):
+    """Hold the actions ``A`` of the ``active`` vehicles in ``U`` (``fin``: A is [delta_f,
+    delta_c], else [delta_c]), the inputs before in ``previous``; returns -1, or the first
+    active vehicle whose action is non-finite or beyond its limit ``lim`` (nothing written)."""
+    n, k = A.shape
+    for p in range(n):
+        if active[p]:
+            for j in range(k):
+                if not (abs(A[p, j]) <= lim[p, j]):
+                    return p
+    for p in range(n):
+        previous[p, 0] = U[p, 0]
+        previous[p, 1] = U[p, 1]
+        if active[p]:
+            if fin:
+                U[p, 0] = A[p, 0]
+                U[p, 1] = A[p, 1]
+            else:
+                U[p, 1] = A[p, 0]
+    return -1
+
+
+@kernels._njit
+def score_step(X, U, previous, FP, RW, active, status, steps, episode_steps, R, lost,
+               truncated, ended):
+    """After a period: each active vehicle's default reward (``RW[p]`` = [target_depth,
+    depth_scale, planing_weight, rate_weight, max_fin, max_cavitator, lost_penalty]; less
+    the penalty when ``status[p]`` says it was lost), its step count, and the lost,
+    truncated and ended flags (all False and reward 0 for a vehicle not active)."""
+    for p in range(X.shape[0]):
+        if not active[p]:
+            R[p] = 0.0
+            lost[p] = False
+            truncated[p] = False
+            ended[p] = False
+            continue
+        w = RW[p]
+        r = default_reward(X[p, 0], FP[p], U[p, 0], U[p, 1], previous[p, 0], previous[p, 1],
+                           w[0], w[1], w[2], w[3], w[4], w[5])
+        steps[p] += 1
+        lost[p] = status[p] > 0
+        R[p] = r - w[6] if lost[p] else r
+        truncated[p] = not lost[p] and steps[p] >= episode_steps[p]
+        ended[p] = lost[p] or truncated[p]
 
 
 class HSSVVectorEnv(VectorEnv):
@@ -116,12 +162,12 @@ class HSSVVectorEnv(VectorEnv):
                                      'observe_depth_error (one observation and action space)')
         ts = self.tasks
         # the per-vehicle task values the vectorised rules read (default_reward, bounds)
-        self._rw = SimpleNamespace(
-            limits=np.stack([t.limits for t in ts]),
-            **{k: np.array([getattr(t, k) for t in ts], dtype=float) for k in (
-                'target_depth', 'depth_scale', 'planing_weight', 'rate_weight', 'lost_penalty')})
-        self._act_limits = self._rw.limits if t0.fin else self._rw.limits[:, 1:]
-        self._episode_steps = np.array([t.episode_steps for t in ts])
+        # the per-vehicle task values of the default reward (score_step)
+        self._rw = np.array([[t.target_depth, t.depth_scale, t.planing_weight, t.rate_weight,
+                              *t.limits.tolist(), t.lost_penalty] for t in ts])
+        limits = np.stack([t.limits for t in ts])
+        self._act_limits = np.ascontiguousarray(limits if t0.fin else limits[:, 1:])
+        self._episode_steps = np.array([t.episode_steps for t in ts], dtype=np.int64)
         self._holds = np.array([t.hold for t in ts])
         self._h = np.array([t.params.step for t in ts])
         self._user_reward = any(t.reward is not None for t in ts)
@@ -145,6 +191,7 @@ class HSSVVectorEnv(VectorEnv):
         self.X = np.zeros((n, 4))
         self.FP = np.zeros(n)
         self.U = np.zeros((n, 2))
+        self._previous = np.zeros((n, 2))
         self._speed = np.array([p.speed for p in params])
         self._steps = np.zeros(n, dtype=np.int64)
         self._ended = np.ones(n, dtype=bool)
@@ -231,22 +278,17 @@ class HSSVVectorEnv(VectorEnv):
         if not self._started:
             raise RuntimeError('call reset() before step()')
         active = ~self._ended
-        previous = self.U.copy()
         self._take(actions, active)
         status = self._run(active)
-        lost = status > 0
-        x = self.X
+        n = self.num_envs
+        rewards, lost, truncated = np.empty(n), np.empty(n, bool), np.empty(n, bool)
+        score_step(self.X, self.U, self._previous, self.FP, self._rw, active, status,
+                   self._steps, self._episode_steps, rewards, lost, truncated, self._ended)
         if self._user_reward:
-            rewards = np.zeros(self.num_envs)
             for i in np.flatnonzero(active):
-                rewards[i] = self.tasks[i].score(x[i].copy(), self.U[i].copy(), previous[i],
-                                                 float(self.FP[i]), bool(lost[i]))
-        else:
-            rewards = default_reward(self._rw, x, self.U, previous, self.FP)
-            rewards = np.where(active, rewards - lost * self._rw.lost_penalty, 0.0)
-        self._steps[active] += 1
-        truncated = active & ~lost & (self._steps >= self._episode_steps)
-        self._ended = lost | truncated
+                rewards[i] = self.tasks[i].score(self.X[i].copy(), self.U[i].copy(),
+                                                 self._previous[i].copy(), float(self.FP[i]),
+                                                 bool(lost[i]))
         return self._observe(), rewards, lost, truncated, self._infos(status)
 
     def _take(self, actions: Any, active: np.ndarray) -> None:
@@ -257,16 +299,12 @@ class HSSVVectorEnv(VectorEnv):
         if a.shape != lim.shape:
             raise ValueError(f'actions of shape {a.shape} must have the shape {lim.shape} '
                              '(num_envs, action size)')
-        bad = active & ~(np.abs(a) <= lim).all(1)
-        for i in np.flatnonzero(bad):
-            self.tasks[i].action(a[i])                   # raises, naming value and range
-        col = slice(None) if lim.shape[1] == 2 else slice(1, 2)
-        if active.all():
-            self.U[:, col] = a
-            return
-        for i in np.flatnonzero(~active):
-            self._reset_one(int(i))
-        self.U[active, col] = a[active]
+        bad = take_actions(a, lim, lim.shape[1] == 2, active, self.U, self._previous)
+        if bad >= 0:
+            self.tasks[bad].action(a[bad])               # raises, naming value and range
+        if not active.all():
+            for i in np.flatnonzero(~active):
+                self._reset_one(int(i))
 
     def _run(self, active: np.ndarray) -> np.ndarray:
         """One control period of the ``active`` vehicles; each one's status (0 fine, 1 the
@@ -309,7 +347,7 @@ class HSSVVectorEnv(VectorEnv):
                 'rad)')
 
     def _observe(self) -> np.ndarray:
-        return self.tasks[0].observe(self.X, self.FP, self._rw.target_depth)
+        return self.tasks[0].observe(self.X, self.FP, self._rw[:, 0])
 
     def _infos(self, status: np.ndarray | None = None) -> dict[str, Any]:
         # t = n h with n the steps taken, as the plant counts it

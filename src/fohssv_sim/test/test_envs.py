@@ -158,3 +158,22 @@ def test_bad_keyword_arguments_are_refused(kwargs, words):
 def test_step_before_reset_is_refused():
     with pytest.raises(RuntimeError, match='call reset'):
         HSSVEnv().step([0.0])
+
+
+def test_environments_doc_holds_the_keyword_table():
+    from pathlib import Path
+
+    from fohssv_sim.envs.baselines import keyword_table
+
+    doc = Path(__file__).resolve().parents[3] / 'docs' / 'environments.md'
+    assert keyword_table() in doc.read_text()
+
+
+def test_baseline_evaluation_scores_eq31_against_doing_nothing():
+    from fohssv_sim.envs.baselines import evaluate
+
+    law = evaluate('state_feedback', episodes=2, episode_steps=300)
+    zero = evaluate('zero', episodes=2, episode_steps=300)
+    assert law.episodes == 2 and law.lost == 0
+    # eq. 31 holds the depth; with no deflection the vehicle drifts off it
+    assert law.mean_return > zero.mean_return and law.mean_depth_error < zero.mean_depth_error

@@ -55,6 +55,29 @@ def test_ros_env_equals_in_process_env_for_10000_steps(ros_env):
     assert env.process.poll() is None           # the same plant process
 
 
+def test_ros_env_drives_a_plant_already_running(ros_env):
+    kwargs = {'speed': 80.0, 'episode_steps': 200, 'control_period': 2e-4}
+    env = ros_env(namespace='sub', start_plant=False, timeout=120.0, **kwargs)
+    plant = rosproc.start('fohssv_sim', 'plant', env.plant_args(),
+                          env=rosproc.ros_env(env.domain_id))
+    try:
+        ref = HSSVEnv(**kwargs)
+        law = control.make('state_feedback')
+        for seed in (3, 4):                 # each reset through the plant's service
+            rng = np.random.default_rng(seed)
+            obs, info = env.reset(seed=seed)
+            want, _ = ref.reset(seed=seed)
+            worst = np.abs(obs - want).max()
+            for _ in range(200):
+                a = [law.command(info['t'], obs)[1] + rng.uniform(-0.01, 0.01)]
+                obs, r, term, trunc, info = env.step(a)
+                want, r_want, *_ = ref.step(a)
+                worst = max(worst, np.abs(obs - want).max(), abs(r - r_want))
+            assert worst == 0.0 and trunc and not term
+    finally:
+        rosproc.stop(plant)
+
+
 def test_ros_env_terminates_when_the_plant_loses_the_vehicle(ros_env):
     env = ros_env(initial_state=[0.0, 80.0, 0.0, 0.0], initial_spread=(0, 0, 0, 0))
     obs, _ = env.reset(seed=0)

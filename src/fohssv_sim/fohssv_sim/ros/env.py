@@ -28,6 +28,7 @@ import os
 import subprocess
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -85,7 +86,7 @@ class HSSVRosEnv(gym.Env):
         self.timeout = float(timeout)
         self.episode_parameters = self.task.params.to_dict()
         self.process: subprocess.Popen | None = None
-        self._domain = domain_id
+        self.domain_id = domain_id
         self._log = None
         self._context = _context(domain_id)
         self._node = rclpy.create_node('hssv_env', namespace='/' + self.namespace,
@@ -105,10 +106,16 @@ class HSSVRosEnv(gym.Env):
         self._t = 0.0
         self._done = True
         self._u = np.zeros(2)
+        self._heard = False       # a sample of the plant was taken (it answers us only)
 
     # -- the plant ------------------------------------------------------------------------
-    def _plant_args(self, x0: tuple) -> list[str]:
+    def plant_args(self, initial_state: Sequence[float] | None = None) -> list[str]:
+        """The arguments of ``ros2 run fohssv_sim plant`` for the plant this env expects
+        (lockstep, its model parameters and control period, its namespace; the start state
+        ``initial_state``, default the env's): how the env starts it, and how to start one
+        for ``start_plant=False``."""
         task = self.task
+        x0 = task.initial_state if initial_state is None else tuple(initial_state)
         p = dict(task.params.to_dict())
         if p['model'] == 'fractional' and p['solver'] == 'soe':
             # the in-process env's history: sized for an episode (the plant runs open-ended)
@@ -126,12 +133,12 @@ class HSSVRosEnv(gym.Env):
 
         exe = Path(get_package_prefix('fohssv_sim')) / 'lib' / 'fohssv_sim' / 'plant'
         env = dict(os.environ, PYTHONUNBUFFERED='1')
-        if self._domain is not None:
-            env['ROS_DOMAIN_ID'] = str(self._domain)
+        if self.domain_id is not None:
+            env['ROS_DOMAIN_ID'] = str(self.domain_id)
         if self._log is not None:
             self._log.close()
         self._log = tempfile.TemporaryFile('w+')  # noqa: SIM115 - closed with the env
-        self.process = subprocess.Popen([str(exe), *self._plant_args(x0)], env=env,
+        self.process = subprocess.Popen([str(exe), *self.plant_args(x0)], env=env,
                                         stdout=self._log, stderr=subprocess.STDOUT, text=True,
                                         start_new_session=True)
 
@@ -196,6 +203,16 @@ class HSSVRosEnv(gym.Env):
             self._start(x0)
             wait = max(wait, START_TIMEOUT)
         else:
+            if not self._heard:
+                # a running plant publishes its sample once this env's subscription matches:
+                # take it first, so that it cannot pass for the sample of the reset below
+                deadline = time.monotonic() + max(self.timeout, START_TIMEOUT)
+                while not (self._states and self._forces):
+                    if time.monotonic() > deadline:
+                        raise TimeoutError(f'no sample from a plant under namespace '
+                                           f"'/{self.namespace}' within "
+                                           f'{max(self.timeout, START_TIMEOUT):g} s')
+                    self._executor.spin_once(timeout_sec=0.1)
             req = SetParameters.Request()
             req.parameters = [Parameter('initial_state', Parameter.Type.DOUBLE_ARRAY,
                                         list(x0)).to_parameter_msg()]
@@ -212,6 +229,7 @@ class HSSVRosEnv(gym.Env):
         if isinstance(got, str):
             raise RuntimeError(got)
         x, fp = got
+        self._heard = True
         self._last, self._last_fp = x, fp
         self._t = 0.0
         self._steps = 0

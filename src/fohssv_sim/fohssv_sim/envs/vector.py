@@ -161,7 +161,6 @@ class HSSVVectorEnv(VectorEnv):
                 raise ParameterError('vehicles must share fin, observe_planing_force and '
                                      'observe_depth_error (one observation and action space)')
         ts = self.tasks
-        # the per-vehicle task values the vectorised rules read (default_reward, bounds)
         # the per-vehicle task values of the default reward (score_step)
         self._rw = np.array([[t.target_depth, t.depth_scale, t.planing_weight, t.rate_weight,
                               *t.limits.tolist(), t.lost_penalty] for t in ts])
@@ -208,7 +207,6 @@ class HSSVVectorEnv(VectorEnv):
             raise ParameterError('vehicles of one vectorised FOM env must share control_period')
         # the weights regrouped by vehicle: (vehicle, fill, 1, row, 2), one block each
         self._W = np.ascontiguousarray(hist.W.transpose(1, 0, 2, 3))[:, :, None]
-        self._hist = hist
         self._fom = dict(X0=np.zeros((n, 4)), N=np.zeros(n, dtype=np.int64),
                          CV=np.array([coefficients(p).kernel for p in params], dtype=float),
                          smooth=params[0].planing_form == 'smooth', alphas=alphas, cp=cp, cc=cc,

@@ -33,13 +33,20 @@ def _singles_with_autoreset(kwargs, vehicles, seed, actions):
     return np.array(rows), np.array(rewards), flags
 
 
-@pytest.mark.parametrize('model', ['fractional', 'delay-free'])
-def test_vector_env_equals_single_envs_through_autoresets(model):
-    kwargs = {'model': model, 'episode_steps': 7, 'observe_planing_force': True}
+@pytest.mark.parametrize('model, extra', [
+    ('fractional', {}), ('delay-free', {}), ('delayed', {}),
+    ('delay-free', {'speed_range': (65.0, 85.0)}),     # V drawn at each reset
+    ('delayed', {'speed_range': (65.0, 85.0)}),        # and with it the delay L/V
+    ('fractional', {'solver': 'abm'}),                 # each vehicle's plant in turn
+])
+def test_vector_env_equals_single_envs_through_autoresets(model, extra):
+    kwargs = {'model': model, 'episode_steps': 7, 'observe_planing_force': True, **extra}
     vehicles = [dict(v) for v in VEHICLES]
-    if model != 'fractional':
-        for v in vehicles:
+    for v in vehicles:
+        if model != 'fractional':
             v.pop('fractional_order', None)
+        if 'speed_range' in extra:
+            v.pop('speed')
     actions = np.random.default_rng(3).uniform(-0.1, 0.1, (20, 3, 1))
     ref, ref_r, ref_flags = _singles_with_autoreset(kwargs, vehicles, 11, actions)
     venv = gym.make_vec(ENV_ID, num_envs=3, vectorization_mode='vector_entry_point',
@@ -73,7 +80,10 @@ def test_vector_env_loses_one_vehicle_and_keeps_the_others():
 @pytest.mark.parametrize('kwargs, words', [
     ({'num_envs': 0}, 'num_envs=0 is not valid'),
     ({'num_envs': 2, 'vehicles': [{}]}, 'vehicles has 1 entries'),
-    ({'num_envs': 2, 'vehicles': [{'step': 2e-5}, {'step': 1e-5}]}, 'must share step'),
+    ({'num_envs': 2, 'vehicles': [{'step': 2e-5}, {'step': 1e-5}]},
+     'must share control_period / step'),
+    ({'num_envs': 2, 'vehicles': [{'step': 2e-5}, {'step': 1e-5, 'control_period': 5e-5}]},
+     'must share step'),
     ({'num_envs': 2, 'order_range': (0.8, 0.9)}, 'order_range is not supported'),
     ({'num_envs': 2, 'vehicles': [{'fin': True}, {}]}, 'vehicles must share fin'),
 ])

@@ -6,13 +6,15 @@ vehicle its own model parameters, e.g. ``vehicles=[{'speed': 70}, {'speed': 80}]
 seeded with ``seed + i``, as :class:`gymnasium.vector.SyncVectorEnv` seeds its copies: its
 observations equal those of that single environment (tested to 1e-12).
 
-For the fractional model with the compiled 'soe' solver (the default) one compiled call per
-control period advances every vehicle by its integration steps: the plant's own kernel
-(:func:`fohssv_sim.kernels.fom_soe_run`) on each vehicle's slice of one SOE history with a
-group per vehicle, the layout of :mod:`fohssv_sim.analysis.population`. The vehicles must
-then share the step, the planing form and the 'soe' settings, and ``order_range`` is refused
-(a new alpha needs a new history layout). Other models step each vehicle's plant in turn
-(each one compiled call).
+One compiled call per control period advances every vehicle by its integration steps
+(:mod:`.stepping`): for the fractional model with its compiled 'soe' solver (the default)
+the plant's own kernel on each vehicle's slice of one SOE history with a group per vehicle,
+the layout of :mod:`fohssv_sim.analysis.population` (the vehicles then share the step, the
+planing form and the 'soe' settings, and ``order_range`` is refused: a new alpha needs a new
+history layout); for the delay-free and delayed models their RK4 kernels, each vehicle with
+its own history rings (the vehicles share the model and its planing and immersion forms).
+The vehicles share ``control_period / step``. Anything else (an interpreted solver, mixed
+models) steps each vehicle's plant in turn.
 
 Autoreset: Gymnasium's next-step mode (``AutoresetMode.NEXT_STEP``): the step after a
 vehicle's episode ended resets it (its action is ignored) and returns its first observation
@@ -38,90 +40,21 @@ from ..coefficients import coefficients
 from ..models import make_plant
 from ..params import ParameterError
 from .single import spaces_of
-from .task import default_reward, make_task
+from .stepping import fom_periods, int_periods, score_step, take_actions
+from .task import make_task
 
-__all__ = ['HSSVVectorEnv', 'fom_periods', 'take_actions', 'score_step']
-
-
-@kernels._njit
-def fom_periods(X, X0, N, hold, CV, smooth, U, active, H, W, fill, eps_k, ET, a0_coef,
-                a0_small, alphas, cp, cc, speeds, FP, status):
-    """One control period of ``hold`` steps for every vehicle p with ``active[p]``, input
-    ``U[p]`` held: the plant's kernel on p's slice of the arrays (state ``X[p]``, start
-    ``X0[p]``, step count ``N[p]``, history group p, whose weights ``W[p]`` are stored
-    together: the history's (steps, group, ...) table regrouped by vehicle, so each vehicle's
-    period reads one contiguous block). ``status[p]``: 0 done, 1 the state turned non-finite
-    (``X[p]`` is the last finite state), 2 it left the plant's bounds |w| <= ``speeds[p]``,
-    |theta| <= pi/2 (0 for a vehicle not active); ``FP[p]``: Fp at X[p]."""
-    held = np.zeros(12)
-    held[10] = math.inf
-    held[11] = math.inf
-    last_f = np.empty(4)
-    bad = np.empty(4)
-    for p in range(X.shape[0]):
-        if not active[p]:
-            status[p] = 0
-            continue
-        held[8] = U[p, 0]
-        held[9] = U[p, 1]
-        x = X[p]
-        k = kernels.fom_soe_run(x, X0[p], N[p], hold, CV[p], smooth, held, False, H[p:p + 1],
-                                W[p], fill[p:p + 1], eps_k[p:p + 1], ET[p:p + 1],
-                                a0_coef[p:p + 1], a0_small[p:p + 1], alphas[p], cp[p], cc[p],
-                                last_f, bad)
-        N[p] += k
-        c = kernels._coefficients(CV[p])
-        FP[p] = kernels.planing_smooth(x[1], c) if smooth else kernels.planing_exact(x[1], c)
-        v = speeds[p]
-        status[p] = 1 if k < hold else (
-            0 if -v <= x[1] <= v and -1.5707963267948966 <= x[2] <= 1.5707963267948966 else 2)
+__all__ = ['HSSVVectorEnv']
 
 
-@kernels._njit
-def take_actions(A, lim, fin, active, U, previous):
-    """Hold the actions ``A`` of the ``active`` vehicles in ``U`` (``fin``: A is [delta_f,
-    delta_c], else [delta_c]), the inputs before in ``previous``; returns -1, or the first
-    active vehicle whose action is non-finite or beyond its limit ``lim`` (nothing written)."""
-    n, k = A.shape
-    for p in range(n):
-        if active[p]:
-            for j in range(k):
-                if not (abs(A[p, j]) <= lim[p, j]):
-                    return p
-    for p in range(n):
-        previous[p, 0] = U[p, 0]
-        previous[p, 1] = U[p, 1]
-        if active[p]:
-            if fin:
-                U[p, 0] = A[p, 0]
-                U[p, 1] = A[p, 1]
-            else:
-                U[p, 1] = A[p, 0]
-    return -1
-
-
-@kernels._njit
-def score_step(X, U, previous, FP, RW, active, status, steps, episode_steps, R, lost,
-               truncated, ended):
-    """After a period: each active vehicle's default reward (``RW[p]`` = [target_depth,
-    depth_scale, planing_weight, rate_weight, max_fin, max_cavitator, lost_penalty]; less
-    the penalty when ``status[p]`` says it was lost), its step count, and the lost,
-    truncated and ended flags (all False and reward 0 for a vehicle not active)."""
-    for p in range(X.shape[0]):
-        if not active[p]:
-            R[p] = 0.0
-            lost[p] = False
-            truncated[p] = False
-            ended[p] = False
-            continue
-        w = RW[p]
-        r = default_reward(X[p, 0], FP[p], U[p, 0], U[p, 1], previous[p, 0], previous[p, 1],
-                           w[0], w[1], w[2], w[3], w[4], w[5])
-        steps[p] += 1
-        lost[p] = status[p] > 0
-        R[p] = r - w[6] if lost[p] else r
-        truncated[p] = not lost[p] and steps[p] >= episode_steps[p]
-        ended[p] = lost[p] or truncated[p]
+def _kind(params) -> str | None:
+    """How the vehicles step together: 'fom' (the compiled 'soe' FOM), 'delay-free' or
+    'delayed' (all of that model and planing or immersion form), else None (each vehicle's
+    plant in turn: an interpreted solver, or mixed models)."""
+    models = {p.model for p in params}
+    if models == {'fractional'}:
+        return 'fom' if all(p.solver == 'soe' for p in params) else None
+    forms = {(p.planing_form, p.immersion_form) for p in params}
+    return models.pop() if len(models) == 1 and len(forms) == 1 else None
 
 
 class HSSVVectorEnv(VectorEnv):
@@ -173,8 +106,11 @@ class HSSVVectorEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, n)
         self.action_space = batch_space(self.single_action_space, n)
         params = [t.params for t in self.tasks]
-        self._compiled = all(p.model == 'fractional' and p.solver == 'soe' for p in params)
-        if self._compiled:
+        if len({t.hold for t in ts}) > 1:
+            raise ParameterError('vehicles must share control_period / step (the integration '
+                                 'steps of one env step)')
+        self._kind = _kind(params)
+        if self._kind == 'fom':
             try:
                 check_population(params)
             except ValueError as exc:
@@ -184,6 +120,8 @@ class HSSVVectorEnv(VectorEnv):
                                      '(each alpha has its own history layout); give each '
                                      'vehicle its fractional_order through vehicles')
             self._build_fom(params)
+        elif self._kind is not None:
+            self._build_int(params)
         self._plants = [None] * n
         self._params = params
         self._rngs = [np.random.default_rng() for _ in range(n)]
@@ -203,14 +141,30 @@ class HSSVVectorEnv(VectorEnv):
         hist, alphas, cp, cc = _soe_arrays(params, self.tasks[0].duration)
         n = self.num_envs
         self._hist = hist
-        if len({t.hold for t in self.tasks}) > 1:
-            raise ParameterError('vehicles of one vectorised FOM env must share control_period')
         # the weights regrouped by vehicle: (vehicle, fill, 1, row, 2), one block each
         self._W = np.ascontiguousarray(hist.W.transpose(1, 0, 2, 3))[:, :, None]
         self._fom = dict(X0=np.zeros((n, 4)), N=np.zeros(n, dtype=np.int64),
                          CV=np.array([coefficients(p).kernel for p in params], dtype=float),
                          smooth=params[0].planing_form == 'smooth', alphas=alphas, cp=cp, cc=cc,
                          fill=np.zeros(n, dtype=np.int64))   # each group's buffer fill
+
+    def _build_int(self, params) -> None:
+        n = self.num_envs
+        taus = []
+        for t in self.tasks:                # the longest delay a reset may draw sizes the rings
+            p = t.params
+            if t.speed_range is not None and p.advection_delay == 'consistent':
+                p = p.replace(speed=t.speed_range[0])
+            taus.append(p.delay if p.model == 'delayed' else 0.0)
+        size = int(math.ceil(max(tau / p.step for tau, p in zip(taus, params)))) + 3
+        self._int = dict(X0=np.zeros((n, 4)), N=np.zeros(n, dtype=np.int64),
+                         H=np.array([p.step for p in params]),
+                         CV=np.array([coefficients(p).kernel for p in params], dtype=float),
+                         smooth=params[0].planing_form == 'smooth',
+                         delayed=self._kind == 'delayed',
+                         HX=np.zeros((n, size, 4)), HF=np.zeros((n, size, 4)),
+                         LAG=np.zeros(n), TAU=np.zeros(n),
+                         paper=params[0].immersion_form == 'paper')
 
     # -- reset ------------------------------------------------------------------------------
     def reset(self, *, seed: int | Sequence[int | None] | None = None,
@@ -245,7 +199,7 @@ class HSSVVectorEnv(VectorEnv):
         self.U[i] = 0.0
         self._steps[i] = 0
         self._ended[i] = False
-        if self._compiled:
+        if self._kind == 'fom':
             f = self._fom
             f['X0'][i] = x0
             f['N'][i] = 0
@@ -256,6 +210,24 @@ class HSSVVectorEnv(VectorEnv):
             w = float(x0[1])
             self.FP[i] = kernels.planing_smooth(w, c) if f['smooth'] else \
                 kernels.planing_exact(w, c)
+        elif self._kind is not None:
+            f = self._int
+            f['X0'][i] = x0
+            f['N'][i] = 0
+            f['CV'][i] = coefficients(params).kernel
+            f['HX'][i] = 0.0
+            f['HF'][i] = 0.0
+            tau = params.delay if f['delayed'] else 0.0
+            f['TAU'][i] = tau
+            f['LAG'][i] = tau / params.step
+            c = kernels._coefficients(f['CV'][i])
+            z, w, th, _ = (float(v) for v in x0)
+            if f['delayed']:      # before t = 0 the history is x(0): the delayed state is x0
+                form = 'paper' if f['paper'] else 'geometric'
+                self.FP[i] = kernels.planing_delayed(z, th, z, w, th, c, form)
+            else:
+                self.FP[i] = kernels.planing_smooth(w, c) if f['smooth'] else \
+                    kernels.planing_exact(w, c)
         else:
             plant = self._plants[i]
             if plant is not None and plant.params == params:
@@ -308,7 +280,7 @@ class HSSVVectorEnv(VectorEnv):
         """One control period of the ``active`` vehicles; each one's status (0 fine, 1 the
         state turned non-finite, 2 it left the plant's bounds)."""
         status = self._status
-        if self._compiled:
+        if self._kind is not None:
             self._advance(active)
             return status
         self._why = {}
@@ -327,11 +299,18 @@ class HSSVVectorEnv(VectorEnv):
         return status
 
     def _advance(self, active: np.ndarray) -> None:
-        """The one compiled call: a control period of every ``active`` FOM vehicle with its
-        input ``U`` held (no rewards, no observations; the benchmark times it alone)."""
+        """The one compiled call: a control period of every ``active`` vehicle with its input
+        ``U`` held (no rewards, no observations; the benchmark times it alone)."""
+        hold = self.tasks[0].hold
+        if self._kind != 'fom':
+            f = self._int
+            int_periods(self.X, f['N'], hold, f['H'], f['CV'], f['smooth'], f['delayed'],
+                        f['HX'], f['HF'], f['LAG'], f['TAU'], f['X0'], f['paper'], self.U,
+                        active, self._speed, self.FP, self._status)
+            return
         f = self._fom
         h = self._hist
-        fom_periods(self.X, f['X0'], f['N'], self.tasks[0].hold, f['CV'], f['smooth'], self.U,
+        fom_periods(self.X, f['X0'], f['N'], hold, f['CV'], f['smooth'], self.U,
                     active, h.H, self._W, f['fill'], h.eps_k, h.ET, h.a0_coef, h.a0_small,
                     f['alphas'], f['cp'], f['cc'], self._speed, self.FP, self._status)
 

@@ -93,7 +93,7 @@ def test_vector_env_bad_arguments(kwargs, words):
 
 
 def test_recorded_episode_loads_with_load_run_and_equals_the_observations(tmp_path):
-    env = RecordEpisodes(HSSVEnv(episode_steps=40, fin=True), tmp_path / 'runs')
+    env = RecordEpisodes(HSSVEnv(episode_steps=40, fin=True), tmp_path / 'runs', 'random')
     rng = np.random.default_rng(0)
     episodes = []
     for seed in (1, 2):
@@ -118,3 +118,4 @@ def test_recorded_episode_loads_with_load_run_and_equals_the_observations(tmp_pa
         assert np.array_equal(run.planing_force, fps)
         assert np.array_equal(np.column_stack([run.delta_f, run.delta_c]), acts)
         assert run.parameters['model'] == 'fractional' and run.parameters['speed'] == 75.0
+        assert run.metadata['fohssv.controller'] == 'random'

@@ -28,16 +28,18 @@ __all__ = ['RecordEpisodes']
 
 class RecordEpisodes(gym.Wrapper):
     """Writes every episode of ``env`` to a bag under ``directory`` (see the module
-    docstring); ``paths`` lists the bags written so far. An episode's bag is closed when it
+    docstring), naming the policy ``controller`` in the run metadata (``fohssv plot`` shows
+    it); ``paths`` lists the bags written so far. An episode's bag is closed when it
     ends (terminated or truncated), at the next reset, or at :meth:`close`.
 
     Raises:
         FileExistsError: an episode's bag directory exists already.
     """
 
-    def __init__(self, env: gym.Env, directory: str | Path) -> None:
+    def __init__(self, env: gym.Env, directory: str | Path, controller: str = 'agent') -> None:
         super().__init__(env)
         self.directory = Path(directory)
+        self.controller = controller
         self.paths: list[Path] = []
         self._writer: RunWriter | None = None
 
@@ -52,7 +54,7 @@ class RecordEpisodes(gym.Wrapper):
             w.add_topic(topic.name if topic.name.startswith('/') else '/' + topic.name,
                         topic.type)
         params = getattr(self.env.unwrapped, 'episode_parameters', {})
-        w.add_metadata({'fohssv.plant_parameters': params,
+        w.add_metadata({'fohssv.plant_parameters': params, 'fohssv.controller': self.controller,
                         'fohssv.environment': self.env.spec.id if self.env.spec else
                         type(self.env.unwrapped).__name__})
         self._sample(obs, info)

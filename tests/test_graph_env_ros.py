@@ -1,10 +1,11 @@
 """HSSVRos-v0 against HSSV-v0: a real plant process over real DDS, in lockstep."""
 
+import gymnasium as gym
 import numpy as np
 import pytest
 
 from fohssv_sim import control
-from fohssv_sim.envs import HSSVEnv
+from fohssv_sim.envs import ROS_ENV_ID, HSSVEnv
 from fohssv_sim.params import ParameterError
 
 import rosproc
@@ -90,7 +91,5 @@ def test_ros_env_terminates_when_the_plant_loses_the_vehicle(ros_env):
 
 
 def test_ros_env_refuses_domain_randomisation():
-    from fohssv_sim.ros.env import HSSVRosEnv
-
     with pytest.raises(ParameterError, match='speed_range=.* is not supported by HSSVRos-v0'):
-        HSSVRosEnv(speed_range=(70.0, 80.0))
+        gym.make(ROS_ENV_ID, speed_range=(70.0, 80.0))     # registered, made through Gymnasium

@@ -37,6 +37,7 @@ def _singles_with_autoreset(kwargs, vehicles, seed, actions):
     ('fractional', {}), ('delay-free', {}), ('delayed', {}),
     ('delay-free', {'speed_range': (65.0, 85.0)}),     # V drawn at each reset
     ('delayed', {'speed_range': (65.0, 85.0)}),        # and with it the delay L/V
+    ('fractional', {'speed_range': (65.0, 85.0), 'order_range': (0.7, 0.95)}),
     ('fractional', {'solver': 'abm'}),                 # each vehicle's plant in turn
 ])
 def test_vector_env_equals_single_envs_through_autoresets(model, extra):
@@ -47,6 +48,8 @@ def test_vector_env_equals_single_envs_through_autoresets(model, extra):
             v.pop('fractional_order', None)
         if 'speed_range' in extra:
             v.pop('speed')
+        if 'order_range' in extra:
+            v.pop('fractional_order', None)
     actions = np.random.default_rng(3).uniform(-0.1, 0.1, (20, 3, 1))
     ref, ref_r, ref_flags = _singles_with_autoreset(kwargs, vehicles, 11, actions)
     venv = gym.make_vec(ENV_ID, num_envs=3, vectorization_mode='vector_entry_point',
@@ -84,7 +87,6 @@ def test_vector_env_loses_one_vehicle_and_keeps_the_others():
      'must share control_period / step'),
     ({'num_envs': 2, 'vehicles': [{'step': 2e-5}, {'step': 1e-5, 'control_period': 5e-5}]},
      'must share step'),
-    ({'num_envs': 2, 'order_range': (0.8, 0.9)}, 'order_range is not supported'),
     ({'num_envs': 2, 'vehicles': [{'fin': True}, {}]}, 'vehicles must share fin'),
 ])
 def test_vector_env_bad_arguments(kwargs, words):

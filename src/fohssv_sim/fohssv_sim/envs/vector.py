@@ -10,11 +10,11 @@ One compiled call per control period advances every vehicle by its integration s
 (:mod:`.stepping`): for the fractional model with its compiled 'soe' solver (the default)
 the plant's own kernel on each vehicle's slice of one SOE history with a group per vehicle,
 the layout of :mod:`fohssv_sim.analysis.population` (the vehicles then share the step, the
-planing form and the 'soe' settings, and ``order_range`` is refused: a new alpha needs a new
-history layout); for the delay-free and delayed models their RK4 kernels, each vehicle with
-its own history rings (the vehicles share the model and its planing and immersion forms).
-The vehicles share ``control_period / step``. Anything else (an interpreted solver, mixed
-models) steps each vehicle's plant in turn.
+planing form and the 'soe' settings; an alpha drawn from ``order_range`` gets its group's
+weights anew, padded to the modes the range's ends need); for the delay-free and delayed
+models their RK4 kernels, each vehicle with its own history rings (the vehicles share the
+model and its planing and immersion forms). The vehicles share ``control_period / step``.
+Anything else (an interpreted solver, mixed models) steps each vehicle's plant in turn.
 
 Autoreset: Gymnasium's next-step mode (``AutoresetMode.NEXT_STEP``): the step after a
 vehicle's episode ended resets it (its action is ignored) and returns its first observation
@@ -115,10 +115,6 @@ class HSSVVectorEnv(VectorEnv):
                 check_population(params)
             except ValueError as exc:
                 raise ParameterError(f'vehicles of one vectorised FOM env: {exc}') from None
-            if any(t.order_range is not None for t in self.tasks):
-                raise ParameterError('order_range is not supported by the vectorised FOM env '
-                                     '(each alpha has its own history layout); give each '
-                                     'vehicle its fractional_order through vehicles')
             self._build_fom(params)
         elif self._kind is not None:
             self._build_int(params)
@@ -138,15 +134,44 @@ class HSSVVectorEnv(VectorEnv):
         self._started = False
 
     def _build_fom(self, params) -> None:
-        hist, alphas, cp, cc = _soe_arrays(params, self.tasks[0].duration)
         n = self.num_envs
-        self._hist = hist
+        # the ends of each order_range join the layout as groups of their own (dropped below),
+        # so that the history holds as many modes as any alpha a reset may draw needs: the
+        # count falls as alpha rises (checked at each draw)
+        ends = [p.replace(fractional_order=a) for t, p in zip(self.tasks, params)
+                if t.order_range is not None for a in t.order_range]
+        hist, alphas, cp, cc = _soe_arrays([*params, *ends], self.tasks[0].duration)
+        self._modes = hist.L
         # the weights regrouped by vehicle: (vehicle, fill, 1, row, 2), one block each
-        self._W = np.ascontiguousarray(hist.W.transpose(1, 0, 2, 3))[:, :, None]
+        self._W = np.ascontiguousarray(hist.W[:, :n].transpose(1, 0, 2, 3))[:, :, None]
         self._fom = dict(X0=np.zeros((n, 4)), N=np.zeros(n, dtype=np.int64),
                          CV=np.array([coefficients(p).kernel for p in params], dtype=float),
-                         smooth=params[0].planing_form == 'smooth', alphas=alphas, cp=cp, cc=cc,
-                         fill=np.zeros(n, dtype=np.int64))   # each group's buffer fill
+                         smooth=params[0].planing_form == 'smooth', alphas=alphas[:n].copy(),
+                         cp=cp[:n].copy(), cc=cc[:n].copy(),
+                         fill=np.zeros(n, dtype=np.int64),      # each group's buffer fill
+                         **{k: np.ascontiguousarray(getattr(hist, k)[:n]) for k in (
+                             'H', 'eps_k', 'ET', 'a0_coef', 'a0_small')})
+
+    def _new_order(self, i: int, params) -> None:
+        """Vehicle ``i``'s history group for a newly drawn alpha: its one-group history's
+        weights, padded to the layout's modes as the history pads every group (zero weights,
+        the decay of its fastest mode)."""
+        one, alphas, cp, cc = _soe_arrays([params], self.tasks[i].duration)
+        f, m, L = self._fom, one.L, self._modes
+        if m > L:
+            raise RuntimeError(f'fractional_order={params.fractional_order:g} needs {m} SOE '
+                               f'modes, more than the {L} its order_range was laid out for')
+        W = self._W[i, :, 0]
+        W[:] = 0.0
+        W[:, 1:1 + m] = one.W[:, 0, 1:1 + m]
+        W[:, 1 + L:] = one.W[:, 0, 1 + m:]
+        f['eps_k'][i, 0, :m] = one.eps_k[0, 0]
+        f['eps_k'][i, 0, m:] = one.eps_k[0, 0, m - 1]
+        f['ET'][i, :, :m] = one.ET[0]
+        f['ET'][i, :, m:] = one.ET[0, :, m - 1:m]
+        f['a0_coef'][i] = one.a0_coef[0]
+        f['a0_small'][i] = one.a0_small[0]
+        f['alphas'][i], f['cp'][i], f['cc'][i] = alphas[0], cp[0], cc[0]
 
     def _build_int(self, params) -> None:
         n = self.num_envs
@@ -204,7 +229,9 @@ class HSSVVectorEnv(VectorEnv):
             f['X0'][i] = x0
             f['N'][i] = 0
             f['CV'][i] = coefficients(params).kernel
-            self._hist.H[i] = 0.0
+            if params.fractional_order != f['alphas'][i]:
+                self._new_order(i, params)
+            f['H'][i] = 0.0
             f['fill'][i] = 0
             c = kernels._coefficients(f['CV'][i])
             w = float(x0[1])
@@ -309,10 +336,10 @@ class HSSVVectorEnv(VectorEnv):
                         active, self._speed, self.FP, self._status)
             return
         f = self._fom
-        h = self._hist
-        fom_periods(self.X, f['X0'], f['N'], hold, f['CV'], f['smooth'], self.U,
-                    active, h.H, self._W, f['fill'], h.eps_k, h.ET, h.a0_coef, h.a0_small,
-                    f['alphas'], f['cp'], f['cc'], self._speed, self.FP, self._status)
+        fom_periods(self.X, f['X0'], f['N'], hold, f['CV'], f['smooth'], self.U, active,
+                    f['H'], self._W, f['fill'], f['eps_k'], f['ET'], f['a0_coef'],
+                    f['a0_small'], f['alphas'], f['cp'], f['cc'], self._speed, self.FP,
+                    self._status)
 
     def _lost_text(self, i: int, status: int) -> str:
         """Why vehicle ``i`` was lost in the step just taken."""

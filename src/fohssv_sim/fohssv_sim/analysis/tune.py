@@ -485,8 +485,11 @@ class _Generations:
                 self._own_client = Client(self.scheduler, timeout='20s')
             else:
                 n = self.workers or os.cpu_count() or 1
+                # no dashboard; the scheduler's own HTTP server on a free port, so a
+                # taken 8787 (a shared host) gives no warning
                 self._cluster = LocalCluster(n_workers=n, threads_per_worker=1,
-                                             processes=True, dashboard_address=None)
+                                             processes=True, dashboard_address=None,
+                                             scheduler_kwargs={'dashboard_address': ':0'})
                 self._own_client = Client(self._cluster)
         return self._own_client
 

@@ -274,9 +274,12 @@ class _Dask:
             # threads need no start-up, imports or numba cache loads of their own, nor the
             # problem pickled to them (measured: bench/bench_fit.py --processes-too)
             n = self.args.workers or os.cpu_count() or 1
+            # no dashboard; the scheduler's own HTTP server on a free port, so a taken
+            # 8787 (a shared host) gives no warning
             self.cluster = LocalCluster(n_workers=n, threads_per_worker=1,
                                         processes=self.args.processes,
-                                        dashboard_address=None)
+                                        dashboard_address=None,
+                                        scheduler_kwargs={'dashboard_address': ':0'})
             self.client = Client(self.cluster)
         return self.client
 

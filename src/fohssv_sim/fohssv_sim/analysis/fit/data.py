@@ -7,6 +7,7 @@ Pure: numpy; never imports rclpy or the CLI.
 from __future__ import annotations
 
 import hashlib
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,6 +22,8 @@ STATE_NAMES = ('z', 'w', 'theta', 'q')
 DEFAULT_THRESHOLD = 0.05
 #: Residual of a sample where the simulation failed (or is more than this many scales off).
 CLIP = 10.0
+#: The most control periods a run to fit may span (its samples are held as an array).
+MAX_PERIODS = 10**8
 #: Parameters that are numbers but not fit targets: solver settings and the delayed model's
 #: delay (which the FOM does not have).
 NOT_FITTED = {'step': 'a solver setting', 'soe_tolerance': 'a solver setting',
@@ -121,8 +124,27 @@ def resolve_bounds(names: Sequence[str], given: dict[str, tuple[float, float]],
                                f'{s.range_text()}{unit} ({s.description})') from None
         if not lo < hi:
             raise FitError(f'--bounds {n}={lo:g}:{hi:g}: the low end must be below the high end')
+        for v in (lo, hi):
+            if not model_runs(base, n, v):
+                unit = f' {s.unit}' if s.unit and s.unit != '-' else ''
+                raise FitError(f'--bounds {n}={lo:g}:{hi:g}: at {n} = {v:g}{unit} the '
+                               "model's coefficients overflow or are refused; give a range "
+                               "nearer the run's value")
         out.append((float(lo), float(hi)))
     return tuple(out)
+
+
+def model_runs(base: ModelParameters, name: str, value: float) -> bool:
+    """Whether ``base`` with ``name`` = ``value`` is a model with finite coefficients (a
+    legal but extreme value, e.g. V = 1e300 m/s, overflows them)."""
+    from ...coefficients import coefficients
+
+    try:
+        p = base.replace(**{name: float(value)})
+        with np.errstate(over='raise', invalid='raise'):
+            return bool(np.isfinite(coefficients(p).kernel).all())
+    except (ParameterError, ArithmeticError, ValueError):
+        return False
 
 
 # -- data ----------------------------------------------------------------------------------
@@ -203,6 +225,10 @@ def data_from_run(run: Any, base: ModelParameters, control_period: float | None 
     cp = control_period or params.get('control_period')
     if not cp:
         cp = float(np.median(np.diff(run.t))) if run.t.size > 1 else 0.0
+    if isinstance(cp, bool) or not isinstance(cp, (int, float)) or not (
+            0 < cp < math.inf):
+        raise FitError(f'{run.path}: the recorded control_period {cp!r} is not a positive '
+                       'number of seconds; give --control-period')
     cp = float(cp)
     try:
         steps_per_period(cp, base.step)
@@ -214,6 +240,10 @@ def data_from_run(run: Any, base: ModelParameters, control_period: float | None 
         raise FitError(f'{run.path}: state times are not at multiples of control_period='
                        f'{cp:g} s (e.g. t = {run.t[np.argmax(off)]!r} s); give --control-period')
     n = int(k.max())
+    if n > MAX_PERIODS:
+        raise FitError(f'{run.path}: a state at t = {run.t.max():g} s is {n} control periods '
+                       f'of {cp:g} s from t = 0, more than the {MAX_PERIODS:g} a fit holds '
+                       '(give --control-period, or a bag of the run only)')
     states = np.full((n + 1, 4), np.nan)
     states[k] = run.state
     if np.isfinite(states[0]).all():

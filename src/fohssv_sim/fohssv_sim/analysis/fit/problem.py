@@ -154,10 +154,17 @@ class Problem:
 
     # -- evaluation ------------------------------------------------------------------------
     def params_for(self, values: Sequence[float]) -> ModelParameters | None:
+        """The model at ``values``, or None where the parameter table refuses them or the
+        model's coefficients overflow (legal but extreme values, e.g. V = 1e300 m/s)."""
+        from ...coefficients import coefficients
+
         try:
-            return self.base.replace(**{n: float(v) for n, v in zip(self.spec.names, values)})
-        except ParameterError:
+            p = self.base.replace(**{n: float(v) for n, v in zip(self.spec.names, values)})
+            with np.errstate(over='raise', invalid='raise'):
+                ok = np.isfinite(coefficients(p).kernel).all()
+        except (ParameterError, ArithmeticError, ValueError):
             return None
+        return p if ok else None
 
     def first_horizon(self) -> int:
         """Samples of the first stage: the whole window ('full', or the cycle objective),
@@ -183,9 +190,13 @@ class Problem:
             from ...control import make
 
             spec = self.spec
-            return run_population_reference(
-                ok, n, self.hold, controller=lambda: make(spec.controller, spec.gains),
-                initial_state=d.initial_state, duration=d.duration), valid
+            try:
+                return run_population_reference(
+                    ok, n, self.hold, controller=lambda: make(spec.controller, spec.gains),
+                    initial_state=d.initial_state, duration=d.duration), valid
+            except Exception as e:      # a plugin's own defect: named, not ours
+                raise FitError(f'--controller {spec.controller}: the plugin raised '
+                               f'{type(e).__name__} during the run: {e}') from None
         kwargs: dict[str, Any] = {'initial_state': d.initial_state, 'duration': d.duration,
                                   'threads': threads}
         if self.law is not None:
@@ -240,8 +251,11 @@ class Problem:
         T = self.noise_ratio(r)
         nu = r.size // 4 * int((self.w > 0).sum()) - len(self.spec.names)
         ok, crit = judge_noise(T, nu, self.noise)
+        m = self.w > 0
+        per = (self.w[m] * self.noise.sigma[m] / self.scale[m]) ** 2     # noise in r's units
         return {'residual': res, 'reproduced': ok, 'noise_ratio': math.sqrt(T),
-                'noise_bound': math.sqrt(crit), 'nu': nu}
+                'noise_bound': math.sqrt(crit), 'nu': nu,
+                'bound_residual': math.sqrt(crit * float(np.mean(per)))}
 
     def norm(self, r: np.ndarray) -> float:
         """The residual: RMS of a residual row (weights of zero excluded)."""
@@ -267,7 +281,14 @@ def _packed_law(name: str, gains: dict[str, Any]) -> np.ndarray | None:
         raise FitError(f'--controller {name}: {e}') from None
     except (ParameterError, TypeError, ValueError) as e:
         raise FitError(f'--gain: {e}') from None
-    law = AffineLaw.from_controller(ctl)
+    except Exception as e:          # a plugin's own defect: named, not ours
+        raise FitError(f'--controller {name}: the plugin raised {type(e).__name__}: {e}'
+                       ) from None
+    try:
+        law = AffineLaw.from_controller(ctl)
+    except Exception as e:
+        raise FitError(f'--controller {name}: the plugin raised {type(e).__name__} when '
+                       f'asked for its commands: {e}') from None
     return None if law is None else law.packed
 
 

@@ -17,7 +17,7 @@ import numpy as np
 from ...params import ModelParameters
 from .data import STATE_NAMES, FitData
 from .problem import FitSpec
-from .result import FitResult
+from .result import FitResult, acceptance
 
 
 # -- outputs ------------------------------------------------------------------------------------
@@ -90,7 +90,7 @@ def plot_overlay(result: FitResult, stem: Path, label: str = '') -> list[Path]:
     vals = ', '.join(f'{n}={v:.6g}' for n, v in result.values.items())
     axes[0].set_title(titled(f'run vs fitted FOM ({vals}), residual {result.residual:.3g} '
                              f"({'reproduced' if result.reproduces else 'NOT reproduced'}, "
-                             f'threshold {result.spec.threshold:g}; fitted up to '
+                             f'{acceptance(result)[1]} {acceptance(result)[0]:.3g}; fitted up to '
                              f't = {result.horizon_end:g} s)\n{_caption(result)}', label),
                       fontsize=7)
     fig.tight_layout()
@@ -112,8 +112,8 @@ def plot_profile(result: FitResult, stem: Path, label: str = '') -> list[Path]:
                 label='residual, other names at the estimate')
     ax.semilogy(pr['fine'], np.maximum(pr['fine_residual'], 1e-16), 's-', ms=3,
                 label='residual near the estimate (others re-optimised)')
-    ax.axhline(result.spec.threshold, color='r', ls='--', lw=1,
-               label=f'acceptance threshold {result.spec.threshold:g}')
+    level, what = acceptance(result)
+    ax.axhline(level, color='r', ls='--', lw=1, label=f'reproduced below: {what}')
     if pr.get('interval'):
         ax.axvspan(*pr['interval'], color='g', alpha=0.2, label='profile interval (95 %)')
     ax.set_xlabel(pr['name'])
@@ -144,14 +144,20 @@ def write_reference(results: Sequence[tuple[float, FitResult, FitData]], out: Pa
         rows.append({'speed': v, 'tau': data.source['tau'], 'name': n,
                      'value': res.values[n], 'interval': res.intervals[n],
                      'residual': res.residual, 'reproduces': res.reproduces,
-                     'horizon_end': res.horizon_end, 'message': res.message})
+                     'horizon_end': res.horizon_end, 'message': res.message,
+                     'acceptance': acceptance(res)[0],
+                     'local_minima': res.profile.get('local_minima'),
+                     'pieces': res.profile.get('pieces')})
     spec = results[0][1].spec
     first = results[0][1]
     table = markdown_table(
-        ('V (m/s)', 'tau = L/V (s)', f'{rows[0]["name"]}*', '95 % interval', 'residual',
-         f'reproduced (<= {spec.threshold:g})'),
+        ('V (m/s)', 'tau = L/V (s)', f'{rows[0]["name"]}*', '95 % interval',
+         'local minima', 'residual', f'reproduced below ({acceptance(first)[1]})',
+         'reproduced'),
         [(f"{r['speed']:g}", f"{r['tau']:.5g}", f"{r['value']:.4f}",
-          f"[{r['interval'][0]:.4f}, {r['interval'][1]:.4f}]", f"{r['residual']:.3g}",
+          f"[{r['interval'][0]:.4f}, {r['interval'][1]:.4f}]"
+          + (f" ({r['pieces']} pieces)" if (r['pieces'] or 0) > 1 else ''),
+          f"{r['local_minima']}", f"{r['residual']:.3g}", f"{r['acceptance']:.3g}",
           'yes' if r['reproduces'] else 'no') for r in rows])
     head = (f"FOM closed loop vs delayed closed loop, {spec.objective} objective over "
             f"[{first.window[0]:g}, {first.window[1]:g}] s;\n{_caption(first)}")
@@ -202,8 +208,12 @@ def alpha_tau_figure(rows: list[dict[str, Any]], spec: FitSpec, caption: str,
     ax2 = ax.twinx()
     ax2.semilogy(tau, [max(r['residual'], 1e-16) for r in rows], 's--', color='tab:red',
                  ms=4, label='residual floor at the best α')
-    ax2.axhline(spec.threshold, color='tab:red', ls=':', lw=1,
-                label=f'threshold {spec.threshold:g}')
+    if all('acceptance' in r for r in rows):
+        ax2.semilogy(tau, [r['acceptance'] for r in rows], ':', color='tab:red', lw=1,
+                     label='reproduced below this residual')
+    else:
+        ax2.axhline(spec.threshold, color='tab:red', ls=':', lw=1,
+                    label=f'threshold {spec.threshold:g}')
     ax2.set_ylabel('residual (RMS)', color='tab:red')
     h1, l1 = ax.get_legend_handles_labels()
     h2, l2 = ax2.get_legend_handles_labels()

@@ -116,3 +116,12 @@ def summary_line(result: FitResult) -> str:
                 f'--controller NAME or --objective cycle fit longer runs)')
     return (f'{vals} reproduces this run: {how} over {span}{tail} ({s.objective} objective)'
             f'{blind_text}')
+
+
+def acceptance(result: FitResult) -> tuple[float, str]:
+    """The residual (RMS, the objective's units) up to which the run counts as reproduced,
+    and its name: the noise's 99 % bound (trajectory) or the threshold (cycle)."""
+    v = result.settings['verdict']
+    if 'bound_residual' in v:
+        return v['bound_residual'], "the noise's 99 % bound"
+    return result.spec.threshold, f'threshold {result.spec.threshold:g}'

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from ...params import ParameterError
-from .data import FitData
+from .data import FitData, FitError
 from .noise import effective_fraction
 from .problem import FitSpec, Problem, cycle_features
 from .result import FitResult, summary_line
@@ -235,6 +235,12 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
     sim, _ = problem.simulate([x], problem.index.size)  # the overlay: the whole window
     fitted = sim.states[0] if sim is not None else np.full_like(data.states, np.nan)
     params = problem.params_for(x)
+    if params is None:              # every point the search tried: legal but unusable
+        rng = ', '.join(f'{n}={lo:g}:{hi:g}' for n, (lo, hi) in zip(spec.names, spec.bounds))
+        raise FitError(f'--bounds {rng}: the best point found, '
+                       + ', '.join(f'{n}={v:g}' for n, v in zip(spec.names, x))
+                       + ", gives no model that runs (the model's coefficients overflow); "
+                       'give bounds nearer the run\'s values')
     values = {n: float(v) for n, v in zip(spec.names, x)}
     result = FitResult(spec=spec, values=values, intervals=intervals,
                        jacobian_intervals=jac_iv, profile_interval=piv,

@@ -82,7 +82,7 @@ def register(sub) -> None:
                    '0: not compared)')
     p.add_argument('--measure', metavar='STATE[,STATE...]',
                    help='the measured states, any of z, w, theta, q (default all four): the '
-                   'others are not compared and may be missing from the bag; each fitted '
+                   'others are never read (any number in the bag); each fitted '
                    'parameter the measured states cannot fix is reported as not identifiable')
     p.add_argument('--noise', metavar='STATE=SIGMA[,...]',
                    help='measurement noise (standard deviation, in the state\'s unit: m, m/s, '

@@ -20,10 +20,13 @@ It is compared with the run's states at the control instants in a window [t0, t1
   w (mean up-crossings), its peak-to-peak amplitude and mean over the window, relative to the
   data's, and the orbit class (:mod:`.orbits`; 1 when it differs).
 
-The *residual* is the RMS of r (dimensionless: standard deviations, or relative errors); the
-run is *reproduced* when it is at most ``threshold`` (default 0.05): over the whole window for
-a closed loop (``controller``), over the last reproduced horizon for an open-loop replay (see
-below: a replay departs from the run from any error, a fitted closed loop only by misfit).
+The *residual* is the RMS of r (dimensionless: standard deviations, or relative errors). The
+run is *reproduced* (trajectory) when the residual in units of the measurement noise passes the
+test of :mod:`.noise` (the noise estimated from the data or given per state; an F test at
+99 %), or (cycle) when the residual is at most ``threshold`` (default 0.05): over the whole
+window for a closed loop (``controller``), over the last reproduced horizon for an open-loop
+replay (see below: a replay departs from the run from any error, a fitted closed loop only by
+misfit). States of weight 0 are not measured: never compared, never read.
 
 **Open-loop replays diverge.** The vehicle is open-loop unstable (eigenvalue +15.5 1/s at
 V = 75, faster with planing contacts): replaying recorded commands through a model whose
@@ -53,17 +56,21 @@ fit of a 2 s bag simulates about 120 full-length points (the coarse and fine pro
 half-step check are most of it once the horizon grows warm-started).
 
 **Uncertainty.** At the estimate, the Jacobian interval x +- t_{0.975, N-p} sigma with
-cov = s^2 (J^T J)^-1, s^2 = sum r^2 / (N - p); and a profile of the objective over alpha (or the
-first name): a coarse profile over the whole bounds with the other names at the estimate (the
-figure; it shows whether any alpha comes near), and a fine one around the estimate with the
-other names re-optimised, whose interval is {alpha: SSR(alpha) <= SSR_min + s^2 chi2_1(0.95)}.
-The reported interval of alpha is the hull of the two; of the others, the Jacobian interval.
-Both assume the residuals are independent noise; with a model that cannot reproduce the run
-they are not confidence intervals and the result says so (``reproduces`` false).
+cov = s^2 (J^T J)^-1 n / n_eff, s^2 = sum r^2 / (N - p), n_eff / n = (1 - rho) / (1 + rho) for
+residuals of lag-1 autocorrelation rho (:func:`.noise.effective_fraction`); and a profile of
+the objective over alpha (or the first name): a global one over the whole bounds with the other
+names at the estimate, refined around its lowest local minima (their number is reported), and a
+fine one around the estimate with the other names re-optimised. The interval of alpha is the
+hull of every profile point with SSR(alpha) <= SSR_min + (SSR_min / n_eff) chi2_1(0.95) (the
+noise-equivalent of the best) and the Jacobian interval; of the others, the Jacobian interval.
+A name is *identifiable* when the residual depends on it and its interval is narrower than
+half its bounds. With a model that cannot reproduce the run the intervals are not confidence
+intervals and the result says so (``reproduces`` false).
 
-The package: :mod:`.data` (names, bounds, the run), :mod:`.problem` (the objective),
-:mod:`.search` (populations, the local stage), :mod:`.run` (:func:`run_fit`), :mod:`.report`
-(the verdict, files and figures).
+The package: :mod:`.data` (names, default bounds, the run), :mod:`.noise` (the noise and the
+test), :mod:`.problem` (the objective), :mod:`.search` (populations, the local stage),
+:mod:`.run` (:func:`run_fit`), :mod:`.result` (what it found, the verdict), :mod:`.report`
+(files and figures).
 
 Pure: numpy, scipy, dask, matplotlib (Agg); never imports rclpy or the CLI.
 """

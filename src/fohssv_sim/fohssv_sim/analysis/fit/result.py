@@ -78,8 +78,9 @@ def judged(verdict: dict[str, Any], noise: dict[str, Any] | None, threshold: flo
                                               noise['measured']) if w)
     where = (': at the noise floor' if verdict['reproduced'] else
              ': more than the noise explains')
-    return (f"residual {res:.3g} std = {verdict['noise_ratio']:.3g} x the noise {rel} its 99 % "
-            f"bound {verdict['noise_bound']:.3g}{where} (noise {sig})")
+    at = f" at half the step, h = {verdict['step']:g} s," if 'step' in verdict else ''
+    return (f"residual{at} {res:.3g} std = {verdict['noise_ratio']:.3g} x the noise {rel} its "
+            f"99 % bound {verdict['noise_bound']:.3g}{where} (noise {sig})")
 
 
 def summary_line(result: FitResult) -> str:

@@ -222,13 +222,7 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
     span = bounds[:, 1] - bounds[:, 0]
     identifiable = {n: bool(math.isfinite(half[j]) and intervals[n][1] - intervals[n][0]
                             < 0.5 * span[j]) for j, n in enumerate(spec.names)}
-    # the verdict over the whole window; a closed loop is judged by it: unlike an open-loop
-    # replay (which departs from any error), a fitted closed loop that leaves the run after
-    # the reproduced horizon is the model's misfit
-    horizon_verdict = problem.judge(r)
-    window_verdict = (horizon_verdict if upto >= m
-                      else problem.judge(problem.residuals([x])[0]))
-    verdict = window_verdict if spec.controller is not None else horizon_verdict
+    horizon_verdict, window_verdict, verdict = _verdicts(problem, x, r, upto, check)
     res, window_res = horizon_verdict['residual'], window_verdict['residual']
     reproduced = verdict['reproduced']
     t_end = float(data.t[problem.index[upto - 1]])
@@ -275,6 +269,24 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
     return result
 
 
+def _verdicts(problem: Problem, x: np.ndarray, r: np.ndarray, upto: int,
+              check: dict[str, Any] | None) -> tuple[dict, dict, dict]:
+    """(over the horizon, over the whole window, the one that decides) of the estimate ``x``
+    (``r`` its residual row over the horizon). A closed loop is judged over the whole window:
+    unlike an open-loop replay (which departs from any error), a fitted closed loop that
+    leaves the run after the reproduced horizon is the model's misfit. Where the step check
+    ran and reproduces the run at half the step, that verdict decides: the FOM is the
+    continuous model, and a misfit at the step alone is the discretisation's (data from a
+    finer or exact solver)."""
+    horizon = problem.judge(r)
+    window = (horizon if upto >= problem.index.size
+              else problem.judge(problem.residuals([x])[0]))
+    verdict = window if problem.spec.controller is not None else horizon
+    if check is not None and not verdict['reproduced'] and check['verdict']['reproduced']:
+        verdict = check['verdict']
+    return horizon, window, verdict
+
+
 def _loop_text(problem: Problem) -> str:
     """How the fitted model is driven (fit.json's settings, the figures' captions)."""
     if problem.spec.controller is None:
@@ -304,13 +316,19 @@ def _step_check(problem: Problem, spec: FitSpec, data: FitData, bounds: np.ndarr
     local = Local(sub, bounds, upto, threads)
     sol = local.solve(x, max(5, spec.max_nfev // 2))
     shift = np.abs(sol.x - x)
-    res = sub.norm(local.fun(sol.x))
+    r = local.fun(sol.x)
+    res = sub.norm(r)
+    # the verdict at half the step, over what the main verdict covers
+    verdict = sub.judge(r)
+    if spec.controller is not None and upto < sub.index.size:
+        verdict = sub.judge(sub.residuals([sol.x])[0])
     say(f'  step check at h = {half:g} s: ' + ', '.join(
         f'{n}={v:.8g} (shift {d:.2g})' for n, v, d in zip(spec.names, sol.x, shift))
         + f', residual {res:.3g}, in {time.monotonic() - started:.1f} s (CPU '
         f'{time.process_time() - cpu:.1f} s)')
     return {'half_step': half, 'values': sol.x.tolist(), 'shift': shift.tolist(),
-            'residual': res, 'widening': 'intervals widened by 2 x shift'}
+            'residual': res, 'widening': 'intervals widened by 2 x shift',
+            'verdict': {**verdict, 'step': half}}
 
 
 #: Rounds of refinement of the global profile, and the minima refined in each.

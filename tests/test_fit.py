@@ -193,5 +193,7 @@ def test_reference_delayed_on_two_speeds_gives_finite_alpha_residual_interval(tm
         assert 0 < r['value'] <= 1 and np.isfinite(r['residual'])
         assert np.all(np.isfinite(r['interval'])) and r['interval'][0] <= r['value'] <= \
             r['interval'][1]
+        assert r['local_minima'] >= 1 and r['acceptance'] > 0      # issue 49: global answers
+    assert '| local minima |' in (tmp_path / 'reference.md').read_text()
     assert (tmp_path / 'alpha_tau.png').stat().st_size > 5000
     assert (tmp_path / 'V75' / 'fit_overlay.png').stat().st_size > 5000

@@ -120,6 +120,50 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
     assert code == 1 and 'no such file' in err     # a bag error, as `check`
 
 
+def _edited_bag(path: Path, *, scale: float = 1.0, last_t: float | None = None,
+                control_period=1e-4) -> Path:
+    """A 0.02 s run whose states are multiplied by ``scale``, whose last state is moved to
+    ``last_t``, or whose recorded control period is ``control_period`` (any JSON value)."""
+    p = ModelParameters(fractional_order=0.81)
+    r = simulate(p, make('state_feedback'), 0.02, control_period=1e-4, sample_every=5)
+    r.state = r.state * scale
+    if last_t is not None:
+        r.t = r.t.copy()
+        r.t[-1] = last_t
+    write_simulation(path, r, {**p.to_dict(), 'control_period': control_period,
+                               'duration': 0.02, 'initial_state': [0.0] * 4})
+    return path
+
+
+def test_extreme_input_is_one_line_and_exit_2(tmp_path):
+    """Issue 51 item 7: states scaled by 1e300 (a residual that overflows was reported as 0,
+    'reproduces'), legal but extreme bounds (the coefficients overflow), a string control
+    period, a state at t = 1e5 s, a plugin that raises; and the noise options."""
+    bag = _bag(tmp_path / 'run')
+    huge = _edited_bag(tmp_path / 'huge', scale=1e300)
+    late = _edited_bag(tmp_path / 'late', last_t=1e5)
+    text = _edited_bag(tmp_path / 'text', control_period='abc')
+    fast = ('--population', '4', '--profile-points', '5', '--no-step-check', '--workers', '1')
+    closed = ('--controller', 'state_feedback')
+    cases = [((str(huge), '--fit', 'fractional_order', *closed), 'overflow any residual'),
+             ((str(bag), '--fit', 'speed', '--bounds', 'speed=1e-300:1e300', *closed),
+              "model's coefficients overflow or are refused"),
+             ((str(text), '--fit', 'fractional_order'), "control_period 'abc' is not a "
+              'positive number of seconds'),
+             ((str(late), '--fit', 'fractional_order'), 'a state at t = 100000 s is'),
+             ((str(bag), '--fit', 'fractional_order', '--noise', 'z=-1'),
+              '--noise z=-1.0: need a finite number > 0'),
+             ((str(bag), '--fit', 'fractional_order', '--noise', 'x=1'), '--noise x: not a '
+              'state'),
+             ((str(bag), '--fit', 'fractional_order', '--measure', 'z,x'),
+              "--measure 'z,x': give states among z, w, theta, q")]
+    for args, want in cases:
+        code, err = run_main('fit', *args, *fast, '--out', str(tmp_path / 'out'))
+        assert code == 2, (args, err)
+        assert want in err and 'Traceback' not in err, (args, err)
+        assert len(err.strip().splitlines()) == 1, err
+
+
 def test_default_output_folder_is_named_after_the_job_and_claimed(tmp_path, monkeypatch):
     """Like every command: reports/fit/<bag>-<hash of the job>, with job.json naming the
     bag's sha256; a folder holding another fit job is refused (exit 2), not overwritten."""

@@ -21,6 +21,7 @@ from fohssv_sim.analysis.tune import (
     run_tune,
     score,
     step_flags,
+    summary_lines,
 )
 from fohssv_sim.params import ParameterError
 
@@ -65,6 +66,22 @@ def test_score_orders_lexicographically():
     assert no_lin['margin'] is None and no_lin['value'] < score(ranked[0], spec, True)['value']
 
 
+def test_peak_metric_can_leave_out_the_start_up_transient():
+    """peak-fp takes the whole run's peak |Fp| by default (the start-up transient in it); with
+    peak_after_transient the peak after the transient: two candidates' rows whose order the
+    two metrics reverse. The option enters a search's identity only when set, so searches run
+    before it resume."""
+    rows = [{**_row(peak_fp=500.0), 'peak_fp_window': 30.0},
+            {**_row(peak_fp=400.0), 'peak_fp_window': 40.0}]
+    whole, after = TuneSpec(**SMALL), TuneSpec(**SMALL, peak_after_transient=True)
+    assert score(rows, whole, affine=True)['metric'] == 500.0
+    assert score(rows, after, affine=True)['metric'] == 40.0
+    assert score(rows[1:], whole, True)['value'] < score(rows[:1], whole, True)['value']
+    assert score(rows[:1], after, True)['value'] < score(rows[1:], after, True)['value']
+    assert 'peak_after_transient' not in whole.identity()
+    assert after.identity()['peak_after_transient'] is True
+
+
 def test_step_check_flags_a_changed_class_or_a_moved_metric():
     def rows(*cases):
         return [{'scenario': k, 'alpha': 0.8, 'speed': 60.0 + k, 'outcome': o, 'peak_fp': m}
@@ -97,6 +114,13 @@ def test_scheduled_law_interpolates_its_table_and_is_eq31_by_default():
         Scheduled(speed_3=70.0)
 
 
+class _Tick:
+    """A clock for :func:`generation_line` that says nothing about time."""
+
+    def tick(self, computed):
+        return 0.0, None
+
+
 @pytest.fixture(scope='module')
 def client():
     from dask.distributed import Client, LocalCluster
@@ -111,6 +135,13 @@ def test_interrupted_search_resumes_to_the_same_winner(tmp_path, client):
     full = run_tune(spec, tmp_path / 'full', client=client)
     rec = full.record
     assert len(rec['generations']) == 2 and full.computed_chunks == 6   # 10 points / 4
+    # the winner's generation numbered from 1, as the progress lines number them
+    from fohssv_sim.cli.tune import generation_line
+
+    g = rec['winner']['generation']
+    assert f'winner (generation {g + 1}, ' in '\n'.join(summary_lines(full))
+    assert generation_line(rec['generations'][g], 2, 2, _Tick()).startswith(
+        f'generation {g + 1}/2')
     # interrupted in the second generation: one chunk written, the rest not; no final record
     part = tmp_path / 'part'
     shutil.copytree(tmp_path / 'full', part)

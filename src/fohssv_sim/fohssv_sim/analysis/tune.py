@@ -76,6 +76,14 @@ OBJECTIVE_TEXT = {'peak-fp': 'peak |Fp| (m²/s²)', 'settle': 'time to settle (s
                   'effort': 'RMS of δc (rad)'}
 #: differential_evolution needs at least 5 members in a given initial population.
 MIN_POPULATION = 5
+def metric_column(spec: TuneSpec) -> str:
+    """The row column the objective takes the worst of: ``peak_fp_window`` (after the
+    transient) for peak-fp with ``peak_after_transient``, else :data:`OBJECTIVES`'."""
+    if spec.objective == 'peak-fp' and spec.peak_after_transient:
+        return 'peak_fp_window'
+    return OBJECTIVES[spec.objective]
+
+
 #: The step check flags a scenario whose objective metric moves by more than this (relative)
 #: at half the step, as well as one whose outcome changes.
 CHECK_RTOL = 0.01
@@ -143,6 +151,9 @@ class TuneSpec:
     min_margin: float = 0.02
     duration: float = 2.0
     transient: float = 1.5
+    #: the peak-fp objective over the window after ``transient`` only (default: the whole
+    #: run, start-up transient included)
+    peak_after_transient: bool = False
     control_period: float | None = 1e-4
     sample_every: int = 0
     settle_band: float = 0.02
@@ -208,6 +219,8 @@ class TuneSpec:
         d = self.to_dict()
         d.pop('budget')
         d.pop('check_step')
+        if not self.peak_after_transient:      # the searches run before the option
+            d.pop('peak_after_transient')
         d['population'] = self.population_size
         return d
 
@@ -404,7 +417,7 @@ def score(rows: Sequence[dict[str, Any]], spec: TuneSpec, affine: bool) -> dict[
         m = [r['alpha_c'] - r['alpha'] for r in rows]
         margin = math.nan if any(math.isnan(v) for v in m) else float(min(m))
         shortfall = math.inf if math.isnan(margin) else max(0.0, spec.min_margin - margin)
-    values = [r[OBJECTIVES[spec.objective]] for r in rows]
+    values = [r[metric_column(spec)] for r in rows]
     metric = math.inf if any(math.isnan(v) for v in values) else float(max(values))
     if shortfall > 0:
         frac = 3.0 if math.isinf(shortfall) else 2.0 + shortfall / (1.0 + shortfall)
@@ -472,8 +485,11 @@ class _Generations:
                 self._own_client = Client(self.scheduler, timeout='20s')
             else:
                 n = self.workers or os.cpu_count() or 1
+                # no dashboard; the scheduler's own HTTP server on a free port, so a
+                # taken 8787 (a shared host) gives no warning
                 self._cluster = LocalCluster(n_workers=n, threads_per_worker=1,
-                                             processes=True, dashboard_address=None)
+                                             processes=True, dashboard_address=None,
+                                             scheduler_kwargs={'dashboard_address': ':0'})
                 self._own_client = Client(self._cluster)
         return self._own_client
 
@@ -715,7 +731,7 @@ def _check_step(gens: _Generations, best: dict[str, Any], rows: list[dict[str, A
     objective metric moves by more than :data:`CHECK_RTOL` (:func:`step_flags`), and score
     it over the others."""
     spec = gens.spec
-    key = OBJECTIVES[spec.objective]
+    key = metric_column(spec)
     # a folder per winner: a search continued with a larger budget may have a new winner
     # (the old one's check stays, and is reused if it wins again)
     folder = gens.out / 'check_step' / f"gen_{best['generation']:04d}_{best['candidate']:03d}"
@@ -772,7 +788,9 @@ def summary_lines(result: TuneResult) -> list[str]:
              f"{len(spec.scenarios())} scenarios; {result.computed_chunks} chunks computed, "
              f'{result.reused_chunks} reused']
     vals = ', '.join(f'{k}={v:.6g}' for k, v in w['values'].items())
-    lines.append(f"winner (generation {w['generation']}, candidate {w['candidate']}): {vals}")
+    # generations are numbered from 1 where shown (tune.json and the folders count from 0)
+    lines.append(f"winner (generation {w['generation'] + 1}, candidate {w['candidate']}): "
+                 f'{vals}')
     lines.append('  ' + describe_score(w['score'], spec))
     chk = rec.get('check_step')
     if chk is not None:

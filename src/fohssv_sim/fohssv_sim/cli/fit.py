@@ -29,6 +29,12 @@ from .common import (
 )
 from .sweep import check_dask_options, dask_options
 
+#: The rule of :func:`fohssv_sim.analysis.fit.data.default_bounds`, for --help.
+BOUNDS_RULE = ("default: fractional_order over its whole range (0, 1]; any other parameter a "
+               "factor of 2 either side of its resolved value for the run's model and speed "
+               "(planing_offset 'consistent' = R'RV/L), [-1, 1] where it is 0, clipped to "
+               "its allowed range")
+
 #: What a fit writes into its folder (claimed in job.json: a folder holding another fit's
 #: outputs is refused, never overwritten).
 FIT_FILES = ('fit.json', 'fit_params.yaml', 'fit_overlay.png', 'fit_profile.png')
@@ -51,8 +57,7 @@ def register(sub) -> None:
                    help='model parameters to estimate (default with --reference: '
                    'fractional_order)')
     p.add_argument('--bounds', action='append', metavar='NAME=LO:HI',
-                   help='search range of a fitted parameter (repeatable; default its allowed '
-                   'range, a decade either side of the run\'s value where it is unbounded)')
+                   help=f'search range of a fitted parameter (repeatable; {BOUNDS_RULE})')
     p.add_argument('--objective', default='trajectory', choices=('trajectory', 'cycle'),
                    help='trajectory: weighted least squares on z, w, theta, q; cycle: '
                    'frequency, amplitude, mean and class of w (periodic or chaotic runs)')
@@ -73,10 +78,26 @@ def register(sub) -> None:
     p.add_argument('--preset', default='resolved', help="'resolved' (default) or "
                    "'paper-literal'")
     p.add_argument('--weights', metavar='z=1,w=1,theta=1,q=1',
-                   help='weights of the states in the trajectory objective (default all 1)')
-    p.add_argument('--threshold', type=float, default=0.05,
-                   help='acceptance threshold of the residual (RMS in standard deviations of '
-                   'each state, or relative feature errors; default 0.05)')
+                   help='weights of the states in the trajectory objective (default all 1; '
+                   '0: not compared)')
+    p.add_argument('--measure', metavar='STATE[,STATE...]',
+                   help='the measured states, any of z, w, theta, q (default all four): the '
+                   'others are never read (any number in the bag); each fitted '
+                   'parameter the measured states cannot fix is reported as not identifiable')
+    p.add_argument('--noise', metavar='STATE=SIGMA[,...]',
+                   help='measurement noise (standard deviation, in the state\'s unit: m, m/s, '
+                   'rad, rad/s) of the named states; default: estimated from the data (second '
+                   'differences); "reproduces" is a test of the residual against it (99 %%)')
+    p.add_argument('--noise-floor', type=bounded('--noise-floor', low=0, high=1, low_open=True,
+                                                 high_open=True),
+                   help='the smallest noise assumed, a fraction of each state\'s standard '
+                   'deviation over the window (default 1e-3: clean data '
+                   'are judged at the model\'s precision)')
+    p.add_argument('--threshold', type=bounded('--threshold', low=0, low_open=True),
+                   default=0.05,
+                   help='--objective cycle: acceptance threshold of the relative feature '
+                   'errors (default 0.05); the trajectory objective is judged against the '
+                   'noise')
     p.add_argument('--population', type=int, default=64,
                    help='points of the global stage (default 64)')
     p.add_argument('--starts', type=int, default=2,
@@ -181,6 +202,37 @@ def _weights(text: str | None) -> tuple[float, float, float, float]:
     return tuple(float(w.get(n, 1.0)) for n in ('z', 'w', 'theta', 'q'))
 
 
+STATES = ('z', 'w', 'theta', 'q')
+
+
+def _measured_weights(args: argparse.Namespace) -> tuple[float, float, float, float]:
+    """--weights with the states --measure leaves out set to 0."""
+    w = _weights(args.weights)
+    if not args.measure:
+        return w
+    names = [n.strip() for n in args.measure.split(',') if n.strip()]
+    bad = [n for n in names if n not in STATES]
+    if bad or not names:
+        raise CliError(f'--measure {args.measure!r}: give states among z, w, theta, q '
+                       '(e.g. z,theta)')
+    return tuple(v if n in names else 0.0 for n, v in zip(STATES, w))
+
+
+def _noise(text: str | None) -> tuple[float | None, ...]:
+    if not text:
+        return (None,) * 4
+    given = assignments(text.split(','), '--noise')
+    bad = sorted(set(given) - set(STATES))
+    if bad:
+        raise CliError(f'--noise {bad[0]}: not a state; give z=, w=, theta=, q= '
+                       'standard deviations in the state\'s unit')
+    for n, v in given.items():
+        if not isinstance(v, float) or not (0 < v < float('inf')):
+            raise CliError(f'--noise {n}={v}: need a finite number > 0 (the standard '
+                           f'deviation of {n} in its unit)')
+    return tuple(given.get(n) for n in STATES)
+
+
 def _spec(args: argparse.Namespace, names, base, window, controller, horizon):
     from ..analysis.fit import FitError, FitSpec, resolve_bounds
 
@@ -189,7 +241,10 @@ def _spec(args: argparse.Namespace, names, base, window, controller, horizon):
         gains = assignments(args.gain or [], '--gain')
         spec = FitSpec(names=names, bounds=bounds, base=base.to_dict(),
                        objective=args.objective, window=window, controller=controller,
-                       gains=gains, weights=_weights(args.weights), threshold=args.threshold,
+                       gains=gains, weights=_measured_weights(args),
+                       noise=_noise(args.noise),
+                       **({} if args.noise_floor is None else {'noise_floor': args.noise_floor}),
+                       threshold=args.threshold,
                        horizon=horizon, population=args.population, starts=args.starts,
                        seed=args.seed, profile_points=args.profile_points,
                        chunk_size=args.chunk_size, step_check=args.step_check)
@@ -219,9 +274,12 @@ class _Dask:
             # threads need no start-up, imports or numba cache loads of their own, nor the
             # problem pickled to them (measured: bench/bench_fit.py --processes-too)
             n = self.args.workers or os.cpu_count() or 1
+            # no dashboard; the scheduler's own HTTP server on a free port, so a taken
+            # 8787 (a shared host) gives no warning
             self.cluster = LocalCluster(n_workers=n, threads_per_worker=1,
                                         processes=self.args.processes,
-                                        dashboard_address=None)
+                                        dashboard_address=None,
+                                        scheduler_kwargs={'dashboard_address': ':0'})
             self.client = Client(self.cluster)
         return self.client
 

@@ -66,6 +66,9 @@ def register(sub) -> None:
                    default=2.0, help='s per run (default 2)')
     p.add_argument('--transient', type=bounded('--transient', low=0, unit='s'), default=1.5,
                    help='s before the classification window (default 1.5)')
+    p.add_argument('--peak-after-transient', action='store_true',
+                   help='peak-fp: the worst peak |Fp| after --transient only (default: over '
+                   'the whole run, the start-up transient included)')
     p.add_argument('--control-period', type=bounded('--control-period', low=0, unit='s'),
                    default=1e-4,
                    help='zero-order hold period in s (default 1e-4, the plant\'s)')
@@ -131,6 +134,7 @@ def build_spec(args: argparse.Namespace):
         gains=assignments(args.gain or [], '--gain'), base=values, objective=args.objective,
         budget=args.budget, population=args.population, seed=args.seed,
         min_margin=args.min_margin, duration=args.duration, transient=args.transient,
+        peak_after_transient=args.peak_after_transient,
         control_period=args.control_period or None, settle_band=args.settle_band,
         chunk_size=args.chunk_size, check_step=args.check_step)
     try:

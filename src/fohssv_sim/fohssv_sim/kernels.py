@@ -64,9 +64,11 @@ import ctypes
 import functools
 import math
 import warnings
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
+
+from .coefficients import KernelCoefficients
 
 try:
     import numba
@@ -80,33 +82,11 @@ except ImportError:  # pragma: no cover - numba is pinned in requirements.txt
 __all__ = ['AVAILABLE', 'KernelCoefficients', 'jitable', 'eq17', 'planing_force_law',
            'planing_exact', 'planing_delayed', 'planing_smooth', 'hermite_delayed',
            'delay_free_run', 'delayed_run', 'fom_soe_run', 'delay_free_sampled',
-           'delayed_sampled', 'fom_soe_sampled', 'FomHeldCall', 'pack_law', 'warm_up']
+           'delayed_sampled', 'fom_soe_sampled', 'delay_free_recorded', 'delayed_recorded',
+           'fom_soe_recorded', 'FomHeldCall', 'pack_law', 'warm_up']
 
 #: True when the kernels run compiled (numba importable).
 AVAILABLE = numba is not None
-
-
-class KernelCoefficients(NamedTuple):
-    """The scalar coefficients the stepping arithmetic reads (see :mod:`.coefficients`)."""
-
-    V: float
-    L: float
-    R: float
-    g: float
-    a22: float
-    a24: float
-    a42: float
-    a44: float
-    b21: float
-    b22: float
-    b41: float
-    b42: float
-    d2: float
-    d4: float
-    R_prime: float
-    Rc_dot: float
-    k: float
-    w0: float
 
 
 # -- the physics, one source ------------------------------------------------------------------
@@ -679,6 +659,90 @@ def fom_soe_sampled(x, x0, n, hold, periods, cv, smooth, law, held, limits, H, W
     return periods, 0, hold
 
 
+# -- recorded drivers: many steps in one call, every kept sample written from compiled code ----
+
+@jitable
+def _keep(out, r, x, fp, law, continuous, wmax, pmax):
+    """Row ``r`` of ``out`` = [z, w, theta, q, Fp, delta_f, delta_c] at the state ``x`` (the
+    input applied from ``x`` on: the held u0 or the law's value there); False when ``x`` is
+    beyond |w| <= ``wmax``, |theta| <= ``pmax``."""
+    uf, uc = _input(law, continuous, x[0], x[1], x[2], x[3])
+    out[r, 0], out[r, 1], out[r, 2], out[r, 3] = x[0], x[1], x[2], x[3]
+    out[r, 4] = fp
+    out[r, 5], out[r, 6] = uf, uc
+    return _in_bounds(x, wmax, pmax)
+
+
+@_njit
+def delay_free_recorded(x, nsteps, first, every, h, cv, smooth, law, continuous, bad, out, row,
+                        wmax, pmax):
+    """``nsteps`` steps of :func:`delay_free_run` that write a row of ``out`` (from ``row`` on,
+    :func:`_keep`) at the state before step ``first``, ``first + every``, ... of the call.
+    Returns (the next free row, steps taken, status): status 0, or 1 when a state turned
+    non-finite (``bad``), 2 when a kept state is beyond the bounds (the run stops there)."""
+    c = _coefficients(cv)
+    done = 0
+    while first < nsteps:
+        done += delay_free_run(x, first - done, h, cv, smooth, law, continuous, bad)
+        if done < first:
+            return row, done, 1
+        fp = planing_smooth(x[1], c) if smooth else planing_exact(x[1], c)
+        if not _keep(out, row, x, fp, law, continuous, wmax, pmax):
+            return row + 1, done, 2
+        row += 1
+        first += every
+    done += delay_free_run(x, nsteps - done, h, cv, smooth, law, continuous, bad)
+    return row, done, 0 if done == nsteps else 1
+
+
+@_njit
+def delayed_recorded(x, n, nsteps, first, every, h, cv, hx, hf, lag, tau, x_init, paper, law,
+                     continuous, bad, out, row, wmax, pmax):
+    """:func:`delay_free_recorded` for :func:`delayed_run` from step ``n`` (Fp at a kept state
+    from the history, as the model computes it)."""
+    c = _coefficients(cv)
+    done = 0
+    while first < nsteps:
+        done += delayed_run(x, n + done, first - done, h, cv, hx, hf, lag, tau, x_init, paper,
+                            law, continuous, bad)
+        if done < first:
+            return row, done, 1
+        if tau == 0.0:
+            zd, wd, thd = x[0], x[1], x[2]
+        else:
+            zd, wd, thd, _ = hermite_delayed(hx, hf, n + done, 0.0, lag, h, x_init)
+        fp = planing_delayed(x[0], x[2], zd, wd, thd, c, 'paper' if paper else 'geometric')
+        if not _keep(out, row, x, fp, law, continuous, wmax, pmax):
+            return row + 1, done, 2
+        row += 1
+        first += every
+    done += delayed_run(x, n + done, nsteps - done, h, cv, hx, hf, lag, tau, x_init, paper, law,
+                        continuous, bad)
+    return row, done, 0 if done == nsteps else 1
+
+
+@_njit
+def fom_soe_recorded(x, x0, n, nsteps, first, every, cv, smooth, law, continuous, H, W, fill,
+                     eps_k, ET, a0_coef, a0_small, alpha, cp, cc, last_f, bad, out, row, wmax,
+                     pmax):
+    """:func:`delay_free_recorded` for :func:`fom_soe_run` from step ``n``."""
+    c = _coefficients(cv)
+    done = 0
+    while first < nsteps:
+        done += fom_soe_run(x, x0, n + done, first - done, cv, smooth, law, continuous, H, W,
+                            fill, eps_k, ET, a0_coef, a0_small, alpha, cp, cc, last_f, bad)
+        if done < first:
+            return row, done, 1
+        fp = planing_smooth(x[1], c) if smooth else planing_exact(x[1], c)
+        if not _keep(out, row, x, fp, law, continuous, wmax, pmax):
+            return row + 1, done, 2
+        row += 1
+        first += every
+    done += fom_soe_run(x, x0, n + done, nsteps - done, cv, smooth, law, continuous, H, W, fill,
+                        eps_k, ET, a0_coef, a0_small, alpha, cp, cc, last_f, bad)
+    return row, done, 0 if done == nsteps else 1
+
+
 # -- held-input entry point: fom_soe_run through a C function, the arrays bound once -----------
 
 #: The int64 table :class:`FomHeldCall` gives the C entry point: slots of the arrays' addresses
@@ -1159,10 +1223,24 @@ class FomHeldCall:
 
 
 def warm_up() -> None:
-    """Compile (or load from the cache) every kernel with the argument types the plants pass,
-    so the first control period of a run does not pay for it."""
-    from .models import make_plant
-    from .params import ModelParameters
-
-    for model in ('delay-free', 'delayed', 'fractional'):
-        make_plant(ModelParameters(model=model)).compile()
+    """Compile (or load from the cache) every stepping kernel with the argument types the
+    plants pass (zero steps on small arrays of those types), so the first control period
+    of a run does not pay for it."""
+    if numba is None:  # pragma: no cover
+        return
+    f1, f2, f3, f4 = (np.zeros((1,) * d) for d in (1, 2, 3, 4))
+    x, cv, law, bad, out = np.zeros(4), np.zeros(18), pack_law(), np.zeros(4), np.zeros((1, 7))
+    limits, hist, fill = np.ones(4), np.zeros((4, 4)), np.zeros(1, dtype=np.int64)
+    soe = (f3, f4, fill, f3, f3, f2, f2, 0.5, 1.0, 1.0, f1, bad)
+    for continuous in (False, True):
+        delay_free_run(x, 0, 1.0, cv, True, law, continuous, bad)
+        delayed_run(x, 0, 0, 1.0, cv, hist, hist, 1.0, 1.0, x, True, law, continuous, bad)
+        fom_soe_run(x, x, 0, 0, cv, True, law, continuous, *soe)
+        delay_free_recorded(x, 0, 0, 1, 1.0, cv, True, law, continuous, bad, out, 0, 1.0, 1.0)
+        delayed_recorded(x, 0, 0, 0, 1, 1.0, cv, hist, hist, 1.0, 1.0, x, True, law,
+                         continuous, bad, out, 0, 1.0, 1.0)
+        fom_soe_recorded(x, x, 0, 0, 0, 1, cv, True, law, continuous, *soe, out, 0, 1.0, 1.0)
+    delay_free_sampled(x, 1, 0, 1.0, cv, True, law, law, limits, bad, out)
+    delayed_sampled(x, 0, 1, 0, 1.0, cv, hist, hist, 1.0, 1.0, x, True, law, law, limits, bad,
+                    out)
+    fom_soe_sampled(x, x, 0, 1, 0, cv, True, law, law, limits, *soe[:-1], bad, out)

@@ -146,6 +146,7 @@ class Plant:
         self.engine = engine
         self.duration = duration
         self._cv = np.array(self.coefficients.kernel, dtype=float)
+        self._c = self.coefficients.kernel     # the scalars the interpreted arithmetic reads
         self._law = pack_law()                 # the held input, set per call
         self._held = pack_law()                # the same for advance_sampled
         self._xa = np.zeros(4)                 # the state as the kernels advance it
@@ -200,18 +201,10 @@ class Plant:
             RuntimeError: the plant failed earlier and was not reset.
             FloatingPointError: the state turned non-finite (status becomes 'failed').
         """
-        if self.status == 'failed':
-            raise RuntimeError('the plant failed earlier; call reset() before stepping again')
+        self._refuse_failed()
         if steps <= 0:
             return
-        if isinstance(u, AffineLaw):
-            law, continuous = u.packed, True
-        elif callable(u):
-            law = None
-        else:
-            law, continuous = self._law, False
-            law[8] = float(u[0])
-            law[9] = float(u[1])
+        law, continuous = self._kernel_law(u)
         if law is not None and self._use_kernel:
             taken, xa = self._run_compiled(law, continuous, steps)
             self._x = tuple(xa.tolist())
@@ -229,6 +222,65 @@ class Plant:
             self._x = x
             self.n += 1
             self.status = 'running'
+
+    def record(self, u: InputLike | AffineLaw, steps: int, out: np.ndarray, row: int,
+               first: int = 0, every: int = 1) -> int:
+        """:meth:`advance` ``steps`` steps with ``u``, keeping the state before step ``first``,
+        ``first + every``, ... of them (< ``steps``) as rows of ``out`` from ``row`` on:
+        [z, w, theta, q, Fp, delta_f, delta_c], the input being the one applied from that
+        state on (the held one, or the law's value there). Returns the next free row.
+
+        A held input or an :class:`AffineLaw` runs all the steps and writes every row in one
+        compiled call, whatever ``every`` is; any other callable steps interpreted.
+
+        Raises:
+            RuntimeError, FloatingPointError: as :meth:`advance`.
+            StateOutOfBounds: a kept state or the last one is beyond the bounds
+                (:func:`check_state`: the plant stops there).
+        """
+        self._refuse_failed()
+        law, continuous = self._kernel_law(u)
+        if law is not None and self._use_kernel:
+            end, taken, status, xa = self._run_recorded(law, continuous, steps, first, every,
+                                                        out, row)
+            self._x = tuple(xa.tolist())
+            self.n += taken
+            self.status = 'running'
+            if status == 1:
+                self._failed(self._bad.tolist(), _show(u))
+            check_state(self)
+            return end
+        held = None if callable(u) else (law[8], law[9])
+        done = 0
+        while first < steps:
+            self.advance(u, first - done)
+            done = first
+            x = self._x
+            out[row, :4] = x
+            out[row, 4] = self.planing_force
+            out[row, 5:] = held or u(self.t, x)
+            row += 1
+            check_state(self)
+            first += every
+        self.advance(u, steps - done)
+        check_state(self)
+        return row
+
+    def _refuse_failed(self) -> None:
+        if self.status == 'failed':
+            raise RuntimeError('the plant failed earlier; call reset() before stepping again')
+
+    def _kernel_law(self, u: InputLike | AffineLaw) -> tuple[np.ndarray | None, bool]:
+        """``u`` as the kernels' ``law`` array and its ``continuous`` flag (a held input goes
+        into this plant's own array), or (None, False) for a callable the kernels cannot run."""
+        if isinstance(u, AffineLaw):
+            return u.packed, True
+        if callable(u):
+            return None, False
+        law = self._law
+        law[8] = float(u[0])
+        law[9] = float(u[1])
+        return law, False
 
     def advance_sampled(self, law: AffineLaw, held: Sequence[float], hold: int, periods: int,
                         limits: np.ndarray, out: np.ndarray) -> tuple[int, int]:
@@ -275,6 +327,13 @@ class Plant:
         state array)."""
         raise NotImplementedError
 
+    def _run_recorded(self, law: np.ndarray, continuous: bool, steps: int, first: int,
+                      every: int, out: np.ndarray, row: int
+                      ) -> tuple[int, int, int, np.ndarray]:
+        """The model's ``*_recorded`` kernel: (next row, steps taken, status, the state
+        array)."""
+        raise NotImplementedError
+
     def _state_array(self) -> np.ndarray:
         """The state as the integer models' kernels advance it (refreshed after interpreted
         steps or a reset)."""
@@ -292,6 +351,7 @@ class Plant:
         if self._use_kernel:
             scratch = type(self)(self.params, engine=self.engine, duration=1.0)
             scratch.advance((0.0, 0.0), 1)
+            scratch.record(AffineLaw(np.zeros((2, 4))), 1, np.zeros((1, 7)), 0)
             scratch.advance_sampled(AffineLaw(np.zeros((2, 4))), (0.0, 0.0), 1, 1,
                                     np.array([1.0, 1.0, self.params.speed, MAX_PITCH]),
                                     np.zeros((1, 7)))
@@ -386,7 +446,7 @@ class DelayFreeModel(Plant):
 
     def rhs(self, x: Sequence[float], uf: float, uc: float) -> tuple:
         """dx/dt of eq. 17 for state ``x`` and input (``uf``, ``uc``)."""
-        c = self.coefficients
+        c = self._c
         return eq17(c, x[1], x[2], x[3], uf, uc, self._fp(x[1], c))
 
     def _advance(self, u: InputLike) -> tuple:
@@ -399,6 +459,12 @@ class DelayFreeModel(Plant):
         return kernels.delay_free_run(xa, steps, self.h, self._cv, self._smooth, law,
                                       continuous, self._bad), xa
 
+    def _run_recorded(self, law, continuous, steps, first, every, out, row):
+        xa = self._state_array()
+        return (*kernels.delay_free_recorded(xa, steps, first, every, self.h, self._cv,
+                                             self._smooth, law, continuous, self._bad, out, row,
+                                             self.params.speed, MAX_PITCH), xa)
+
     def _run_sampled(self, law, held, hold, periods, limits, out):
         xa = self._state_array()
         return (*kernels.delay_free_sampled(xa, hold, periods, self.h, self._cv, self._smooth,
@@ -406,7 +472,7 @@ class DelayFreeModel(Plant):
 
     @property
     def planing_force(self) -> float:
-        return self._fp(self._x[1], self.coefficients)
+        return self._fp(self._x[1], self._c)
 
 
 class DelayedModel(Plant):
@@ -444,11 +510,11 @@ class DelayedModel(Plant):
                                self.initial_state)
 
     def _force(self, x: tuple, xd: tuple) -> float:
-        return planing_delayed(x[0], x[2], xd[0], xd[1], xd[2], self.coefficients, self._form)
+        return planing_delayed(x[0], x[2], xd[0], xd[1], xd[2], self._c, self._form)
 
     def rhs(self, x: Sequence[float], x_delayed: Sequence[float], uf: float, uc: float) -> tuple:
         """dx/dt of eqs. 22-25 for state ``x``, delayed state and input."""
-        return eq17(self.coefficients, x[1], x[2], x[3], uf, uc, self._force(x, x_delayed))
+        return eq17(self._c, x[1], x[2], x[3], uf, uc, self._force(x, x_delayed))
 
     def _advance(self, u: InputLike) -> tuple:
         n, size, rhs, delayed = self.n, self._size, self.rhs, self._delayed
@@ -468,6 +534,14 @@ class DelayedModel(Plant):
         return kernels.delayed_run(xa, self.n, steps, self.h, self._cv, self._hx, self._hf,
                                    self._lag, self.tau, self._x_init, self._form == 'paper',
                                    law, continuous, self._bad), xa
+
+    def _run_recorded(self, law, continuous, steps, first, every, out, row):
+        xa = self._state_array()
+        return (*kernels.delayed_recorded(xa, self.n, steps, first, every, self.h, self._cv,
+                                          self._hx, self._hf, self._lag, self.tau,
+                                          self._x_init, self._form == 'paper', law, continuous,
+                                          self._bad, out, row, self.params.speed, MAX_PITCH),
+                xa)
 
     def _run_sampled(self, law, held, hold, periods, limits, out):
         xa = self._state_array()
@@ -566,6 +640,15 @@ class FractionalModel(Plant):
         if st.n > hist.horizon:
             hist.check_horizon(st.n)
 
+    def _run_recorded(self, law, continuous, steps, first, every, out, row):
+        st = self._stepper
+        x = st.live_state()
+        end, taken, status = kernels.fom_soe_recorded(
+            x, self._x0a, st.n, steps, first, every, self._cv, self._smooth, law, continuous,
+            *self._kernel_args, out, row, self.params.speed, MAX_PITCH)
+        self._stepped(taken, failed=status == 1)
+        return end, taken, status, x
+
     def _run_sampled(self, law, held, hold, periods, limits, out):
         st = self._stepper
         x = st.live_state()
@@ -578,7 +661,7 @@ class FractionalModel(Plant):
 
     def rhs(self, t: float, x: np.ndarray, u: Sequence[float]) -> np.ndarray:
         """Right-hand side f(t, x, u) of D^alpha x = f (eq. 26)."""
-        c = self.coefficients
+        c = self._c
         w = float(x[1])
         return np.array(eq17(c, w, float(x[2]), float(x[3]), float(u[0]), float(u[1]),
                              self._fp(w, c)))
@@ -603,7 +686,7 @@ class FractionalModel(Plant):
     def planing_force(self) -> float:
         if self._fp_at == self.n:        # the held-input call left it (the same arithmetic)
             return self._fp_value
-        return self._fp(self._x[1], self.coefficients)
+        return self._fp(self._x[1], self._c)
 
 
 class HeldPeriod:

@@ -260,6 +260,23 @@ def _rhs_free(c, smooth, w, th, q, uf, uc):
     return eq17(c, w, th, q, uf, uc, fp)
 
 
+@jitable
+def _free_step(c, smooth, law, continuous, xs, h, hh):
+    """One RK4 step of eq. 17 from the 4-tuple ``xs``: the new state (a 4-tuple)."""
+    uf, uc = _input(law, continuous, xs[0], xs[1], xs[2], xs[3])
+    k1 = _rhs_free(c, smooth, xs[1], xs[2], xs[3], uf, uc)
+    x2 = _shift(xs, k1, hh)
+    uf, uc = _input(law, continuous, x2[0], x2[1], x2[2], x2[3])
+    k2 = _rhs_free(c, smooth, x2[1], x2[2], x2[3], uf, uc)
+    x3 = _shift(xs, k2, hh)
+    uf, uc = _input(law, continuous, x3[0], x3[1], x3[2], x3[3])
+    k3 = _rhs_free(c, smooth, x3[1], x3[2], x3[3], uf, uc)
+    x4 = _shift(xs, k3, h)
+    uf, uc = _input(law, continuous, x4[0], x4[1], x4[2], x4[3])
+    k4 = _rhs_free(c, smooth, x4[1], x4[2], x4[3], uf, uc)
+    return _rk4_sum(xs, k1, k2, k3, k4, h)
+
+
 @_njit
 def delay_free_run(x, nsteps, h, cv, smooth, law, continuous, bad):
     """``nsteps`` RK4 steps of eq. 17 from ``x`` (4,), in place; returns the steps taken."""
@@ -268,18 +285,7 @@ def delay_free_run(x, nsteps, h, cv, smooth, law, continuous, bad):
     hh = 0.5 * h
     taken = nsteps
     for i in range(nsteps):
-        uf, uc = _input(law, continuous, xs[0], xs[1], xs[2], xs[3])
-        k1 = _rhs_free(c, smooth, xs[1], xs[2], xs[3], uf, uc)
-        x2 = _shift(xs, k1, hh)
-        uf, uc = _input(law, continuous, x2[0], x2[1], x2[2], x2[3])
-        k2 = _rhs_free(c, smooth, x2[1], x2[2], x2[3], uf, uc)
-        x3 = _shift(xs, k2, hh)
-        uf, uc = _input(law, continuous, x3[0], x3[1], x3[2], x3[3])
-        k3 = _rhs_free(c, smooth, x3[1], x3[2], x3[3], uf, uc)
-        x4 = _shift(xs, k3, h)
-        uf, uc = _input(law, continuous, x4[0], x4[1], x4[2], x4[3])
-        k4 = _rhs_free(c, smooth, x4[1], x4[2], x4[3], uf, uc)
-        xn = _rk4_sum(xs, k1, k2, k3, k4, h)
+        xn = _free_step(c, smooth, law, continuous, xs, h, hh)
         if not _finite4(xn[0], xn[1], xn[2], xn[3]):
             _fail(bad, xn[0], xn[1], xn[2], xn[3])
             taken = i
@@ -301,32 +307,38 @@ def _rhs_delayed(c, paper, hx, hf, n, c_stage, lag, tau, h, x_init, xs, uf, uc):
     return eq17(c, xs[1], xs[2], xs[3], uf, uc, fp)
 
 
+@jitable
+def _delayed_step(c, paper, hx, hf, m, lag, tau, h, hh, x_init, law, continuous, xs):
+    """One RK4 step of eqs. 22-25, step ``m`` from the 4-tuple ``xs``: writes x_m and f_m into
+    the history rings; the new state (a 4-tuple)."""
+    r = m % hx.shape[0]
+    hx[r, 0], hx[r, 1], hx[r, 2], hx[r, 3] = xs
+    uf, uc = _input(law, continuous, xs[0], xs[1], xs[2], xs[3])
+    k1 = _rhs_delayed(c, paper, hx, hf, m, 0.0, lag, tau, h, x_init, xs, uf, uc)
+    hf[r, 0], hf[r, 1], hf[r, 2], hf[r, 3] = k1     # f_m: the Hermite slope at t_m
+    x2 = _shift(xs, k1, hh)
+    uf, uc = _input(law, continuous, x2[0], x2[1], x2[2], x2[3])
+    k2 = _rhs_delayed(c, paper, hx, hf, m, 0.5, lag, tau, h, x_init, x2, uf, uc)
+    x3 = _shift(xs, k2, hh)
+    uf, uc = _input(law, continuous, x3[0], x3[1], x3[2], x3[3])
+    k3 = _rhs_delayed(c, paper, hx, hf, m, 0.5, lag, tau, h, x_init, x3, uf, uc)
+    x4 = _shift(xs, k3, h)
+    uf, uc = _input(law, continuous, x4[0], x4[1], x4[2], x4[3])
+    k4 = _rhs_delayed(c, paper, hx, hf, m, 1.0, lag, tau, h, x_init, x4, uf, uc)
+    return _rk4_sum(xs, k1, k2, k3, k4, h)
+
+
 @_njit
 def delayed_run(x, n, nsteps, h, cv, hx, hf, lag, tau, x_init, paper, law, continuous, bad):
     """``nsteps`` RK4 steps of eqs. 22-25 from step ``n`` at ``x``, in place (state and history
     rings ``hx``, ``hf``); returns the steps taken."""
     c = _coefficients(cv)
     xs = (x[0], x[1], x[2], x[3])
-    size = hx.shape[0]
     hh = 0.5 * h
     taken = nsteps
     for i in range(nsteps):
-        m = n + i
-        r = m % size
-        hx[r, 0], hx[r, 1], hx[r, 2], hx[r, 3] = xs
-        uf, uc = _input(law, continuous, xs[0], xs[1], xs[2], xs[3])
-        k1 = _rhs_delayed(c, paper, hx, hf, m, 0.0, lag, tau, h, x_init, xs, uf, uc)
-        hf[r, 0], hf[r, 1], hf[r, 2], hf[r, 3] = k1     # f_m: the Hermite slope at t_m
-        x2 = _shift(xs, k1, hh)
-        uf, uc = _input(law, continuous, x2[0], x2[1], x2[2], x2[3])
-        k2 = _rhs_delayed(c, paper, hx, hf, m, 0.5, lag, tau, h, x_init, x2, uf, uc)
-        x3 = _shift(xs, k2, hh)
-        uf, uc = _input(law, continuous, x3[0], x3[1], x3[2], x3[3])
-        k3 = _rhs_delayed(c, paper, hx, hf, m, 0.5, lag, tau, h, x_init, x3, uf, uc)
-        x4 = _shift(xs, k3, h)
-        uf, uc = _input(law, continuous, x4[0], x4[1], x4[2], x4[3])
-        k4 = _rhs_delayed(c, paper, hx, hf, m, 1.0, lag, tau, h, x_init, x4, uf, uc)
-        xn = _rk4_sum(xs, k1, k2, k3, k4, h)
+        xn = _delayed_step(c, paper, hx, hf, n + i, lag, tau, h, hh, x_init, law, continuous,
+                           xs)
         if not _finite4(xn[0], xn[1], xn[2], xn[3]):
             _fail(bad, xn[0], xn[1], xn[2], xn[3])
             taken = i
@@ -481,6 +493,20 @@ def _abm_correct(x, x0, c, smooth, law, continuous, cc, s, bad):
     return True
 
 
+@jitable
+def _abm_step(x, x0, m, c, smooth, law, continuous, H, W, fill, eps_k, ET, a0_coef, a0_small,
+              alpha, cp, cc, last_f, bad):
+    """ABM step ``m`` of :func:`fom_soe_run` (``x`` advanced in place); False when the state
+    turned non-finite (``bad`` holds it, ``x`` unchanged)."""
+    L, K, n0, base = _soe_shape(eps_k, ET, W)
+    f = _abm_rhs(x, c, smooth, law, continuous, last_f)
+    _soe_push(H, fill, f, m, n0, K, L, eps_k, ET)
+    fw = fill[0]
+    s = _abm_start(H, m, alpha, a0_coef, a0_small, cp, cc)
+    s = _abm_sums(H[0], W, fw, 1, base + fw, 0, s)
+    return _abm_correct(x, x0, c, smooth, law, continuous, cc, s, bad)
+
+
 @_njit
 def fom_soe_run(x, x0, n, nsteps, cv, smooth, law, continuous, H, W, fill, eps_k, ET,
                 a0_coef, a0_small, alpha, cp, cc, last_f, bad):
@@ -489,16 +515,9 @@ def fom_soe_run(x, x0, n, nsteps, cv, smooth, law, continuous, H, W, fill, eps_k
     ``ET``, ``a0_coef``, ``a0_small``), in place; ``last_f`` receives f_n of the last step.
     Returns the steps taken. Same arithmetic as ``SOEStepper.step`` (sums in another order)."""
     c = _coefficients(cv)
-    L, K, n0, base = _soe_shape(eps_k, ET, W)
-    V = H[0]
     for i in range(nsteps):
-        m = n + i
-        f = _abm_rhs(x, c, smooth, law, continuous, last_f)
-        _soe_push(H, fill, f, m, n0, K, L, eps_k, ET)
-        fw = fill[0]
-        s = _abm_start(H, m, alpha, a0_coef, a0_small, cp, cc)
-        s = _abm_sums(V, W, fw, 1, base + fw, 0, s)
-        if not _abm_correct(x, x0, c, smooth, law, continuous, cc, s, bad):
+        if not _abm_step(x, x0, n + i, c, smooth, law, continuous, H, W, fill, eps_k, ET,
+                         a0_coef, a0_small, alpha, cp, cc, last_f, bad):
             return i
     return nsteps
 
@@ -662,85 +681,102 @@ def fom_soe_sampled(x, x0, n, hold, periods, cv, smooth, law, held, limits, H, W
 # -- recorded drivers: many steps in one call, every kept sample written from compiled code ----
 
 @jitable
-def _keep(out, r, x, fp, law, continuous, wmax, pmax):
-    """Row ``r`` of ``out`` = [z, w, theta, q, Fp, delta_f, delta_c] at the state ``x`` (the
-    input applied from ``x`` on: the held u0 or the law's value there); False when ``x`` is
-    beyond |w| <= ``wmax``, |theta| <= ``pmax``."""
+def _keep(xs_out, fp_out, u_out, r, x, fp, law, continuous, wmax, pmax):
+    """Row ``r`` of the kept samples at the state ``x``: the state, Fp and the input applied
+    from ``x`` on (the held u0 or the law's value there); False when ``x`` is beyond
+    |w| <= ``wmax``, |theta| <= ``pmax``."""
     uf, uc = _input(law, continuous, x[0], x[1], x[2], x[3])
-    out[r, 0], out[r, 1], out[r, 2], out[r, 3] = x[0], x[1], x[2], x[3]
-    out[r, 4] = fp
-    out[r, 5], out[r, 6] = uf, uc
+    xs_out[r, 0], xs_out[r, 1], xs_out[r, 2], xs_out[r, 3] = x[0], x[1], x[2], x[3]
+    fp_out[r] = fp
+    u_out[r, 0], u_out[r, 1] = uf, uc
     return _in_bounds(x, wmax, pmax)
 
 
 @_njit
-def delay_free_recorded(x, nsteps, first, every, h, cv, smooth, law, continuous, bad, out, row,
-                        wmax, pmax):
-    """``nsteps`` steps of :func:`delay_free_run` that write a row of ``out`` (from ``row`` on,
-    :func:`_keep`) at the state before step ``first``, ``first + every``, ... of the call.
-    Returns (the next free row, steps taken, status): status 0, or 1 when a state turned
-    non-finite (``bad``), 2 when a kept state is beyond the bounds (the run stops there)."""
+def delay_free_recorded(x, nsteps, first, every, h, cv, smooth, law, continuous, bad, xs_out,
+                        fp_out, u_out, row, wmax, pmax):
+    """:func:`delay_free_run` that keeps the state before step ``first``, ``first + every``,
+    ... of the call as row ``row``, ``row + 1``, ... of ``xs_out`` (states), ``fp_out`` (Fp)
+    and ``u_out`` (inputs) (:func:`_keep`). Returns (the next free row, steps taken,
+    status): status 0, or 1 when a state turned non-finite (``bad``), 2 when a kept state
+    is beyond the bounds (the run stops there)."""
     c = _coefficients(cv)
-    done = 0
-    while first < nsteps:
-        done += delay_free_run(x, first - done, h, cv, smooth, law, continuous, bad)
-        if done < first:
-            return row, done, 1
-        fp = planing_smooth(x[1], c) if smooth else planing_exact(x[1], c)
-        if not _keep(out, row, x, fp, law, continuous, wmax, pmax):
-            return row + 1, done, 2
-        row += 1
-        first += every
-    done += delay_free_run(x, nsteps - done, h, cv, smooth, law, continuous, bad)
-    return row, done, 0 if done == nsteps else 1
+    xs = (x[0], x[1], x[2], x[3])
+    hh = 0.5 * h
+    done = status = 0
+    while done < nsteps:
+        if done == first:
+            fp = planing_smooth(xs[1], c) if smooth else planing_exact(xs[1], c)
+            first += every
+            row += 1
+            if not _keep(xs_out, fp_out, u_out, row - 1, xs, fp, law, continuous, wmax, pmax):
+                status = 2
+                break
+        xn = _free_step(c, smooth, law, continuous, xs, h, hh)
+        if not _finite4(xn[0], xn[1], xn[2], xn[3]):
+            _fail(bad, xn[0], xn[1], xn[2], xn[3])
+            status = 1
+            break
+        xs = xn
+        done += 1
+    x[0], x[1], x[2], x[3] = xs
+    return row, done, status
 
 
 @_njit
 def delayed_recorded(x, n, nsteps, first, every, h, cv, hx, hf, lag, tau, x_init, paper, law,
-                     continuous, bad, out, row, wmax, pmax):
+                     continuous, bad, xs_out, fp_out, u_out, row, wmax, pmax):
     """:func:`delay_free_recorded` for :func:`delayed_run` from step ``n`` (Fp at a kept state
     from the history, as the model computes it)."""
     c = _coefficients(cv)
-    done = 0
-    while first < nsteps:
-        done += delayed_run(x, n + done, first - done, h, cv, hx, hf, lag, tau, x_init, paper,
-                            law, continuous, bad)
-        if done < first:
-            return row, done, 1
-        if tau == 0.0:
-            zd, wd, thd = x[0], x[1], x[2]
-        else:
-            zd, wd, thd, _ = hermite_delayed(hx, hf, n + done, 0.0, lag, h, x_init)
-        fp = planing_delayed(x[0], x[2], zd, wd, thd, c, 'paper' if paper else 'geometric')
-        if not _keep(out, row, x, fp, law, continuous, wmax, pmax):
-            return row + 1, done, 2
-        row += 1
-        first += every
-    done += delayed_run(x, n + done, nsteps - done, h, cv, hx, hf, lag, tau, x_init, paper, law,
-                        continuous, bad)
-    return row, done, 0 if done == nsteps else 1
+    xs = (x[0], x[1], x[2], x[3])
+    hh = 0.5 * h
+    done = status = 0
+    while done < nsteps:
+        m = n + done
+        if done == first:
+            if tau == 0.0:
+                zd, wd, thd = xs[0], xs[1], xs[2]
+            else:
+                zd, wd, thd, _ = hermite_delayed(hx, hf, m, 0.0, lag, h, x_init)
+            fp = planing_delayed(xs[0], xs[2], zd, wd, thd, c, 'paper' if paper else 'geometric')
+            first += every
+            row += 1
+            if not _keep(xs_out, fp_out, u_out, row - 1, xs, fp, law, continuous, wmax, pmax):
+                status = 2
+                break
+        xn = _delayed_step(c, paper, hx, hf, m, lag, tau, h, hh, x_init, law, continuous, xs)
+        if not _finite4(xn[0], xn[1], xn[2], xn[3]):
+            _fail(bad, xn[0], xn[1], xn[2], xn[3])
+            status = 1
+            break
+        xs = xn
+        done += 1
+    x[0], x[1], x[2], x[3] = xs
+    return row, done, status
 
 
 @_njit
 def fom_soe_recorded(x, x0, n, nsteps, first, every, cv, smooth, law, continuous, H, W, fill,
-                     eps_k, ET, a0_coef, a0_small, alpha, cp, cc, last_f, bad, out, row, wmax,
-                     pmax):
+                     eps_k, ET, a0_coef, a0_small, alpha, cp, cc, last_f, bad, xs_out, fp_out,
+                     u_out, row, wmax, pmax):
     """:func:`delay_free_recorded` for :func:`fom_soe_run` from step ``n``."""
     c = _coefficients(cv)
-    done = 0
-    while first < nsteps:
-        done += fom_soe_run(x, x0, n + done, first - done, cv, smooth, law, continuous, H, W,
-                            fill, eps_k, ET, a0_coef, a0_small, alpha, cp, cc, last_f, bad)
-        if done < first:
-            return row, done, 1
-        fp = planing_smooth(x[1], c) if smooth else planing_exact(x[1], c)
-        if not _keep(out, row, x, fp, law, continuous, wmax, pmax):
-            return row + 1, done, 2
-        row += 1
-        first += every
-    done += fom_soe_run(x, x0, n + done, nsteps - done, cv, smooth, law, continuous, H, W, fill,
-                        eps_k, ET, a0_coef, a0_small, alpha, cp, cc, last_f, bad)
-    return row, done, 0 if done == nsteps else 1
+    done = status = 0
+    while done < nsteps:
+        if done == first:
+            fp = planing_smooth(x[1], c) if smooth else planing_exact(x[1], c)
+            first += every
+            row += 1
+            if not _keep(xs_out, fp_out, u_out, row - 1, x, fp, law, continuous, wmax, pmax):
+                status = 2
+                break
+        if not _abm_step(x, x0, n + done, c, smooth, law, continuous, H, W, fill, eps_k, ET,
+                         a0_coef, a0_small, alpha, cp, cc, last_f, bad):
+            status = 1
+            break
+        done += 1
+    return row, done, status
 
 
 # -- held-input entry point: fom_soe_run through a C function, the arrays bound once -----------
@@ -1236,10 +1272,11 @@ def warm_up() -> None:
         delay_free_run(x, 0, 1.0, cv, True, law, continuous, bad)
         delayed_run(x, 0, 0, 1.0, cv, hist, hist, 1.0, 1.0, x, True, law, continuous, bad)
         fom_soe_run(x, x, 0, 0, cv, True, law, continuous, *soe)
-        delay_free_recorded(x, 0, 0, 1, 1.0, cv, True, law, continuous, bad, out, 0, 1.0, 1.0)
+        rows = (hist, f1, np.zeros((1, 2)), 0, 1.0, 1.0)
+        delay_free_recorded(x, 0, 0, 1, 1.0, cv, True, law, continuous, bad, *rows)
         delayed_recorded(x, 0, 0, 0, 1, 1.0, cv, hist, hist, 1.0, 1.0, x, True, law,
-                         continuous, bad, out, 0, 1.0, 1.0)
-        fom_soe_recorded(x, x, 0, 0, 0, 1, cv, True, law, continuous, *soe, out, 0, 1.0, 1.0)
+                         continuous, bad, *rows)
+        fom_soe_recorded(x, x, 0, 0, 0, 1, cv, True, law, continuous, *soe, *rows)
     delay_free_sampled(x, 1, 0, 1.0, cv, True, law, law, limits, bad, out)
     delayed_sampled(x, 0, 1, 0, 1.0, cv, hist, hist, 1.0, 1.0, x, True, law, law, limits, bad,
                     out)

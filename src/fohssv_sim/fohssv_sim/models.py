@@ -80,6 +80,8 @@ def check_state(plant: Plant) -> None:
         f'step {plant.h:g} s: an unstable integration or a vehicle out of control)')
 
 Input = tuple[float, float]
+#: Where :meth:`Plant.record` keeps samples: states (N, 4), planing forces (N,), inputs (N, 2).
+Record = tuple[np.ndarray, np.ndarray, np.ndarray]
 InputLike = Sequence[float] | Callable[[float, Sequence[float]], Sequence[float]]
 
 
@@ -223,12 +225,13 @@ class Plant:
             self.n += 1
             self.status = 'running'
 
-    def record(self, u: InputLike | AffineLaw, steps: int, out: np.ndarray, row: int,
+    def record(self, u: InputLike | AffineLaw, steps: int, out: Record, row: int,
                first: int = 0, every: int = 1) -> int:
         """:meth:`advance` ``steps`` steps with ``u``, keeping the state before step ``first``,
-        ``first + every``, ... of them (< ``steps``) as rows of ``out`` from ``row`` on:
-        [z, w, theta, q, Fp, delta_f, delta_c], the input being the one applied from that
-        state on (the held one, or the law's value there). Returns the next free row.
+        ``first + every``, ... of them (< ``steps``) as rows ``row``, ``row + 1``, ... of
+        ``out`` = (states (N, 4), planing forces (N,), inputs (N, 2)): the state, Fp there
+        and the input applied from it on (the held one, or the law's value there). Returns
+        the next free row.
 
         A held input or an :class:`AffineLaw` runs all the steps and writes every row in one
         compiled call, whatever ``every`` is; any other callable steps interpreted.
@@ -256,9 +259,9 @@ class Plant:
             self.advance(u, first - done)
             done = first
             x = self._x
-            out[row, :4] = x
-            out[row, 4] = self.planing_force
-            out[row, 5:] = held or u(self.t, x)
+            out[0][row] = x
+            out[1][row] = self.planing_force
+            out[2][row] = held or u(self.t, x)
             row += 1
             check_state(self)
             first += every
@@ -328,8 +331,7 @@ class Plant:
         raise NotImplementedError
 
     def _run_recorded(self, law: np.ndarray, continuous: bool, steps: int, first: int,
-                      every: int, out: np.ndarray, row: int
-                      ) -> tuple[int, int, int, np.ndarray]:
+                      every: int, out: Record, row: int) -> tuple[int, int, int, np.ndarray]:
         """The model's ``*_recorded`` kernel: (next row, steps taken, status, the state
         array)."""
         raise NotImplementedError
@@ -351,7 +353,8 @@ class Plant:
         if self._use_kernel:
             scratch = type(self)(self.params, engine=self.engine, duration=1.0)
             scratch.advance((0.0, 0.0), 1)
-            scratch.record(AffineLaw(np.zeros((2, 4))), 1, np.zeros((1, 7)), 0)
+            scratch.record(AffineLaw(np.zeros((2, 4))), 1,
+                           (np.zeros((1, 4)), np.zeros(1), np.zeros((1, 2))), 0)
             scratch.advance_sampled(AffineLaw(np.zeros((2, 4))), (0.0, 0.0), 1, 1,
                                     np.array([1.0, 1.0, self.params.speed, MAX_PITCH]),
                                     np.zeros((1, 7)))
@@ -462,8 +465,8 @@ class DelayFreeModel(Plant):
     def _run_recorded(self, law, continuous, steps, first, every, out, row):
         xa = self._state_array()
         return (*kernels.delay_free_recorded(xa, steps, first, every, self.h, self._cv,
-                                             self._smooth, law, continuous, self._bad, out, row,
-                                             self.params.speed, MAX_PITCH), xa)
+                                             self._smooth, law, continuous, self._bad, *out,
+                                             row, self.params.speed, MAX_PITCH), xa)
 
     def _run_sampled(self, law, held, hold, periods, limits, out):
         xa = self._state_array()
@@ -540,7 +543,7 @@ class DelayedModel(Plant):
         return (*kernels.delayed_recorded(xa, self.n, steps, first, every, self.h, self._cv,
                                           self._hx, self._hf, self._lag, self.tau,
                                           self._x_init, self._form == 'paper', law, continuous,
-                                          self._bad, out, row, self.params.speed, MAX_PITCH),
+                                          self._bad, *out, row, self.params.speed, MAX_PITCH),
                 xa)
 
     def _run_sampled(self, law, held, hold, periods, limits, out):
@@ -645,7 +648,7 @@ class FractionalModel(Plant):
         x = st.live_state()
         end, taken, status = kernels.fom_soe_recorded(
             x, self._x0a, st.n, steps, first, every, self._cv, self._smooth, law, continuous,
-            *self._kernel_args, out, row, self.params.speed, MAX_PITCH)
+            *self._kernel_args, *out, row, self.params.speed, MAX_PITCH)
         self._stepped(taken, failed=status == 1)
         return end, taken, status, x
 

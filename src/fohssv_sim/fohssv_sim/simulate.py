@@ -101,7 +101,7 @@ def simulate(plant: Plant | ModelParameters, controller: Any, duration: float, *
         hold = steps_per_period(control_period, h)
 
     n_rows = n_steps // sample_every + 1
-    out = np.empty((n_rows, 7))      # [z, w, theta, q, Fp, delta_f, delta_c] per kept step
+    x_out, fp_out, u_out = out = np.empty((n_rows, 4)), np.empty(n_rows), np.empty((n_rows, 2))
     # the compiled kernel runs a whole chunk and writes its kept rows: a control period in
     # zero-order hold (the law is evaluated between chunks), else 1 % of the run
     chunk = hold or max(1, -(-n_steps // 100))
@@ -120,11 +120,12 @@ def simulate(plant: Plant | ModelParameters, controller: Any, duration: float, *
     if n_steps % sample_every == 0:     # the last state: its row has not been written
         x = plant.x
         u = law(plant.t, x) if not hold or n_steps % hold == 0 else drive
-        out[row] = (*x, plant.planing_force, *u)
+        x_out[row] = x
+        fp_out[row] = plant.planing_force
+        u_out[row] = u
     wall = time.perf_counter() - start
-    return SimulationResult(t=np.arange(n_rows) * sample_every * h,
-                            state=np.ascontiguousarray(out[:, :4]), planing_force=out[:, 4].copy(),
-                            inputs=np.ascontiguousarray(out[:, 5:]),
+    return SimulationResult(t=np.arange(n_rows) * sample_every * h, state=x_out,
+                            planing_force=fp_out, inputs=u_out,
                             params=plant.params, control_period=control_period,
                             controller=name, wall_time=wall,
                             metadata={'steps': n_steps, 'sample_every': sample_every,

@@ -34,6 +34,14 @@ deflection limits (status 3; its two columns are not written). The caller handle
 samples the slow way, so the results equal one kernel call per period with the law evaluated
 in Python (``test/test_kernels.py``).
 
+**Recorded drivers.** Each ``*_recorded`` function runs many steps in one call (the input
+held or an affine law at every stage, as ``*_run``) and keeps the state before every
+``every``-th step of them: the state, the planing force there and the input applied from it
+on, written into preallocated arrays from compiled code, so that keeping every step costs
+little more than keeping none. It stops early at a non-finite state (status 1) or at a kept
+state outside the physical bounds (status 2). :meth:`fohssv_sim.models.Plant.record` calls it;
+:func:`fohssv_sim.simulate.simulate` records a whole run through it.
+
 **Held-input entry point.** A plant stepping the FOM one control period at a time with the
 input held (lockstep, real time with an external controller) calls :func:`fom_soe_run` once
 per sample with 20 arguments; numba's dispatcher checks the type of each, 1.7 us a call warm

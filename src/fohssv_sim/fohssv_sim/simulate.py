@@ -5,6 +5,14 @@ under a controller either continuously (the controller evaluated at every solver
 the paper) or through a zero-order hold over a control period (as through ROS, where the
 plant holds the last command). The ROS lockstep loop with the same control period reproduces
 this runner's trajectory exactly.
+
+The run goes through the plant's compiled kernel in long chunks (:meth:`~.models.Plant.record`):
+1 % of the run in continuous mode (an affine law such as eq. 31 evaluated inside the kernel at
+every stage), one control period in zero-order hold (the controller called between chunks);
+every kept sample (state, planing force, input) is written from compiled code, so keeping
+every step costs about as much as keeping a few. The bounds check and the progress callback
+come once per chunk. A law the kernels cannot run (a plain callable in continuous mode) steps
+interpreted.
 """
 
 from __future__ import annotations

@@ -12,9 +12,9 @@ __all__ = ['HeldPeriod']
 
 
 class HeldPeriod:
-    """One control period of a :class:`~fohssv_sim.models.FractionalModel` with a held input whose new sample is
-    written out before the model's own bookkeeping: for a loop whose round trip waits for
-    the sample (the lockstep plant publishes it, then lets the model catch up).
+    """One control period of a :class:`~fohssv_sim.models.FractionalModel` with a held input
+    whose new sample is written out before the model's own bookkeeping: for a loop whose
+    round trip waits for the sample (the lockstep plant publishes it, then lets the model catch up).
 
     :meth:`run` ``(delta_f, delta_c)`` advances ``steps`` steps in the held-input kernel
     call (:class:`fohssv_sim.kernels.FomHeldCall`, the one :meth:`Plant.advance` makes for

@@ -58,9 +58,9 @@ def results_markdown(summary: dict, out_dir: Path, command: str, started: str,
     if 'ros' in summary and ros.exists():
         echo = json.loads(ros.read_text()).get('echo', {}).get('round_trips_per_second')
     lines = ['# Benchmark results', '',
-             'The latest figures of `make bench`, which overwrites this file (earlier runs: '
-             '`git log -p bench/RESULTS.md`). Ratios within one run mean more than absolute '
-             'figures: the machine may be shared.', '',
+             'The latest figures of the benchmarks (`make bench` runs them all and overwrites '
+             'this file; earlier runs: `git log -p bench/RESULTS.md`). Ratios within one run '
+             'mean more than absolute figures: the machine may be shared.', '',
              f'- command: `{command}`',
              f'- date: {started}',
              f'- machine: {cpu_model()}, {os.cpu_count()} CPUs, {platform.system()} '
@@ -122,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f'== {script.relative_to(ROOT)} failed (exit {rc})', flush=True)
     (args.out_dir / 'summary.json').write_text(json.dumps(summary, indent=2) + '\n')
     if args.results is not None:
-        command = 'make bench' if not args.quick else 'python scripts/bench.py --quick'
+        command = ' '.join(['python scripts/bench.py', *(sys.argv[1:] if argv is None else argv)])
         args.results.write_text(results_markdown(summary, args.out_dir, command, started,
                                                  (load_start, os.getloadavg()[0])))
         print(f'figures in {args.results}')

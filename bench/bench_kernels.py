@@ -38,7 +38,7 @@ from benchutil import finish, target
 from fohssv_controller.state_feedback import StateFeedback
 from fohssv_sim import kernels
 from fohssv_sim.fractional import solve_abm_fft
-from fohssv_sim.models import AffineLaw, FractionalModel, make_plant
+from fohssv_sim.models import AffineLaw, FractionalModel, make_plant, warm_up
 from fohssv_sim.params import ModelParameters
 from fohssv_sim.simulate import simulate
 
@@ -180,7 +180,7 @@ def main(argv=None) -> int:
                  'compiled': kernels.AVAILABLE}
     print(f"fohssv kernels benchmark  quick={quick}  load avg {os.getloadavg()[0]:.2f}")
     t0 = time.perf_counter()
-    kernels.warm_up()
+    warm_up()
     res['warm_up_s'] = time.perf_counter() - t0
     print(f"kernels ready in {res['warm_up_s']:.2f} s (compiled, or loaded from the cache)")
 

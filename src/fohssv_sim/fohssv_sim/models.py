@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from . import kernels
+from . import drivers, kernels
 from .bounds import MAX_PITCH, StateOutOfBounds, check_state
 from .coefficients import Coefficients, coefficients
 from .held_period import HeldPeriod
@@ -46,7 +46,7 @@ from .solvers import SOLVERS, soe_options
 
 __all__ = ['Plant', 'DelayFreeModel', 'DelayedModel', 'FractionalModel', 'make_plant',
            'StateOutOfBounds', 'MAX_PITCH', 'check_state', 'HeldPeriod',
-           'InputLike', 'STATE_NAMES', 'eq17', 'AffineLaw', 'ENGINES']
+           'InputLike', 'STATE_NAMES', 'eq17', 'AffineLaw', 'ENGINES', 'warm_up']
 
 #: How a plant steps: 'compiled' (numba kernels, :mod:`.kernels`) or 'python' (the interpreted
 #: reference); 'auto' = compiled when numba is available.
@@ -267,7 +267,7 @@ class Plant:
         affine ``law`` sampled at the end of each period and held over the next (zero-order
         hold), starting with the command ``held`` in force: the samples a plant hosting the
         law publishes, written to rows of ``out`` as ``[z, w, theta, q, Fp, delta_f,
-        delta_c]`` (kernels.py, "Sampled drivers"). ``limits`` = [max |delta_f|, max
+        delta_c]`` (:mod:`.drivers`). ``limits`` = [max |delta_f|, max
         |delta_c|, max |w|, max |theta|].
 
         Returns ``(samples, status)``: status 0 all done; 1 the state turned non-finite in
@@ -440,13 +440,13 @@ class DelayFreeModel(Plant):
 
     def _run_recorded(self, law, continuous, steps, first, every, out, row):
         xa = self._state_array()
-        return (*kernels.delay_free_recorded(xa, steps, first, every, self.h, self._cv,
+        return (*drivers.delay_free_recorded(xa, steps, first, every, self.h, self._cv,
                                              self._smooth, law, continuous, self._bad, *out,
                                              row, self.params.speed, MAX_PITCH), xa)
 
     def _run_sampled(self, law, held, hold, periods, limits, out):
         xa = self._state_array()
-        return (*kernels.delay_free_sampled(xa, hold, periods, self.h, self._cv, self._smooth,
+        return (*drivers.delay_free_sampled(xa, hold, periods, self.h, self._cv, self._smooth,
                                             law, held, limits, self._bad, out), xa)
 
     @property
@@ -516,7 +516,7 @@ class DelayedModel(Plant):
 
     def _run_recorded(self, law, continuous, steps, first, every, out, row):
         xa = self._state_array()
-        return (*kernels.delayed_recorded(xa, self.n, steps, first, every, self.h, self._cv,
+        return (*drivers.delayed_recorded(xa, self.n, steps, first, every, self.h, self._cv,
                                           self._hx, self._hf, self._lag, self.tau,
                                           self._x_init, self._form == 'paper', law, continuous,
                                           self._bad, *out, row, self.params.speed, MAX_PITCH),
@@ -524,7 +524,7 @@ class DelayedModel(Plant):
 
     def _run_sampled(self, law, held, hold, periods, limits, out):
         xa = self._state_array()
-        return (*kernels.delayed_sampled(xa, self.n, hold, periods, self.h, self._cv, self._hx,
+        return (*drivers.delayed_sampled(xa, self.n, hold, periods, self.h, self._cv, self._hx,
                                          self._hf, self._lag, self.tau, self._x_init,
                                          self._form == 'paper', law, held, limits, self._bad,
                                          out), xa)
@@ -622,7 +622,7 @@ class FractionalModel(Plant):
     def _run_recorded(self, law, continuous, steps, first, every, out, row):
         st = self._stepper
         x = st.live_state()
-        end, taken, status = kernels.fom_soe_recorded(
+        end, taken, status = drivers.fom_soe_recorded(
             x, self._x0a, st.n, steps, first, every, self._cv, self._smooth, law, continuous,
             *self._kernel_args, *out, row, self.params.speed, MAX_PITCH)
         self._stepped(taken, failed=status == 1)
@@ -632,7 +632,7 @@ class FractionalModel(Plant):
         st = self._stepper
         x = st.live_state()
         a = self._kernel_args
-        done, status, last = kernels.fom_soe_sampled(
+        done, status, last = drivers.fom_soe_sampled(
             x, self._x0a, st.n, hold, periods, self._cv, self._smooth, law, held, limits, *a,
             out)
         self._stepped(done * hold + (last if status == 1 else 0), failed=status == 1)
@@ -680,3 +680,11 @@ def make_plant(params: ModelParameters | None = None,
     cls = {'fractional': FractionalModel, 'delay-free': DelayFreeModel,
            'delayed': DelayedModel}[params.model]
     return cls(params, initial_state, engine=engine, duration=duration)
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) every kernel and driver the plants run, with the
+    argument types they pass (:meth:`Plant.compile` of each model), so that the first control
+    period of a run does not pay for it."""
+    for model in ('delay-free', 'delayed', 'fractional'):
+        make_plant(ModelParameters(model=model)).compile()

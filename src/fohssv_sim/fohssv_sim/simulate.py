@@ -132,7 +132,9 @@ def simulate(plant: Plant | ModelParameters, controller: Any, duration: float, *
         fp_out[row] = plant.planing_force
         u_out[row] = u
     wall = time.perf_counter() - start
-    return SimulationResult(t=np.arange(n_rows) * sample_every * h, state=x_out,
+    t = np.arange(0, n_rows * sample_every, sample_every, dtype=float)
+    t *= h                                   # n h exactly, as plant.t, in one array
+    return SimulationResult(t=t, state=x_out,
                             planing_force=fp_out, inputs=u_out,
                             params=plant.params, control_period=control_period,
                             controller=name, wall_time=wall,

@@ -76,10 +76,14 @@ def main(argv=None) -> int:
     print(f"{'model':<12} {'step':>7} {'keep 1':>10} {'keep 50':>10} {'kernel':>10}"
           '   (wall s per simulated s)')
     rows = []
+    res['figures'] = [['model', 'step (s)', 'keep 1', 'keep 50', 'kernel alone',
+                       '(wall s per simulated s)']]
     for model in MODELS:
         r = res['models'][model] = measure(model, duration, rounds)
         print(f"{model:<12} {r['step']:>7g} {r['keep_1']:>10.4f} {r['keep_50']:>10.4f} "
               f"{r['kernel']:>10.4f}", flush=True)
+        res['figures'].append([model, f"{r['step']:g}", f"{r['keep_1']:.4f}",
+                               f"{r['keep_50']:.4f}", f"{r['kernel']:.4f}", ''])
         target(rows, f'{model}: simulate keep 1 / keep 50', r['keep_1'] / r['keep_50'],
                '<=', 1.5)
         target(rows, f'{model}: simulate keep 1 / kernel', r['keep_1'] / r['kernel'], '<=', 1.5)

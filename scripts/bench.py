@@ -4,7 +4,8 @@ Each benchmark measures its comparisons side by side in one run (the machine is 
 noisy, so only ratios within a run mean anything), prints a table and writes JSON to
 ``<out-dir>/<name>.json``. This script runs them one after another, writes
 ``<out-dir>/summary.json`` listing what ran and whether it succeeded and, with ``--results``,
-the figures with their targets, the machine and the bare DDS echo to one Markdown file
+the figures with their targets (and a benchmark's ``figures`` table: a header row, then
+rows), the machine and the bare DDS echo to one Markdown file
 (``make bench``: bench/RESULTS.md, overwritten by each run; its history is in git).
 
 ``--quick`` is a smoke check: every benchmark starts and runs a tiny case (its figures mean
@@ -75,7 +76,12 @@ def results_markdown(summary: dict, out_dir: Path, command: str, started: str,
         lines += ['', f"## {name} (bench/bench_{name}.py: {verdict}, {entry['seconds']:g} s)",
                   '']
         path = out_dir / f'{name}.json'
-        rows = json.loads(path.read_text()).get('targets', []) if path.exists() else []
+        res = json.loads(path.read_text()) if path.exists() else {}
+        if res.get('figures'):      # figures without a target of their own: a table each
+            head, *body = res['figures']
+            lines += ['| ' + ' | '.join(head) + ' |', '|' + '---|' * len(head)]
+            lines += ['| ' + ' | '.join(str(v) for v in r) + ' |' for r in body] + ['']
+        rows = res.get('targets', [])
         if not rows:
             lines.append('No targets (figures in its JSON output).')
             continue

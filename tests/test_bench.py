@@ -37,7 +37,8 @@ def test_an_unknown_benchmark_name_is_refused_with_exit_2(capsys):
 
 def test_the_results_file_lists_each_figure_with_its_target_and_the_echo(tmp_path):
     # two benchmarks' JSON as they write it: benchutil's rows and bench_ros's rows
-    (tmp_path / 'simulate.json').write_text(json.dumps({'targets': [
+    (tmp_path / 'simulate.json').write_text(json.dumps({'figures': [
+        ['model', 'keep 1'], ['fractional', '0.0123']], 'targets': [
         {'name': 'fractional: simulate keep 1 / keep 50', 'measured': 1.2, 'op': '<=',
          'goal': 1.5, 'met': True}]}))
     (tmp_path / 'ros.json').write_text(json.dumps({
@@ -51,5 +52,6 @@ def test_the_results_file_lists_each_figure_with_its_target_and_the_echo(tmp_pat
     assert '- command: `make bench`' in text and '2026-01-01 00:00 UTC' in text
     assert "4321 round trips/s" in text and f"{os.cpu_count()} CPUs" in text
     assert '| fractional: simulate keep 1 / keep 50 | 1.2 | <= 1.5 | yes |' in text
+    assert '| model | keep 1 |' in text and '| fractional | 0.0123 |' in text
     assert '| lockstep FOM / echo | 0.61 | >= 0.5 | yes |' in text
     assert '## ros (bench/bench_ros.py: FAILED, exit 1, 9 s)' in text

@@ -27,7 +27,7 @@ TEST_PATHS := src/fohssv_sim/test src/fohssv_controller/test tests
 help:
 	@echo "make demo   set up, then run the main job (closed loop over ROS 2, recorded)"
 	@echo "make test   set up, then lint and run every test"
-	@echo "make bench  set up, then run the benchmarks (results in bench/results/)"
+	@echo "make bench  set up, then run the benchmarks (figures in bench/RESULTS.md)"
 	@echo "make setup  only create the venv and build the colcon workspace"
 
 $(VENV_STAMP): requirements.txt constraints.txt
@@ -61,7 +61,7 @@ test: setup
 	@# there): otherwise every plant and test process that starts before the first one wrote
 	@# the cache compiles the kernels (the in-plant writer and the lockstep plant their compiled
 	@# paths) again
-	@$(IN_ENV) python -c 'from fohssv_sim import kernels; kernels.warm_up(); from fohssv_sim.bag import ringpack; ringpack.warm_up(); from fohssv_sim.ros import compiled_sample; compiled_sample.warm_up()'
+	@$(IN_ENV) python -c 'from fohssv_sim import models; models.warm_up(); from fohssv_sim.bag import ringpack; ringpack.warm_up(); from fohssv_sim.ros import compiled_sample; compiled_sample.warm_up()'
 	$(IN_ENV) python -m pytest -n $(TEST_WORKERS) --dist worksteal $(TEST_PATHS) $(PYTEST_ARGS)
 
 # e.g. make demo DEMO_ARGS=--hosted (the law hosted in the plant: no controller node)
@@ -69,9 +69,10 @@ DEMO_ARGS ?=
 demo: setup
 	$(IN_ENV) python scripts/demo.py $(DEMO_ARGS)
 
+# Every benchmark, its figures and targets into bench/RESULTS.md (committed, overwritten each
+# run). `make test` runs each one's tiny case (tests/test_bench.py: scripts/bench.py --quick).
 bench: setup
-	@mkdir -p bench/results
-	$(IN_ENV) python scripts/bench.py --out-dir bench/results
+	$(IN_ENV) python scripts/bench.py --out-dir bench/results --results bench/RESULTS.md
 
 # Regenerate the transitive pins from the current venv.
 lock: $(VENV_STAMP)

@@ -58,19 +58,19 @@ from fohssv_sim.analysis import gainmap as gm  # noqa: E402
 
 def settings(quick: bool) -> dict:
     if quick:
-        return {'n': 8, 'duration': 0.2, 'transient': 0.15, 'subset': 3, 'solver_batch': 16}
+        return {'n': 2, 'duration': 0.02, 'transient': 0.01, 'subset': 2, 'solver_batch': 4}
     return {'n': 32, 'duration': 2.0, 'transient': 1.5, 'subset': 6, 'solver_batch': 256}
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--out', type=Path, default=Path('bench/results/gainmap.json'))
-    ap.add_argument('--quick', action='store_true', help='8 x 8 pairs, 0.2 s each')
+    ap.add_argument('--quick', action='store_true', help='a smoke check: 2 x 2 pairs, 0.02 s each')
     ap.add_argument('--workers', type=int, default=os.cpu_count() or 1)
     args = ap.parse_args(argv)
     cfg = settings(args.quick)
     n = cfg['n']
-    workers = max(1, args.workers)
+    workers = 1 if args.quick else max(1, args.workers)
     spec = gm.GainMapSpec(
         controller='state_feedback', gain_x='pitch_rate_gain',
         x_values=tuple(np.linspace(-1.2, 0.0, n).round(12).tolist()),

@@ -127,12 +127,12 @@ def run(samples: int, rate: float = 0.0, compiled: bool = True) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--out', type=Path, default=Path('bench/results/inplant.json'))
-    ap.add_argument('--quick', action='store_true', help='5000 samples instead of 50000')
+    ap.add_argument('--quick', action='store_true', help='a smoke check: 200 samples')
     a = ap.parse_args()
     cases = {}
     for compiled in (False, True):           # side by side: the writer's two paths
         key = 'compiled' if compiled else 'interpreted'
-        r = cases[key] = run(5000 if a.quick else 50000, compiled=compiled)
+        r = cases[key] = run(200 if a.quick else 50000, compiled=compiled)
         print(f"inplant   {key:11s} {r['messages']} messages (4 per lockstep sample): plant "
               f"side {r['producer_cpu_per_message_us']:.2f} us CPU per message (ring copy); "
               f"writer {r['writer_cpu_per_message_us']:.2f} us CPU per message (one core would "
@@ -143,7 +143,7 @@ def main() -> int:
     paced = {}
     for compiled in (False, True):
         key = 'compiled' if compiled else 'interpreted'
-        p = paced[key] = run(2000 if a.quick else 10000, rate=DEMO_RATE, compiled=compiled)
+        p = paced[key] = run(100 if a.quick else 10000, rate=DEMO_RATE, compiled=compiled)
         print(f"inplant   {key:11s} paced at {DEMO_RATE:.0f} samples/s (the demo loop's "
               f"rate), {p['messages']} messages: writer {p['writer_cpu_per_message_us']:.2f} "
               'us CPU per message', flush=True)

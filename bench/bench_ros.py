@@ -14,7 +14,7 @@ each case is one function, so a case can be added without touching the others):
   (``state_feedback``) against the plant hosting the same law (``controller:=state_feedback``),
   FOM (default solver) and delay-free model at the default control period: samples per
   second, as a ratio to the echo; and the delay-free model with one step per sample
-  (``control_period`` = ``step``, profiled): what the loop costs on top of the round trip;
+  (``control_period`` = ``step``): what the loop costs on top of the round trip;
 * real time (:func:`case_realtime`): plant in ``realtime`` mode (real_time_factor 1) for 10 s
   of simulated time, external node and hosted law, for the delay-free, delayed and fractional
   (alpha 0.85, V 75, h 2e-5, 'soe') models at control periods 1e-4 s and 1e-3 s: achieved
@@ -27,15 +27,6 @@ each case is one function, so a case can be added without touching the others):
 * in-plant recording (:func:`case_inplant_recording`): the hosted plant at 1e-4 s in real
   time recorded in-plant against unrecorded, each model, with the bag's message counts; and
   the demo's lockstep loop recorded in-plant against unrecorded (issue 20, item 2);
-* profile (:func:`case_profile`): short real-time runs per model at 1e-4 s with the plant's
-  ``profile:=1``, hosted and external: the plant's cost per sample of each part (mean us);
-* lockstep callback (:func:`case_callback`): the plant's lockstep command callback in one
-  process (``bench/plant_callback.py``: real publishers, no peer, no round trip), with
-  ``/clock`` published at every sample and without it (what the plant does with no
-  ``/clock`` reader), alternated: microseconds of CPU per sample each way;
-* threads (:func:`case_threads`): the bare echo and the lockstep FOM loop, each process's
-  threads' CPU sampled while its loop runs: CPU us per round trip of the Python main thread
-  and of Fast DDS's receive and event threads, echo beside loop (what the loop adds, where);
 * pinned (:func:`case_pinned`): ``cpu_affinity`` in lockstep: the echo and the FOM loop
   unpinned, then each process pinned (ping and plant on CPU 0, pong and controller on CPU 1),
   3 rounds: the pinned loop's rate over the unpinned one's, each loop against the echo pinned
@@ -43,10 +34,6 @@ each case is one function, so a case can be added without touching the others):
   (the echo's ping on ``state`` / ``command``) against the same controller node, pinned the
   same way (:func:`run_null_plant`): a Python plant that costs nothing but rclpy's path,
   beside the loop (whose plant takes the command in compiled code, so it can run faster);
-* hops (:func:`case_hops`): the bare echo and the lockstep FOM loop with two timestamps per
-  round trip in each process (``bench/hops.py``): the median time of each hop, the DDS
-  delivery each way and each process's work, echo beside loop (what the loop adds, where on
-  the round trip's path);
 * latency (:func:`case_latency`): ``cpu_dma_latency`` in lockstep: the echo and the FOM loop
   with the nodes' default limit held (0 us) and with no request (-1), alternated, 3 rounds:
   the loop's rate held over not, the echo's likewise, each loop against its echo. Every
@@ -61,7 +48,8 @@ each case is one function, so a case can be added without touching the others):
   misses that no code of the plant can remove), the CPU time per wake-up and how late the
   wake-ups come; like the echo, a figure of the machine.
 
-The hypervisor's steal over each run (``/proc/stat``: the time this virtual machine had work
+The hypervisor's steal over each plant process (read from ``/proc/stat`` before and after it,
+here, not by the plant: the time this virtual machine had work
 and the host ran something else) is printed beside each plant run and floor loop: on this kind
 of machine a stalled vCPU for milliseconds at a time, the cause of most deadline misses.
 A real-time run held to a deadline-miss target (hosted at 1e-4 s, external at 1e-3 s, the
@@ -100,9 +88,9 @@ import time
 from pathlib import Path
 
 from ament_index_python.packages import get_package_prefix
+from benchutil import host_cpu_ticks, kernel_preemption, steal_seconds, steal_share
 
-# the hypervisor's steal, read as the plant reads it for its summary (/proc/stat)
-from fohssv_sim.ros.loop import BurstWait, host_cpu_ticks, kernel_preemption, steal_share
+from fohssv_sim.ros.loop import BurstWait
 
 HERE = Path(__file__).resolve().parent
 MODELS = ('delay-free', 'delayed', 'fractional')
@@ -226,7 +214,8 @@ def _run_plant(domains: Domains, plant_params: dict, timeout: float,
     finally:
         if ctl is not None:
             _stop(ctl)
-    steal = steal_share(ticks_before, host_cpu_ticks())
+    ticks_after = host_cpu_ticks()      # the host around the run, read here, not by the plant
+    steal = steal_share(ticks_before, ticks_after)
     text = ''.join(lines)
     found = [ln for ln in lines if 'summary: {' in ln]
     if code == EXIT_SECOND_PLANT or (code == EXIT_SECOND_CONTROLLER
@@ -238,8 +227,8 @@ def _run_plant(domains: Domains, plant_params: dict, timeout: float,
         raise RuntimeError(f'plant exited {code}:\n{text[-2000:]}')
     s = json.loads(found[-1].split('summary: ', 1)[1])
     s['exit_code'] = code
-    # the plant's own figure (its run, real time) where it gives one, else the process's life
-    s.setdefault('host_steal_share', steal)
+    s['host_steal_share'] = steal
+    s['host_steal_seconds'] = steal_seconds(ticks_before, ticks_after)
     if code != 0:   # the run stopped: a diverged or lagging loop is a result, not a crash
         s['failure'] = next((ln.split(']: ', 1)[-1] for ln in lines if RESULT_CODES[code]
                              in ln), f'exit {code}')
@@ -508,7 +497,6 @@ def _steal_text(share: float | None) -> str:
     return '' if share is None else f', host steal {100 * share:.2f} %'
 
 
-
 def case_echo(domains: Domains, quick: bool) -> dict:
     """The bare echo with the package's profile (the figure every ratio uses), and beside it,
     alternately, with Fast DDS's default writer timings: what the profile's
@@ -576,15 +564,14 @@ def case_lockstep(domains: Domains, quick: bool, echo: dict, sim_time: float) ->
     ratio ``ratio_to_echo``), as the machine's speed drifts within a run; the FOM's runs with
     more than :data:`STEAL_LIMIT` host steal are run again (at most :data:`STEAL_RETRIES`
     more), each printed. Then the node-side cost with one RK4 step per
-    sample (external, profiled)."""
+    sample (external)."""
     out = {}
     cases = []
     for model in MODELS:
         params = {'model': model, 'duration': sim_time, **MODEL_PARAMS[model]}
         cases += [(model, params), (f'{model}, hosted', {**params, **HOSTED})]
     cases.append(('delay-free, 1 step/sample', {'model': 'delay-free', 'control_period': 1e-5,
-                                                'duration': 0.1 if quick else 0.3,
-                                                'profile': 1}))
+                                                'duration': 0.1 if quick else 0.3}))
     for key, params in cases:
         rate = echo['round_trips_per_second']
         if 'controller' in params:     # hosted: no DDS in the loop
@@ -628,10 +615,6 @@ def case_lockstep(domains: Domains, quick: bool, echo: dict, sim_time: float) ->
                  if 'controller_cpu_per_sample_us' in s else '')
               + f" over {s['t']:g} s simulated" + _steal_text(s.get('host_steal_share')),
               flush=True)
-        if 'profile' in s:
-            print('          mean us per call: ' + ', '.join(
-                f"{k} {v['mean_us']:.1f}" for k, v in s['profile'].items() if v['calls']),
-                flush=True)
     return out
 
 
@@ -737,145 +720,6 @@ def case_inplant_recording(domains: Domains, sim_time: float, quick: bool) -> di
                 f'{t} {n}' for t, n in sorted(counts.items())), flush=True)
             runs.append(pair)
     return {'realtime_hosted': runs, 'demo_loop': run_inplant_recording(domains, quick)}
-
-
-def case_profile(domains: Domains, quick: bool) -> dict:
-    """Profiled real-time runs at 1e-4 s, hosted and external, each model."""
-    profiles = {}
-    for model in MODELS:
-        for how, extra in (('hosted', HOSTED), ('external', {})):
-            params = _realtime_params(model, 1e-4, 0.5 if quick else 2.0, profile=1, **extra)
-            s = run_plant(domains, params, timeout=900.0)
-            profiles[f'{model}, {how}'] = s
-            parts = ', '.join(f"{k} {v['mean_us']:.1f}" for k, v in s['profile'].items()
-                              if v['calls'])
-            print(f"profile   {model:10s} {how:8s} T=1e-4 s realtime, mean us per call: "
-                  f"{parts}; plant CPU {s['cpu_per_sample_us']:.0f} us/sample", flush=True)
-    return profiles
-
-
-def case_callback(domains: Domains, quick: bool) -> dict:
-    """The plant's lockstep command callback in one process, ``/clock`` published at every
-    sample against not (``bench/plant_callback.py``), alternated (3 pairs, 1 with ``quick``):
-    the median block of each run, and per pair what not publishing it saves."""
-    import statistics
-
-    script = str(HERE / 'plant_callback.py')
-    runs: dict[str, list[float]] = {'on': [], 'off': []}
-    for i in range(1 if quick else 3):
-        for clock in (('on', 'off') if i % 2 == 0 else ('off', 'on')):
-            out = subprocess.run([sys.executable, script, '--clock', clock, '--samples',
-                                  '5000' if quick else '20000'], env=domains.env(),
-                                 timeout=300, capture_output=True, text=True)
-            lines = [ln for ln in out.stdout.splitlines() if ln.startswith('{')]
-            if out.returncode != 0 or not lines:
-                raise RuntimeError(f'plant_callback exited {out.returncode}:\n{out.stderr}')
-            blocks = json.loads(lines[-1])['blocks']
-            runs[clock].append(statistics.median(b['cpu_us'] for b in blocks))
-    saved = [a - b for a, b in zip(runs['on'], runs['off'], strict=True)]
-    print('callback  plant lockstep command callback in one process (FOM, no peer), CPU us per '
-          'sample with /clock published vs not: ' + ', '.join(
-              f'{a:.1f} vs {b:.1f}' for a, b in zip(runs['on'], runs['off'], strict=True))
-          + f'; median saved {statistics.median(saved):.1f} us', flush=True)
-    return {'cpu_us_clock_on': runs['on'], 'cpu_us_clock_off': runs['off'],
-            'median_saved_us': statistics.median(saved)}
-
-
-def _thread_cpu(pid: int) -> dict[str, float]:
-    """CPU seconds so far of the threads of process ``pid`` (Linux ``/proc``: each thread's
-    ``schedstat``, time on a CPU in nanoseconds), by group: 'main' (the Python thread:
-    executor, callbacks, publishes), Fast DDS's 'dds.shm' (shared-memory receive: takes each
-    message and wakes the executor), 'dds.ev' (timed events), 'dds' (its other threads, the
-    shared-memory watchdog included) and 'other'."""
-    out: dict[str, float] = {}
-    for tid in os.listdir(f'/proc/{pid}/task'):
-        try:
-            with open(f'/proc/{pid}/task/{tid}/comm') as f:
-                name = f.read().strip()
-            with open(f'/proc/{pid}/task/{tid}/schedstat') as f:
-                ns = int(f.read().split()[0])
-        except OSError:           # the thread ended meanwhile
-            continue
-        if tid == str(pid):
-            key = 'main'
-        elif name.startswith(('dds.shm.', 'dds.ev.')) and not name.endswith('.wd'):
-            key = name.rsplit('.', 1)[0]
-        else:
-            key = 'dds' if name.startswith('dds.') else 'other'
-        out[key] = out.get(key, 0.0) + ns * 1e-9
-    return out
-
-
-def _sample_threads(procs: dict[str, subprocess.Popen], seconds: float
-                    ) -> tuple[dict, float, float | None]:
-    """Each process's thread CPU over a window of ``seconds`` while all of them run:
-    ({name: {group: s}}, the window's wall s, host steal share over it). Raises when one
-    of them ended within the window (its figures would be partial)."""
-    ticks = host_cpu_ticks()
-    before = {k: _thread_cpu(p.pid) for k, p in procs.items()}
-    t0 = time.monotonic()
-    time.sleep(seconds)
-    after = {k: _thread_cpu(p.pid) for k, p in procs.items()}
-    wall = time.monotonic() - t0
-    steal = steal_share(ticks, host_cpu_ticks())
-    ended = [k for k, p in procs.items() if p.poll() is not None]
-    if ended:
-        raise RuntimeError(f"{', '.join(ended)} ended within the {seconds:g} s window")
-    return ({k: {g: after[k].get(g, 0.0) - before[k].get(g, 0.0)
-                 for g in sorted(set(before[k]) | set(after[k]))} for k in procs},
-            wall, steal)
-
-
-def _per_trip(cpu: dict, trips: float) -> dict:
-    return {k: {g: round(1e6 * v / trips, 1) for g, v in groups.items()}
-            for k, groups in cpu.items()}
-
-
-def _threads_text(per: dict) -> str:
-    # a group under 0.05 us (a thread that hardly ran) is left out of the line, not the JSON
-    return ', '.join(f"{k} " + ' + '.join(f'{g} {v:.1f}' for g, v in groups.items()
-                                          if v >= 0.05)
-                     + f' = {sum(groups.values()):.0f}' for k, groups in per.items())
-
-
-def _kill(proc: subprocess.Popen | None) -> None:
-    if proc is not None and proc.poll() is None:
-        proc.kill()
-        proc.wait()
-
-
-def _loop_window(env: dict, peer: list[str], lead: list[str], name: str, started: str,
-                 window: float) -> tuple[dict, float, float | None, str]:
-    """Start ``peer`` then ``lead`` (commands), wait for the line of ``lead`` that contains
-    ``started``, sample both processes' threads over ``window`` s 0.3 s later
-    (:func:`_sample_threads`, as {'lead': ..., 'peer': ...}), and let ``lead`` finish: (the
-    CPU, the window's wall s, its steal, the rest of ``lead``'s output). Raises with
-    ``lead``'s output when it fails or exits early; both are stopped on any error."""
-    peer_proc = lead_proc = None
-    seen: list[str] = []
-    try:
-        peer_proc = subprocess.Popen(peer, env=env, stdout=subprocess.DEVNULL,
-                                     stderr=subprocess.STDOUT, start_new_session=True)
-        lead_proc = subprocess.Popen(lead, env=env, stdout=subprocess.PIPE,
-                                     stderr=subprocess.STDOUT, text=True,
-                                     start_new_session=True)
-        for line in lead_proc.stdout:
-            seen.append(line)
-            if started in line:
-                break
-        else:
-            raise RuntimeError(f'{name} exited {lead_proc.wait()} before its loop started:\n'
-                               + ''.join(seen[-40:]))
-        time.sleep(0.3)
-        cpu, seconds, steal = _sample_threads({'lead': lead_proc, 'peer': peer_proc}, window)
-        rest = lead_proc.communicate(timeout=300)[0]
-    finally:
-        _kill(lead_proc)
-        if peer_proc is not None:
-            _stop(peer_proc)
-    if lead_proc.returncode != 0:
-        raise RuntimeError(f'{name} exited {lead_proc.returncode}:\n{rest[-3000:]}')
-    return cpu, seconds, steal, rest
 
 
 def case_pinned(domains: Domains, quick: bool) -> dict:
@@ -1010,106 +854,6 @@ def case_latency(domains: Domains, quick: bool) -> dict:
           f"{out['echo_gain']:.2f}; loop / echo: none {out['none_ratio_to_echo']:.2f}, held "
           f"{out['held_ratio_to_echo']:.2f}", flush=True)
     return out
-
-
-def case_threads(domains: Domains, quick: bool) -> dict:
-    """Where a round trip's CPU goes, thread by thread: the bare echo (ping, pong) and the
-    lockstep FOM loop (plant, eq. 31 node), alternated (2 rounds, 1 with ``quick``). Each
-    process's threads are sampled over a window while its loop runs (after the ping's
-    'timing' line, after the plant's start) and divided by the round trips in the window,
-    taken as the run's rate times the window: CPU us per round trip, per thread group
-    (resolution: the kernel's nanosecond run times). What the loop costs beyond the echo
-    shows up in the threads that do it. The plant's own CPU per sample over its whole run
-    (its summary) is kept beside the window's, as a check of the estimate."""
-    window = 1.0 if quick else 2.0
-    script = str(HERE / 'ros_echo.py')
-    args = fom_lockstep_args(1.5 if quick else 4.0)
-    rounds = []
-    for _ in range(1 if quick else 2):
-        env = domains.env()
-        cpu, echo_seconds, echo_steal, rest = _loop_window(
-            env, [sys.executable, script, 'pong'],
-            [sys.executable, script, 'ping', '--announce', '--count',
-             '30000' if quick else '60000'], 'echo ping', 'timing', window)
-        lines = [ln for ln in rest.splitlines() if ln.startswith('{')]
-        if not lines:
-            raise RuntimeError(f'echo ping printed no result:\n{rest}')
-        echo_rate = json.loads(lines[-1])['round_trips_per_second']
-        echo = _per_trip({'ping': cpu['lead'], 'pong': cpu['peer']}, echo_rate * echo_seconds)
-        cpu, seconds, loop_steal, rest = _loop_window(
-            env, [_exe('fohssv_controller', 'state_feedback')],
-            [_exe('fohssv_sim', 'plant'), *args], 'plant', 'starting at t = 0', window)
-        if 'summary: {' not in rest:
-            raise RuntimeError(f'the plant printed no summary:\n{rest[-3000:]}')
-        summary = json.loads(rest.split('summary: ', 1)[1].splitlines()[0])
-        loop_rate = summary['samples_per_second']
-        loop = _per_trip({'plant': cpu['lead'], 'controller': cpu['peer']},
-                         loop_rate * seconds)
-        rounds.append({'echo_round_trips_per_second': echo_rate, 'echo_cpu_us': echo,
-                       'echo_window_s': echo_seconds, 'echo_host_steal_share': echo_steal,
-                       'loop_samples_per_second': loop_rate, 'loop_cpu_us': loop,
-                       'loop_window_s': seconds, 'loop_host_steal_share': loop_steal,
-                       'plant_cpu_per_sample_us_whole_run': summary['cpu_per_sample_us']})
-        print(f'threads   CPU us per round trip by thread: echo ({echo_rate:.0f}/s'
-              f'{_steal_text(echo_steal)}) {_threads_text(echo)}; lockstep FOM loop '
-              f'({loop_rate:.0f}/s{_steal_text(loop_steal)}) {_threads_text(loop)} (plant '
-              f"{summary['cpu_per_sample_us']:.0f} us/sample over its whole run)", flush=True)
-    return {'window_s': window, 'rounds': rounds}
-
-
-def case_hops(domains: Domains, quick: bool) -> dict:
-    """Where a round trip's time goes, hop by hop: the bare echo and the lockstep FOM loop
-    (plant + eq. 31 node), each with two timestamps per round trip in each process (callback
-    entered, answer published: ``bench/hops.py``, ``ros_echo.py --hops``), 2 rounds (1 with
-    ``quick``), echo first. Per hop (the DDS delivery each way, each process's work) the
-    median over the run and what the loop adds to the echo's: the loop's extra time per round
-    trip, which the threads case shows as CPU, here as time on the round trip's path."""
-    import tempfile
-
-    sys.path.insert(0, str(HERE))
-    from hops import hops
-
-    script, harness = str(HERE / 'ros_echo.py'), str(HERE / 'hops.py')
-    args = fom_lockstep_args(1.0 if quick else 3.0)
-    rounds = []
-    for _ in range(1 if quick else 2):
-        with tempfile.TemporaryDirectory() as folder:
-            env = domains.env()
-            pong = subprocess.Popen([sys.executable, script, 'pong', '--hops', folder],
-                                    env=env, stdout=subprocess.DEVNULL,
-                                    stderr=subprocess.STDOUT, start_new_session=True)
-            try:
-                out = subprocess.run([sys.executable, script, 'ping', '--hops', folder,
-                                      '--count', '10000' if quick else '30000'], env=env,
-                                     timeout=300, capture_output=True, text=True)
-            finally:
-                _stop(pong)
-            if out.returncode != 0:
-                raise RuntimeError(f'echo ping exited {out.returncode}:\n{out.stderr}')
-            echo = hops('ping', 'pong', folder)
-            env = domains.env()
-            ctl = subprocess.Popen([sys.executable, harness, 'controller', folder], env=env,
-                                   stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
-                                   start_new_session=True)
-            try:
-                out = subprocess.run([sys.executable, harness, 'plant', folder, *args],
-                                     env=env, timeout=600, capture_output=True, text=True)
-            finally:
-                _stop(ctl)
-            if out.returncode != 0:
-                raise RuntimeError(f'plant exited {out.returncode}:\n{out.stderr[-3000:]}')
-            loop = hops('plant', 'controller', folder)
-        pairs = (('delivery_to_peer', 'delivery_to_peer', 'state delivered'),
-                 ('pong', 'controller', 'controller'),
-                 ('delivery_to_lead', 'delivery_to_lead', 'command delivered'),
-                 ('ping', 'plant', 'plant'), ('round_trip', 'round_trip', 'round trip'))
-        row = {'echo': echo, 'loop': loop, 'added_us': {
-            label: loop[b]['median_us'] - echo[a]['median_us'] for a, b, label in pairs}}
-        rounds.append(row)
-        print('hops      median us on the round trip, echo -> lockstep FOM loop: ' + ', '.join(
-            f"{label} {echo[a]['median_us']:.0f} -> {loop[b]['median_us']:.0f} "
-            f"({row['added_us'][label]:+.0f})" for a, b, label in pairs), flush=True)
-    return {'rounds': rounds}
 
 
 def case_fifo(domains: Domains, sim_time: float) -> list[dict]:
@@ -1277,14 +1021,30 @@ def targets(sim_time: float, lockstep: dict, realtime: list[dict], margin: list[
     return rows
 
 
+def smoke(domains: Domains, out: Path) -> int:
+    """The echo and the plant with its controller node start and run (no targets)."""
+    echo = run_echo(domains, 300)['round_trips_per_second']
+    s = run_plant(domains, {'mode': 'lockstep', 'model': 'fractional', 'duration': 0.05,
+                            **MODEL_PARAMS['fractional']}, timeout=120.0)
+    print(f"smoke: echo {echo:.0f} round trips/s; lockstep FOM {s['samples']} samples, "
+          f"{s['samples_per_second']:.0f} samples/s")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({'benchmark': 'ros graph', 'quick': True, 'echo':
+                               {'round_trips_per_second': echo}, 'lockstep': s,
+                               'targets': []}, indent=2) + '\n')
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--out', type=Path, default=Path('bench/results/ros.json'))
     ap.add_argument('--quick', action='store_true',
-                    help='1 s instead of 10 s of simulated real time, shorter loops')
+                    help='a smoke check: a short echo and a 0.05 s lockstep FOM loop')
     a = ap.parse_args()
-    sim_time = 1.0 if a.quick else 10.0
     domains = Domains()
+    if a.quick:
+        return smoke(domains, a.out)
+    sim_time = 10.0
     started = time.monotonic()
     load_start = os.getloadavg()
 
@@ -1295,11 +1055,7 @@ def main() -> int:
     margin = case_margin(domains, sim_time)
     rate = case_external_rate(domains, sim_time)
     inplant = case_inplant_recording(domains, sim_time, a.quick)
-    profiles = case_profile(domains, a.quick)
-    callback = case_callback(domains, a.quick)
-    threads = case_threads(domains, a.quick)
     pinned = case_pinned(domains, a.quick)
-    hop = case_hops(domains, a.quick)
     latency = case_latency(domains, a.quick)
     fifo = case_fifo(domains, sim_time)
     wake_end = case_wake(sim_time, 'end')
@@ -1328,8 +1084,7 @@ def main() -> int:
         'echo': echo, 'machine_floor': {'start': wake, 'end': wake_end},
         'lockstep': lockstep, 'realtime': realtime, 'margin': margin,
         'external_rate': rate, 'inplant_recording': inplant,
-        'normal_scheduler': fifo, 'profile': profiles, 'lockstep_callback': callback,
-        'threads': threads, 'pinned': pinned, 'hops': hop, 'cpu_dma_latency': latency,
+        'normal_scheduler': fifo, 'pinned': pinned, 'cpu_dma_latency': latency,
         'targets': rows}, indent=2) + '\n')
     print(f'wrote {a.out}')
     return 0

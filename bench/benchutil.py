@@ -1,12 +1,16 @@
-"""Shared ending of the benchmarks: the targets table, the load average, the JSON file.
+"""Shared parts of the benchmarks: the targets table, the load average, the JSON file, and
+the host around a run (the hypervisor's steal, the kernel's preemption model), read here
+rather than by the product.
 
 Not a benchmark itself (scripts/bench.py runs ``bench_*.py`` only).
 """
 
 from __future__ import annotations
 
+import gzip
 import json
 import os
+import zlib
 from pathlib import Path
 
 
@@ -34,3 +38,94 @@ def finish(res: dict, title: str, out: Path | None, width: int = 62) -> int:
         out.write_text(json.dumps(res, indent=2))
         print(f"wrote {out}")
     return 0
+
+
+# -- the host around a run: the hypervisor's steal and the kernel's preemption model ----------
+
+def host_cpu_ticks(stat: str = '/proc/stat') -> tuple[int, int] | None:
+    """(all ticks, steal ticks) of the machine's CPUs since boot, from ``stat`` (Linux's
+    /proc/stat ``cpu`` line); None where unavailable. Steal is time the hypervisor ran
+    something else while this virtual machine had work: a vCPU stalled for milliseconds, which
+    no scheduling inside the guest (SCHED_FIFO included) avoids."""
+    try:
+        with open(stat, encoding='ascii') as f:
+            fields = f.readline().split()
+        if fields[0] != 'cpu':
+            return None
+        # user nice system idle iowait irq softirq steal (guest time is inside user)
+        ticks = [int(v) for v in fields[1:9]]
+    except (OSError, ValueError, IndexError):
+        return None
+    if len(ticks) < 8:
+        return None
+    return sum(ticks), ticks[7]
+
+
+def steal_share(before: tuple[int, int] | None, after: tuple[int, int] | None
+                ) -> float | None:
+    """The share of all CPU time stolen by the hypervisor between two :func:`host_cpu_ticks`
+    readings (None when either is missing or no tick passed)."""
+    if before is None or after is None or after[0] <= before[0]:
+        return None
+    return (after[1] - before[1]) / (after[0] - before[0])
+
+
+def steal_seconds(before: tuple[int, int] | None, after: tuple[int, int] | None
+                  ) -> float | None:
+    """The CPU time (s, all CPUs) stolen between two :func:`host_cpu_ticks` readings (None
+    when either is missing), to a tick (1 / ``SC_CLK_TCK`` s)."""
+    if before is None or after is None:
+        return None
+    return (after[1] - before[1]) / os.sysconf('SC_CLK_TCK')
+
+
+def _config_lines(config: str) -> list[str]:
+    try:
+        if config.endswith('.gz'):
+            with gzip.open(config, 'rt', encoding='ascii', errors='replace') as f:
+                return f.read().splitlines()
+        with open(config, encoding='ascii', errors='replace') as f:
+            return f.read().splitlines()
+    except (OSError, EOFError, zlib.error):
+        return []
+
+
+def kernel_preemption() -> tuple[str | None, int | None]:
+    """(the running kernel's preemption model, its timer tick in Hz), each None where Linux
+    does not say: the bracketed model of debugfs' ``sched/preempt`` (root's), else a
+    ``preempt=`` boot parameter (a PREEMPT_DYNAMIC kernel), else the build's
+    ``CONFIG_PREEMPT_*`` (/proc/config.gz or /boot/config-RELEASE; ``uname -v`` names
+    PREEMPT_RT and PREEMPT_DYNAMIC where no config does). Under ``none`` or ``voluntary`` a
+    SCHED_FIFO thread waits for kernel paths of other tasks on its CPU."""
+    uname = os.uname()
+    options: dict[str, str] = {}
+    for line in (_config_lines('/proc/config.gz')
+                 or _config_lines(f'/boot/config-{uname.release}')):
+        if line.startswith('CONFIG_PREEMPT') or line.startswith('CONFIG_HZ='):
+            key, _, value = line.strip().partition('=')
+            options[key] = value
+    for word in ('PREEMPT_RT', 'PREEMPT_DYNAMIC'):
+        if word in uname.version.split():
+            options.setdefault(f'CONFIG_{word}', 'y')
+    hz = options.get('CONFIG_HZ')
+    tick = int(hz) if hz is not None and hz.isdigit() else None
+    try:
+        with open('/sys/kernel/debug/sched/preempt', encoding='ascii') as f:
+            text = f.read()
+        if '(' in text:
+            return text.split('(', 1)[1].split(')', 1)[0], tick
+    except OSError:
+        pass
+    try:
+        with open('/proc/cmdline', encoding='ascii', errors='replace') as f:
+            for word in f.read().split():
+                if word.startswith('preempt=') and options.get('CONFIG_PREEMPT_DYNAMIC') == 'y':
+                    return word.split('=', 1)[1], tick
+    except OSError:
+        pass
+    for key, model in (('CONFIG_PREEMPT_RT', 'rt'), ('CONFIG_PREEMPT', 'full'),
+                       ('CONFIG_PREEMPT_LAZY', 'lazy'), ('CONFIG_PREEMPT_VOLUNTARY', 'voluntary'),
+                       ('CONFIG_PREEMPT_NONE', 'none')):
+        if options.get(key) == 'y':
+            return model, tick
+    return None, tick

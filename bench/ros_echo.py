@@ -42,6 +42,7 @@ import argparse
 import json
 import sys
 import time
+from pathlib import Path
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -177,7 +178,8 @@ def main() -> int:
     a = ap.parse_args()
     stamps = None
     if a.hops is not None:
-        from hops import Stamps  # bench/hops.py, beside this script
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'tools' / 'diag'))
+        from hops import Stamps  # tools/diag/hops.py
         stamps = Stamps(a.hops, a.role)
     rclpy.init()
     node = rclpy.create_node(f'echo_{a.role}')

@@ -1,4 +1,4 @@
-"""bench/stalls.py's reading of a kernel trace: which late wake-up of the pacing thread has
+"""tools/diag/stalls.py's reading of a kernel trace: which late wake-up of the pacing thread has
 which cause. The trace (examples/ftrace_stalls.txt) is in ftrace's format, lines as this
 machine's kernel writes them (times and addresses edited); the expected causes and durations
 are read off its lines by hand."""
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-_PATH = Path(__file__).resolve().parents[1] / 'bench' / 'stalls.py'
+_PATH = Path(__file__).resolve().parents[1] / 'tools' / 'diag' / 'stalls.py'
 _spec = importlib.util.spec_from_file_location('bench_stalls', _PATH)
 stalls = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(stalls)

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from .coefficients import coefficients
+from .coefficients import KernelCoefficients, coefficients
 from .kernels import eq17
 from .params import ModelParameters
 from .planing import planing_exact_array, planing_smooth_array
@@ -41,9 +41,6 @@ SHARED_FIELDS = ('model', 'step', 'solver', 'planing_form', 'fractional_order',
 
 #: Fields that may differ between the points of one batch for the given solver.
 PER_POINT_FIELDS = {'soe': ('fractional_order',)}
-
-_COEFFS = ('V', 'L', 'R', 'g', 'a22', 'a24', 'a42', 'a44', 'b21', 'b22', 'b41', 'b42', 'd2',
-           'd4', 'R_prime', 'Rc_dot', 'k', 'w0')
 
 
 @dataclass
@@ -63,7 +60,8 @@ class BatchRHS:
 
     def __init__(self, params: Sequence[ModelParameters]) -> None:
         cs = [coefficients(p) for p in params]
-        self.c = SimpleNamespace(**{n: np.array([getattr(c, n) for c in cs]) for n in _COEFFS})
+        self.c = SimpleNamespace(**{n: np.array([getattr(c.kernel, n) for c in cs])
+                                    for n in KernelCoefficients._fields})
         smooth = params[0].planing_form == 'smooth'
         self._fp = planing_smooth_array if smooth else planing_exact_array
 

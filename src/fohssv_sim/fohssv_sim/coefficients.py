@@ -9,31 +9,24 @@ every coefficient), and the cavity quantities of eqs. 9-14.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
-from .kernels import KernelCoefficients
 from .params import ModelParameters
 
-__all__ = ['Coefficients', 'coefficients']
+__all__ = ['Coefficients', 'KernelCoefficients', 'coefficients']
 
 
-@dataclass(frozen=True)
-class Coefficients:
-    """Numbers derived from :class:`ModelParameters`; see :func:`coefficients`.
-
-    Scalars are plain floats (the plant's step evaluates them in float arithmetic);
-    ``A``, ``B``, ``G``, ``D`` are the matrices of eq. 17 as read-only numpy arrays.
-    """
+class KernelCoefficients(NamedTuple):
+    """The scalars the model's arithmetic reads (eq. 17, the planing forces): the compiled
+    kernels of :mod:`.kernels` receive them as one float array in this order."""
 
     V: float
     L: float
     R: float
     g: float
-    C: float
-    S: float
-    T: float
     a22: float
     a24: float
     a42: float
@@ -44,24 +37,40 @@ class Coefficients:
     b42: float
     d2: float
     d4: float
+    R_prime: float
+    Rc_dot: float
+    k: float
+    w0: float
+
+
+@dataclass(frozen=True)
+class Coefficients:
+    """Numbers derived from :class:`ModelParameters`; see :func:`coefficients`.
+
+    The scalars of :class:`KernelCoefficients` (``kernel``) read as attributes too
+    (``c.V``, ``c.a22``, ...). Scalars are plain floats (the plant's step evaluates them in
+    float arithmetic); ``A``, ``B``, ``G``, ``D`` are the matrices of eq. 17 as read-only
+    numpy arrays.
+    """
+
+    kernel: KernelCoefficients
+    C: float
+    S: float
+    T: float
     K1: float
     K2: float
     Rc: float
-    Rc_dot: float
-    R_prime: float
-    w0: float
     tau: float
-    k: float
     A: np.ndarray
     B: np.ndarray
     G: np.ndarray
     D: np.ndarray
-    #: The scalars the compiled kernels read, in :class:`~.kernels.KernelCoefficients` order.
-    kernel: KernelCoefficients = field(init=False, repr=False)
 
-    def __post_init__(self) -> None:
-        object.__setattr__(self, 'kernel', KernelCoefficients(
-            *(getattr(self, name) for name in KernelCoefficients._fields)))
+    def __getattr__(self, name: str) -> float:
+        # only called for names the dataclass does not have: the kernel's scalars
+        if name != 'kernel' and name in KernelCoefficients._fields:
+            return getattr(self.kernel, name)
+        raise AttributeError(f'Coefficients has no attribute {name!r}')
 
     @property
     def contact_velocity(self) -> float:
@@ -118,9 +127,9 @@ def coefficients(p: ModelParameters) -> Coefficients:
     for arr in (A, B, G, D):
         arr.setflags(write=False)
 
-    return Coefficients(
-        V=V, L=L, R=R, g=p.gravity, C=C, S=S, T=T,
-        a22=a22, a24=a24, a42=a42, a44=a44, b21=b21, b22=b22, b41=b41, b42=b42, d2=d2, d4=d4,
-        K1=K1, K2=K2, Rc=Rc, Rc_dot=Rc_dot, R_prime=R_prime, w0=w0, tau=p.delay,
-        k=p.tanh_sharpness, A=A, B=B, G=G, D=D,
-    )
+    kernel = KernelCoefficients(
+        V=V, L=L, R=R, g=p.gravity, a22=a22, a24=a24, a42=a42, a44=a44, b21=b21, b22=b22,
+        b41=b41, b42=b42, d2=d2, d4=d4, R_prime=R_prime, Rc_dot=Rc_dot, k=p.tanh_sharpness,
+        w0=w0)
+    return Coefficients(kernel=kernel, C=C, S=S, T=T, K1=K1, K2=K2, Rc=Rc, tau=p.delay,
+                        A=A, B=B, G=G, D=D)

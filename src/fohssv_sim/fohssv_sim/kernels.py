@@ -23,16 +23,8 @@ step for step (``test/test_kernels.py``). Each kernel returns the number of step
 than asked when a state turned non-finite; that state is left in ``bad`` and the arrays hold
 the last finite step.
 
-**Sampled drivers.** Each ``*_sampled`` function runs ``periods`` control periods of ``hold``
-steps in one call with an affine law sampled at the start of each period and held over it
-(zero-order hold: what the plant does with a hosted affine controller, one sample per
-period). After each period it writes the sample ``[z, w, theta, q, Fp, delta_f, delta_c]`` to a
-row of ``out`` and stops early -- returning ``(samples written, status, steps of the last
-period)`` -- at a non-finite state (status 1, nothing written for that period), at a sample
-outside the physical bounds (status 2) or at a command that is non-finite or beyond the plant's
-deflection limits (status 3; its two columns are not written). The caller handles those
-samples the slow way, so the results equal one kernel call per period with the law evaluated
-in Python (``test/test_kernels.py``).
+**Drivers.** The compiled loops that run many control periods with a sampled law, or keep
+every k-th step of a run, are in :mod:`.drivers`, over these kernels.
 
 **Held-input entry point.** A plant stepping the FOM one control period at a time with the
 input held (lockstep, real time with an external controller) calls :func:`fom_soe_run` once
@@ -54,8 +46,9 @@ of the period's 2.7 in one process; periods of up to n0 = 16 steps, so that a fo
 takes a value of the period itself).
 
 Compiled on first use and cached on disk (``cache=True``, next to this file or in numba's
-user cache); :func:`warm_up` compiles all kernels (a few seconds the first time, well under
-a second from the cache). Without numba everything still runs, interpreted.
+user cache); :func:`fohssv_sim.models.warm_up` compiles them all, through the plants (a few
+seconds the first time, well under a second from the cache). Without numba everything still
+runs, interpreted.
 """
 
 from __future__ import annotations
@@ -64,9 +57,11 @@ import ctypes
 import functools
 import math
 import warnings
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
+
+from .coefficients import KernelCoefficients
 
 try:
     import numba
@@ -79,34 +74,10 @@ except ImportError:  # pragma: no cover - numba is pinned in requirements.txt
 
 __all__ = ['AVAILABLE', 'KernelCoefficients', 'jitable', 'eq17', 'planing_force_law',
            'planing_exact', 'planing_delayed', 'planing_smooth', 'hermite_delayed',
-           'delay_free_run', 'delayed_run', 'fom_soe_run', 'delay_free_sampled',
-           'delayed_sampled', 'fom_soe_sampled', 'FomHeldCall', 'pack_law', 'warm_up']
+           'delay_free_run', 'delayed_run', 'fom_soe_run', 'FomHeldCall', 'pack_law']
 
 #: True when the kernels run compiled (numba importable).
 AVAILABLE = numba is not None
-
-
-class KernelCoefficients(NamedTuple):
-    """The scalar coefficients the stepping arithmetic reads (see :mod:`.coefficients`)."""
-
-    V: float
-    L: float
-    R: float
-    g: float
-    a22: float
-    a24: float
-    a42: float
-    a44: float
-    b21: float
-    b22: float
-    b41: float
-    b42: float
-    d2: float
-    d4: float
-    R_prime: float
-    Rc_dot: float
-    k: float
-    w0: float
 
 
 # -- the physics, one source ------------------------------------------------------------------
@@ -280,6 +251,23 @@ def _rhs_free(c, smooth, w, th, q, uf, uc):
     return eq17(c, w, th, q, uf, uc, fp)
 
 
+@jitable
+def _free_step(c, smooth, law, continuous, xs, h, hh):
+    """One RK4 step of eq. 17 from the 4-tuple ``xs``: the new state (a 4-tuple)."""
+    uf, uc = _input(law, continuous, xs[0], xs[1], xs[2], xs[3])
+    k1 = _rhs_free(c, smooth, xs[1], xs[2], xs[3], uf, uc)
+    x2 = _shift(xs, k1, hh)
+    uf, uc = _input(law, continuous, x2[0], x2[1], x2[2], x2[3])
+    k2 = _rhs_free(c, smooth, x2[1], x2[2], x2[3], uf, uc)
+    x3 = _shift(xs, k2, hh)
+    uf, uc = _input(law, continuous, x3[0], x3[1], x3[2], x3[3])
+    k3 = _rhs_free(c, smooth, x3[1], x3[2], x3[3], uf, uc)
+    x4 = _shift(xs, k3, h)
+    uf, uc = _input(law, continuous, x4[0], x4[1], x4[2], x4[3])
+    k4 = _rhs_free(c, smooth, x4[1], x4[2], x4[3], uf, uc)
+    return _rk4_sum(xs, k1, k2, k3, k4, h)
+
+
 @_njit
 def delay_free_run(x, nsteps, h, cv, smooth, law, continuous, bad):
     """``nsteps`` RK4 steps of eq. 17 from ``x`` (4,), in place; returns the steps taken."""
@@ -288,18 +276,7 @@ def delay_free_run(x, nsteps, h, cv, smooth, law, continuous, bad):
     hh = 0.5 * h
     taken = nsteps
     for i in range(nsteps):
-        uf, uc = _input(law, continuous, xs[0], xs[1], xs[2], xs[3])
-        k1 = _rhs_free(c, smooth, xs[1], xs[2], xs[3], uf, uc)
-        x2 = _shift(xs, k1, hh)
-        uf, uc = _input(law, continuous, x2[0], x2[1], x2[2], x2[3])
-        k2 = _rhs_free(c, smooth, x2[1], x2[2], x2[3], uf, uc)
-        x3 = _shift(xs, k2, hh)
-        uf, uc = _input(law, continuous, x3[0], x3[1], x3[2], x3[3])
-        k3 = _rhs_free(c, smooth, x3[1], x3[2], x3[3], uf, uc)
-        x4 = _shift(xs, k3, h)
-        uf, uc = _input(law, continuous, x4[0], x4[1], x4[2], x4[3])
-        k4 = _rhs_free(c, smooth, x4[1], x4[2], x4[3], uf, uc)
-        xn = _rk4_sum(xs, k1, k2, k3, k4, h)
+        xn = _free_step(c, smooth, law, continuous, xs, h, hh)
         if not _finite4(xn[0], xn[1], xn[2], xn[3]):
             _fail(bad, xn[0], xn[1], xn[2], xn[3])
             taken = i
@@ -321,32 +298,38 @@ def _rhs_delayed(c, paper, hx, hf, n, c_stage, lag, tau, h, x_init, xs, uf, uc):
     return eq17(c, xs[1], xs[2], xs[3], uf, uc, fp)
 
 
+@jitable
+def _delayed_step(c, paper, hx, hf, m, lag, tau, h, hh, x_init, law, continuous, xs):
+    """One RK4 step of eqs. 22-25, step ``m`` from the 4-tuple ``xs``: writes x_m and f_m into
+    the history rings; the new state (a 4-tuple)."""
+    r = m % hx.shape[0]
+    hx[r, 0], hx[r, 1], hx[r, 2], hx[r, 3] = xs
+    uf, uc = _input(law, continuous, xs[0], xs[1], xs[2], xs[3])
+    k1 = _rhs_delayed(c, paper, hx, hf, m, 0.0, lag, tau, h, x_init, xs, uf, uc)
+    hf[r, 0], hf[r, 1], hf[r, 2], hf[r, 3] = k1     # f_m: the Hermite slope at t_m
+    x2 = _shift(xs, k1, hh)
+    uf, uc = _input(law, continuous, x2[0], x2[1], x2[2], x2[3])
+    k2 = _rhs_delayed(c, paper, hx, hf, m, 0.5, lag, tau, h, x_init, x2, uf, uc)
+    x3 = _shift(xs, k2, hh)
+    uf, uc = _input(law, continuous, x3[0], x3[1], x3[2], x3[3])
+    k3 = _rhs_delayed(c, paper, hx, hf, m, 0.5, lag, tau, h, x_init, x3, uf, uc)
+    x4 = _shift(xs, k3, h)
+    uf, uc = _input(law, continuous, x4[0], x4[1], x4[2], x4[3])
+    k4 = _rhs_delayed(c, paper, hx, hf, m, 1.0, lag, tau, h, x_init, x4, uf, uc)
+    return _rk4_sum(xs, k1, k2, k3, k4, h)
+
+
 @_njit
 def delayed_run(x, n, nsteps, h, cv, hx, hf, lag, tau, x_init, paper, law, continuous, bad):
     """``nsteps`` RK4 steps of eqs. 22-25 from step ``n`` at ``x``, in place (state and history
     rings ``hx``, ``hf``); returns the steps taken."""
     c = _coefficients(cv)
     xs = (x[0], x[1], x[2], x[3])
-    size = hx.shape[0]
     hh = 0.5 * h
     taken = nsteps
     for i in range(nsteps):
-        m = n + i
-        r = m % size
-        hx[r, 0], hx[r, 1], hx[r, 2], hx[r, 3] = xs
-        uf, uc = _input(law, continuous, xs[0], xs[1], xs[2], xs[3])
-        k1 = _rhs_delayed(c, paper, hx, hf, m, 0.0, lag, tau, h, x_init, xs, uf, uc)
-        hf[r, 0], hf[r, 1], hf[r, 2], hf[r, 3] = k1     # f_m: the Hermite slope at t_m
-        x2 = _shift(xs, k1, hh)
-        uf, uc = _input(law, continuous, x2[0], x2[1], x2[2], x2[3])
-        k2 = _rhs_delayed(c, paper, hx, hf, m, 0.5, lag, tau, h, x_init, x2, uf, uc)
-        x3 = _shift(xs, k2, hh)
-        uf, uc = _input(law, continuous, x3[0], x3[1], x3[2], x3[3])
-        k3 = _rhs_delayed(c, paper, hx, hf, m, 0.5, lag, tau, h, x_init, x3, uf, uc)
-        x4 = _shift(xs, k3, h)
-        uf, uc = _input(law, continuous, x4[0], x4[1], x4[2], x4[3])
-        k4 = _rhs_delayed(c, paper, hx, hf, m, 1.0, lag, tau, h, x_init, x4, uf, uc)
-        xn = _rk4_sum(xs, k1, k2, k3, k4, h)
+        xn = _delayed_step(c, paper, hx, hf, n + i, lag, tau, h, hh, x_init, law, continuous,
+                           xs)
         if not _finite4(xn[0], xn[1], xn[2], xn[3]):
             _fail(bad, xn[0], xn[1], xn[2], xn[3])
             taken = i
@@ -501,6 +484,20 @@ def _abm_correct(x, x0, c, smooth, law, continuous, cc, s, bad):
     return True
 
 
+@jitable
+def _abm_step(x, x0, m, c, smooth, law, continuous, H, W, fill, eps_k, ET, a0_coef, a0_small,
+              alpha, cp, cc, last_f, bad):
+    """ABM step ``m`` of :func:`fom_soe_run` (``x`` advanced in place); False when the state
+    turned non-finite (``bad`` holds it, ``x`` unchanged)."""
+    L, K, n0, base = _soe_shape(eps_k, ET, W)
+    f = _abm_rhs(x, c, smooth, law, continuous, last_f)
+    _soe_push(H, fill, f, m, n0, K, L, eps_k, ET)
+    fw = fill[0]
+    s = _abm_start(H, m, alpha, a0_coef, a0_small, cp, cc)
+    s = _abm_sums(H[0], W, fw, 1, base + fw, 0, s)
+    return _abm_correct(x, x0, c, smooth, law, continuous, cc, s, bad)
+
+
 @_njit
 def fom_soe_run(x, x0, n, nsteps, cv, smooth, law, continuous, H, W, fill, eps_k, ET,
                 a0_coef, a0_small, alpha, cp, cc, last_f, bad):
@@ -509,16 +506,9 @@ def fom_soe_run(x, x0, n, nsteps, cv, smooth, law, continuous, H, W, fill, eps_k
     ``ET``, ``a0_coef``, ``a0_small``), in place; ``last_f`` receives f_n of the last step.
     Returns the steps taken. Same arithmetic as ``SOEStepper.step`` (sums in another order)."""
     c = _coefficients(cv)
-    L, K, n0, base = _soe_shape(eps_k, ET, W)
-    V = H[0]
     for i in range(nsteps):
-        m = n + i
-        f = _abm_rhs(x, c, smooth, law, continuous, last_f)
-        _soe_push(H, fill, f, m, n0, K, L, eps_k, ET)
-        fw = fill[0]
-        s = _abm_start(H, m, alpha, a0_coef, a0_small, cp, cc)
-        s = _abm_sums(V, W, fw, 1, base + fw, 0, s)
-        if not _abm_correct(x, x0, c, smooth, law, continuous, cc, s, bad):
+        if not _abm_step(x, x0, n + i, c, smooth, law, continuous, H, W, fill, eps_k, ET,
+                         a0_coef, a0_small, alpha, cp, cc, last_f, bad):
             return i
     return nsteps
 
@@ -581,103 +571,6 @@ def fom_soe_prepared_run(x, x0, n, nsteps, cv, smooth, law, H, W, fill, eps_k, E
         if not _abm_correct(x, x0, c, smooth, law, False, cc, s, bad):
             return i
     return nsteps
-
-# -- sampled drivers: an affine law at every control instant, held over the period -------------
-
-@jitable
-def _sampled_command(law, x, held, fmax, cmax):
-    """u = clamp(K x + u0) at a sample into ``held`` (a held-input law); False when it is
-    non-finite or beyond the plant's limits. Summed as the eq. 31 controller's ``update``;
-    finiteness is checked before the clamp (as :class:`fohssv_sim.ros.loop.HostedLaw` does)."""
-    uf = (law[0] * x[0] + law[1] * x[1] + law[2] * x[2] + law[3] * x[3]) + law[8]
-    uc = (law[4] * x[0] + law[5] * x[1] + law[6] * x[2] + law[7] * x[3]) + law[9]
-    if not (math.isfinite(uf) and math.isfinite(uc)):
-        return False
-    uf = _clamp(uf, law[10])
-    uc = _clamp(uc, law[11])
-    if abs(uf) > fmax or abs(uc) > cmax:
-        return False
-    held[8] = uf
-    held[9] = uc
-    return True
-
-
-@jitable
-def _in_bounds(x, wmax, pmax):
-    return -wmax <= x[1] <= wmax and -pmax <= x[2] <= pmax
-
-
-@jitable
-def _take_sample(out, p, x, fp, law, held, limits):
-    """Row ``p`` of ``out`` for the sample ``x`` (and ``fp``), and the law's command for it
-    into ``held``: 0, or the status that stops the burst (2 out of bounds, 3 no command)."""
-    out[p, 0], out[p, 1], out[p, 2], out[p, 3] = x[0], x[1], x[2], x[3]
-    out[p, 4] = fp
-    if not _in_bounds(x, limits[2], limits[3]):
-        return 2
-    if not _sampled_command(law, x, held, limits[0], limits[1]):
-        return 3
-    out[p, 5], out[p, 6] = held[8], held[9]
-    return 0
-
-
-@_njit
-def delay_free_sampled(x, hold, periods, h, cv, smooth, law, held, limits, bad, out):
-    """``periods`` periods of :func:`delay_free_run` with ``law`` sampled (module docstring);
-    ``held`` is the held-input law array (its u0 = the command in force), ``limits`` =
-    [max |delta_f|, max |delta_c|, max |w|, max |theta|]."""
-    c = _coefficients(cv)
-    for p in range(periods):
-        taken = delay_free_run(x, hold, h, cv, smooth, held, False, bad)
-        if taken < hold:
-            return p, 1, taken
-        fp = planing_smooth(x[1], c) if smooth else planing_exact(x[1], c)
-        status = _take_sample(out, p, x, fp, law, held, limits)
-        if status:
-            return p + 1, status, hold
-    return periods, 0, hold
-
-
-@_njit
-def delayed_sampled(x, n, hold, periods, h, cv, hx, hf, lag, tau, x_init, paper, law, held,
-                    limits, bad, out):
-    """``periods`` periods of :func:`delayed_run` from step ``n`` with ``law`` sampled (see
-    :func:`delay_free_sampled`); Fp at a sample from the history, as the model computes it."""
-    c = _coefficients(cv)
-    for p in range(periods):
-        m = n + p * hold
-        taken = delayed_run(x, m, hold, h, cv, hx, hf, lag, tau, x_init, paper, held, False,
-                            bad)
-        if taken < hold:
-            return p, 1, taken
-        if tau == 0.0:
-            zd, wd, thd = x[0], x[1], x[2]
-        else:
-            zd, wd, thd, _ = hermite_delayed(hx, hf, m + hold, 0.0, lag, h, x_init)
-        fp = planing_delayed(x[0], x[2], zd, wd, thd, c, 'paper' if paper else 'geometric')
-        status = _take_sample(out, p, x, fp, law, held, limits)
-        if status:
-            return p + 1, status, hold
-    return periods, 0, hold
-
-
-@_njit
-def fom_soe_sampled(x, x0, n, hold, periods, cv, smooth, law, held, limits, H, W, fill, eps_k,
-                    ET, a0_coef, a0_small, alpha, cp, cc, last_f, bad, out):
-    """``periods`` periods of :func:`fom_soe_run` from step ``n`` with ``law`` sampled (see
-    :func:`delay_free_sampled`)."""
-    c = _coefficients(cv)
-    for p in range(periods):
-        taken = fom_soe_run(x, x0, n + p * hold, hold, cv, smooth, held, False, H, W, fill,
-                            eps_k, ET, a0_coef, a0_small, alpha, cp, cc, last_f, bad)
-        if taken < hold:
-            return p, 1, taken
-        fp = planing_smooth(x[1], c) if smooth else planing_exact(x[1], c)
-        status = _take_sample(out, p, x, fp, law, held, limits)
-        if status:
-            return p + 1, status, hold
-    return periods, 0, hold
-
 
 # -- held-input entry point: fom_soe_run through a C function, the arrays bound once -----------
 
@@ -1156,13 +1049,3 @@ class FomHeldCall:
                   'eps_k': eps_k, 'ET': ET, 'a0_coef': a0_coef, 'a0_small': a0_small,
                   'last_f': last_f, 'bad': bad}
         return cls(built[0], arrays, smooth, alpha, cp, cc)
-
-
-def warm_up() -> None:
-    """Compile (or load from the cache) every kernel with the argument types the plants pass,
-    so the first control period of a run does not pay for it."""
-    from .models import make_plant
-    from .params import ModelParameters
-
-    for model in ('delay-free', 'delayed', 'fractional'):
-        make_plant(ModelParameters(model=model)).compile()

@@ -9,7 +9,8 @@ Contract (:class:`Plant`), shaped like scipy's steppers:
   as in the paper's simulations). It returns the new state;
 * ``advance(u, steps)`` takes ``steps`` steps with the same ``u``: a held input or an
   :class:`AffineLaw` runs them in one compiled call (:mod:`.kernels`), any other callable
-  interpreted, step by step;
+  interpreted, step by step; ``record(u, steps, out, row, first, every)`` does the same and
+  keeps every ``every``-th state (with Fp and the input there) in preallocated arrays;
 * ``t`` (s), ``n`` (steps taken; t = n h exactly), ``x`` (the state as a tuple, no copy),
   ``state`` (copy of [z, w, theta, q]),
   ``planing_force`` (Fp at the current state, eq. 10), ``status`` ('ready' | 'running' |
@@ -34,8 +35,10 @@ from typing import Any
 
 import numpy as np
 
-from . import kernels
+from . import drivers, kernels
+from .bounds import MAX_PITCH, StateOutOfBounds, check_state
 from .coefficients import Coefficients, coefficients
+from .held_period import HeldPeriod
 from .kernels import eq17, hermite_delayed, pack_law
 from .params import ModelParameters
 from .planing import planing_delayed, planing_exact, planing_smooth
@@ -43,7 +46,7 @@ from .solvers import SOLVERS, soe_options
 
 __all__ = ['Plant', 'DelayFreeModel', 'DelayedModel', 'FractionalModel', 'make_plant',
            'StateOutOfBounds', 'MAX_PITCH', 'check_state', 'HeldPeriod',
-           'InputLike', 'STATE_NAMES', 'eq17', 'AffineLaw', 'ENGINES']
+           'InputLike', 'STATE_NAMES', 'eq17', 'AffineLaw', 'ENGINES', 'warm_up']
 
 #: How a plant steps: 'compiled' (numba kernels, :mod:`.kernels`) or 'python' (the interpreted
 #: reference); 'auto' = compiled when numba is available.
@@ -52,34 +55,9 @@ ENGINES = ('auto', 'compiled', 'python')
 #: Names of the state components, in order (docs/model.md §1).
 STATE_NAMES = ('z', 'w', 'theta', 'q')
 
-#: Largest |theta| (rad) of a state the model describes: the nose pointing straight down or up.
-MAX_PITCH = math.pi / 2
-
-
-class StateOutOfBounds(FloatingPointError):
-    """The state left the physical domain of the model although it is finite: |w| > V (the
-    nose's vertical velocity above the forward speed, an angle of attack beyond 45 degrees,
-    where the small-angle model no longer holds) or |theta| > pi/2. In practice this is a
-    numerical blow-up (a step beyond the scheme's stability) or a vehicle out of control;
-    either way the run is no longer a result. A ``FloatingPointError`` like the non-finite
-    check, so whoever handles one handles both."""
-
-
-def check_state(plant: Plant) -> None:
-    """Raise :class:`StateOutOfBounds` (and mark ``plant`` failed) when its state is beyond
-    |w| <= V, |theta| <= pi/2. A few comparisons: the batch runner and the ROS plant call it
-    once per control period (or per output sample), never inside the compiled kernels."""
-    x = plant.x
-    v = plant.params.speed
-    if -v <= x[1] <= v and -MAX_PITCH <= x[2] <= MAX_PITCH:
-        return
-    plant.status = 'failed'
-    raise StateOutOfBounds(
-        f'state beyond physical bounds at t={plant.t:.9g} s: [z, w, theta, q] = '
-        f'{[float(v) for v in x]} (|w| must stay <= V = {v:g} m/s and |theta| <= pi/2 rad; '
-        f'step {plant.h:g} s: an unstable integration or a vehicle out of control)')
-
 Input = tuple[float, float]
+#: Where :meth:`Plant.record` keeps samples: states (N, 4), planing forces (N,), inputs (N, 2).
+Record = tuple[np.ndarray, np.ndarray, np.ndarray]
 InputLike = Sequence[float] | Callable[[float, Sequence[float]], Sequence[float]]
 
 
@@ -146,6 +124,7 @@ class Plant:
         self.engine = engine
         self.duration = duration
         self._cv = np.array(self.coefficients.kernel, dtype=float)
+        self._c = self.coefficients.kernel     # the scalars the interpreted arithmetic reads
         self._law = pack_law()                 # the held input, set per call
         self._held = pack_law()                # the same for advance_sampled
         self._xa = np.zeros(4)                 # the state as the kernels advance it
@@ -200,18 +179,10 @@ class Plant:
             RuntimeError: the plant failed earlier and was not reset.
             FloatingPointError: the state turned non-finite (status becomes 'failed').
         """
-        if self.status == 'failed':
-            raise RuntimeError('the plant failed earlier; call reset() before stepping again')
+        self._refuse_failed()
         if steps <= 0:
             return
-        if isinstance(u, AffineLaw):
-            law, continuous = u.packed, True
-        elif callable(u):
-            law = None
-        else:
-            law, continuous = self._law, False
-            law[8] = float(u[0])
-            law[9] = float(u[1])
+        law, continuous = self._kernel_law(u)
         if law is not None and self._use_kernel:
             taken, xa = self._run_compiled(law, continuous, steps)
             self._x = tuple(xa.tolist())
@@ -230,13 +201,73 @@ class Plant:
             self.n += 1
             self.status = 'running'
 
+    def record(self, u: InputLike | AffineLaw, steps: int, out: Record, row: int,
+               first: int = 0, every: int = 1) -> int:
+        """:meth:`advance` ``steps`` steps with ``u``, keeping the state before step ``first``,
+        ``first + every``, ... of them (< ``steps``) as rows ``row``, ``row + 1``, ... of
+        ``out`` = (states (N, 4), planing forces (N,), inputs (N, 2)): the state, Fp there
+        and the input applied from it on (the held one, or the law's value there). Returns
+        the next free row.
+
+        A held input or an :class:`AffineLaw` runs all the steps and writes every row in one
+        compiled call, whatever ``every`` is; any other callable steps interpreted.
+
+        Raises:
+            RuntimeError, FloatingPointError: as :meth:`advance`.
+            StateOutOfBounds: a kept state or the last one is beyond the bounds
+                (:func:`check_state`: the plant stops there).
+        """
+        self._refuse_failed()
+        law, continuous = self._kernel_law(u)
+        if law is not None and self._use_kernel:
+            end, taken, status, xa = self._run_recorded(law, continuous, steps, first, every,
+                                                        out, row)
+            self._x = tuple(xa.tolist())
+            self.n += taken
+            self.status = 'running'
+            if status == 1:
+                self._failed(self._bad.tolist(), _show(u))
+            check_state(self)
+            return end
+        held = None if callable(u) else (law[8], law[9])
+        done = 0
+        while first < steps:
+            self.advance(u, first - done)
+            done = first
+            x = self._x
+            out[0][row] = x
+            out[1][row] = self.planing_force
+            out[2][row] = held or u(self.t, x)
+            row += 1
+            check_state(self)
+            first += every
+        self.advance(u, steps - done)
+        check_state(self)
+        return row
+
+    def _refuse_failed(self) -> None:
+        if self.status == 'failed':
+            raise RuntimeError('the plant failed earlier; call reset() before stepping again')
+
+    def _kernel_law(self, u: InputLike | AffineLaw) -> tuple[np.ndarray | None, bool]:
+        """``u`` as the kernels' ``law`` array and its ``continuous`` flag (a held input goes
+        into this plant's own array), or (None, False) for a callable the kernels cannot run."""
+        if isinstance(u, AffineLaw):
+            return u.packed, True
+        if callable(u):
+            return None, False
+        law = self._law
+        law[8] = float(u[0])
+        law[9] = float(u[1])
+        return law, False
+
     def advance_sampled(self, law: AffineLaw, held: Sequence[float], hold: int, periods: int,
                         limits: np.ndarray, out: np.ndarray) -> tuple[int, int]:
         """Up to ``periods`` control periods of ``hold`` steps in one compiled call, the
         affine ``law`` sampled at the end of each period and held over the next (zero-order
         hold), starting with the command ``held`` in force: the samples a plant hosting the
         law publishes, written to rows of ``out`` as ``[z, w, theta, q, Fp, delta_f,
-        delta_c]`` (kernels.py, "Sampled drivers"). ``limits`` = [max |delta_f|, max
+        delta_c]`` (:mod:`.drivers`). ``limits`` = [max |delta_f|, max
         |delta_c|, max |w|, max |theta|].
 
         Returns ``(samples, status)``: status 0 all done; 1 the state turned non-finite in
@@ -275,6 +306,12 @@ class Plant:
         state array)."""
         raise NotImplementedError
 
+    def _run_recorded(self, law: np.ndarray, continuous: bool, steps: int, first: int,
+                      every: int, out: Record, row: int) -> tuple[int, int, int, np.ndarray]:
+        """The model's ``*_recorded`` kernel: (next row, steps taken, status, the state
+        array)."""
+        raise NotImplementedError
+
     def _state_array(self) -> np.ndarray:
         """The state as the integer models' kernels advance it (refreshed after interpreted
         steps or a reset)."""
@@ -292,6 +329,8 @@ class Plant:
         if self._use_kernel:
             scratch = type(self)(self.params, engine=self.engine, duration=1.0)
             scratch.advance((0.0, 0.0), 1)
+            scratch.record(AffineLaw(np.zeros((2, 4))), 1,
+                           (np.zeros((1, 4)), np.zeros(1), np.zeros((1, 2))), 0)
             scratch.advance_sampled(AffineLaw(np.zeros((2, 4))), (0.0, 0.0), 1, 1,
                                     np.array([1.0, 1.0, self.params.speed, MAX_PITCH]),
                                     np.zeros((1, 7)))
@@ -386,7 +425,7 @@ class DelayFreeModel(Plant):
 
     def rhs(self, x: Sequence[float], uf: float, uc: float) -> tuple:
         """dx/dt of eq. 17 for state ``x`` and input (``uf``, ``uc``)."""
-        c = self.coefficients
+        c = self._c
         return eq17(c, x[1], x[2], x[3], uf, uc, self._fp(x[1], c))
 
     def _advance(self, u: InputLike) -> tuple:
@@ -399,14 +438,20 @@ class DelayFreeModel(Plant):
         return kernels.delay_free_run(xa, steps, self.h, self._cv, self._smooth, law,
                                       continuous, self._bad), xa
 
+    def _run_recorded(self, law, continuous, steps, first, every, out, row):
+        xa = self._state_array()
+        return (*drivers.delay_free_recorded(xa, steps, first, every, self.h, self._cv,
+                                             self._smooth, law, continuous, self._bad, *out,
+                                             row, self.params.speed, MAX_PITCH), xa)
+
     def _run_sampled(self, law, held, hold, periods, limits, out):
         xa = self._state_array()
-        return (*kernels.delay_free_sampled(xa, hold, periods, self.h, self._cv, self._smooth,
+        return (*drivers.delay_free_sampled(xa, hold, periods, self.h, self._cv, self._smooth,
                                             law, held, limits, self._bad, out), xa)
 
     @property
     def planing_force(self) -> float:
-        return self._fp(self._x[1], self.coefficients)
+        return self._fp(self._x[1], self._c)
 
 
 class DelayedModel(Plant):
@@ -444,11 +489,11 @@ class DelayedModel(Plant):
                                self.initial_state)
 
     def _force(self, x: tuple, xd: tuple) -> float:
-        return planing_delayed(x[0], x[2], xd[0], xd[1], xd[2], self.coefficients, self._form)
+        return planing_delayed(x[0], x[2], xd[0], xd[1], xd[2], self._c, self._form)
 
     def rhs(self, x: Sequence[float], x_delayed: Sequence[float], uf: float, uc: float) -> tuple:
         """dx/dt of eqs. 22-25 for state ``x``, delayed state and input."""
-        return eq17(self.coefficients, x[1], x[2], x[3], uf, uc, self._force(x, x_delayed))
+        return eq17(self._c, x[1], x[2], x[3], uf, uc, self._force(x, x_delayed))
 
     def _advance(self, u: InputLike) -> tuple:
         n, size, rhs, delayed = self.n, self._size, self.rhs, self._delayed
@@ -469,9 +514,17 @@ class DelayedModel(Plant):
                                    self._lag, self.tau, self._x_init, self._form == 'paper',
                                    law, continuous, self._bad), xa
 
+    def _run_recorded(self, law, continuous, steps, first, every, out, row):
+        xa = self._state_array()
+        return (*drivers.delayed_recorded(xa, self.n, steps, first, every, self.h, self._cv,
+                                          self._hx, self._hf, self._lag, self.tau,
+                                          self._x_init, self._form == 'paper', law, continuous,
+                                          self._bad, *out, row, self.params.speed, MAX_PITCH),
+                xa)
+
     def _run_sampled(self, law, held, hold, periods, limits, out):
         xa = self._state_array()
-        return (*kernels.delayed_sampled(xa, self.n, hold, periods, self.h, self._cv, self._hx,
+        return (*drivers.delayed_sampled(xa, self.n, hold, periods, self.h, self._cv, self._hx,
                                          self._hf, self._lag, self.tau, self._x_init,
                                          self._form == 'paper', law, held, limits, self._bad,
                                          out), xa)
@@ -566,11 +619,20 @@ class FractionalModel(Plant):
         if st.n > hist.horizon:
             hist.check_horizon(st.n)
 
+    def _run_recorded(self, law, continuous, steps, first, every, out, row):
+        st = self._stepper
+        x = st.live_state()
+        end, taken, status = drivers.fom_soe_recorded(
+            x, self._x0a, st.n, steps, first, every, self._cv, self._smooth, law, continuous,
+            *self._kernel_args, *out, row, self.params.speed, MAX_PITCH)
+        self._stepped(taken, failed=status == 1)
+        return end, taken, status, x
+
     def _run_sampled(self, law, held, hold, periods, limits, out):
         st = self._stepper
         x = st.live_state()
         a = self._kernel_args
-        done, status, last = kernels.fom_soe_sampled(
+        done, status, last = drivers.fom_soe_sampled(
             x, self._x0a, st.n, hold, periods, self._cv, self._smooth, law, held, limits, *a,
             out)
         self._stepped(done * hold + (last if status == 1 else 0), failed=status == 1)
@@ -578,7 +640,7 @@ class FractionalModel(Plant):
 
     def rhs(self, t: float, x: np.ndarray, u: Sequence[float]) -> np.ndarray:
         """Right-hand side f(t, x, u) of D^alpha x = f (eq. 26)."""
-        c = self.coefficients
+        c = self._c
         w = float(x[1])
         return np.array(eq17(c, w, float(x[2]), float(x[3]), float(u[0]), float(u[1]),
                              self._fp(w, c)))
@@ -603,108 +665,7 @@ class FractionalModel(Plant):
     def planing_force(self) -> float:
         if self._fp_at == self.n:        # the held-input call left it (the same arithmetic)
             return self._fp_value
-        return self._fp(self._x[1], self.coefficients)
-
-
-class HeldPeriod:
-    """One control period of a :class:`FractionalModel` with a held input whose new sample is
-    written out before the model's own bookkeeping: for a loop whose round trip waits for
-    the sample (the lockstep plant publishes it, then lets the model catch up).
-
-    :meth:`run` ``(delta_f, delta_c)`` advances ``steps`` steps in the held-input kernel
-    call (:class:`fohssv_sim.kernels.FomHeldCall`, the one :meth:`Plant.advance` makes for
-    a held input) and, when the state is finite and within |w| <= V, |theta| <= pi/2, writes
-    ``[t, z, w, theta, q]`` into ``out[0:5]`` and returns True; the caller must then call
-    :meth:`settle` before anything else uses the model. After both, the model is exactly
-    where ``advance((delta_f, delta_c), steps)`` leaves it (state, time, history, planing
-    force: the same compiled call on the same arrays). A period that turns non-finite or
-    leaves the bounds is settled at once and raises what :meth:`Plant.advance` and
-    :func:`check_state` raise. :meth:`run` returns False, having done nothing, when the
-    kernel call is not bound to the model's current arrays (before the model's first held
-    advance, after a reset, without the C entry point): the caller advances as usual.
-    """
-
-    def __init__(self, model: FractionalModel, steps: int, out: Any) -> None:
-        self._model = model
-        self._steps = steps
-        self._out = out
-        self._v = model.params.speed
-        self._x: list[float] = []       # the state run() left, for settle()
-
-    def run(self, delta_f: float, delta_c: float) -> bool:
-        model = self._model
-        held = model._held_call
-        if not held or model.status == 'failed' or held.x is not model._stepper.live_state():
-            return False
-        law = held.law
-        law[8] = delta_f
-        law[9] = delta_c
-        taken = held.call(model._stepper.n, self._steps)
-        return self.finish(taken, delta_f, delta_c)
-
-    @property
-    def steps(self) -> int:
-        """Steps per period."""
-        return self._steps
-
-    def bound(self) -> tuple[kernels.FomHeldCall, int, int] | None:
-        """For a caller that makes :meth:`run`'s kernel call itself (the plant's compiled
-        sample): the bound kernel call with the step index it is called with and the model's
-        step count (the sample's time is ``(count + steps) * h``), or None when :meth:`run`
-        would return False."""
-        model = self._model
-        held = model._held_call
-        if not held or model.status == 'failed' or held.x is not model._stepper.live_state():
-            return None
-        return held, model._stepper.n, model.n
-
-    def finish(self, taken: int, delta_f: float, delta_c: float) -> bool:
-        """What :meth:`run` does after its kernel call, which took ``taken`` steps with the
-        input (``delta_f``, ``delta_c``): writes the sample and returns True (call
-        :meth:`settle` next), or settles the period and raises as :meth:`run` does. For a
-        caller that made the call itself (:meth:`bound`)."""
-        model = self._model
-        held = model._held_call
-        steps = self._steps
-        x = self._x = held.x.tolist()
-        z, w, theta, q = x
-        v = self._v
-        if taken == steps and -v <= w <= v and -MAX_PITCH <= theta <= MAX_PITCH:
-            out = self._out
-            out[0] = (model.n + steps) * model.h
-            out[1] = z
-            out[2] = w
-            out[3] = theta
-            out[4] = q
-            return True
-        self._settle(held, taken)
-        if taken < steps:
-            model._failed(model._bad.tolist(), _show((delta_f, delta_c)))
-        check_state(model)
-        return True                      # not reached: beyond the bounds raises
-
-    def published(self) -> None:
-        """What :meth:`finish` keeps for :meth:`settle`, for a caller whose own compiled call
-        (:meth:`bound`) took all the period's steps, found the state finite and within the
-        bounds and wrote the sample itself (the plant's compiled sample): call
-        :meth:`settle` next."""
-        self._x = self._model._held_call.x.tolist()
-
-    def settle(self) -> float:
-        """The model's bookkeeping of the period :meth:`run` wrote out; returns the planing
-        force at the new state."""
-        held = self._model._held_call
-        self._settle(held, self._steps)
-        return held.values[held.FP]
-
-    def _settle(self, held: kernels.FomHeldCall, taken: int) -> None:
-        model = self._model
-        model._stepped(taken, failed=taken < self._steps)
-        model._fp_value = held.values[held.FP]
-        model._fp_at = model._stepper.n
-        model._x = tuple(self._x)
-        model.n += taken
-        model.status = 'running'
+        return self._fp(self._x[1], self._c)
 
 
 def make_plant(params: ModelParameters | None = None,
@@ -719,3 +680,11 @@ def make_plant(params: ModelParameters | None = None,
     cls = {'fractional': FractionalModel, 'delay-free': DelayFreeModel,
            'delayed': DelayedModel}[params.model]
     return cls(params, initial_state, engine=engine, duration=duration)
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) every kernel and driver the plants run, with the
+    argument types they pass (:meth:`Plant.compile` of each model), so that the first control
+    period of a run does not pay for it."""
+    for model in ('delay-free', 'delayed', 'fractional'):
+        make_plant(ModelParameters(model=model)).compile()

@@ -1,4 +1,4 @@
-"""The plant's lockstep command callback in one process (bench only; bench_ros.py runs it).
+"""The plant's lockstep command callback in one process (a diagnostic tool).
 
 A :class:`~fohssv_sim.ros.plant_node.PlantNode` (FOM, alpha 0.85, V 75, h 2e-5 s, 'soe',
 lockstep, the default control period) is built in this process with real rclpy publishers
@@ -12,7 +12,7 @@ sample over each of ``--repeats`` blocks of ``--samples`` samples, and the media
 the callback's entry to the call that publishes the state (``to_state_us``: what the round
 trip waits for; the rest of the callback runs while the state travels).
 
-    python bench/plant_callback.py --clock off
+    python tools/diag/plant_callback.py --clock off
 """
 
 from __future__ import annotations
@@ -21,10 +21,13 @@ import argparse
 import json
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import rclpy
-from bench_ros import MODEL_PARAMS  # this script's folder, first on sys.path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / 'bench'))
+from bench_ros import MODEL_PARAMS  # noqa: E402  (bench/bench_ros.py)
 from rclpy.parameter import Parameter
 
 from fohssv_sim.contract import COMMAND

@@ -1,7 +1,7 @@
-"""A lockstep node with its round trip timed hop by hop (bench only: bench_ros.py's hops case).
+"""A lockstep node with its round trip timed hop by hop (a diagnostic tool).
 
-    python bench/hops.py plant DIR --ros-args -p mode:=lockstep ...
-    python bench/hops.py controller DIR
+    python tools/diag/hops.py plant DIR --ros-args -p mode:=lockstep ...
+    python tools/diag/hops.py controller DIR
 
 Runs the product's node (the plant, or the eq. 31 controller node ``state_feedback``) as
 ``ros2 run`` does, with two timestamps per round trip taken on ``CLOCK_MONOTONIC`` (one clock

@@ -1,8 +1,8 @@
 """Two versions of the plant and controller side by side in the pinned lockstep FOM loop
-(bench only).
+(a diagnostic tool).
 
     git worktree add /tmp/before REV
-    scripts/in-env python bench/ab_lockstep.py /tmp/before --rounds 6
+    scripts/in-env python tools/diag/ab_lockstep.py /tmp/before --rounds 6
 
 Each round runs the installed plant and eq. 31 controller node ("new") and those of the
 source tree given ("old": its ``src/fohssv_sim`` and ``src/fohssv_controller`` first on
@@ -27,7 +27,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-import bench_ros as b  # this script's folder, first on sys.path
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / 'bench'))
+import bench_ros as b  # noqa: E402  (bench/bench_ros.py)
 
 
 def _env(domains: b.Domains, old_src: str | None) -> dict:

@@ -25,7 +25,7 @@ pacing thread, every CPU's late timers are listed (``cpu_stalls``): a vCPU not r
 on all its timers at once, whichever thread was waiting. A trace whose buffer overflowed
 says so (``lost_events``).
 
-    sudo python bench/stalls.py [--model delayed] [--runs 3] [--seconds 10] [--out FILE]
+    sudo python tools/diag/stalls.py [--model delayed] [--runs 3] [--seconds 10] [--out FILE]
                                 [--keep DIR]
 
 Prints the bare DDS echo's rate (as ``bench_ros.py``, to scale by) and, per run, the plant's
@@ -300,8 +300,8 @@ def main() -> int:
         print(f'stalls: needs write access to {TRACING} (root, tracefs mounted)',
               file=sys.stderr)
         return 2
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    import bench_ros as b
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / 'bench'))
+    import bench_ros as b  # bench/bench_ros.py
 
     saved = _saved()
     domains, runs = b.Domains(), []

@@ -1,0 +1,92 @@
+"""simulate() keeps samples without changing the run: every k-th step of a run that keeps
+every step is, bit for bit, what the run keeping every k-th step gives; both end where one
+kernel call over all the steps ends; the interpreted plant records the same rows."""
+
+import numpy as np
+import pytest
+
+from fohssv_controller.state_feedback import StateFeedback
+from fohssv_sim.models import AffineLaw, make_plant
+from fohssv_sim.params import ModelParameters
+from fohssv_sim.simulate import simulate
+
+X_START = (0.0, 2.5, 0.0, 0.0)      # the tail on the wall from the start: Fp is not zero
+MODELS = {'delay-free': {}, 'delayed': {}, 'fractional': {'fractional_order': 0.85}}
+
+
+def _params(model: str) -> ModelParameters:
+    return ModelParameters(model=model, speed=75.0, **MODELS[model])
+
+
+def _same_rows(every, kept, k):
+    for name in ('t', 'state', 'planing_force', 'inputs'):
+        np.testing.assert_array_equal(getattr(kept, name), getattr(every, name)[::k],
+                                      err_msg=name)
+
+
+@pytest.mark.parametrize('model', MODELS)
+@pytest.mark.parametrize('k', [1, 7, 50])
+def test_keeping_every_kth_step_gives_every_kth_row_of_keeping_all(model, k):
+    p = _params(model)
+    duration = 0.02
+    every = simulate(p, StateFeedback(), duration, initial_state=X_START)
+    kept = simulate(p, StateFeedback(), duration, initial_state=X_START, sample_every=k)
+    n = every.metadata['steps']
+    assert every.state.shape == (n + 1, 4) and kept.state.shape == (n // k + 1, 4)
+    _same_rows(every, kept, k)
+    assert np.all(every.planing_force[:10] != 0.0)
+    # one kernel call over all the steps, nothing kept: the same last state
+    plant = make_plant(p, X_START, duration=duration)
+    plant.advance(AffineLaw.from_controller(StateFeedback()), n)
+    np.testing.assert_array_equal(every.state[-1], plant.state)
+    # the input of a row is the law's at that row's state (clamped eq. 31)
+    law = AffineLaw.from_controller(StateFeedback())
+    for i in (0, n // 2, n):
+        assert tuple(every.inputs[i]) == law(every.t[i], every.state[i])
+
+
+@pytest.mark.parametrize('model', MODELS)
+def test_zero_order_hold_rows_inside_and_across_control_periods(model):
+    # hold of 5 steps, rows every 3: rows fall inside periods and on control instants
+    p = _params(model)
+    period = 5 * p.step
+    every = simulate(p, StateFeedback(), 0.01, control_period=period, initial_state=X_START)
+    kept = simulate(p, StateFeedback(), 0.01, control_period=period, initial_state=X_START,
+                    sample_every=3)
+    _same_rows(every, kept, 3)
+    # the input is held: constant over each period, changed at the control instants
+    u = every.inputs[:, 1]
+    assert np.all(u[1:5] == u[0]) and np.all(u[6:10] == u[5])
+    assert u[5] != u[0]
+
+
+def test_a_law_the_kernels_cannot_run_is_recorded_interpreted_with_the_same_rows():
+    # a plain callable: the plant steps it interpreted; its rows as the kernel path's
+    p = _params('delay-free')
+    ctl = StateFeedback()
+    law = AffineLaw.from_controller(ctl)
+    every = simulate(p, lambda t, x: law(t, x), 0.005, initial_state=X_START)
+    kept = simulate(p, lambda t, x: law(t, x), 0.005, initial_state=X_START, sample_every=4)
+    _same_rows(every, kept, 4)
+    compiled = simulate(p, ctl, 0.005, initial_state=X_START)
+    np.testing.assert_allclose(every.state, compiled.state, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(every.inputs, compiled.inputs, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize('model', MODELS)
+def test_the_interpreted_plant_records_what_the_compiled_one_does(model):
+    p = _params(model)
+    kw = dict(initial_state=X_START, sample_every=3)
+    compiled = simulate(make_plant(p, duration=0.004), StateFeedback(), 0.004, **kw)
+    python = simulate(make_plant(p, engine='python', duration=0.004), StateFeedback(), 0.004,
+                      **kw)
+    np.testing.assert_array_equal(python.t, compiled.t)
+    for name in ('state', 'planing_force', 'inputs'):
+        np.testing.assert_allclose(getattr(python, name), getattr(compiled, name), rtol=1e-12,
+                                   atol=1e-12, err_msg=name)
+
+
+def test_progress_is_reported_per_chunk_up_to_the_end():
+    seen = []
+    simulate(_params('delay-free'), StateFeedback(), 0.01, progress=seen.append)
+    assert 50 <= len(seen) <= 101 and seen == sorted(seen) and seen[-1] == 1.0

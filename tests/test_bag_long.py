@@ -176,3 +176,4 @@ def test_repair_no_backup_from_the_fohssv_command(tmp_path):
     assert out.returncode == 0, out.stdout + out.stderr
     assert check(tmp_path / 'cut').ok
     assert not list((tmp_path / 'cut').glob('*.orig*'))
+

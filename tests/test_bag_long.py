@@ -22,7 +22,7 @@ from fohssv_sim.bag import BagError, load_run
 from fohssv_sim.bag.__main__ import info
 from fohssv_sim.bag.__main__ import main as bag_main
 from fohssv_sim.bag.check import check
-from fohssv_sim.bag.loader import TooLarge, state_count
+from fohssv_sim.bag.run import TooLarge, state_count
 from fohssv_sim.bag.stream import fits
 from fohssv_sim.bag.synthetic import trajectory, write_bag
 from fohssv_sim.bag.writer import RunWriter

@@ -13,8 +13,9 @@ from mcap.reader import make_reader
 
 from .. import contract
 from .check import main_check
-from .loader import BagError, ContractChannels, locate, run_metadata
+from .loader import BagError, locate, run_metadata
 from .repair import main_repair
+from .run import ContractChannels
 from .stream import float64_array, read_arrays, summary_counts
 
 USAGE = '''usage: python -m fohssv_sim.bag COMMAND BAG

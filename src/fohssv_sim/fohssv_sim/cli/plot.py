@@ -9,7 +9,7 @@ from pathlib import Path
 from ..analysis.plots import plot_phase_portrait, plot_time_responses, summary
 from ..bag import BagError, load_run
 from ..bag.__main__ import main as bag_main
-from ..bag.loader import TooLarge, state_count
+from ..bag.run import TooLarge, state_count
 from . import command_help
 from .common import (
     BagInputError,

@@ -120,10 +120,10 @@ def _clock(raw: bytes, at: int, size: int) -> tuple[float] | None:
     return (sec + nanosec * 1e-9,)
 
 
-def _reserve(files: BagFiles, topics: ContractChannels, columns: list[Columns], start: int | None,
-             end: int | None, every: int) -> None:
-    """Size the arrays from the summaries' counts (the part of the time span the window
-    covers), refusing a load that cannot fit (:class:`TooLarge`)."""
+def _refuse_too_large(files: BagFiles, topics: ContractChannels, columns: list[Columns],
+                      start: int | None, end: int | None, every: int) -> None:
+    """Refuse a load whose arrays cannot fit (:class:`TooLarge`), from the summaries' counts
+    (the part of the time span the window covers)."""
     rows = [0] * len(columns)
     for mcap_path in files.mcap_files:
         found = summary_counts(mcap_path)
@@ -144,8 +144,6 @@ def _reserve(files: BagFiles, topics: ContractChannels, columns: list[Columns], 
              'fohssv plot --start/--end/--every)')
     except MemoryError as exc:
         raise TooLarge(str(exc)) from None
-    for r, col in zip(rows, columns):
-        col.reserve(r + 1)
 
 
 def state_count(path: str | Path, namespace: str | None = None) -> int:
@@ -186,7 +184,7 @@ def load_run(path: str | Path, *, namespace: str | None = None, start: float | N
     topics = ContractChannels(files.directory, namespace)
     columns = [Columns(len(t.fields)) for t in topics.TOPICS[:3]] + [Columns(1)]
     start_ns, end_ns = _ns(start), _ns(end)
-    _reserve(files, topics, columns, start_ns, end_ns, every)
+    _refuse_too_large(files, topics, columns, start_ns, end_ns, every)
     reads = []
     counts: dict[str, int] = {}
     for mcap_path in files.mcap_files:

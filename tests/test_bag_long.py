@@ -177,3 +177,12 @@ def test_repair_no_backup_from_the_fohssv_command(tmp_path):
     assert check(tmp_path / 'cut').ok
     assert not list((tmp_path / 'cut').glob('*.orig*'))
 
+
+
+@pytest.mark.parametrize('argv', [['fit', 'BAG', '--out', ' '], ['tune', '--out', '']])
+def test_out_empty_is_refused_by_fit_and_tune_too(argv, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as e:
+        cli_main(argv)
+    assert e.value.code == 2 and 'is no folder' in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []

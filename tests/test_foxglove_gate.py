@@ -141,3 +141,11 @@ def test_the_viewer_options_of_the_gate():
         ViewerOptions(allowed_origins='a.example')
     with pytest.raises(ParameterError, match=r'max_clients=0 is outside the allowed range'):
         ViewerOptions(max_clients=0)
+
+
+def test_a_flood_of_made_up_origins_logs_a_bounded_number_of_lines(server):
+    for i in range(130):
+        with pytest.raises(InvalidStatus):
+            _open(server, origin=f'https://x{i}.example')
+    assert len(server.refused_lines) == 100
+    assert server.refused_lines[-1].endswith('(HTTP 403; 100 refused so far)')

@@ -18,9 +18,9 @@ is the same under both names):
 * at most ``max_clients`` connections at once (a flood of connections is refused, not held).
 
 A refused handshake gets an HTTP error (403 origin, 400 subprotocol, 503 full) with the
-reason, and the gate reports it once per reason and peer through ``on_refused`` (the viewer
-logs it). Hostile frames reach the SDK's server as they came (it survives malformed ones);
-a frame larger than 1 MiB from a client closes that connection.
+reason, and the gate reports it once per reason and peer (the first 100) through
+``on_refused`` (the viewer logs it). Hostile frames reach the SDK's server as they came (it
+survives malformed ones); a frame larger than 1 MiB from a client closes that connection.
 """
 
 from __future__ import annotations
@@ -48,6 +48,9 @@ SUBPROTOCOLS = (SDK_SUBPROTOCOL, 'foxglove.websocket.v1')
 #: any port, http or https).
 DEFAULT_ORIGINS = ('https://app.foxglove.dev', 'https://embed.foxglove.dev',
                    'https://app.lichtblick.dev', 'https://lichtblick-suite.github.io')
+#: Refusal lines logged at most (distinct reason and peer); the count goes on (a flood of
+#: handshakes with made-up origins neither fills the log nor the memory).
+_MAX_SAID = 100
 _LOCAL = re.compile(r'https?://(localhost|127(\.\d{1,3}){3}|\[::1\])(:\d{1,5})?')
 
 
@@ -118,7 +121,7 @@ class Gate:
     def _refuse(self, conn: ServerConnection, status: HTTPStatus, reason: str) -> Response:
         self.refused += 1
         peer = conn.remote_address[0] if conn.remote_address else '?'
-        if (reason, peer) not in self._said:
+        if (reason, peer) not in self._said and len(self._said) < _MAX_SAID:
             self._said.add((reason, peer))
             self._on_refused(f'refused a Foxglove client from {peer}: {reason} (HTTP '
                              f'{status.value}; {self.refused} refused so far)')

@@ -2,9 +2,10 @@
 bag holds from its MCAP summary section. Pure: no rclpy.
 
 * :func:`read_arrays` walks an MCAP file chunk by chunk (each chunk decompressed, its CRC
-  checked, then dropped) and writes the doubles of each contract message straight into a
-  preallocated array: no Python object is kept per message, so memory is the arrays' own
-  (8 bytes per number and per log time), whatever the bag's length. A time window
+  checked, then dropped; index and summary records skipped unread) and appends the doubles
+  of each contract message to flat arrays: no Python object is kept per message, so memory
+  is the arrays' own (8 bytes per number and per log time), whatever the bag's length. A
+  time window
   (``start``, ``end``: simulation time in s, on the log times, which are the messages' t in
   ns) skips the chunks outside it without decompressing them, and ``every`` keeps every k-th
   message of each topic. A truncated or corrupt file does not raise: reading stops at the
@@ -16,10 +17,10 @@ bag holds from its MCAP summary section. Pure: no rclpy.
 * :func:`fits` refuses a request whose arrays would not fit in the memory available, with
   the size and the remedies.
 
-Messages are decoded on the contract's layout (``std_msgs/Float64MultiArray``: one dimension,
-the label, the topic's number of doubles, CDR little-endian): the layout of a channel's first
-message is parsed once; every message of the same size and head is unpacked at the known
-offset, others are parsed fully.
+Messages are decoded as ``std_msgs/Float64MultiArray`` (CDR little-endian; a message of
+another width than its topic's is rejected, as is one with a non-finite number, as the
+contract says): the layout of a channel's first message is parsed once; every message of
+the same size and head is unpacked at the known offset, others are parsed fully.
 """
 
 from __future__ import annotations
@@ -117,7 +118,6 @@ class FileRead:
     """What :func:`read_arrays` found in one file besides the arrays."""
 
     channels: dict[int, tuple[str, str, str]] = field(default_factory=dict)  # topic, type, def
-    channel_records: dict[int, Channel] = field(default_factory=dict)
     schemas: dict[int, Schema] = field(default_factory=dict)
     counts: dict[int, int] = field(default_factory=dict)     # channel id -> messages read
     metadata: list[tuple[str, dict[str, str]]] = field(default_factory=list)
@@ -164,7 +164,6 @@ class _Reader:
     def channel(self, record: Channel) -> None:
         out = self.out
         schema = out.schemas.get(record.schema_id)
-        out.channel_records[record.id] = record
         out.channels[record.id] = (record.topic, schema.name if schema else '',
                                    schema.data.decode('utf8', 'replace') if schema else '')
         self.kind[record.id] = self.pick(record, schema)

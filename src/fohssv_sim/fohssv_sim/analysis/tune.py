@@ -466,15 +466,14 @@ class _Generations:
         if self.client is not None:
             return self.client
         if self._own_client is None:
-            from dask.distributed import Client
-
-            from .cluster import local_cluster
+            from dask.distributed import Client, LocalCluster
 
             if self.scheduler:
                 self._own_client = Client(self.scheduler, timeout='20s')
             else:
                 n = self.workers or os.cpu_count() or 1
-                self._cluster = local_cluster(n)
+                self._cluster = LocalCluster(n_workers=n, threads_per_worker=1,
+                                             processes=True, dashboard_address=None)
                 self._own_client = Client(self._cluster)
         return self._own_client
 

@@ -211,9 +211,7 @@ class _Dask:
     def __enter__(self):
         import os
 
-        from dask.distributed import Client
-
-        from ..analysis.cluster import local_cluster
+        from dask.distributed import Client, LocalCluster
 
         if self.args.scheduler:
             self.client = Client(self.args.scheduler, timeout='20s')
@@ -222,7 +220,9 @@ class _Dask:
             # threads need no start-up, imports or numba cache loads of their own, nor the
             # problem pickled to them (measured: bench/bench_fit.py --processes-too)
             n = self.args.workers or os.cpu_count() or 1
-            self.cluster = local_cluster(n, processes=self.args.processes)
+            self.cluster = LocalCluster(n_workers=n, threads_per_worker=1,
+                                        processes=self.args.processes,
+                                        dashboard_address=None)
             self.client = Client(self.cluster)
         return self.client
 

@@ -15,7 +15,7 @@ from .. import contract
 from .check import main_check
 from .loader import BagError, locate, run_metadata
 from .repair import main_repair
-from .run import ContractChannels
+from .run import ContractChannels, problems_of
 from .stream import float64_array, read_arrays, summary_counts
 
 USAGE = '''usage: python -m fohssv_sim.bag COMMAND BAG
@@ -83,13 +83,14 @@ def info(path: str) -> list[str]:
     else:
         counts, records = {}, []
         ends = _Ends(len(contract.STATE.fields))
-        for mcap_path in files.mcap_files:
-            got = read_arrays(mcap_path, lambda c, s: 0 if topics.wants(
-                contract.STATE.name, c.topic) else None, [ends], [None])
+        reads = [read_arrays(mcap_path, lambda c, s: 0 if topics.wants(
+            contract.STATE.name, c.topic) else None, [ends], [None])
+            for mcap_path in files.mcap_files]
+        problem = (problems_of(reads) or [''])[0]
+        for got in reads:
             for cid, (topic, _, _) in got.channels.items():
                 counts[topic] = counts.get(topic, 0) + got.counts.get(cid, 0)
             records += got.metadata
-            problem = problem or ('' if got.complete else got.problem)
         n = ends.n
         first = ends.first[0] if ends.first else float('nan')
         last = ends.last[0] if ends.last else float('nan')

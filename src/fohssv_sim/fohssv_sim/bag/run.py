@@ -18,9 +18,9 @@ from mcap.records import Channel, Schema
 
 from .. import contract
 from .loader import BagError, BagFiles, basename, locate, run_metadata
-from .stream import Columns, fits, read_arrays, summary_counts
+from .stream import Columns, FileRead, fits, read_arrays, summary_counts
 
-__all__ = ['Run', 'TooLarge', 'ContractChannels', 'load_run', 'state_count']
+__all__ = ['Run', 'TooLarge', 'ContractChannels', 'load_run', 'state_count', 'problems_of']
 
 
 @dataclass
@@ -146,6 +146,18 @@ def _refuse_too_large(files: BagFiles, topics: ContractChannels, columns: list[C
         raise TooLarge(str(exc)) from None
 
 
+def problems_of(reads: list[FileRead]) -> list[str]:
+    """What stopped the reading of each file that is not complete.
+
+    Raises:
+        BagError: no channel could be read from any file (nothing to recover).
+    """
+    problems = [r.problem for r in reads if not r.complete]
+    if problems and not any(r.channels for r in reads):
+        raise BagError(f'{problems[0]}; no channel could be read, nothing to recover')
+    return problems
+
+
 def state_count(path: str | Path, namespace: str | None = None) -> int:
     """The state messages of the bag from its summary section (no message read); 0 when a
     file has no summary (a killed recorder's bag)."""
@@ -200,9 +212,7 @@ def load_run(path: str | Path, *, namespace: str | None = None, start: float | N
         for cid, (topic, _, _) in got.channels.items():
             counts[topic] = counts.get(topic, 0) + got.counts.get(cid, 0)
     topics.check()
-    problems = [r.problem for r in reads if not r.complete]
-    if problems and not any(r.channels for r in reads):
-        raise BagError(f'{problems[0]}; no channel could be read, nothing to recover')
+    problems = problems_of(reads)
     (st, st_t), (fp, fp_t), (cmd, cmd_t), (clock, _) = (c.finish() for c in columns)
     recovery = ''
     if problems:

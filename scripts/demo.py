@@ -9,14 +9,14 @@ with the control period and step.
 Recording (``--recorder``): ``plant`` (default) is in-plant recording, the plant's
 ``record:=BAG`` (a writer process fed through shared memory writes the bag, off the loop);
 ``node`` is the recorder node, a third process subscribed over DDS, which the loop must wait
-for (``pace_to_subscribers``). Then (unless ``--no-baseline``) the same loop runs once more
-unrecorded, and the demo prints both loop times and their ratio: what recording costs. A loop
-time runs from the plant's first sample to its bag closed (recorded) or to its summary
-(unrecorded), as the plant's log lines arrive.
+for (``pace_to_subscribers``). The nodes are those ``ros2 launch fohssv_sim
+closed_loop.launch.py`` starts with the same arguments (fohssv_sim.closed_loop): the launch
+and the demo make the same run. (What recording costs is measured by ``bench/bench_ros.py``,
+not here.)
 
     python scripts/demo.py [--model fractional] [--duration 2.0] [--controller state_feedback]
-                           [--bag runs/demo-...] [--recorder plant|node] [--no-baseline]
-                           [--hosted] [--viewer [PORT]] [--pin auto|off]
+                           [--bag runs/demo-...] [--recorder plant|node] [--hosted]
+                           [--viewer [PORT]] [--pin auto|off] [--cpu-dma-latency US]
 
 ``--hosted`` (``make demo DEMO_ARGS=--hosted``): the plant hosts the controller itself
 (``controller:=NAME`` on the plant): no controller process, no DDS in the loop.
@@ -32,9 +32,15 @@ time vary twofold from run to run here. ``--pin off``: the scheduler's choice.
 ws://localhost:8765 (or PORT) and starts the run once a Foxglove client has subscribed (at
 most ``--viewer-wait`` s later), so the run is watched from t = 0.
 
-ROS domain: ``ROS_DOMAIN_ID`` when it is exported, else ``FOHSSV_DEMO_DOMAIN``, else
-1 + pid % 200 (a domain of its own); the first line printed names it. Discovery stays on this
-machine (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``).
+``--cpu-dma-latency`` (default 0): the plant asks Linux for that CPU wake-up latency while it
+runs (its ``cpu_dma_latency``: idle CPUs keep polling, so DDS wakes the lockstep loop sooner;
+needs write access to /dev/cpu_dma_latency, else one line and the run goes on); -1 = no
+request.
+
+ROS domain: ``ROS_DOMAIN_ID`` when it is exported, else ``FOHSSV_DEMO_DOMAIN``, else one of
+``FOHSSV_DOMAIN_RANGE`` (``LO-HI``, default 1-200: on a shared host, the range other users
+leave free) chosen by the process id (a domain of its own); the first line printed names it.
+Discovery stays on this machine (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``).
 
 The run ends as the launch file's does (fohssv_sim.closed_loop.EXIT_RULE): when the plant
 exits 0, or when any node exits non-zero: then the demo prints that node's exit code and last
@@ -106,33 +112,39 @@ def specs(args: argparse.Namespace, bag: Path) -> tuple[NodeSpec, ...]:
     """The nodes of the demo: the launch file's list (fohssv_sim.closed_loop) with the
     command line's choices (plant, controller, recorder; plant and recorder when hosted),
     plant and controller node pinned apart unless ``--pin off`` (:func:`loop_cpus`)."""
+    plant = {'model': args.model, 'fractional_order': args.alpha, 'speed': args.speed}
+    if args.cpu_dma_latency is not None:
+        plant['cpu_dma_latency'] = args.cpu_dma_latency
     nodes = closed_loop(controller=args.controller, duration=args.duration, bag_path=str(bag),
-                        plant={'model': args.model, 'fractional_order': args.alpha,
-                               'speed': args.speed}, hosted=args.hosted)
+                        plant=plant, hosted=args.hosted, recorder=args.recorder)
     return pinned(nodes, loop_cpus() if args.pin == 'auto' else None)
 
 
-def in_plant(nodes: tuple[NodeSpec, ...], bag: Path | None
-             ) -> tuple[NodeSpec, NodeSpec | None]:
-    """The plant and the controller of the loop without the recorder node (the controller
-    None when the plant hosts the law): the plant records its own run to ``bag``
-    (``record``; None: unrecorded), so nothing waits for a third process (no
-    ``pace_to_subscribers``, one state subscriber, one command subscriber; a hosted law
-    counts as the state subscriber)."""
-    plant, ctl = nodes[0], (nodes[1] if len(nodes) == 3 else None)
-    params = {k: v for k, v in plant.parameters.items() if k != 'pace_to_subscribers'}
-    params['min_state_subscribers'] = 1
-    if bag is not None:
-        params['record'] = str(bag)
-    return (NodeSpec(plant.package, plant.executable, plant.name, params),
-            None if ctl is None else NodeSpec(ctl.package, ctl.executable, ctl.name,
-                                              {**ctl.parameters, 'min_command_subscribers': 1}))
+#: The domains the demo picks from when none is given: ``FOHSSV_DOMAIN_RANGE`` or this.
+DOMAIN_RANGE = (1, 200)
+
+
+def domain_range(environ: dict[str, str]) -> tuple[int, int]:
+    """``FOHSSV_DOMAIN_RANGE`` (``LO-HI``, inclusive, within [0, 232]) or :data:`DOMAIN_RANGE`.
+
+    Raises:
+        ValueError: malformed or out of range (one line naming the variable and its value).
+    """
+    text = environ.get('FOHSSV_DOMAIN_RANGE', '').strip()
+    if not text:
+        return DOMAIN_RANGE
+    lo, _, hi = text.partition('-')
+    if not (lo.strip().isdigit() and hi.strip().isdigit()) or not (
+            0 <= int(lo) <= int(hi) <= 232):
+        raise ValueError(f'FOHSSV_DOMAIN_RANGE={text!r} is not a range of ROS domains: LO-HI '
+                         'with 0 <= LO <= HI <= 232 (Fast DDS), e.g. 120-139')
+    return int(lo), int(hi)
 
 
 def demo_domain(environ: dict[str, str]) -> int:
     """The ROS domain of the demo: ``ROS_DOMAIN_ID`` when exported (as every ROS tool honours
-    it), else ``FOHSSV_DEMO_DOMAIN``, else 1 + pid % 200 (a domain of its own, so that two demos
-    on one machine do not meet)."""
+    it), else ``FOHSSV_DEMO_DOMAIN``, else one of :func:`domain_range` chosen by the process id
+    (a domain of its own, so that two demos on one machine do not meet)."""
     for name in ('ROS_DOMAIN_ID', 'FOHSSV_DEMO_DOMAIN'):
         value = environ.get(name, '').strip()
         if value:
@@ -140,7 +152,8 @@ def demo_domain(environ: dict[str, str]) -> int:
                 raise ValueError(f'{name}={value!r} is not a ROS domain: an integer in '
                                  '[0, 232] (Fast DDS)')
             return int(value)
-    return 1 + os.getpid() % 200
+    lo, hi = domain_range(environ)
+    return lo + os.getpid() % (hi - lo + 1)
 
 
 class Started:
@@ -296,37 +309,34 @@ def start_viewer(args: argparse.Namespace, bag: Path, env: dict[str, str]
     return view
 
 
-def run_loop(nodes: tuple[NodeSpec, ...], args: argparse.Namespace, bag: Path | None,
+def run_loop(nodes: tuple[NodeSpec, ...], args: argparse.Namespace, bag: Path,
              env: dict[str, str], extra: dict[str, Started] | None = None, echo: str = ''
              ) -> tuple[int, dict[str, Started], float]:
     """One run of the loop under the exit rule: the recorder node first when ``nodes`` has
-    one (``--recorder node``), else the plant recording to ``bag`` itself (None:
-    unrecorded). Returns (the demo's exit code, the processes, the loop time: first sample to
-    bag closed, or to the plant's summary when unrecorded)."""
+    one (``--recorder node``), else the plant recording to ``bag`` itself. Returns (the demo's
+    exit code, the processes, the loop time: first sample to bag closed)."""
     procs: dict[str, Started] = dict(extra or {})
-    with_node = args.recorder == 'node' and bag is not None
+    byname = {n.name: n for n in nodes}
+    with_node = 'recorder' in byname
     if with_node:
-        plant, ctl, rec = nodes if len(nodes) == 3 else (nodes[0], None, nodes[1])
-        procs['recorder'] = Started(rec, env, log=bag.parent / f'{bag.name}.recorder.log')
+        procs['recorder'] = Started(byname['recorder'], env,
+                                    log=bag.parent / f'{bag.name}.recorder.log')
         deadline = time.monotonic() + 60
         while 'recording to' not in procs['recorder'].text() and time.monotonic() < deadline:
             if procs['recorder'].proc.poll() is not None:
                 break      # supervise() reports it
             time.sleep(0.05)
-    else:
-        plant, ctl = in_plant(nodes, bag)
     if 'recorder' not in procs or procs['recorder'].proc.poll() is None:
-        if ctl is not None:
-            procs['controller'] = Started(ctl, env)
-        procs['plant'] = Started(plant, env, echo=echo)
+        if 'controller' in byname:
+            procs['controller'] = Started(byname['controller'], env)
+        procs['plant'] = Started(byname['plant'], env, echo=echo)
     name, verdict = supervise(procs, args.timeout)
     codes = stop_all(procs, wait_recorder=not verdict.failed)
     main_plant = procs.get('plant')
     started = main_plant is not None and main_plant.at(STARTED) == main_plant.at(STARTED)
     if verdict.failed:
         print(f'demo: {verdict.message}', file=sys.stderr)
-        if bag is not None:
-            remove_if_empty(bag, started)
+        remove_if_empty(bag, started)
         code = procs[name].proc.returncode
         return (code if 0 < code < 128 else 1), procs, float('nan')
     if codes.get('recorder', 0) != 0:
@@ -336,12 +346,15 @@ def run_loop(nodes: tuple[NodeSpec, ...], args: argparse.Namespace, bag: Path | 
     if with_node:
         end = procs['recorder'].exited_at or time.monotonic()
     else:
-        end = main_plant.at(CLOSED) if bag is not None else main_plant.at(SUMMARY)
+        end = main_plant.at(CLOSED)
     return 0, procs, end - main_plant.at(STARTED)
 
 
 def parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap = argparse.ArgumentParser(
+        description=__doc__.split('\n\n')[0], epilog='environment: ROS_DOMAIN_ID (the '
+        'domain; else FOHSSV_DEMO_DOMAIN), FOHSSV_DOMAIN_RANGE=LO-HI (the domains the demo '
+        'picks from when neither is set; default 1-200, e.g. 120-139 on a shared host)')
     ap.add_argument('--model', default=DEMO_PLANT['model'])
     ap.add_argument('--alpha', type=float, default=DEMO_PLANT['fractional_order'])
     ap.add_argument('--speed', type=float, default=DEMO_PLANT['speed'])
@@ -360,8 +373,10 @@ def parser() -> argparse.ArgumentParser:
                     help="'auto' (default): the plant on the first CPU this process may use, the "
                          "controller node on the second (cpu_affinity), when there are two; "
                          "'off': the scheduler's choice")
-    ap.add_argument('--no-baseline', dest='baseline', action='store_false',
-                    help='skip the unrecorded run that measures what recording costs')
+    ap.add_argument('--cpu-dma-latency', type=int, default=0, metavar='US',
+                    help="the plant's cpu_dma_latency (default 0: idle CPUs keep polling, "
+                    'so DDS wakes the loop sooner; needs write access to '
+                    '/dev/cpu_dma_latency); -1 = no request')
     ap.add_argument('--viewer', type=int, nargs='?', const=DEFAULT_VIEWER_PORT, default=None,
                     metavar='PORT', help='also start the Foxglove viewer on ws://localhost:PORT '
                     f'(default {DEFAULT_VIEWER_PORT}; 0 = a free port)')
@@ -396,7 +411,7 @@ def _describe(args: argparse.Namespace, nodes: tuple[NodeSpec, ...], domain: int
 
 
 def _report(args: argparse.Namespace, bag: Path, plant: Started, wall: float,
-            recorded: float, baseline: float | None) -> int:
+            loop: float) -> int:
     summary = plant.summary()
     try:
         run = load_run(bag)   # the summary comes from the bag, not from memory
@@ -422,12 +437,7 @@ def _report(args: argparse.Namespace, bag: Path, plant: Started, wall: float,
     print(f'  peak |Fp|               {np.abs(run.planing_force).max():.4g} m^2/s^2')
     print(f'  wall time               {wall:.1f} s (plant loop {summary.get("wall_time", 0):.1f}'
           f' s, {summary.get("samples_per_second", 0):.0f} samples/s)')
-    if baseline is not None:
-        print(f'  recording cost          recorded loop {recorded:.2f} s / unrecorded lockstep '
-              f'loop {baseline:.2f} s = {recorded / baseline:.2f} ({args.recorder} recording;'
-              ' first sample to bag closed / to the summary; one pair: on a shared host a loop '
-              'time varies from run to run, bench/bench_ros.py reads the median of five '
-              'pairs)')
+    print(f'  loop time               {loop:.2f} s (first sample to bag closed)')
     print(f'  plots:                  fohssv plot {bag}')
     return 0
 
@@ -457,20 +467,12 @@ def main() -> int:
     view = start_viewer(args, bag, env)          # False without --viewer
     if view is None:
         return 1
-    code, procs, recorded = run_loop(watched(nodes) if view else nodes, args, bag, env,
+    code, procs, loop = run_loop(watched(nodes) if view else nodes, args, bag, env,
                                      {'viewer': view} if view else None, echo='  plant: ')
     wall = time.monotonic() - wall0
     if code != 0:
         return code
-    baseline = None
-    if args.baseline:
-        print('demo: the same loop once more, unrecorded (what recording costs)', flush=True)
-        base_code, _, base_time = run_loop(nodes, args, None, env)
-        if base_code == 0:
-            baseline = base_time
-        else:
-            print('demo: the unrecorded loop failed', file=sys.stderr)
-    return _report(args, bag, procs['plant'], wall, recorded, baseline)
+    return _report(args, bag, procs['plant'], wall, loop)
 
 
 if __name__ == '__main__':

@@ -75,7 +75,7 @@ def test_launch_file_starts_the_shared_node_list_and_stops_with_the_plant():
     signature = inspect.signature(cl.closed_loop).parameters
     for name, (default, kind, _) in arguments.items():
         assert kind(default) == kind(signature[name].default), name
-    assert set(arguments) == {'controller', 'duration', 'bag_path', 'hosted'}
+    assert set(arguments) == {'controller', 'duration', 'bag_path', 'hosted', 'recorder'}
     assert len(_calls(tree, 'DeclareLaunchArgument')) == 1   # in a loop over ARGUMENTS
     # every node's exit goes through the shared exit rule: one handler per node, in the loop
     # over the nodes; the plant's exit 0 shuts the launch down, a non-zero exit raises
@@ -113,42 +113,69 @@ def test_exit_rule(name, code, plant, failed, ends):
 
 
 def test_launch_file_starts_the_viewer_on_request():
-    """viewer:=true (default false) adds the Foxglove viewer to the node list."""
+    """viewer:=true (default false) adds the Foxglove viewer to the node list, on
+    viewer_port at viewer_rate (the viewer's own defaults)."""
     text = LAUNCH.read_text()
     tree = ast.parse(text)
     optional = next(n for n in tree.body if isinstance(n, ast.Assign)
                     and getattr(n.targets[0], 'id', None) == 'OPTIONAL_ARGUMENTS')
     optional = eval(compile(ast.Expression(optional.value), str(LAUNCH), 'eval'),  # noqa: S307
-                    {'flag': cl.flag})
-    assert set(optional) == {'viewer'} and optional['viewer'][0] == 'false'
-    assert "if flag(LaunchConfiguration('viewer').perform(context)):" in text
-    assert 'specs = (*watched(specs), viewer())' in text
+                    {'flag': cl.flag, 'DEFAULT_VIEWER_PORT': cl.DEFAULT_VIEWER_PORT,
+                     'str': str, 'int': int, 'float': float})
+    assert set(optional) == {'viewer', 'viewer_port', 'viewer_rate'}
+    assert optional['viewer'][0] == 'false'
+    defaults = {s.name: s.default for s in VIEWER_PARAMETERS}
+    assert optional['viewer_port'][1](optional['viewer_port'][0]) == defaults['port']
+    assert optional['viewer_rate'][1](optional['viewer_rate'][0]) == defaults['rate']
+    assert "if _value(context, 'viewer', OPTIONAL_ARGUMENTS):" in text
+    assert ("viewer(_value(context, 'viewer_port', OPTIONAL_ARGUMENTS),\n"
+            in text.replace('                                             ', ''))
+    assert cl.viewer(9000, 12.5).parameters == {'port': 9000, 'rate': 12.5}
     plant, *rest = cl.watched(cl.closed_loop())     # ... and the plant waits for its readers
     assert plant.parameters['min_view_subscribers'] == 1
     assert tuple(rest) == cl.closed_loop()[1:]
 
 
 def test_demo_starts_the_launch_files_list_with_its_defaults(tmp_path):
+    """The launch file's default run is the demo's: the plant recording its own run and the
+    controller node (the demo asks for cpu_dma_latency 0 besides)."""
     demo = _demo()
-    args = demo.parser().parse_args(['--pin', 'off'])
+    args = demo.parser().parse_args(['--pin', 'off', '--cpu-dma-latency', '-1'])
     bag = tmp_path / 'bag'
-    assert demo.specs(args, bag) == cl.closed_loop(bag_path=str(bag))
-    plant, ctl, rec = demo.specs(args, bag)
-    assert demo.command(plant)[-4:] == ['-p', 'min_state_subscribers:=2',
-                                        '-p', 'pace_to_subscribers:=512']
+    plant, ctl = demo.specs(args, bag)
+    launched = cl.closed_loop(bag_path=str(bag), plant={'cpu_dma_latency': -1})
+    assert (plant, ctl) == launched
+    assert demo.specs(demo.parser().parse_args(['--pin', 'off']), bag)[0].parameters[
+        'cpu_dma_latency'] == 0
+    assert plant.parameters['record'] == str(bag)
+    assert plant.parameters['min_state_subscribers'] == 1
+    assert 'pace_to_subscribers' not in plant.parameters
     assert plant.parameters['duration'] == 2.0 and plant.parameters['model'] == 'fractional'
-    assert ctl.parameters == {'controller': 'state_feedback', 'min_command_subscribers': 2}
+    assert ctl.parameters == {'controller': 'state_feedback', 'min_command_subscribers': 1}
+    # the recorder node on request, as the launch's recorder:=node
+    plant_n, ctl_n, rec = demo.specs(demo.parser().parse_args(
+        ['--pin', 'off', '--recorder', 'node', '--cpu-dma-latency', '-1']), bag)
+    assert (plant_n, ctl_n, rec) == cl.closed_loop(bag_path=str(bag), recorder='node',
+                                                   plant={'cpu_dma_latency': -1})
+    assert {'min_state_subscribers:=2', 'pace_to_subscribers:=512',
+            'cpu_dma_latency:=-1'} <= set(demo.command(plant_n))
+    assert ctl_n.parameters == {'controller': 'state_feedback', 'min_command_subscribers': 2}
     # by default (--pin auto) the same list with the plant and the controller pinned apart
     usable = sorted(os.sched_getaffinity(0))
-    pinned = demo.specs(demo.parser().parse_args([]), bag)
+    pinned = demo.specs(demo.parser().parse_args(['--cpu-dma-latency', '-1']), bag)
     if len(usable) >= 2:
         assert pinned == (replace(plant, parameters={**plant.parameters,
                                                      'cpu_affinity': usable[0]}),
-                          replace(ctl, parameters={**ctl.parameters, 'cpu_affinity': usable[1]}),
-                          rec)
+                          replace(ctl, parameters={**ctl.parameters, 'cpu_affinity': usable[1]}))
     else:
-        assert pinned == (plant, ctl, rec)
+        assert pinned == (plant, ctl)
     assert rec.parameters == {'bag_path': str(bag), 'command_publishers': 1}
+    # hosted: the plant alone, recording
+    (hosted,) = cl.closed_loop(bag_path=str(bag), hosted=True)
+    assert hosted.parameters['controller'] == 'state_feedback'
+    assert hosted.parameters['record'] == str(bag)
+    # no bag_path: runs/<UTC time>, as the recorder node's default
+    assert Path(cl.closed_loop()[0].parameters['record']).parent.name == 'runs'
     for spec in (plant, ctl, rec):
         assert Path(demo.command(spec)[0]) == rosproc.executable(spec.package, spec.executable)
     # --viewer [PORT]: the launch file's viewer, on that port (the option is off by default)
@@ -175,7 +202,7 @@ def test_the_node_list_runs_to_a_complete_bag_with_its_parameters(tmp_path):
     controller's and the recorder's are the list's (an undeclared name would be ignored by
     rclpy and show here as missing)."""
     bag = tmp_path / 'run'
-    specs = cl.closed_loop(duration=0.05, bag_path=str(bag))
+    specs = cl.closed_loop(duration=0.05, bag_path=str(bag), recorder='node')
     domain = rosproc.unique_domain_id()
     env = rosproc.ros_env(domain)
     rec, ctl = (rosproc.start(s.package, s.executable, cl.ros_args(s), env=env,
@@ -215,7 +242,7 @@ def test_the_hosted_node_list_runs_to_a_complete_bag(tmp_path):
     sample, and one command per sample but the last (t = the answered sample), equal to the
     batch runner's trajectory."""
     bag = tmp_path / 'run'
-    specs = cl.closed_loop(duration=0.05, bag_path=str(bag), hosted=True)
+    specs = cl.closed_loop(duration=0.05, bag_path=str(bag), hosted=True, recorder='node')
     assert [s.executable for s in specs] == ['plant', 'recorder']
     assert specs[0].parameters['controller'] == 'state_feedback'
     env = rosproc.ros_env()
@@ -327,13 +354,13 @@ def test_the_loop_is_pinned_to_the_first_two_usable_cpus_and_nothing_else_is():
     assert cl.loop_cpus([0, 1]) == (0, 1)
     assert cl.loop_cpus({7, 2, 5}) == (2, 5)
     assert cl.loop_cpus([3]) is None and cl.loop_cpus([]) is None
-    plant, ctl, rec = cl.closed_loop()
+    plant, ctl, rec = cl.closed_loop(recorder='node')
     assert cl.pinned((plant, ctl, rec), None) == (plant, ctl, rec)
     got = cl.pinned(cl.watched((plant, ctl, rec)) + (cl.viewer(),), (2, 5))
     assert [s.parameters.get('cpu_affinity') for s in got] == [2, 5, None, None]
     assert got[1].parameters == {**ctl.parameters, 'cpu_affinity': 5}
     # a hosted plant has no controller node to keep apart from: left alone
-    hosted = cl.closed_loop(hosted=True)
+    hosted = cl.closed_loop(hosted=True, recorder='node')
     assert cl.pinned(hosted, (0, 1)) == hosted
 
 
@@ -344,3 +371,22 @@ def test_demo_domain_honours_ros_domain_id_then_its_own_variable():
     assert 1 <= demo.demo_domain({}) <= 200
     with pytest.raises(ValueError, match="ROS_DOMAIN_ID='abc' is not a ROS domain"):
         demo.demo_domain({'ROS_DOMAIN_ID': 'abc'})
+
+
+def test_demo_domains_stay_in_the_range_a_user_gives():
+    demo = _demo()
+    assert demo.domain_range({}) == (1, 200)
+    assert demo.domain_range({'FOHSSV_DOMAIN_RANGE': ' 120-139 '}) == (120, 139)
+    assert 120 <= demo.demo_domain({'FOHSSV_DOMAIN_RANGE': '120-139'}) <= 139
+    assert demo.demo_domain({'FOHSSV_DOMAIN_RANGE': '77-77'}) == 77
+    for bad in ('139-120', '5', 'a-b', '0-233'):
+        with pytest.raises(ValueError, match=f"FOHSSV_DOMAIN_RANGE='{bad}' is not a range"):
+            demo.demo_domain({'FOHSSV_DOMAIN_RANGE': bad})
+    assert 'FOHSSV_DOMAIN_RANGE=LO-HI' in demo.parser().format_help()
+
+
+def test_the_plants_end_names_no_node_that_may_not_be_there():
+    """A hosted launch has no controller node (and by default no recorder node): the line
+    that ends the run names none."""
+    message = cl.exit_verdict('plant', 0, True).message
+    assert 'controller' not in message and 'recorder' not in message

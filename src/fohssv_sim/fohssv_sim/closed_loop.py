@@ -3,16 +3,20 @@ list of nodes with their parameters, read by both (``scripts/demo.py`` turns it 
 command lines, the launch file into ``launch_ros`` nodes; ``tests/test_launch.py`` checks both
 against the installed executables and their declared parameters).
 
-Three processes: the plant (FOM, alpha = 0.85, V = 75 m/s, x(0) = 0, lockstep, 2 s of simulated
-time by default), a controller node hosting the law named by ``controller`` (default eq. 31)
-and the recorder. The settings that make the bag complete (docs/recording.md, "The first
-commands of a run"): the recorder subscribes to ``state`` only once it hears a controller
-(``command_publishers: 1``), the plant waits for two ``state`` subscribers (the controller and
-the recorder: ``min_state_subscribers: 2``), and the controller holds its commands until the
-plant and the recorder both listen (``min_command_subscribers: 2``); the recorder, slower than
-the lockstep loop, paces it (``pace_to_subscribers: 512``). On request (the launch's
-``viewer:=true``, ``scripts/demo.py --viewer``) a fourth node, :func:`viewer`, serves the
-run to Foxglove; it reads only the typed views, so the loop's start rules do not change.
+By default two processes: the plant (FOM, alpha = 0.85, V = 75 m/s, x(0) = 0, lockstep, 2 s
+of simulated time) recording its own run (in-plant recording: its ``record`` parameter; a
+writer process fed through shared memory writes the bag, off the loop, so nothing in the loop
+waits for a recorder) and a controller node hosting the law named by ``controller`` (default
+eq. 31); hosted (``hosted``), the plant alone. With ``recorder='node'`` a third process, the
+recorder node, records over DDS with the settings that make its bag complete
+(docs/recording.md, "The first commands of a run"): the recorder subscribes to ``state``
+only once it hears a controller (``command_publishers: 1``), the plant waits for two
+``state`` subscribers (``min_state_subscribers: 2``), the controller holds its commands until
+the plant and the recorder both listen (``min_command_subscribers: 2``), and the recorder,
+slower than the lockstep loop, paces it (``pace_to_subscribers: 512``). On request (the
+launch's ``viewer:=true``, ``scripts/demo.py --viewer``) another node, :func:`viewer`,
+serves the run to Foxglove; it reads only the typed views, so the loop's start rules do not
+change.
 
 How the run ends (:data:`EXIT_RULE`, :func:`exit_verdict`; the launch file and ``scripts/demo.py``
 both follow it): the plant's exit 0 ends the run (the others are stopped, the recorder closes
@@ -36,9 +40,12 @@ from __future__ import annotations
 import os
 from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
+from datetime import datetime, timezone
+from pathlib import Path
 from typing import Any
 
-__all__ = ['NodeSpec', 'closed_loop', 'viewer', 'watched', 'DEMO_PLANT', 'DEFAULT_CONTROLLER',
+__all__ = ['NodeSpec', 'closed_loop', 'in_plant', 'default_bag', 'viewer', 'watched',
+           'DEMO_PLANT', 'DEFAULT_CONTROLLER',
            'DEFAULT_DURATION', 'DEFAULT_VIEWER_PORT', 'ros_args', 'flag', 'EXIT_RULE',
            'ExitVerdict', 'exit_verdict', 'reason_line', 'loop_cpus', 'pinned']
 
@@ -74,22 +81,32 @@ def flag(value: Any) -> bool:
 
 def closed_loop(controller: Any = DEFAULT_CONTROLLER, duration: Any = DEFAULT_DURATION,
                 bag_path: Any = '', plant: dict[str, Any] | None = None,
-                hosted: bool = False) -> tuple[NodeSpec, ...]:
-    """The plant, the controller and the recorder of the closed loop; with ``hosted`` the
-    plant and the recorder only, the plant hosting the law itself (its ``controller``
-    parameter): no controller node, no DDS in the loop.
+                hosted: bool = False, recorder: str = 'plant') -> tuple[NodeSpec, ...]:
+    """The closed loop: the plant recording its own run (in-plant recording, ``record``)
+    and the controller node; with ``hosted`` the plant only, hosting the law itself (its
+    ``controller`` parameter): no controller node, no DDS in the loop. ``recorder='node'``:
+    the plant, the controller node and a recorder node (plant and recorder node when
+    hosted), with the settings that make that bag complete.
 
     Args:
         controller: the ``controller`` parameter of the generic controller node (a plugin
             name of the group ``fohssv.controllers``), or of the plant when ``hosted``.
         duration: simulated seconds the plant runs before it exits 0.
-        bag_path: the recorder's ``bag_path`` ('' = ``runs/<UTC time>``).
+        bag_path: the bag to create ('' = :func:`default_bag`, ``runs/<UTC time>``).
         plant: plant parameters replacing :data:`DEMO_PLANT` entries (e.g. another model).
         hosted: the law in the plant (the same ``min_state_subscribers``: the hosted law
-            counts as one, so the plant waits for the recorder).
+            counts as one, so the plant waits for a recorder node).
+        recorder: ``'plant'`` (in-plant recording, :func:`in_plant`) or ``'node'``.
     """
+    if recorder == 'plant':
+        return in_plant(closed_loop(controller, duration, bag_path, plant, hosted, 'node'),
+                        bag_path or default_bag())
+    if recorder != 'node':
+        raise ValueError(f"recorder={recorder!r}: 'plant' (in-plant recording) or 'node' "
+                         '(the recorder node)')
     if hosted:
-        spec_plant, _, spec_recorder = closed_loop(controller, duration, bag_path, plant)
+        spec_plant, _, spec_recorder = closed_loop(controller, duration, bag_path, plant,
+                                                   recorder='node')
         return (NodeSpec(spec_plant.package, spec_plant.executable, spec_plant.name,
                          {**spec_plant.parameters, 'controller': controller}), spec_recorder)
     return (
@@ -110,9 +127,37 @@ def closed_loop(controller: Any = DEFAULT_CONTROLLER, duration: Any = DEFAULT_DU
     )
 
 
-def viewer(port: Any = DEFAULT_VIEWER_PORT) -> NodeSpec:
-    """The Foxglove viewer (``ros2 run fohssv_sim viewer``) on ws://127.0.0.1:``port``."""
-    return NodeSpec('fohssv_sim', 'viewer', 'viewer', {'port': port})
+def default_bag(now: datetime | None = None) -> Path:
+    """``runs/<UTC time>`` under ``$FOHSSV_ROOT`` (or the current directory): the bag of a
+    run given no ``bag_path``, recorded by the plant or by the recorder node."""
+    now = now or datetime.now(timezone.utc)
+    return Path(os.environ.get('FOHSSV_ROOT', '.')) / 'runs' / now.strftime(
+        '%Y%m%dT%H%M%S_%fZ')
+
+
+def in_plant(nodes: tuple[NodeSpec, ...], bag: Any) -> tuple[NodeSpec, ...]:
+    """The loop of ``nodes`` (plant, controller node, recorder node; or plant and recorder
+    node when hosted) without the recorder node: the plant records its own run to ``bag``
+    (its ``record``; None: unrecorded), so nothing waits for a third process (no
+    ``pace_to_subscribers``, one state subscriber, one command subscriber; a hosted law
+    counts as the state subscriber)."""
+    plant, ctl = nodes[0], (nodes[1] if len(nodes) == 3 else None)
+    params = {k: v for k, v in plant.parameters.items() if k != 'pace_to_subscribers'}
+    params['min_state_subscribers'] = 1
+    if bag is not None:
+        params['record'] = str(bag)
+    out = NodeSpec(plant.package, plant.executable, plant.name, params)
+    if ctl is None:
+        return (out,)
+    return (out, NodeSpec(ctl.package, ctl.executable, ctl.name,
+                          {**ctl.parameters, 'min_command_subscribers': 1}))
+
+
+def viewer(port: Any = DEFAULT_VIEWER_PORT, rate: Any = None) -> NodeSpec:
+    """The Foxglove viewer (``ros2 run fohssv_sim viewer``) on ws://127.0.0.1:``port``, at
+    most ``rate`` views a second (None: the viewer's default)."""
+    return NodeSpec('fohssv_sim', 'viewer', 'viewer',
+                    {'port': port, **({} if rate is None else {'rate': rate})})
 
 
 def watched(specs: tuple[NodeSpec, ...]) -> tuple[NodeSpec, ...]:
@@ -194,8 +239,7 @@ def exit_verdict(name: str, code: int, is_plant: bool, last_line: str = '') -> E
         text = f'{name} exited with code {code}'
         return ExitVerdict(True, True, f'{text}: {last_line}' if last_line else text)
     if is_plant:
-        return ExitVerdict(False, True,
-                           'the plant exited: shutting down the controller and the recorder')
+        return ExitVerdict(False, True, 'the plant exited: stopping the nodes still running')
     return ExitVerdict(False, False, f'{name} exited')
 
 

@@ -1,23 +1,27 @@
 """The closed loop of ``make demo`` for a full ROS 2 install (launch is not on PyPI, so this
 file does not run in the project's venv): the plant (FOM, alpha = 0.85, V = 75 m/s,
-x(0) = 0, lockstep), a controller node hosting the law named by the ``controller`` argument
-(default: eq. 31) and the recorder, with the settings that make the bag complete; with
-``hosted:=true`` the plant hosts the law itself and there is no controller node. The nodes and
-their parameters are :func:`fohssv_sim.closed_loop.closed_loop`, the list ``scripts/demo.py``
-starts too (made when the launch runs, from the arguments' values).
+x(0) = 0, lockstep) recording its own run (in-plant recording, ``record``), and a controller
+node hosting the law named by the ``controller`` argument (default: eq. 31): the run
+``make demo`` makes. With ``hosted:=true`` the plant hosts the law itself and there is no
+controller node; with ``recorder:=node`` a recorder node records over DDS instead (and paces
+the loop). The nodes and their parameters are :func:`fohssv_sim.closed_loop.closed_loop`, the
+list ``scripts/demo.py`` starts too (made when the launch runs, from the arguments' values; a
+value of the wrong kind, such as ``duration:=abc``, ends the launch with one line naming the
+argument).
 
 How it ends (:data:`fohssv_sim.closed_loop.EXIT_RULE`, the rule ``scripts/demo.py`` follows
-too): when the plant exits 0 (``duration`` reached) everything shuts down and the recorder
-closes the bag; when any node exits non-zero (a bad argument at start such as
-``controller:=nope`` or a ``bag_path`` that exists, a lost message, a plant error) the launch
-logs that node's exit code and last line, stops the others and exits 1. A recorder stopped
-before any message arrived marks its bag empty (``fohssv.empty`` in metadata.yaml).
+too): when the plant exits 0 (``duration`` reached, its bag closed) everything shuts down;
+when any node exits non-zero (a bad argument at start such as ``controller:=nope`` or a
+``bag_path`` that exists, a lost message, a plant error) the launch logs that node's exit code
+and last line, stops the others and exits 1.
 
     ros2 launch fohssv_sim closed_loop.launch.py controller:=lqr duration:=2.0 \\
-        bag_path:=runs/launched [hosted:=true] [viewer:=true]
+        bag_path:=runs/launched [hosted:=true] [recorder:=node] [viewer:=true] \\
+        [viewer_port:=8765] [viewer_rate:=30]
 
 ``viewer:=true`` also starts the Foxglove viewer (fohssv_sim.closed_loop.viewer()) on
-ws://localhost:8765; the plant then waits for its view readers (min_view_subscribers:=1).
+ws://localhost:``viewer_port``; the plant then waits for its view readers
+(min_view_subscribers:=1).
 """
 
 from launch import LaunchDescription
@@ -35,6 +39,7 @@ from launch_ros.actions import Node
 from fohssv_sim.closed_loop import (
     DEFAULT_CONTROLLER,
     DEFAULT_DURATION,
+    DEFAULT_VIEWER_PORT,
     closed_loop,
     exit_verdict,
     flag,
@@ -50,14 +55,20 @@ ARGUMENTS = {
                    'with hosted:=true'),
     'duration': (str(DEFAULT_DURATION), float,
                  'simulated seconds the plant runs before it exits'),
-    'bag_path': ('', str, "the recorder's bag directory; empty = runs/<UTC time>"),
+    'bag_path': ('', str, 'the bag directory to create; empty = runs/<UTC time>'),
     'hosted': ('false', flag, 'true: the plant hosts the controller (no controller node, no '
                'DDS in the loop)'),
+    'recorder': ('plant', str, "'plant': the plant records its own run (in-plant "
+                 "recording, as make demo); 'node': a recorder node records over DDS"),
 }
 #: Launch arguments of the nodes started on request, with default, type, meaning.
 OPTIONAL_ARGUMENTS = {
-    'viewer': ('false', flag, 'true: also start the Foxglove viewer on ws://localhost:8765 '
-               '(Open connection in Foxglove; layout docs/foxglove/fohssv_layout.json)'),
+    'viewer': ('false', flag, 'true: also start the Foxglove viewer on '
+               'ws://localhost:VIEWER_PORT (Open connection in Foxglove; layout '
+               'docs/foxglove/fohssv_layout.json)'),
+    'viewer_port': (str(DEFAULT_VIEWER_PORT), int, "the viewer's TCP port (0 = a free "
+                    'port, logged)'),
+    'viewer_rate': ('30.0', float, 'most views per wall-clock second the viewer sends'),
 }
 
 #: Key of ``last`` naming the first node that failed.
@@ -94,13 +105,31 @@ def _on_exit(name, is_plant, last):
     return on_exit
 
 
+def _value(context, name, table):
+    """The value of launch argument ``name`` as its kind, or one line naming it."""
+    default, kind, text = table[name]
+    given = LaunchConfiguration(name).perform(context)
+    try:
+        return kind(given)
+    except ValueError:
+        raise ValueError(f'launch argument {name}:={given!r} is not {KINDS[kind]} ({text}; '
+                         f'default {default})') from None
+
+
+#: What a launch argument of each kind must be, for the line that refuses one.
+KINDS = {float: 'a number', int: 'an integer', str: 'text', flag: 'true or false'}
+
+
 def _nodes(context):
     """The nodes (made from the arguments' values: hosted:=true has no controller node) and
     the handlers of the exit rule."""
-    specs = closed_loop(**{name: kind(LaunchConfiguration(name).perform(context))
-                           for name, (_, kind, _) in ARGUMENTS.items()})
-    if flag(LaunchConfiguration('viewer').perform(context)):   # the plant waits for it
-        specs = (*watched(specs), viewer())
+    try:
+        specs = closed_loop(**{name: _value(context, name, ARGUMENTS) for name in ARGUMENTS})
+        if _value(context, 'viewer', OPTIONAL_ARGUMENTS):    # the plant waits for it
+            specs = (*watched(specs), viewer(_value(context, 'viewer_port', OPTIONAL_ARGUMENTS),
+                                             _value(context, 'viewer_rate', OPTIONAL_ARGUMENTS)))
+    except ValueError as exc:
+        raise NodeFailed(str(exc)) from None
     nodes = [Node(package=s.package, executable=s.executable, name=s.name, output='screen',
                   parameters=[s.parameters]) for s in specs]
     plant = nodes[0]

@@ -255,10 +255,10 @@ def catalogue(tmp: Path) -> list[tuple[list[str], int, str]]:
         ([*fr, '--profile-points', '1000000000'], 2,
          '--profile-points=1000000000 is outside the allowed range [3, 100000] points'),
         # -- check, repair --
-        (['check'], 2, 'usage: python -m fohssv_sim.bag check BAG'),
-        (['check', bag, bag], 2, 'usage: python -m fohssv_sim.bag check BAG'),
+        (['check'], 2, 'fohssv check: error: the following arguments are required: bag'),
+        (['check', bag, bag], 2, f'fohssv: error: unrecognized arguments: {bag}'),
         (['check', str(tmp / 'no_such_bag')], 1, str(tmp / 'no_such_bag')),
-        (['repair'], 2, 'usage: python -m fohssv_sim.bag repair BAG'),
+        (['repair'], 2, 'fohssv repair: error: the following arguments are required: bag'),
         (['repair', str(tmp / 'no_such_bag')], 1, str(tmp / 'no_such_bag')),
     ]
 

@@ -269,13 +269,14 @@ def make_report(out: Path, settings: ReportSettings | None = None,
     rows = []
     rows += _time_responses(s, out, log)
     rows += _stability(s, out, log)
-    from dask.distributed import Client, LocalCluster
+    from dask.distributed import Client
+
+    from .cluster import local_cluster
 
     if s.scheduler:
         client, cluster = Client(s.scheduler, timeout='20s'), None
     else:
-        cluster = LocalCluster(n_workers=s.workers or None, threads_per_worker=1,
-                               processes=True, dashboard_address=None)
+        cluster = local_cluster(s.workers or None)
         client = Client(cluster)
     try:
         rows += _sweeps(s, out, log, client)

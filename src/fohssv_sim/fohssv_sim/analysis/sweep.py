@@ -37,7 +37,6 @@ import sys
 import threading
 import time
 import uuid
-import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -407,7 +406,9 @@ def run_chunks(out: Path, sidecar_name: str, sidecar: dict[str, Any],
     points = _PointProgress([len(chunks[k]) for k in todo], n_points - sum(
         len(chunks[k]) for k in todo), n_points, progress, start)
     if todo:
-        from dask.distributed import Client, LocalCluster, wait
+        from dask.distributed import Client, wait
+
+        from .cluster import local_cluster
 
         cluster = None
         own = client is None
@@ -417,12 +418,7 @@ def run_chunks(out: Path, sidecar_name: str, sidecar: dict[str, Any],
             client = Client(scheduler, timeout='20s')
         else:
             n = workers or os.cpu_count() or 1
-            with warnings.catch_warnings():
-                # its HTTP server (health, metrics: no dashboard here) takes another port
-                # when 8787 is taken, and says so on stderr: noise for a sweep
-                warnings.filterwarnings('ignore', message='Port .* is already in use')
-                cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                       dashboard_address=None)
+            cluster = local_cluster(n)
             client = Client(cluster)
         topic = f'fohssv-chunks-{uuid.uuid4().hex}'
         slot = {k: i for i, k in enumerate(todo)}

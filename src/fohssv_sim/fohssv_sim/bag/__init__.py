@@ -8,7 +8,8 @@
 Command line: ``python -m fohssv_sim.bag info|check|repair BAG``.
 """
 
-from .loader import BagError, Run, load_run, scan
+from .loader import BagError, scan
+from .run import Run, load_run
 from .writer import RunWriter
 
 __all__ = ['BagError', 'Run', 'RunWriter', 'load_run', 'scan']

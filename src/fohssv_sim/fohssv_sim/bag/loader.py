@@ -1,10 +1,10 @@
-"""Load a recorded run from a rosbag2 bag (MCAP storage) into numpy arrays, without rclpy.
+"""Find and read a rosbag2 bag (MCAP storage), without rclpy.
 
 The MCAP file is read sequentially (``mcap.stream_reader.StreamReader``, chunk and data CRCs
 checked), so a bag whose recorder was killed (no summary, no footer, no ``metadata.yaml``)
-loads too: everything up to the last complete chunk is recovered, and
-:attr:`Run.recovery` says how much. :func:`scan` gives the raw records (used by the player
-and the repair command); :func:`load_run` decodes the contract topics.
+is read too: everything up to the last complete chunk is recovered. :func:`locate` finds a
+bag's files, :func:`scan` gives the raw records (used by the player and the repair command);
+:func:`fohssv_sim.bag.run.load_run` decodes the contract topics into arrays.
 
 Accepted paths: a bag directory (with or without ``metadata.yaml``), its ``metadata.yaml``,
 or an ``.mcap`` file.
@@ -19,18 +19,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from mcap.exceptions import McapError
 from mcap.records import Channel, Footer, Header, Message, Metadata, Schema
 from mcap.stream_reader import CRCValidationError, StreamReader
 from ruamel.yaml import YAML
 from ruamel.yaml.error import YAMLError
+from ruamel.yaml.events import AliasEvent
 
-from .. import contract
-from .writer import is_run_metadata, typestore
+from .writer import is_run_metadata
 
-__all__ = ['BagError', 'BagFiles', 'ChannelInfo', 'Scan', 'Run', 'locate', 'scan', 'load_run',
-           'decode_metadata']
+__all__ = ['BagError', 'BagFiles', 'ChannelInfo', 'Scan', 'locate', 'scan', 'decode_metadata',
+           'run_metadata', 'basename']
 
 MCAP_MAGIC = b'\x89MCAP0\r\n'
 
@@ -88,44 +87,21 @@ class Scan:
         return out
 
     def run_metadata(self) -> dict[str, Any]:
-        """The run's metadata: ``metadata.yaml`` custom_data overlaid by the MCAP
-        ``fohssv`` records, JSON values decoded."""
-        merged: dict[str, str] = {}
-        if self.files.info is not None:
-            merged.update(self.files.info.get('custom_data') or {})
-        for name, values in self.metadata_records:
-            if is_run_metadata(name):
-                merged.update(values)
-        return decode_metadata(merged)
+        """The run's metadata (:func:`run_metadata`)."""
+        return run_metadata(self.files.info, self.metadata_records)
 
 
-@dataclass
-class Run:
-    """A recorded run as arrays. Times in s (``data[0]`` of each message, exact doubles);
-    ``log_time`` holds each topic's log times in ns (the simulation time the recorder
-    logged)."""
-
-    path: Path
-    t: np.ndarray                   # (N,) state times
-    state: np.ndarray               # (N, 4) z, w, theta, q
-    planing_force_t: np.ndarray
-    planing_force: np.ndarray
-    command_t: np.ndarray
-    delta_f: np.ndarray
-    delta_c: np.ndarray
-    clock_t: np.ndarray             # /clock times (s)
-    metadata: dict[str, Any]
-    topics: dict[str, int]          # recorded topic name -> messages read
-    log_time: dict[str, np.ndarray]  # contract topic name -> log times (ns)
-    rejected: dict[str, int]        # contract topic name -> messages not fitting the contract
-    truncated: bool
-    recovery: str                   # '' for a complete bag, else what was recovered
-
-    @property
-    def parameters(self) -> dict[str, Any]:
-        """The plant's parameters recorded with the run ({} if unknown)."""
-        value = self.metadata.get('fohssv.plant_parameters')
-        return value if isinstance(value, dict) else {}
+def run_metadata(info: dict[str, Any] | None, records: list[tuple[str, dict[str, str]]]
+                 ) -> dict[str, Any]:
+    """The run's metadata: ``metadata.yaml`` custom_data (``info``) overlaid by the MCAP
+    ``fohssv`` metadata ``records``, JSON values decoded."""
+    merged: dict[str, str] = {}
+    if info is not None:
+        merged.update(info.get('custom_data') or {})
+    for name, values in records:
+        if is_run_metadata(name):
+            merged.update(values)
+    return decode_metadata(merged)
 
 
 def decode_metadata(values: dict[str, str]) -> dict[str, Any]:
@@ -148,6 +124,10 @@ def _read_metadata_yaml(path: Path) -> dict[str, Any]:
     except (OSError, UnicodeDecodeError) as exc:
         raise BagError(f'{path}: cannot read metadata.yaml ({exc})') from None
     try:
+        if any(isinstance(e, AliasEvent) for e in YAML(typ='safe', pure=True).parse(text)):
+            raise BagError(f'{path}: metadata.yaml uses YAML aliases (*name), which rosbag2 '
+                           'never writes and which can expand to gigabytes; rebuild it with: '
+                           f'python -m fohssv_sim.bag repair {path.parent}')
         data = YAML(typ='safe', pure=True).load(text)
     except YAMLError as exc:
         raise BagError(f'{path}: metadata.yaml is not valid YAML ({str(exc).splitlines()[0]}); '
@@ -366,90 +346,6 @@ def _scan_file(mcap_path: Path, result: Scan) -> None:
             result.problem = f'{mcap_path}: no footer after byte {good} of {len(data)}'
 
 
-def _basename(topic: str) -> str:
+def basename(topic: str) -> str:
+    """The last part of a topic name (``/a/state`` -> ``state``)."""
     return topic.rstrip('/').rsplit('/', 1)[-1]
-
-
-def _pick_channels(sc: Scan, name: str, namespace: str | None) -> list[int]:
-    if name.startswith('/'):
-        return [c.id for c in sc.channels.values() if c.topic == name]
-    if namespace is not None:
-        full = namespace.rstrip('/') + '/' + name
-        return [c.id for c in sc.channels.values() if c.topic == full]
-    ids = [c.id for c in sc.channels.values() if _basename(c.topic) == name]
-    topics = sorted({sc.channels[i].topic for i in ids})
-    if len(topics) > 1:
-        spaces = sorted({t.rsplit('/', 1)[0] or '/' for t in topics})
-        raise BagError(f'{sc.files.directory}: several {name!r} topics {topics}; give the '
-                       f"namespace: one of {', '.join(spaces)} (fohssv plot --namespace NS, "
-                       "load_run(path, namespace='NS'))")
-    return ids
-
-
-def load_run(path: str | Path, *, namespace: str | None = None) -> Run:
-    """Load a recorded run: the contract topics as arrays, plus the run metadata.
-
-    Args:
-        path: bag directory, its metadata.yaml, or an .mcap file.
-        namespace: the vehicle's namespace when the bag holds several (default: the only
-            ``state`` topic, wherever it is).
-
-    Raises:
-        BagError: missing, empty, not a bag, unreadable, or truncated before any channel.
-    """
-    sc = scan(path)
-    ts = typestore()
-    arrays: dict[str, list[np.ndarray]] = {}
-    logs: dict[str, list[int]] = {}
-    rejected: dict[str, int] = {}
-    for topic in (contract.STATE, contract.PLANING_FORCE, contract.COMMAND):
-        ids = set(_pick_channels(sc, topic.name, namespace))
-        rows: list[np.ndarray] = []
-        times: list[int] = []
-        bad = 0
-        for cid, log_time, raw in sc.messages:
-            if cid not in ids:
-                continue
-            chan = sc.channels[cid]
-            if chan.msgtype != topic.type:
-                raise BagError(f'{sc.files.directory}: topic {chan.topic} has type '
-                               f'{chan.msgtype}, the contract says {topic.type}')
-            try:
-                values = ts.deserialize_cdr(raw, topic.type).data
-                rows.append(np.asarray(contract.decode(topic, values)))
-                times.append(log_time)
-            except (contract.ContractError, ValueError, IndexError, struct.error):
-                bad += 1
-        arrays[topic.name] = rows
-        logs[topic.name] = times
-        rejected[topic.name] = bad
-    clock_ids = set(_pick_channels(sc, contract.CLOCK.name, None))
-    clock_t = []
-    for cid, _, raw in sc.messages:
-        if cid in clock_ids:
-            try:
-                c = ts.deserialize_cdr(raw, contract.CLOCK.type).clock
-            except (ValueError, IndexError, struct.error):
-                continue
-            clock_t.append(c.sec + c.nanosec * 1e-9)
-
-    def table(name: str, width: int) -> np.ndarray:
-        rows = arrays[name]
-        return np.vstack(rows) if rows else np.empty((0, width))
-
-    st = table(contract.STATE.name, 5)
-    fp = table(contract.PLANING_FORCE.name, 2)
-    cmd = table(contract.COMMAND.name, 3)
-    recovery = ''
-    if not sc.complete:
-        n = len(sc.messages)
-        recovery = (f'recovered {n} messages ({st.shape[0]} states, last t = '
-                    f'{st[-1, 0] if st.shape[0] else float("nan"):.9g} s) from the first '
-                    f'{sc.bytes_read} of {sc.bytes_total} bytes; {sc.problem}')
-    return Run(path=Path(path), t=st[:, 0].copy(), state=st[:, 1:].copy(),
-               planing_force_t=fp[:, 0].copy(), planing_force=fp[:, 1].copy(),
-               command_t=cmd[:, 0].copy(), delta_f=cmd[:, 1].copy(), delta_c=cmd[:, 2].copy(),
-               clock_t=np.asarray(clock_t, dtype=float), metadata=sc.run_metadata(),
-               topics=sc.counts(),
-               log_time={k: np.asarray(v, dtype=np.int64) for k, v in logs.items()},
-               rejected=rejected, truncated=not sc.complete, recovery=recovery)

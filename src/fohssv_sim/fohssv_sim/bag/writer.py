@@ -32,12 +32,14 @@ import math
 import os
 import struct
 import subprocess
-from collections.abc import Iterable, Mapping, Sequence
+import tempfile
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import MessageIndex
 from mcap.writer import CompressionType, IndexType
@@ -271,6 +273,49 @@ class _Messages:
         self.count += written
 
 
+class _SpooledIndexes:
+    """The ``mcap`` writer's list of chunk index records, kept serialized in an unlinked
+    temporary file beside the bag instead of as objects in memory, and read back when the
+    summary is written: a recorder's memory stays flat over a long run (the list grew by
+    0.6-0.8 MB a minute at a flush every 0.1 s). The writer only appends to it and iterates it
+    once at ``finish`` (mcap 1.6.0 internals, pinned)."""
+
+    def __init__(self, directory: Path) -> None:
+        self._file = tempfile.TemporaryFile(dir=directory)
+        self._n = 0
+
+    def append(self, index: Any) -> None:
+        builder = RecordBuilder()
+        index.write(builder)
+        self._file.write(builder.end())
+        self._n += 1
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __iter__(self) -> Iterator[_Record]:
+        self._file.seek(0)
+        data = self._file.read()
+        pos = 0
+        while pos < len(data):
+            (size,) = struct.unpack_from('<Q', data, pos + 1)
+            yield _Record(data[pos:pos + 9 + size])
+            pos += 9 + size
+
+    def close(self) -> None:
+        self._file.close()
+
+
+class _Record:
+    """One serialized record, written as it is."""
+
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+
+    def write(self, builder: RecordBuilder) -> None:
+        builder.write(self.data)
+
+
 class _McapStorage:
     """rosbags storage plugin writing MCAP with the ``mcap`` library (see module docstring)."""
 
@@ -288,6 +333,8 @@ class _McapStorage:
                                     enable_data_crcs=True,
                                     index_types=IndexType.ALL & ~IndexType.ATTACHMENT)
         self._mcap.start(profile='ros2', library=library_versions())
+        self._indexes = _SpooledIndexes(path)
+        self._mcap._Writer__chunk_indices = self._indexes                # noqa: SLF001
         self.messages = _Messages(self._mcap, self.chunk_size)
         self._schemas: dict[str, int] = {}
         self._channels: dict[int, int] = {}
@@ -329,6 +376,7 @@ class _McapStorage:
             self._finish_empty()
         self._mcap.finish()
         self._file.close()
+        self._indexes.close()
 
     def _finish_empty(self) -> None:
         """Prepare a run without messages for ``finish()`` (mcap 1.6.0 internals, pinned; the
@@ -356,6 +404,7 @@ class _McapStorage:
     def abort(self) -> None:
         self._mcap.flush()
         self._file.close()
+        self._indexes.close()
 
 
 def _rosbag2_writer(path: Path, chunk_size: int) -> Writer:

@@ -39,7 +39,8 @@ from ..params import PARAMETERS, ModelParameters, ParameterError
 
 __all__ = ['EXIT_OK', 'EXIT_BAD_BAG', 'EXIT_USAGE', 'EXIT_INTERRUPTED', 'EXIT_INTERNAL',
            'EXIT_WORKERS_LOST', 'CliError',
-           'BagInputError', 'output_dir', 'load_controller', 'assignments', 'model_params',
+           'BagInputError', 'folder_arg', 'output_dir', 'load_controller', 'assignments',
+           'model_params',
            'parse_range', 'figure_paths', 'add_common_options', 'OneLineParser', 'LIMITS',
            'number', 'bounded', 'parameter_type', 'check_size', 'check_run_steps',
            'check_grid', 'check_chunk_memory', 'check_workers', 'check_chunk_size',
@@ -72,6 +73,19 @@ class BagInputError(CliError):
     as ``fohssv check`` gives for it."""
 
     exit_code = EXIT_BAD_BAG
+
+
+def folder_arg(text: str) -> Path:
+    """The ``--out`` folder as given on the command line (argparse ``type``): an empty or blank
+    text is refused (``Path('')`` is the current folder, which nobody means by it).
+
+    Raises:
+        argparse.ArgumentTypeError: an empty text (argparse prints it as one line, exit 2).
+    """
+    if not text.strip():
+        raise argparse.ArgumentTypeError(
+            f'{text!r} is no folder: give a folder name (use . for the current folder)')
+    return Path(text)
 
 
 def output_dir(path: Path, option: str = '--out') -> Path:
@@ -580,5 +594,5 @@ def add_common_options(p: argparse.ArgumentParser, controller: bool = True) -> N
                        help='controller plugin name (default: state_feedback, eq. 31)')
         p.add_argument('--gain', action='append', metavar='NAME=VALUE',
                        help='controller parameter (repeatable), e.g. --gain depth_gain=12')
-    p.add_argument('--out', type=Path, default=_DEFAULT_OUT,
+    p.add_argument('--out', type=folder_arg, default=_DEFAULT_OUT,
                    help='output folder (default: reports/COMMAND/JOB, named after the job)')

@@ -21,6 +21,7 @@ from .common import (
     check_chunk_size,
     check_grid,
     check_run_steps,
+    folder_arg,
     job_folder,
     number,
     output_dir,
@@ -120,7 +121,7 @@ def register(sub) -> None:
     p.add_argument('--duration', type=bounded('--duration', low=0, low_open=True, unit='s'),
                    default=None,
                    help='with --reference: s per run from x(0) = 0 (default 1)')
-    p.add_argument('--out', type=Path, help='output folder (default '
+    p.add_argument('--out', type=folder_arg, help='output folder (default '
                    f"{job_folder('fit', 'BAG-HASH')}, or "
                    f"{job_folder('fit', 'reference-delayed_VLOW-HIGH-HASH')}: named after the "
                    'job, so rerunning the same fit resumes there; job.json records it)')

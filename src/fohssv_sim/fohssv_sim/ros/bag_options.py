@@ -11,17 +11,17 @@ add the rules a range cannot say, in the same words (``name=value ...; allowed: 
 
 from __future__ import annotations
 
-import os
-from datetime import datetime, timezone
+from datetime import datetime
 from pathlib import Path
 
 from .. import contract
 from ..bag.writer import DEFAULT_CHUNK_SIZE
-from ..params import ParameterSpec
+from ..closed_loop import default_bag
+from ..params import ParameterError, ParameterSpec
 from .options import FlagSpec, NamesSpec, TableOptions, TextSpec
 
 __all__ = ['RECORDED', 'PLAYER_MODES', 'RECORDER_PARAMETERS', 'PLAYER_PARAMETERS',
-           'RecorderOptions', 'PlayerOptions', 'default_bag_path', 'new_bag_path']
+           'RecorderOptions', 'PlayerOptions', 'default_bag_path', 'new_bag_path', 'bag_exists']
 
 #: What the recorder records by default: the contract and the typed views.
 RECORDED: tuple[contract.Topic, ...] = contract.TOPICS + contract.VIEW_TOPICS
@@ -149,10 +149,9 @@ class PlayerOptions(TableOptions):
 
 
 def default_bag_path(now: datetime | None = None) -> Path:
-    """``runs/<UTC timestamp>`` under ``$FOHSSV_ROOT`` (or the current directory)."""
-    now = now or datetime.now(timezone.utc)
-    root = Path(os.environ.get('FOHSSV_ROOT', '.'))
-    return root / 'runs' / now.strftime('%Y%m%dT%H%M%S_%fZ')
+    """``runs/<UTC timestamp>`` under ``$FOHSSV_ROOT`` (or the current directory):
+    :func:`fohssv_sim.closed_loop.default_bag`."""
+    return default_bag(now)
 
 
 def new_bag_path(options: RecorderOptions) -> Path:
@@ -163,6 +162,11 @@ def new_bag_path(options: RecorderOptions) -> Path:
     """
     path = Path(options.bag_path) if options.bag_path else default_bag_path()
     if path.exists():
-        raise options.spec('bag_path').refuse(
-            str(path), 'exists already: the recorder never overwrites a bag')
+        raise bag_exists(options, path)
     return path
+
+
+def bag_exists(options: RecorderOptions, path: Path) -> ParameterError:
+    """The refusal of a ``bag_path`` that exists (exit 2 from the node)."""
+    return options.spec('bag_path').refuse(
+        str(path), 'exists already: the recorder never overwrites a bag')

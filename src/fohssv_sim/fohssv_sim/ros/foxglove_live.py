@@ -28,9 +28,10 @@ numbers with the view's signs undone: z = -pose.position.z, w = -twist.linear.z,
 rounding). The JSON channels carry JSON Schemas (units in the descriptions); the Foxglove
 schemas are the SDK's (protobuf, schema advertised as a FileDescriptorSet).
 
-The server speaks the SDK's subprotocol ``foxglove.sdk.v1`` (the Foxglove WebSocket protocol
-v1 under its current name; the SDK refuses a handshake offering only the old name
-``foxglove.websocket.v1``), advertises the ``time`` capability and broadcasts the stamp of
+Clients connect to the gate (:mod:`.foxglove_gate`), which accepts both names of the
+protocol (``foxglove.websocket.v1``, ``foxglove.sdk.v1``), the allowed origins only and at
+most ``max_clients`` connections, and relays each to the SDK's server on a loopback port of
+its own. The server advertises the ``time`` capability and broadcasts the stamp of
 each view sent, so Foxglove's clock is simulation time. A reset of the plant (a stamp earlier
 than the last one sent) starts a new session: the panels clear instead of drawing a line
 back to t = 0.
@@ -40,7 +41,7 @@ from __future__ import annotations
 
 import math
 import threading
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -59,6 +60,8 @@ from foxglove.messages import (
     Vector3,
 )
 from foxglove.websocket import Capability, ChannelView, Client
+
+from .foxglove_gate import Gate
 
 __all__ = ['Marker', 'View', 'ViewAssembler', 'LiveServer', 'TOPICS', 'ENTITY_IDS',
            'JSON_SCHEMAS', 'scene_update', 'frame_transform', 'pose_in_frame',
@@ -325,26 +328,35 @@ class LiveServer:
     :class:`View` to every subscribed client.
 
     Args:
-        host, port: where to bind (port 0: a free port; see :attr:`port`).
+        host, port: where the gate binds (port 0: a free port; see :attr:`port`).
         topics: role -> topic name (default :data:`TOPICS`).
         name: the server name clients show.
+        max_clients, allowed_origins, on_refused: the gate's (:class:`.foxglove_gate.Gate`).
 
     Raises:
         OSError: the server cannot bind (address in use, unknown host), with the SDK's reason.
     """
 
     def __init__(self, host: str, port: int, topics: Mapping[str, str] | None = None,
-                 name: str = 'fohssv') -> None:
+                 name: str = 'fohssv', *, max_clients: int = 16,
+                 allowed_origins: Sequence[str] = (),
+                 on_refused: Callable[[str], None] | None = None) -> None:
         self.topics = {**TOPICS, **(topics or {})}
         self._context = foxglove.Context()
         ctx = self._context
         self._subscriptions = _Subscriptions()
         try:
             self._server = foxglove.start_server(
-                name=name, host=host, port=port, capabilities=[Capability.Time], context=ctx,
-                server_listener=self._subscriptions)
+                name=name, host='127.0.0.1', port=0, capabilities=[Capability.Time],
+                context=ctx, server_listener=self._subscriptions)
         except RuntimeError as exc:
-            raise OSError(f'cannot serve Foxglove on {host}:{port}: {exc}') from None
+            raise OSError(f'cannot serve Foxglove on 127.0.0.1: {exc}') from None
+        try:
+            self._gate = Gate(host, port, self._server.port, max_clients=max_clients,
+                              allowed_origins=allowed_origins, on_refused=on_refused)
+        except OSError:
+            self._server.stop()
+            raise
         t = self.topics
         self._scene = SceneUpdateChannel(t['scene'], context=ctx)
         self._tf = FrameTransformChannel(t['tf'], context=ctx)
@@ -357,8 +369,8 @@ class LiveServer:
 
     @property
     def port(self) -> int:
-        """The port the server listens on."""
-        return self._server.port
+        """The port clients connect to (the gate's)."""
+        return self._gate.port
 
     @property
     def subscriptions(self) -> int:
@@ -384,4 +396,5 @@ class LiveServer:
         """Close the channels and the server (clients are disconnected)."""
         for channel in (self._scene, self._tf, self._pose, *self._json.values()):
             channel.close()
+        self._gate.stop()
         self._server.stop()

@@ -54,7 +54,8 @@ Exit codes: 0 bag closed (end of run with nothing lost, or SIGINT/SIGTERM, also 
 ``drain_timeout`` cut the drain of a run that announced no end), 1 the bag cannot
 be created or written (an OS error: a full disk), 2 invalid arguments or parameters (one
 line: a wrong type, a value
-out of range, an unknown parameter name, ``bag_path`` that exists already; see
+out of range, an unknown parameter name, ``bag_path`` that exists already, also when another
+recorder started on the same path created it first; see
 :mod:`.startup`), 6 messages lost: the bag misses messages the run's ``run_end`` says were
 published (the bag is closed and readable; the line names the topics and counts),
 7 completeness not checked: a publisher of the recorded topics left without its ``run_end``
@@ -77,6 +78,7 @@ from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
 from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.task import Future
+from rosbags.rosbag2 import WriterError
 from std_msgs.msg import String
 
 from .. import contract
@@ -85,6 +87,7 @@ from .bag_options import (
     RECORDED,
     RECORDER_PARAMETERS,
     RecorderOptions,
+    bag_exists,
     default_bag_path,
     new_bag_path,
 )
@@ -201,13 +204,23 @@ class Recorder(Node):
         self._end_timer = None
         self._progress = (0, time.monotonic())   # (messages written, when reached)
         self.write_error: Exception | None = None   # the bag could not be written (full disk)
-        self.writer = RunWriter(self.bag_path, chunk_size=self.options.chunk_size).open()
+        self.writer = self._create_bag()
         print(f'recording to {self.bag_path}', flush=True)
         try:
             self._start()
         except BaseException:
             self.close()     # interrupted while starting: still a complete (empty) bag
             raise
+
+    def _create_bag(self) -> RunWriter:
+        """The bag, created. A bag_path that appeared since :func:`new_bag_path` looked (a
+        second recorder started on the same path) is refused as one that existed: exit 2."""
+        try:
+            return RunWriter(self.bag_path, chunk_size=self.options.chunk_size).open()
+        except (FileExistsError, WriterError):
+            if not self.bag_path.exists():
+                raise
+            raise bag_exists(self.options, self.bag_path) from None
 
     def _start(self) -> None:
         o = self.options

@@ -25,6 +25,10 @@ and its cavity move in the 3D panel, the plots draw the state and the planing fo
   rclpy. The channels are advertised at start, so a client can subscribe before the run.
 * ``host`` is the loopback address by default: only this machine can connect. Another
   address serves the run to the network without authentication (a warning says so).
+* Clients (:mod:`.foxglove_gate`): both names of the protocol (``foxglove.websocket.v1``,
+  ``foxglove.sdk.v1``); browser origins of the Foxglove and Lichtblick apps and of this
+  machine's pages, plus ``allowed_origins``; at most ``max_clients`` at once. A refused
+  handshake is logged (a warning naming the peer and the reason, once per reason and peer).
 
 Exit codes: 0 stopped by SIGINT/SIGTERM (the server is closed); 1 the server cannot bind (port
 in use, unknown host: one ``viewer: error: ...`` line); 2 invalid arguments or parameters
@@ -97,7 +101,9 @@ class Viewer(Node):
                  'wrench': subs[2].topic_name, 'scene': subs[3].topic_name,
                  'state': self.resolve_topic_name(contract.STATE.name),
                  'force': self.resolve_topic_name(contract.PLANING_FORCE.name)}
-        self.server = LiveServer(o.host, o.port, names)
+        self.server = LiveServer(o.host, o.port, names, max_clients=int(o.max_clients),
+                                 allowed_origins=o.allowed_origins,
+                                 on_refused=self.get_logger().warning)
         url_host = 'localhost' if o.loopback else o.host
         self.get_logger().info(
             f'serving Foxglove on ws://{o.host}:{self.server.port} (in Foxglove: Open '

@@ -25,6 +25,7 @@ __all__ = ['VIEWER_PARAMETERS', 'ViewerOptions', 'DEFAULT_PORT', 'is_loopback']
 DEFAULT_PORT = 8765
 
 _HOST_NAME = re.compile(r'[A-Za-z0-9]([A-Za-z0-9.-]*[A-Za-z0-9])?')
+_ORIGIN = re.compile(r'[A-Za-z][A-Za-z0-9+.-]*://[^/\s,]+')
 
 _P = ParameterSpec
 
@@ -39,6 +40,14 @@ VIEWER_PARAMETERS: tuple[ParameterSpec, ...] = (
     _P('rate', '-', 30.0, 'Hz', 'most views forwarded per wall-clock second: at each tick the '
        'newest complete view (pose, twist, planing_wrench, both markers of one t), if new',
        low=0.0, high=1000.0, high_open=False),
+    _P('max_clients', '-', 16, '-', 'most Foxglove clients connected at once; one more is '
+       'refused (HTTP 503, logged)', low=1.0, low_open=False, high=1000.0, high_open=False),
+    TextSpec('allowed_origins', '-', '', '-', 'browser origins accepted besides the default '
+             'ones (a client without Origin, https://app.foxglove.dev, the Lichtblick web '
+             'app, pages served from localhost); comma-separated, e.g. '
+             "'https://viz.example.org'; '*' = any origin (any web page this machine's "
+             'browser opens can then watch the run); another origin is refused (HTTP 403, '
+             'logged)', allowed="'' or comma-separated origins (scheme://host[:port]) or *"),
 )
 
 
@@ -71,6 +80,13 @@ class ViewerOptions(TableOptions):
                 raise self.spec('host').refuse(self.host, 'is not an IP address or host '
                                                'name') from None
         self._set('host', host)
+        origins = tuple(o.strip() for o in self.allowed_origins.split(',') if o.strip())
+        for origin in origins:
+            if origin != '*' and not _ORIGIN.fullmatch(origin):
+                raise self.spec('allowed_origins').refuse(
+                    self.allowed_origins, f'holds {origin!r}, which is no origin '
+                    '(scheme://host[:port], e.g. https://viz.example.org)')
+        self._set('allowed_origins', origins)
 
     @property
     def loopback(self) -> bool:

@@ -19,6 +19,11 @@ in the sending process with serialized messages against 58 us with message objec
   their known offset; anything else (another layout, a wrong length) goes through rclpy's
   ``deserialize_message`` so the caller's checks and error messages see the data as before.
 
+* :func:`serialized` is rclpy's serialization with the CDR alignment padding zeroed: the
+  serializer leaves those bytes as the buffer held them (fragments of the process's memory,
+  different from run to run), and every message the plant publishes (contract and views) is
+  made from it, so a bag is a function of the run.
+
 Both rely on the machine's byte order being the one the serializer wrote (checked at
 construction: the encapsulation must be CDR little-endian and the round trip through
 ``deserialize_message`` must give the written values back).
@@ -35,9 +40,11 @@ from typing import Any
 from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
+from ..bag.writer import typestore
 from ..contract import Topic
 
-__all__ = ['raw_publish', 'ArrayWriter', 'ArrayReader', 'ClockWriter', 'WireError', 'array_message',
+__all__ = ['raw_publish', 'serialized', 'ArrayWriter', 'ArrayReader', 'ClockWriter',
+           'WireError', 'array_message',
            'message_class']
 
 _CDR_LE = b'\x00\x01'
@@ -45,6 +52,29 @@ _CDR_LE = b'\x00\x01'
 
 class WireError(RuntimeError):
     """The serialized form is not the one this module understands (not CDR little-endian)."""
+
+
+def serialized(msg: Any) -> bytearray:
+    """``msg`` as rclpy serializes it (what ``publish(msg)`` sends), with the alignment padding
+    zeroed: the bytes where the same message serialized by rosbags' CDR serializer (which
+    writes zeros there) holds a zero are taken from it; the two must agree everywhere else.
+
+    Raises:
+        WireError: the two serializations differ in a byte that carries data (another
+            layout of the type than the typestore's).
+    """
+    raw = serialize_message(msg)
+    cls = type(msg)
+    typename = f"{cls.__module__.split('.')[0]}/msg/{cls.__name__}"
+    ts = typestore()
+    try:
+        canon = ts.serialize_cdr(ts.deserialize_cdr(raw, typename), typename)
+    except Exception as exc:  # noqa: BLE001 - a type or layout the typestore does not know
+        raise WireError(f'{typename}: cannot be re-serialized to zero its padding ({exc})'
+                        ) from None
+    if len(canon) != len(raw) or any(a != b and b != 0 for a, b in zip(raw, canon)):
+        raise WireError(f'{typename}: rosbags and rclpy serialize it differently')
+    return bytearray(canon)
 
 
 def array_message(topic: Topic) -> Float64MultiArray:
@@ -84,7 +114,7 @@ def _template(topic: Topic) -> tuple[bytearray, int]:
     n = len(topic.fields)
     probe = tuple(float(i + 1) for i in range(n))
     msg.data = array.array('d', probe)
-    raw = bytearray(serialize_message(msg))
+    raw = serialized(msg)
     if raw[:2] != _CDR_LE:
         raise WireError(f'{topic.name}: serialized as {bytes(raw[:4])!r}, not CDR LE')
     offset = len(raw) - 8 * n

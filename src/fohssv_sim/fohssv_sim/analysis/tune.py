@@ -479,17 +479,14 @@ class _Generations:
         if self.client is not None:
             return self.client
         if self._own_client is None:
-            from dask.distributed import Client, LocalCluster
+            from dask.distributed import Client
+
+            from .cluster import local_cluster
 
             if self.scheduler:
                 self._own_client = Client(self.scheduler, timeout='20s')
             else:
-                n = self.workers or os.cpu_count() or 1
-                # no dashboard; the scheduler's own HTTP server on a free port, so a
-                # taken 8787 (a shared host) gives no warning
-                self._cluster = LocalCluster(n_workers=n, threads_per_worker=1,
-                                             processes=True, dashboard_address=None,
-                                             scheduler_kwargs={'dashboard_address': ':0'})
+                self._cluster = local_cluster(self.workers or os.cpu_count() or 1)
                 self._own_client = Client(self._cluster)
         return self._own_client
 

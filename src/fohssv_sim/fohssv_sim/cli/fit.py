@@ -266,7 +266,9 @@ class _Dask:
     def __enter__(self):
         import os
 
-        from dask.distributed import Client, LocalCluster
+        from dask.distributed import Client
+
+        from ..analysis.cluster import local_cluster
 
         if self.args.scheduler:
             self.client = Client(self.args.scheduler, timeout='20s')
@@ -275,12 +277,7 @@ class _Dask:
             # threads need no start-up, imports or numba cache loads of their own, nor the
             # problem pickled to them (measured: bench/bench_fit.py --processes-too)
             n = self.args.workers or os.cpu_count() or 1
-            # no dashboard; the scheduler's own HTTP server on a free port, so a taken
-            # 8787 (a shared host) gives no warning
-            self.cluster = LocalCluster(n_workers=n, threads_per_worker=1,
-                                        processes=self.args.processes,
-                                        dashboard_address=None,
-                                        scheduler_kwargs={'dashboard_address': ':0'})
+            self.cluster = local_cluster(n, processes=self.args.processes)
             self.client = Client(self.cluster)
         return self.client
 

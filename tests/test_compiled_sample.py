@@ -1,10 +1,10 @@
-"""The plant's compiled lockstep sample (fohssv_sim.ros.compiled_sample) against the interpreted
+"""The plant's compiled lockstep sample (fohssv_sim.ros.plant.fastpath) against the interpreted
 short path it replaces (models.HeldPeriod.run, as the node ran it before): on two FOM plants
 under eq. 31, the same state, time, step counts and planing force after every period, bit for
 bit, and the state, planing force and clock it publishes through rcl, received over real DDS
 by subscriptions, equal to the interpreted sample's messages serialized by rclpy's path
 (wire.py); the records it puts into an in-plant ring, read back by the writer's side
-(bag.inplant.Ring.take), equal to those messages and the command's bytes, across the ring's
+(bag.ring.Ring.take), equal to those messages and the command's bytes, across the ring's
 wraps, and stopping at a full ring where Ring.put would; every command it must not take is
 left alone (nothing published, the model untouched); a failing period raises what the
 interpreted path raises. Taken in compiled code (CompiledSample.take_from: rcl's wait and
@@ -26,10 +26,11 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
 
 from fohssv_controller.state_feedback import StateFeedback
-from fohssv_sim.bag.inplant import MIN_RING_BYTES, Ring
+from fohssv_sim.bag.ring import MIN_RING_BYTES, Ring
 from fohssv_sim.contract import CLOCK, COMMAND, PLANING_FORCE, STATE
 from fohssv_sim.params import ModelParameters
-from fohssv_sim.ros.compiled_sample import (
+from fohssv_sim.ros.loop import SampledPlant
+from fohssv_sim.ros.plant.fastpath.sample import (
     CLOCK_PUBLISH,
     CLOCK_PUT,
     FAILED,
@@ -39,7 +40,6 @@ from fohssv_sim.ros.compiled_sample import (
     TIMED_OUT,
     CompiledSample,
 )
-from fohssv_sim.ros.loop import SampledPlant
 from fohssv_sim.ros.qos import profile
 from fohssv_sim.ros.wire import ArrayReader, ArrayWriter, ClockWriter
 

@@ -75,7 +75,7 @@ from ..contract import CLOCK, COMMAND, PLANING_FORCE, RUN_END, STATE, run_end_te
 from ..control import NonFiniteCommand
 from ..models import MAX_PITCH, check_state
 from ..params import PARAMETERS, ModelParameters, ParameterError, ParameterSpec, field_specs
-from . import compiled_sample
+from .plant.fastpath import sample as compiled_sample
 from .faults import (
     REFUSE_STATE_VAR,
     STALL_STATE_VAR,

@@ -58,7 +58,7 @@ import math
 import sys
 import time
 from collections.abc import Mapping
-from time import monotonic, perf_counter_ns, sleep
+from time import monotonic, sleep
 from typing import Any
 
 import numpy as np
@@ -75,15 +75,7 @@ from ..contract import CLOCK, COMMAND, PLANING_FORCE, RUN_END, STATE, run_end_te
 from ..control import NonFiniteCommand
 from ..models import MAX_PITCH, check_state
 from ..params import PARAMETERS, ModelParameters, ParameterError, ParameterSpec, field_specs
-from .plant.fastpath import sample as compiled_sample
-from .faults import (
-    REFUSE_STATE_VAR,
-    STALL_STATE_VAR,
-    refused_publishes,
-    refusing,
-    stalled_publish,
-    stalling,
-)
+from .faults import StateFault
 from .inplant_record import EXIT_RECORD_LOST
 from .inplant_record import start as start_recording
 from .loop import (
@@ -93,15 +85,11 @@ from .loop import (
     CommandRejected,
     HostedLaw,
     Pacer,
-    Profile,
     SampledPlant,
     answered_time,
     check_command,
     cpu_seconds,
-    host_cpu_ticks,
     kernel_preemption,
-    steal_seconds,
-    steal_share,
 )
 from .matching import UNKNOWN_NODE, node_path
 from .nodekit import (
@@ -126,6 +114,8 @@ from .nodekit import (
     tighten_timer_slack,
 )
 from .options import NODE_PARAMETERS, PlantOptions, check_options, clock_samples, view_samples
+from .plant.fastpath import sample as compiled_sample
+from .plant.instrumentation import Profile
 from .views import ViewPublisher
 from .wire import raw_publish
 
@@ -247,26 +237,18 @@ class PlantNode(Node):
         self._lockstep = self.options.mode == 'lockstep'
         self.profile: Profile | None = Profile() if self.options.profile else None
         self._cpu_start = 0.0
-        self._ticks_start: tuple[int, int] | None = None
         self.state_pub = self.create_publisher(Float64MultiArray, STATE.name, profile(STATE))
         self._all_acked: dict[str, int] = {}   # topic -> samples when all acknowledged
         self.force_pub = self.create_publisher(Float64MultiArray, PLANING_FORCE.name,
                                                profile(PLANING_FORCE))
         self.clock_pub = self.create_publisher(Clock, CLOCK.name, profile(CLOCK))
         self._send_state = raw_publish(self.state_pub)
-        refuse = refused_publishes()        # a testing aid (faults.py): None unless asked for
-        if refuse is not None:
-            self._send_state = refusing(self._send_state, *refuse)
-            self.get_logger().warning(
-                f'{REFUSE_STATE_VAR}: state publishes after the first {refuse[0]} are refused '
-                + ('for good' if refuse[1] is None else f'{refuse[1]} time(s)')
-                + ' (fault injection, a testing aid: unset it to run normally)')
-        stall = stalled_publish()           # the same
-        if stall is not None:
-            self._send_state = stalling(self._send_state, *stall)
-            self.get_logger().warning(
-                f'{STALL_STATE_VAR}: the state publish after the first {stall[0]} waits '
-                f'{stall[1]:g} s (fault injection, a testing aid: unset it to run normally)')
+        # a testing aid (faults.py), on every path a state leaves by: None unless asked for
+        self._fault = StateFault.from_environment()
+        if self._fault is not None:
+            self._send_state = self._fault.wrap(self._send_state)
+            for line in self._fault.warnings():
+                self.get_logger().warning(line)
         self._send_force = raw_publish(self.force_pub)
         self._send_clock = raw_publish(self.clock_pub)
         # hosted: /clock and command (volatile) are published only while someone subscribes;
@@ -283,14 +265,16 @@ class PlantNode(Node):
         self._sample_pubs = (self.state_pub, self.force_pub) + (
             self.views.publishers if self.views is not None else ())
         self.command_sub = self.command_pub = None
+        # an external controller's commands (lockstep: the good command's short path)
+        self._command_callback = (None if self.hosted is not None else
+                                  self._on_command_lockstep if self._lockstep
+                                  else self._on_command)
+        if self.profile is not None:   # profile:=1 times the node's own calls
+            self.profile.install(self)
         if self.hosted is None:      # an external controller node answers each sample
-            # lockstep: the good command's short path; profile:=1 times the same callback
-            self._command_callback = (self._on_command_lockstep if self._lockstep
-                                      else self._on_command)
-            on_command = (self._on_command_profiled if self.profile is not None
-                          else self._command_callback)
-            self.command_sub = self.create_subscription(Float64MultiArray, COMMAND.name,
-                                                        on_command, profile(COMMAND), raw=True)
+            self.command_sub = self.create_subscription(
+                Float64MultiArray, COMMAND.name, self._command_callback, profile(COMMAND),
+                raw=True)
             self.command_topic = self.command_sub.topic_name
         else:                        # the plant commands itself and says what it commanded
             self.command_pub = self.create_publisher(Float64MultiArray, COMMAND.name,
@@ -304,10 +288,6 @@ class PlantNode(Node):
             self._sample_pubs += (self.command_pub,)
         self._paced_pubs = (self.state_pub, self.force_pub) + (
             () if self.command_pub is None else (self.command_pub,))
-        if self.profile is not None:
-            self._publish = self._publish_profiled   # type: ignore[method-assign]
-            self._step = self._step_profiled         # type: ignore[method-assign]
-            self._control = self._control_profiled   # type: ignore[method-assign]
         self.reset_srv = self.create_service(Trigger, 'reset', self._on_reset)
         # once, when the run ends: what was published, for recorders to check (contract.py)
         self.end_pub = self.create_publisher(String, RUN_END.name, profile(RUN_END))
@@ -321,7 +301,6 @@ class PlantNode(Node):
         self.forces_lost = 0                      # planing_force samples not published
         self._cut: tuple[float, int] | None = None  # (t, steps) where a burst ended the run
         self.cpu_latency: int | None = None    # the cpu_dma_latency held (us), set by _run
-        self.kernel_preemption: str | None = None   # realtime: the kernel's model, set by _run
         self.publish_retries = 0                  # publishes DDS refused at first
         self.resets = 0
         self._samples_before = 0                  # samples and steps before the last reset
@@ -332,10 +311,9 @@ class PlantNode(Node):
         # record:=PATH: the plant writes its own bag (inplant_record.py); None when off
         self.record = start_recording(self)
         # the state's publish call the compiled sample stands in for (publishing, and with
-        # record:=PATH putting into the in-plant bag, as _send_state does): None under fault
-        # injection; a call wrapped later (a bench's stamps) is not it either
-        self._armable_send = (self._send_state if refuse is None and stall is None
-                              else None)
+        # record:=PATH putting into the in-plant bag, as _send_state does; with fault
+        # injection through the same faults); a call wrapped later (a bench's stamps) is not
+        self._armable_send = self._send_state
         # lockstep with an external controller, the FOM compiled, no profile: the awaited
         # command's sample is published before the model's bookkeeping
         # (_on_command_lockstep); None: every sample takes the general path
@@ -349,7 +327,8 @@ class PlantNode(Node):
             built = compiled_sample.CompiledSample.build(
                 self._quick, self._state_out, self._command_in, self.state_pub.handle.pointer,
                 (self._force_out, self.force_pub.handle.pointer),
-                (self._clock_out, self.clock_pub.handle.pointer))
+                (self._clock_out, self.clock_pub.handle.pointer),
+                sink=None if self._fault is None else self._fault.sink)
             if isinstance(built, str):
                 self.get_logger().info(f'lockstep: the interpreted sample path ({built})')
             else:
@@ -602,7 +581,6 @@ class PlantNode(Node):
         self.running = True
         self._run_wall_start = time.monotonic()
         self._cpu_start = cpu_seconds()
-        self._ticks_start = host_cpu_ticks()
         self._last_command_wall = self._run_wall_start
         try:
             self._start_run()
@@ -725,40 +703,8 @@ class PlantNode(Node):
                             f'could not be published for {_PUBLISH_RETRY:g} s ({exc}); '
                             'stopping the run')
 
-    def _publish_profiled(self) -> None:
-        add = self.profile.add
-        self.sent += 1
-        t0 = perf_counter_ns()
-        self.sim.write_sample(self._state_data, self._force_data)
-        t1 = perf_counter_ns()
-        self._send_state(self._state_out.payload())
-        t2 = perf_counter_ns()
-        self._send_force(self._force_out.payload())
-        t3 = perf_counter_ns()
-        add(1, t1 - t0)
-        add(2, t2 - t1)
-        add(3, t3 - t2)
-        if self._clock_on and self.sim.samples % self._clock_every == 0:
-            t3 = perf_counter_ns()
-            self._send_clock(self._clock_out.payload(round(self._state_data[0] * 1e9)))
-            add(4, perf_counter_ns() - t3)
-        views = self.views
-        if views is not None and (views.pending or self.sim.samples % self._view_every == 0):
-            t3 = perf_counter_ns()
-            if self.sim.samples % self._view_every == 0:
-                views.publish(self._state_data, self._force_data[1])
-                add(6, perf_counter_ns() - t3)
-            else:
-                views.publish_next()
-                self.profile.add_more(6, perf_counter_ns() - t3)
-
     def _step(self) -> None:
         self.sim.advance()
-
-    def _step_profiled(self) -> None:
-        t0 = perf_counter_ns()
-        self.sim.advance()
-        self.profile.add(0, perf_counter_ns() - t0)
 
     def _advance(self) -> bool:
         """One control period and its sample (and with a hosted law, its command); False when
@@ -898,11 +844,6 @@ class PlantNode(Node):
             sim.command = (df, dc)
         else:
             self._take((t, df, dc))   # rejects it with the reason; the last good one stays
-
-    def _control_profiled(self) -> None:
-        t0 = perf_counter_ns()
-        PlantNode._control(self)
-        self.profile.add(7, perf_counter_ns() - t0)
 
     def _publish_command(self, t: float, df: float, dc: float) -> None:
         """Publish what the hosted law commanded for the sample at ``t``."""
@@ -1169,11 +1110,6 @@ class PlantNode(Node):
                     f't={self.sim.t:.6f} s; holding delta_f={df!r} rad, delta_c={dc!r} rad')
 
     # -- commands ----------------------------------------------------------------------------
-    def _on_command_profiled(self, raw: bytes) -> None:
-        t0 = perf_counter_ns()
-        self._command_callback(raw)
-        self.profile.add(5, perf_counter_ns() - t0)
-
     def _on_command_lockstep(self, raw: bytes) -> None:
         """Lockstep, external controller (the subscription's callback): the good command,
         the one answering the awaited sample with deflections within their limits, is taken
@@ -1608,7 +1544,6 @@ class PlantNode(Node):
             s.update(self.record.summary())
         if self.pacer is not None:
             p = self.pacer
-            ticks = host_cpu_ticks() if self.running else None   # None: no steal figures
             s.update(real_time_factor=self.options.real_time_factor,
                      achieved_real_time_factor=(total * self.options.control_period / wall
                                                 if wall > 0 else 0.0),
@@ -1619,10 +1554,7 @@ class PlantNode(Node):
                      mean_lateness=p.lateness_sum / p.produced if p.produced else 0.0,
                      slips=p.slips, worst_lateness=p.worst_lateness,
                      max_command_lag=self._max_lag, stale_commands=self.stale,
-                     cpu_share_of_period=(cpu / total / p.period if total else 0.0),
-                     host_steal_share=steal_share(self._ticks_start, ticks),
-                     host_steal_seconds=steal_seconds(self._ticks_start, ticks),
-                     kernel_preemption=self.kernel_preemption)
+                     cpu_share_of_period=(cpu / total / p.period if total else 0.0))
             if self.hosted is None:
                 s.update(self._lag.summary())
             elif self.bursts is not None:   # hosted: wake-ups, and how often they backed off
@@ -1752,7 +1684,6 @@ def _run(node: PlantNode) -> int:
         tighten_timer_slack()
         refused = set_realtime_priority(node.options.realtime_priority)
         model, hz = kernel_preemption()
-        node.kernel_preemption = model
         if model is not None and model not in PREEMPTIBLE:
             node.get_logger().info(
                 f'kernel preemption {model!r}' + (f' ({hz} Hz tick)' if hz else '') + ': the '

@@ -254,7 +254,7 @@ CPU_DMA_LATENCY = ParameterSpec(
     'default) = no request: the setting is system-wide, it keeps every idle CPU of the machine '
     'polling, and a simulator should not change that unasked. 0 keeps idle CPUs polling '
     'instead of halting, so a DDS message wakes its reader sooner (the lockstep round trip '
-    'several times as fast on a small VM; the demo and the benchmarks ask for it) at the price '
+    'several times as fast on a small VM; a demo or a benchmark may ask for it) at the price '
     'of idle CPUs that do not rest; needs write access to /dev/cpu_dma_latency (root): '
     'without it the node says so in one line and runs on', low=-1.0, low_open=False, high=1e6,
     high_open=False)

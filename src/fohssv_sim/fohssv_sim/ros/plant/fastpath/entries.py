@@ -5,13 +5,21 @@ awaited command taken through rcl's wait and take (:mod:`.sample` builds and bin
 The code reaches rcl only through function addresses in its int64 tables (no rclpy here);
 the model's arrays through the held-input tables of :class:`fohssv_sim.kernels.FomHeldCall`;
 the recording ring through :func:`fohssv_sim.bag.ring.place`. Compiled on first use and
-cached on disk next to this file.
+cached on disk next to this file (numba's cache checks only this file's stamp, so
+:func:`forget_stale_cache` drops it when a file compiled into it changed).
 """
 
 from __future__ import annotations
 
+import functools
+import hashlib
+import os
+from pathlib import Path
+
 import numpy as np
 
+from .... import kernels as _kernels
+from ....bag import ring as _ring
 from ....bag.ring import place
 from ....kernels import (
     _T_LAW,
@@ -28,6 +36,30 @@ try:
     from numba.extending import intrinsic
 except ImportError:  # pragma: no cover - numba is pinned in requirements.txt
     numba = None
+
+
+@functools.cache
+def forget_stale_cache() -> None:
+    """Remove numba's cached entry points of this file when this file, ``kernels.py`` or
+    ``bag/ring.py`` (whose code is compiled into them) changed since they were cached: numba
+    itself compares only this file's modification time and size. Once per process, before
+    the entry points are compiled; a cache elsewhere (``NUMBA_CACHE_DIR``) is left alone."""
+    sources = [os.path.realpath(f) for f in (__file__, _kernels.__file__, _ring.__file__)]
+    stamp = hashlib.sha256(b''.join(Path(f).read_bytes() for f in sources)).hexdigest()
+    cache = Path(sources[0]).parent / '__pycache__'
+    seen = cache / 'entries.sources'
+    try:
+        if seen.read_text() == stamp:
+            return
+    except OSError:
+        pass
+    try:
+        for old in cache.glob('entries.*.nb[ic]'):
+            old.unlink(missing_ok=True)
+        cache.mkdir(exist_ok=True)
+        seen.write_text(stamp)
+    except OSError:                 # a read-only tree: numba caches elsewhere, if at all
+        pass
 
 
 # -- the serialized sample: fom_soe_run for a command's bytes, the sample handed to a C sink --

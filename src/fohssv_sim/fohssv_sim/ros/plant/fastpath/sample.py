@@ -161,6 +161,7 @@ def _entry() -> Any:
     the reason it could not be built (a str)."""
     if entries.numba is None:  # pragma: no cover
         return 'numba is not installed'
+    entries.forget_stale_cache()
     try:
         import numba
         from numba import types
@@ -185,6 +186,7 @@ def _take_entry() -> Any:
     (compiled on first use, cached on disk), or the reason it could not be built (a str)."""
     if entries.numba is None:  # pragma: no cover
         return 'numba is not installed'
+    entries.forget_stale_cache()
     try:
         import numba
         from numba import types

@@ -134,6 +134,7 @@ from .entries import (
     _W_TIMEOUT,
     _W_WAIT,
 )
+from .rcl import publish_api, serialized_message, take_api
 
 #: :meth:`CompiledSample.call`: the command was not taken (the node's interpreted path runs)
 NOT_TAKEN = _S_NOT_TAKEN
@@ -201,71 +202,6 @@ def _take_entry() -> Any:
         return f'the take entry point could not be compiled ({type(exc).__name__}: {exc})'
 
 
-class _Allocator(ctypes.Structure):
-    _fields_ = [(name, ctypes.c_void_p)       # rcutils_allocator_t: four functions, a state
-                for name in ('allocate', 'deallocate', 'reallocate', 'zero_allocate', 'state')]
-
-
-@functools.cache
-def _rcl_take() -> Any:
-    """rcl's functions for :meth:`CompiledSample.take_from` from the libraries rclpy has
-    loaded (a namespace), or the reason they are not available (a str)."""
-    try:
-        rcl = ctypes.CDLL('librcl.so')
-        rcutils = ctypes.CDLL('librcutils.so')
-        api = type('RclTake', (), {})()
-
-        def bind(lib: Any, name: str, *args: Any) -> Any:
-            fn = getattr(lib, name)
-            fn.restype, fn.argtypes = ctypes.c_int32, list(args)
-            return fn
-
-        vp, size = ctypes.c_void_p, ctypes.c_size_t
-        api.addresses = [ctypes.cast(getattr(rcl, name), vp).value for name in (
-            'rcl_take_serialized_message', 'rcl_wait_set_clear',
-            'rcl_wait_set_add_subscription', 'rcl_wait')]
-        api.allocator = rcutils.rcutils_get_default_allocator
-        api.allocator.argtypes, api.allocator.restype = [], _Allocator
-        api.wait_set_init = bind(rcl, 'rcl_wait_set_init', vp, size, size, size, size, size,
-                                 size, vp, _Allocator)
-        api.wait_set_fini = bind(rcl, 'rcl_wait_set_fini', vp)
-        api.array_init = bind(rcutils, 'rcutils_uint8_array_init', vp, size, vp)
-        api.array_fini = bind(rcutils, 'rcutils_uint8_array_fini', vp)
-        api.set_listener = bind(rcl, 'rcl_subscription_set_on_new_message_callback', vp, vp,
-                                vp)
-    except (OSError, AttributeError) as exc:
-        return f'rcl is not loadable here ({exc})'
-    return api
-
-
-class _ErrorString(ctypes.Structure):
-    _fields_ = [('str', ctypes.c_char * 1024)]      # rcutils_error_string_t
-
-
-@functools.cache
-def _rcl() -> Any:
-    """(rcl_publish_serialized_message's address, a function returning rcl's error text and
-    clearing it) from the rcl and rcutils libraries rclpy has loaded, or the reason they are
-    not available (a str)."""
-    try:
-        rcl = ctypes.CDLL('librcl.so')
-        rcutils = ctypes.CDLL('librcutils.so')
-        publish = ctypes.cast(rcl.rcl_publish_serialized_message, ctypes.c_void_p).value
-        get = rcutils.rcutils_get_error_string
-        get.argtypes, get.restype = [], _ErrorString
-        reset = rcutils.rcutils_reset_error
-        reset.argtypes, reset.restype = [], None
-    except (OSError, AttributeError) as exc:
-        return f'rcl is not loadable here ({exc})'
-
-    def take_error() -> str:
-        text = get().str.decode(errors='replace')
-        reset()
-        return text
-
-    return publish, take_error
-
-
 @dataclasses.dataclass
 class _Taking:
     """:meth:`CompiledSample.take_from`'s rcl objects: its functions, the wait set and the
@@ -297,15 +233,6 @@ def _not_taken(raw: bytes, size: int) -> int:
     return NOT_TAKEN
 
 
-def _rcl_message(address: int, length: int) -> np.ndarray:
-    """An rcl_serialized_message_t for the ``length`` bytes at ``address``: buffer,
-    buffer_length, buffer_capacity, then an allocator that rcl does not use to publish (four
-    functions and a state: zeros)."""
-    message = np.zeros(8, dtype=np.int64)
-    message[:3] = (address, length, length)
-    return message
-
-
 class CompiledSample:
     """The compiled sample of one node (the module docstring). :meth:`call` ``(raw,
     len(raw))`` returns the steps taken when it published the sample, or :data:`NOT_TAKEN`,
@@ -323,9 +250,9 @@ class CompiledSample:
         force_address, force_length, force_doubles = force[0].address()
         clock_address, clock_length = clock[0].address()
         self._writers = (state, force[0], clock[0])     # keep the messages' buffers alive
-        self._message = _rcl_message(address, length)
-        self._force_message = _rcl_message(force_address, force_length)
-        self._clock_message = _rcl_message(clock_address, clock_length)
+        self._message = serialized_message(address, length)
+        self._force_message = serialized_message(force_address, force_length)
+        self._clock_message = serialized_message(clock_address, clock_length)
         m = np.zeros(_S_M_SIZE, dtype=np.int64)
         m[_S_CMD_HEAD] = self._head.ctypes.data
         m[_S_CMD_COUNT_AT], m[_S_CMD_COUNT] = count_at, count
@@ -362,7 +289,7 @@ class CompiledSample:
         publishers' addresses; or why not (a str). ``sink(publish, publisher)``: the address
         of a C function standing in for rcl's publish at ``publish`` (fault injection,
         :meth:`fohssv_sim.ros.faults.StateFault.sink`)."""
-        built = _available(_entry, _rcl)
+        built = _available(_entry, publish_api)
         if isinstance(built, str):
             return built
         entry, rcl = built
@@ -488,7 +415,7 @@ class CompiledSample:
         else why not (a str; nothing changed). The node must then take the subscription's
         messages only this way (:meth:`detach_listener`) and :meth:`close` it before its
         context shuts down."""
-        built = _available(_take_entry, _rcl_take)
+        built = _available(_take_entry, take_api)
         if isinstance(built, str):
             return built
         entry, api = built

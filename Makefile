@@ -61,7 +61,7 @@ test: setup
 	@# there): otherwise every plant and test process that starts before the first one wrote
 	@# the cache compiles the kernels (the in-plant writer and the lockstep plant their compiled
 	@# paths) again
-	@$(IN_ENV) python -c 'from fohssv_sim import models; models.warm_up(); from fohssv_sim.bag import ringpack; ringpack.warm_up(); from fohssv_sim.ros import compiled_sample; compiled_sample.warm_up()'
+	@$(IN_ENV) python -c 'from fohssv_sim import models; models.warm_up(); from fohssv_sim.bag import ringpack; ringpack.warm_up(); from fohssv_sim.ros.plant.fastpath import sample; sample.warm_up()'
 	$(IN_ENV) python -m pytest -n $(TEST_WORKERS) --dist worksteal $(TEST_PATHS) $(PYTEST_ARGS)
 
 # e.g. make demo DEMO_ARGS=--hosted (the law hosted in the plant: no controller node)

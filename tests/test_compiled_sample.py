@@ -1,10 +1,10 @@
-"""The plant's compiled lockstep sample (fohssv_sim.ros.compiled_sample) against the interpreted
+"""The plant's compiled lockstep sample (fohssv_sim.ros.plant.fastpath) against the interpreted
 short path it replaces (models.HeldPeriod.run, as the node ran it before): on two FOM plants
 under eq. 31, the same state, time, step counts and planing force after every period, bit for
 bit, and the state, planing force and clock it publishes through rcl, received over real DDS
 by subscriptions, equal to the interpreted sample's messages serialized by rclpy's path
 (wire.py); the records it puts into an in-plant ring, read back by the writer's side
-(bag.inplant.Ring.take), equal to those messages and the command's bytes, across the ring's
+(bag.ring.Ring.take), equal to those messages and the command's bytes, across the ring's
 wraps, and stopping at a full ring where Ring.put would; every command it must not take is
 left alone (nothing published, the model untouched); a failing period raises what the
 interpreted path raises. Taken in compiled code (CompiledSample.take_from: rcl's wait and
@@ -26,10 +26,11 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
 
 from fohssv_controller.state_feedback import StateFeedback
-from fohssv_sim.bag.inplant import MIN_RING_BYTES, Ring
+from fohssv_sim.bag.ring import MIN_RING_BYTES, Ring
 from fohssv_sim.contract import CLOCK, COMMAND, PLANING_FORCE, STATE
 from fohssv_sim.params import ModelParameters
-from fohssv_sim.ros.compiled_sample import (
+from fohssv_sim.ros.loop import SampledPlant
+from fohssv_sim.ros.plant.fastpath.sample import (
     CLOCK_PUBLISH,
     CLOCK_PUT,
     FAILED,
@@ -39,7 +40,6 @@ from fohssv_sim.ros.compiled_sample import (
     TIMED_OUT,
     CompiledSample,
 )
-from fohssv_sim.ros.loop import SampledPlant
 from fohssv_sim.ros.qos import profile
 from fohssv_sim.ros.wire import ArrayReader, ArrayWriter, ClockWriter
 
@@ -463,3 +463,105 @@ def test_compiled_take_takes_the_awaited_command_over_dds_and_hands_over_the_res
         assert RCL_ERROR not in (NOT_TAKEN, TIMED_OUT) and min(RCL_ERROR, TIMED_OUT) > FAILED
     finally:
         taker.destroy_node()
+
+
+class _Loop:
+    """A lockstep loop in one process, one executor: the plant node (the FOM, an external
+    controller), eq. 31's law as a controller node answering each state, and a probe that
+    keeps every state and planing force message as it arrives (bytes)."""
+
+    def __init__(self, compiled: bool, duration: float) -> None:
+        from rclpy.parameter import Parameter
+
+        from fohssv_sim.ros.plant_node import PlantNode
+        from fohssv_sim.ros.wire import raw_publish
+
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=rosproc.unique_domain_id())
+        self.plant = PlantNode(context=self.context, parameter_overrides=[
+            Parameter('model', value='fractional'), Parameter('duration', value=duration),
+            Parameter('end_linger', value=0.0), Parameter('view_period', value=0.0)])
+        if not compiled:                 # the interpreted path, as where none can be built
+            self.plant._compiled = None
+        self.built = self.plant._compiled is not None
+        self.node = rclpy.create_node('loop_test', context=self.context)
+        law, state_in, out = StateFeedback(), ArrayReader(STATE), ArrayWriter(COMMAND)
+        send = raw_publish(self.node.create_publisher(Float64MultiArray, 'command',
+                                                      profile(COMMAND)))
+
+        def answer(raw: bytes) -> None:
+            t, *x = state_in.read(raw)
+            out.values[0] = t
+            out.values[1], out.values[2] = law.command(t, x)
+            send(out.payload())
+
+        self.states: list[bytes] = []
+        self.forces: list[bytes] = []
+        self.node.create_subscription(Float64MultiArray, 'state', answer, profile(STATE),
+                                      raw=True)
+        self.node.create_subscription(Float64MultiArray, 'state', self.states.append,
+                                      profile(STATE), raw=True)
+        self.node.create_subscription(Float64MultiArray, 'planing_force', self.forces.append,
+                                      profile(PLANING_FORCE), raw=True)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.plant)
+        self.executor.add_node(self.node)
+
+    def run(self, timeout: float = 120.0) -> dict:
+        deadline = time.monotonic() + timeout
+        while not self.plant.finished.done():
+            assert time.monotonic() < deadline, 'the loop did not end'
+            self.executor.spin_once(timeout_sec=0.01)
+        end = time.monotonic() + 0.5                  # the last messages to the probe
+        while time.monotonic() < end and len(self.forces) < self.plant.sent:
+            self.executor.spin_once(timeout_sec=0.01)
+        return self.plant.summary()
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.plant.destroy_node()
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.context)
+
+
+@pytest.mark.graph
+@pytest.mark.parametrize('refuse', ['', '150:3', '150'],
+                         ids=['clean', 'refused-3-times', 'refused-for-good'])
+def test_the_plant_node_sends_the_same_samples_and_counts_compiled_or_interpreted(
+        monkeypatch, refuse):
+    """One contract for both paths of the plant's lockstep sample: the same lockstep run
+    (0.03 s of the FOM under eq. 31, 300 samples) through the compiled fast path and
+    through the interpreted path gives the same state and planing force messages, the same
+    exit code and the same counts, also when FOHSSV_FAULT_REFUSE_STATE refuses the
+    state publish (retried; for good: exit 9 after the 1 s of retries)."""
+    from fohssv_sim.ros.faults import REFUSE_STATE_VAR
+    from fohssv_sim.ros.plant_node import EXIT_OK, EXIT_PUBLISH_FAILED
+
+    if refuse:
+        monkeypatch.setenv(REFUSE_STATE_VAR, refuse)
+    runs = {}
+    for compiled in (True, False):
+        loop = _Loop(compiled, duration=0.03)
+        try:
+            summary = loop.run()
+            runs[compiled] = (loop.built, loop.plant.exit_code, summary, loop.states,
+                              loop.forces)
+        finally:
+            loop.close()
+    built, code, s, states, forces = runs[True]
+    _, code_i, s_i, states_i, forces_i = runs[False]
+    assert built
+    assert code == code_i == (EXIT_PUBLISH_FAILED if refuse == '150' else EXIT_OK)
+    n = 151 if refuse == '150' else 301        # states out: t = 0 and one per period
+    keys = ('published_states', 'publish_retries', 'samples', 'steps', 't',
+            'rejected_commands', 'ignored_commands')
+    assert {k: s[k] for k in keys} == {k: s_i[k] for k in keys}, (s, s_i)
+    assert s['published_states'] == n - (1 if refuse == '150' else 0)
+    assert s['publish_retries'] == (1 if refuse else 0)
+    assert s['compiled_samples'] >= s['samples'] - 1 > 0 and s_i['compiled_samples'] == 0
+    assert len(states) == len(states_i) == s['published_states']
+    # the values, bit for bit (the raw CDR differs in its unzeroed alignment padding)
+    for got, got_i, kind in ((states, states_i, STATE), (forces, forces_i, PLANING_FORCE)):
+        read = ArrayReader(kind).read
+        assert np.array_equal(np.array([read(r) for r in got]),
+                              np.array([read(r) for r in got_i]))

@@ -75,8 +75,9 @@ def _summary(text: str) -> dict:
     ids=['external', 'hosted', 'external-recorded-in-plant', 'external-fom'])
 def test_a_refused_sample_ends_the_run_with_exit_9_and_the_bag_agrees(tmp_path, hosted,
                                                                          inplant, model):
-    """(The FOM's lockstep sample takes the plant's short path, models.HeldPeriod: its state
-    is published before the model's bookkeeping, which the refusal must not undo.)"""
+    """(The FOM's lockstep sample takes the plant's compiled fast path, which publishes its
+    state before the model's bookkeeping; the fault injection refuses there too, and the
+    refusal must not undo the bookkeeping.)"""
     ref, fref = batch_samples(model, StateFeedback(), DURATION)
     steps = round(1e-4 / (2e-5 if model == 'fractional' else 1e-5))
     extra = {'record': str(tmp_path / 'inplant')} if inplant else {}
@@ -94,6 +95,8 @@ def test_a_refused_sample_ends_the_run_with_exit_9_and_the_bag_agrees(tmp_path, 
     assert errors[0].rstrip().endswith('; stopping the run'), errors
     summary = _summary(text)
     assert summary['published_states'] == N and summary['publish_retries'] == 1, summary
+    if model == 'fractional':   # the refusal met the compiled fast path, not a slower one
+        assert summary['compiled_samples'] >= N - 1, summary
     # sample N was made (the model's default steps in a control period), never published
     assert summary['t'] == ref[N, 0] and summary['samples'] == N, summary
     assert summary['steps'] == steps * N, summary

@@ -88,11 +88,8 @@ def test_realtime_summary_profile_and_clock_decimation():
     assert 0.0 < s['achieved_real_time_factor'] <= 0.02 * 1.05
     assert s['cpu_time'] > 0.0
     assert s['cpu_per_sample_us'] == pytest.approx(s['cpu_time'] / 100 * 1e6)
-    # the host's steal over the run (5 s of wall time): a share of all CPU time
-    assert 0.0 <= s['host_steal_share'] <= 1.0
-    # and in seconds of CPU time: at most the run's wall time on each CPU, +1 tick
-    assert 0.0 <= s['host_steal_seconds'] <= s['wall_time'] * os.cpu_count() + 0.01
-    assert (s['host_steal_seconds'] == 0.0) == (s['host_steal_share'] == 0.0)
+    # the host's steal is the benchmark's reading, not the plant's
+    assert 'host_steal_share' not in s and 'kernel_preemption' not in s
     prof = s['profile']
     assert tuple(prof) == PARTS
     assert prof['advance']['calls'] == 100
@@ -161,7 +158,6 @@ def _policy(pid: int) -> int:
 def test_realtime_priority_puts_the_plant_under_sched_fifo_or_warns(tmp_path):
     """realtime_priority:=10: while the run is paced the plant's thread is SCHED_FIFO (1) where
     permitted; elsewhere the plant says why and runs with the normal scheduler."""
-    import os
 
     env = rosproc.ros_env(rosproc.unique_domain_id())
     log = tmp_path / 'plant.log'

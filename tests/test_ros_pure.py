@@ -364,7 +364,7 @@ def test_cpu_affinity_takes_taskset_lists_numbers_and_arrays_of_usable_cpus():
 
 
 def test_cpu_dma_latency_is_whole_microseconds_from_minus_one():
-    assert PlantOptions().cpu_dma_latency == 0          # held by default where permitted
+    assert PlantOptions().cpu_dma_latency == -1         # no system-wide request by default
     assert PlantOptions(cpu_dma_latency=-1).cpu_dma_latency == -1
     assert PlantOptions(cpu_dma_latency=250.0).cpu_dma_latency == 250
     for bad, words in [(-2, 'is outside the allowed range [-1, 1e+06] us'),

@@ -27,13 +27,13 @@ from fohssv_sim import contract
 from fohssv_sim.bag import load_run, scan
 from fohssv_sim.bag.check import check
 from fohssv_sim.bag.inplant import (
-    Ring,
     TopicSpec,
     WriterConfig,
     kind_of,
     read_reply,
     send,
 )
+from fohssv_sim.bag.ring import HEADER_BYTES, Ring, place
 from fohssv_sim.bag.writer import LogTimes, typestore
 
 TS = typestore()
@@ -90,6 +90,33 @@ def test_a_full_ring_refuses_a_record_and_writes_nothing():
     before = ring.used
     assert not ring.put(0, bytes(100)) and ring.used == before
     assert len(_drain(ring)) == n
+    ring.close()
+
+
+def test_place_writes_the_bytes_ring_put_writes_and_refuses_where_it_refuses():
+    """place (the producer's put as array code, which the compiled fast path compiles) on a
+    copy of the records' area, step for step beside Ring.put: the same bytes, wrap markers
+    included, the same head, and no room at the same records."""
+    rng = random.Random(5)
+    ring = Ring.create(4096)
+    area = np.zeros(ring.capacity, dtype=np.uint8)
+    mapped = np.frombuffer(ring._map, dtype=np.uint8)[HEADER_BYTES:]    # noqa: SLF001
+    refused = 0
+    for i in range(3000):
+        data = bytes(rng.randrange(256) for _ in range(rng.randint(0, 300)))
+        head, tail = ring._counters[0], ring.consumed                  # noqa: SLF001
+        after = place(area, ring.capacity, head, tail, i % 7,
+                      np.frombuffer(data, dtype=np.uint8), len(data))
+        put = ring.put(i % 7, data)
+        assert put == (after >= 0)
+        if put:
+            assert ring._counters[0] == after                          # noqa: SLF001
+            assert np.array_equal(area, mapped)
+        else:
+            refused += 1
+            _drain(ring)
+    assert refused > 10                                 # the ring wrapped and filled often
+    del mapped
     ring.close()
 
 

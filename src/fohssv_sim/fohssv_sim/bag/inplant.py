@@ -12,14 +12,9 @@ layout, channels, QoS profiles (``offered_qos_profiles``), log times (:class:`Lo
 recorder's rule), run metadata and ``run_end`` check. Nothing is serialized twice: the bytes in
 the bag are the bytes that went out on DDS, as a reader receives them (padded to 4 bytes).
 
-The ring (:class:`Ring`) is a shared file mapping (``memfd``; an unlinked temporary file
-elsewhere) handed to the writer as an inherited file descriptor, so nothing outlives the two
-processes. Its header holds four 64-bit counters, each written by one side only: ``head``
-(bytes the plant produced; written after the record's bytes, so a reader that sees it sees the
-record), ``tail`` (bytes the writer consumed), ``lost`` (records the plant could not put: ring
-full in real time) and ``waits`` (times a lockstep plant waited for room). Aligned 8-byte
-stores are atomic and stay in order on x86-64 and ARMv8 for this one-producer, one-consumer use
-(CPython's own calls around them order them on weaker machines).
+The ring (:class:`~.ring.Ring`, its one definition) is a shared file mapping (``memfd``; an
+unlinked temporary file elsewhere) handed to the writer as an inherited file descriptor, so
+nothing outlives the two processes.
 
 Control goes over the writer's stdin, one length-prefixed pickle per message (the two ends are
 this module, one program): ``('open', config)``, ``('metadata', values)``, ``('wake',)`` (the
@@ -43,17 +38,14 @@ Pure module: no rclpy.
 
 from __future__ import annotations
 
-import ctypes
 import gc
 import json
-import mmap
 import os
 import pickle
 import select
 import signal
 import struct
 import sys
-import tempfile
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -61,16 +53,13 @@ from datetime import datetime, timezone
 from typing import Any, BinaryIO
 
 from .. import contract
+from .ring import DEFAULT_RING_BYTES, MIN_RING_BYTES, Ring
 from .writer import LogTimes, RunWriter, source_info
 
 __all__ = ['Ring', 'TopicSpec', 'WriterConfig', 'send', 'read_reply',
            'main', 'DEFAULT_RING_BYTES', 'MIN_RING_BYTES', 'CHUNK_SIZE', 'EXIT_LOST',
            'EXIT_INTERRUPTED', 'EMPTY_KEY']
 
-#: Default size of the ring (bytes): 32 MiB, about 8 s of a 10 kHz run with its views.
-DEFAULT_RING_BYTES = 32 * 1024 * 1024
-#: The smallest ring (bytes): a few records.
-MIN_RING_BYTES = 4096
 #: The writer's chunk size (bytes): 1 MiB, not the recorder node's 64 KiB. Each flush (every
 #: ``flush_period``) ends the chunk in progress anyway, so a chunk here is what a lockstep or
 #: 10 kHz run puts in the ring in 0.1 s (0.4-0.5 MB); with 64 KiB it was cut six to eight times
@@ -92,162 +81,8 @@ EMPTY_KEY = 'fohssv.empty'
 #: in one batch, so it takes the CPU in few, long turns (a batch's fixed cost is spread over
 #: a thousand messages in a lockstep demo) instead of interrupting the loop at every sample.
 _IDLE = 0.05
-_HEADER = 64                       # head, tail, lost, waits (u64), rest spare
-_RECORD = struct.Struct('<IHH')    # payload length, topic index, spare
-_WRAP = 0xFFFFFFFF                 # record length meaning "continue at the ring's start"
 _LEN = struct.Struct('<I')
 _PAD = (b'', b'\x00', b'\x00\x00', b'\x00\x00\x00')
-
-
-class Ring:
-    """One-producer, one-consumer ring of byte records in a shared mapping (module docstring).
-
-    Args:
-        fd: the file descriptor of the mapping (from :meth:`create` or inherited).
-        size: the mapping's size in bytes (header included).
-    """
-
-    def __init__(self, fd: int, size: int) -> None:
-        self.fd = fd
-        self.size = size
-        # populated at once (page tables filled, the memory allocated): no page fault on
-        # the per-sample path, which would cost the plant microseconds at every new page
-        self._map = mmap.mmap(fd, size, flags=mmap.MAP_SHARED | getattr(mmap, 'MAP_POPULATE', 0))
-        self._buf = memoryview(self._map)
-        self._counters = self._buf[:_HEADER].cast('Q')
-        self._data = self._buf[_HEADER:]
-        self.capacity = size - _HEADER
-        self._c: ctypes.c_char | None = None   # the mapping's ctypes export (address())
-        self._limit = self._counters[1] + self.capacity   # head may grow to this (producer)
-        self._tail = self._counters[1]      # consumer's copy
-        self._taken = self._tail            # consumer: the end of the last take()
-
-    @classmethod
-    def create(cls, size: int = DEFAULT_RING_BYTES) -> Ring:
-        """A new zeroed ring of ``size`` bytes (rounded up to 8) whose descriptor a child
-        process inherits (``pass_fds``)."""
-        size = max(MIN_RING_BYTES, (int(size) + 7) & ~7) + _HEADER
-        if hasattr(os, 'memfd_create'):
-            fd = os.memfd_create('fohssv-record-ring', 0)      # no name in the file system
-        else:                                                     # pragma: no cover
-            fd = os.dup(tempfile.TemporaryFile().fileno())
-        os.ftruncate(fd, size)
-        os.set_inheritable(fd, True)
-        return cls(fd, size)
-
-    # -- producer (the plant) ---------------------------------------------------------------
-    def put(self, index: int, data: bytes) -> bool:
-        """Copy one record (topic ``index``, ``data``); False when there is no room (nothing
-        is written then). The common case is one header pack and one slice assignment. The
-        head is read from the mapping: compiled code of the same process may have put
-        records too (:meth:`address`)."""
-        n = len(data)
-        need = 8 + ((n + 7) & ~7)
-        head = self._counters[0]
-        off = head % self.capacity
-        if off + need > self.capacity or head + need > self._limit:
-            return self._put_slow(index, data, n, need)
-        self._data[off:off + 8 + n] = _RECORD.pack(n, index, 0) + data
-        self._counters[0] = head + need       # after the bytes: the record is published
-        return True
-
-    def _put_slow(self, index: int, data: bytes, n: int, need: int) -> bool:
-        """:meth:`put` at the ring's end (a wrap) or when the room known is not enough (the
-        writer's tail is read again)."""
-        cap = self.capacity
-        head = self._counters[0]
-        tail = self._counters[1]
-        self._limit = tail + cap
-        off = head % cap
-        gap = cap - off
-        room = cap - (head - tail)
-        if gap < need:                        # wrap: skip the ring's end
-            if room < gap + need:
-                return False
-            if gap >= 8:
-                _RECORD.pack_into(self._data, off, _WRAP, 0, 0)
-            head += gap
-            off = 0
-        elif room < need:
-            return False
-        self._data[off:off + 8 + n] = _RECORD.pack(n, index, 0) + data
-        self._counters[0] = head + need
-        return True
-
-    def address(self) -> tuple[int, int, int]:
-        """(the address of the records' area, its capacity in bytes, the address of the head
-        and tail counters, two native 64-bit integers) for compiled code of the producer's
-        process that puts records as :meth:`put` does (``fohssv_sim.kernels._ring_put``); valid
-        until :meth:`close`."""
-        if self._c is None:
-            self._c = ctypes.c_char.from_buffer(self._map)
-        base = ctypes.addressof(self._c)
-        return base + _HEADER, self.capacity, base
-
-    def add_lost(self, n: int = 1) -> None:
-        self._counters[2] += n
-
-    def add_wait(self) -> None:
-        self._counters[3] += 1
-
-    # -- both -------------------------------------------------------------------------------
-    @property
-    def lost(self) -> int:
-        return self._counters[2]
-
-    @property
-    def waits(self) -> int:
-        return self._counters[3]
-
-    @property
-    def consumed(self) -> int:
-        """Bytes the consumer took so far (its tail)."""
-        return self._counters[1]
-
-    @property
-    def used(self) -> int:
-        """Bytes produced and not yet consumed."""
-        return self._counters[0] - self._counters[1]
-
-    # -- consumer (the writer) --------------------------------------------------------------
-    def take(self, limit: int = 1 << 30) -> list[tuple[int, memoryview]]:
-        """The records produced so far (at most ``limit`` bytes of them), in order, as
-        ``(index, bytes view)``, in one list: the writer's batch. The tail stays until
-        :meth:`release` (the views are valid until then)."""
-        cap = self.capacity
-        tail = self._tail
-        head = min(self._counters[0], tail + limit)
-        data = self._data
-        unpack = _RECORD.unpack_from
-        out = []
-        append = out.append
-        while tail < head:
-            off = tail % cap
-            gap = cap - off
-            if gap < 8:
-                tail += gap
-                continue
-            n, index, _ = unpack(data, off)
-            if n == _WRAP:
-                tail += gap
-                continue
-            append((index, data[off + 8:off + 8 + n]))
-            tail += 8 + ((n + 7) & ~7)
-        self._taken = tail
-        return out
-
-    def release(self) -> None:
-        """Move the tail past the records of the last :meth:`take` (room for the plant)."""
-        self._tail = self._taken
-        self._counters[1] = self._taken
-
-    def close(self) -> None:
-        self._c = None                        # the export, before the mapping closes
-        self._counters.release()
-        self._data.release()
-        self._buf.release()
-        self._map.close()
-        os.close(self.fd)
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .inplant import _WRAP  # the ring's format is inplant.Ring's (this walks it, compiled)
+from .ring import WRAP  # the ring's layout (this walks it, compiled)
 
 __all__ = ['pack', 'Packer', 'warm_up', 'DONE', 'SLOW', 'CHUNK_FULL', 'OUT_FULL', 'KIND_CODES']
 
@@ -116,7 +116,7 @@ def pack(data, cap, tail, head, kinds, keylen, keys, at, chans, seqs, last,
             tail += gap
             continue
         n = _u32(data, o)
-        if n == _WRAP:
+        if n == WRAP:
             tail += gap
             continue
         t = np.int64(data[o + 4]) | np.int64(data[o + 5]) << 8
@@ -158,7 +158,7 @@ class Packer:
     :func:`pack` stops at to the interpreted writer.
 
     Args:
-        ring: the session's :class:`~.inplant.Ring` (the consumer's side).
+        ring: the session's :class:`~.ring.Ring` (the consumer's side).
         kinds: each topic's ``TopicSpec.kind``, in ring index order.
         channels: each topic's MCAP channel id, in ring index order.
         times: the session's :class:`~.writer.LogTimes` (its ``last`` and learned layouts).

@@ -18,12 +18,18 @@ after the first ``N`` waits ``S`` seconds (asleep, using no CPU) before it publi
 that DDS blocked (Fast DDS checks the shared-memory port of a subscriber's stopped process for
 up to 1 s before it gives up on it), or a host that did not run the plant, at a known sample.
 
+Both act on every path a state leaves by, with one count (:class:`StateFault`): the plant's
+interpreted publish call (:meth:`StateFault.wrap`) and the compiled fast path's rcl publish
+(:meth:`StateFault.sink`, which stands in for ``rcl_publish_serialized_message`` and returns
+rcl's error code where rclpy would raise), so the fault tests exercise the path a run takes.
+
 Unset (the default), nothing is wrapped: the plant publishes through rclpy's own call and the
 per-sample path costs nothing more. The plant logs a warning when the variable is set.
 """
 
 from __future__ import annotations
 
+import ctypes
 import os
 import time
 from collections.abc import Callable
@@ -31,14 +37,17 @@ from typing import Any
 
 from ..params import ParameterError
 
-__all__ = ['REFUSE_STATE_VAR', 'STALL_STATE_VAR', 'refused_publishes', 'refusing',
-           'stalled_publish', 'stalling']
+__all__ = ['REFUSE_STATE_VAR', 'STALL_STATE_VAR', 'StateFault', 'refused_publishes',
+           'stalled_publish']
 
 #: The environment variable: ``N`` or ``N:M`` (see the module docstring).
 REFUSE_STATE_VAR = 'FOHSSV_FAULT_REFUSE_STATE'
 #: The environment variable: ``N:S`` (see the module docstring).
 STALL_STATE_VAR = 'FOHSSV_FAULT_STALL_STATE'
 _LIMIT = 10**12
+#: rcl's generic error (rcl/types.h: RCL_RET_ERROR), what the compiled sink returns.
+_RCL_RET_ERROR = 1
+_SINK = ctypes.CFUNCTYPE(ctypes.c_int32, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p)
 
 
 def _fault_text(var: str, environ: dict[str, str] | None) -> str:
@@ -72,24 +81,6 @@ def refused_publishes(environ: dict[str, str] | None = None) -> tuple[int, int |
     return after, count
 
 
-def refusing(send: Callable[[Any], Any], after: int, count: int | None) -> Callable[[Any], Any]:
-    """``send`` (a publish call) that raises rclpy's ``RCLError`` for the calls after the
-    first ``after`` successful ones: ``count`` times, or for good when ``count`` is None."""
-    from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
-
-    error = _rclpy.RCLError
-    state = {'sent': 0, 'refused': 0}
-
-    def publish(payload: Any) -> Any:
-        if state['sent'] >= after and (count is None or state['refused'] < count):
-            state['refused'] += 1
-            raise error(f'Failed to publish: refused by {REFUSE_STATE_VAR} (testing aid)')
-        result = send(payload)
-        state['sent'] += 1
-        return result
-
-    return publish
-
 
 def stalled_publish(environ: dict[str, str] | None = None) -> tuple[int, float] | None:
     """``(after, seconds)`` from :data:`STALL_STATE_VAR`; None when it is unset or empty.
@@ -113,15 +104,91 @@ def stalled_publish(environ: dict[str, str] | None = None) -> tuple[int, float] 
     return after, seconds
 
 
-def stalling(send: Callable[[Any], Any], after: int, seconds: float) -> Callable[[Any], Any]:
-    """``send`` (a publish call) whose call after the first ``after`` sleeps ``seconds``
-    first, once."""
-    state = {'sent': 0}
+class StateFault:
+    """The injected faults of the state's publishes (module docstring), counted once for
+    every path: a stall of the publish after the first ``stall[0]`` calls, for ``stall[1]``
+    s, once; refusals after the first ``refuse[0]`` successful publishes, ``refuse[1]`` times
+    or for good (None)."""
 
-    def publish(payload: Any) -> Any:
-        if state['sent'] == after:
-            time.sleep(seconds)
-        state['sent'] += 1
-        return send(payload)
+    def __init__(self, refuse: tuple[int, int | None] | None,
+                 stall: tuple[int, float] | None) -> None:
+        self.refuse = refuse
+        self.stall = stall
+        self.calls = 0
+        self.sent = 0
+        self.refused = 0
+        self._sinks: list[Any] = []      # the C callbacks handed out, kept alive
 
-    return publish
+    @classmethod
+    def from_environment(cls, environ: dict[str, str] | None = None) -> StateFault | None:
+        """The faults the environment asks for; None when neither variable is set.
+
+        Raises:
+            ParameterError: a bad value (:func:`refused_publishes`, :func:`stalled_publish`).
+        """
+        refuse, stall = refused_publishes(environ), stalled_publish(environ)
+        return None if refuse is None and stall is None else cls(refuse, stall)
+
+    def warnings(self) -> list[str]:
+        """One line per fault asked for, for the plant's log."""
+        lines = []
+        if self.refuse is not None:
+            after, count = self.refuse
+            lines.append(f'{REFUSE_STATE_VAR}: state publishes after the first {after} are '
+                         'refused ' + ('for good' if count is None else f'{count} time(s)')
+                         + ' (fault injection, a testing aid: unset it to run normally)')
+        if self.stall is not None:
+            lines.append(f'{STALL_STATE_VAR}: the state publish after the first '
+                         f'{self.stall[0]} waits {self.stall[1]:g} s (fault injection, a '
+                         'testing aid: unset it to run normally)')
+        return lines
+
+    def _refuses(self) -> bool:
+        """Before a publish: the stall when due, then whether this publish is refused."""
+        if self.stall is not None and self.calls == self.stall[0]:
+            time.sleep(self.stall[1])
+        self.calls += 1
+        if self.refuse is None:
+            return False
+        after, count = self.refuse
+        if self.sent >= after and (count is None or self.refused < count):
+            self.refused += 1
+            return True
+        return False
+
+    def wrap(self, send: Callable[[Any], Any]) -> Callable[[Any], Any]:
+        """``send`` (the state's publish call) with the faults: a refused publish raises
+        rclpy's ``RCLError``, as rclpy does when rcl refuses."""
+        from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+
+        error = _rclpy.RCLError
+
+        def publish(payload: Any) -> Any:
+            if self._refuses():
+                raise error(f'Failed to publish: refused by {REFUSE_STATE_VAR} (testing aid)')
+            result = send(payload)
+            self.sent += 1
+            return result
+
+        return publish
+
+    def sink(self, publish: int, state_publisher: int) -> int:
+        """The address of a C function that stands in for rcl's publish at ``publish``
+        (``int32 (publisher, message, allocation)``) for the compiled fast path: the faults
+        apply to the state's publisher at ``state_publisher`` (a refusal returns rcl's
+        generic error), every other publish goes through unchanged."""
+        rcl_publish = _SINK(publish)
+
+        def sink(publisher: int | None, message: int | None, allocation: int | None) -> int:
+            if publisher == state_publisher:
+                if self._refuses():
+                    return _RCL_RET_ERROR
+                ret = rcl_publish(publisher, message, allocation)
+                if ret == 0:
+                    self.sent += 1
+                return ret
+            return rcl_publish(publisher, message, allocation)
+
+        callback = _SINK(sink)
+        self._sinks.append(callback)
+        return ctypes.cast(callback, ctypes.c_void_p).value

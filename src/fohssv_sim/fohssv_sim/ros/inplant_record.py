@@ -466,7 +466,8 @@ def start(node: Any) -> InPlantRecording | None:
         rec.tap(pub)
     rec.command_index = rec.index(command)
     params = {}
-    for name, param in node._parameters.items():   # noqa: SLF001 - every declared parameter
+    names = node.list_parameters([], 0).names          # every declared parameter
+    for name, param in zip(names, node.get_parameters(names)):
         value = param.value
         params[name] = list(value) if isinstance(value, (tuple, list)) or hasattr(
             value, 'tolist') else value

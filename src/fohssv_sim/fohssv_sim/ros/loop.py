@@ -23,7 +23,7 @@ import os
 import time
 import zlib
 from collections.abc import MutableSequence, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from ..contract import COMMAND, ContractError, decode
@@ -43,7 +43,7 @@ from ..simulate import steps_per_period
 
 __all__ = ['CommandRejected', 'SampledPlant', 'check_command', 'answered_time', 'Pacer',
            'BurstWait',
-           'Profile', 'HostedLaw', 'CommandLag', 'cpu_seconds', 'host_cpu_ticks',
+           'HostedLaw', 'CommandLag', 'cpu_seconds', 'host_cpu_ticks',
            'steal_share']
 
 
@@ -326,50 +326,6 @@ class BurstWait:
                     self.periods = min(self.longest, self.periods + 1)
             self._in_window = 0
             self._window_end = now + self.window
-
-
-#: The per-sample costs :class:`Profile` measures, in the order of its ``ns`` accumulators.
-PROFILE_PARTS = ('advance', 'write_sample', 'publish_state', 'publish_planing_force',
-                 'publish_clock', 'command_callback', 'publish_views', 'hosted_law')
-
-
-@dataclass
-class Profile:
-    """Accumulated wall time (``time.perf_counter_ns``) of each part of the per-sample path.
-
-    The node uses its profiled code path only when the ``profile`` option is on; then each part
-    costs two ``perf_counter_ns`` calls (about 0.1 us) on top of itself. ``ns[i]`` and
-    ``calls[i]`` belong to ``PROFILE_PARTS[i]``.
-    """
-
-    ns: list[int] = field(default_factory=lambda: [0] * len(PROFILE_PARTS))
-    calls: list[int] = field(default_factory=lambda: [0] * len(PROFILE_PARTS))
-    worst: list[int] = field(default_factory=lambda: [0] * len(PROFILE_PARTS))
-
-    last: list[int] = field(default_factory=lambda: [0] * len(PROFILE_PARTS))
-
-    def add(self, part: int, ns: int) -> None:
-        self.ns[part] += ns
-        self.calls[part] += 1
-        self.last[part] = ns
-        if ns > self.worst[part]:
-            self.worst[part] = ns
-
-    def add_more(self, part: int, ns: int) -> None:
-        """More cost of the last call of ``part``, paid at a later sample (a view's messages
-        go out one per sample): mean and worst are per call, all its pieces together."""
-        self.ns[part] += ns
-        self.last[part] += ns
-        if self.last[part] > self.worst[part]:
-            self.worst[part] = self.last[part]
-
-    def summary(self) -> dict[str, dict[str, float]]:
-        """Per part that ran (``command_callback`` with an external controller,
-        ``hosted_law``, the law and the publishing of its command, with a hosted one): mean
-        and worst cost in microseconds and the number of calls."""
-        return {name: {'mean_us': self.ns[i] / self.calls[i] / 1e3,
-                       'worst_us': self.worst[i] / 1e3, 'calls': self.calls[i]}
-                for i, name in enumerate(PROFILE_PARTS) if self.calls[i]}
 
 
 class HostedLaw:

@@ -248,13 +248,15 @@ CPU_AFFINITY = CpusSpec(
 #: The CPU wake-up latency a node's process asks Linux for while it runs: the plant's and the
 #: controller nodes' row.
 CPU_DMA_LATENCY = ParameterSpec(
-    'cpu_dma_latency', '-', 0, 'us', 'the CPU wake-up latency this process asks Linux for while '
-    'it runs (PM QoS: /dev/cpu_dma_latency held open, as cyclictest and real-time Linux guides '
-    'do; system-wide, dropped by the kernel when the process ends, however it ends): 0 keeps '
-    'idle CPUs polling instead of halting, so a DDS message wakes its reader sooner (on a '
-    '2-core VM the bare DDS round trip 2.6 times as fast) at the price of idle CPUs that do not '
-    'rest; needs write access to /dev/cpu_dma_latency (root): without it the node says so in '
-    'one line and runs on; -1 = no request', low=-1.0, low_open=False, high=1e6,
+    'cpu_dma_latency', '-', -1, 'us', 'the CPU wake-up latency this process asks Linux for '
+    'while it runs (PM QoS: /dev/cpu_dma_latency held open, as cyclictest and real-time Linux '
+    'guides do; dropped by the kernel when the process ends, however it ends); -1 (the '
+    'default) = no request: the setting is system-wide, it keeps every idle CPU of the machine '
+    'polling, and a simulator should not change that unasked. 0 keeps idle CPUs polling '
+    'instead of halting, so a DDS message wakes its reader sooner (the lockstep round trip '
+    'several times as fast on a small VM; a demo or a benchmark may ask for it) at the price '
+    'of idle CPUs that do not rest; needs write access to /dev/cpu_dma_latency (root): '
+    'without it the node says so in one line and runs on', low=-1.0, low_open=False, high=1e6,
     high_open=False)
 
 #: The ROS types of the row kinds that are not plain numbers or names.

@@ -456,8 +456,7 @@ def refuse_unknown(node: Node) -> None:
     unknown = sorted(n for n in _overrides(node) if not node.has_parameter(n))
     if not unknown:
         return
-    declared = sorted(node._parameters) if isinstance(getattr(node, '_parameters', None),
-                                                      dict) else []
+    declared = sorted(node.list_parameters([], 0).names)
     parts = []
     for name in unknown:
         close = difflib.get_close_matches(name, declared, n=3, cutoff=0.6)

@@ -12,7 +12,7 @@ bytes it
 2. runs the model's held-input kernel call on the model's own arrays (the body of
    :func:`fohssv_sim.kernels._fom_held_entry`, compiled into this entry point: the same
    code on the same arrays as :meth:`HeldPeriod.run <fohssv_sim.models.HeldPeriod.run>`;
-   the entry point is :func:`fohssv_sim.kernels._fom_sample_entry`, which knows the sink
+   the entry point is :func:`.entries._fom_sample_entry`, which knows the sink
    it hands the sample to only as a C function's address);
 3. when the period stayed finite and within the bounds, writes ``[t, z, w, theta, q]`` into
    the state's serialized message and publishes it with rcl's
@@ -44,7 +44,7 @@ not take (not armed, another layout, another ``t``, a deflection beyond its limi
 non-finite value) is left to the node's interpreted path untouched.
 
 The command can also reach it without the executor (:meth:`CompiledSample.take_from`,
-:meth:`CompiledSample.take`): one C call (:func:`fohssv_sim.kernels._fom_take_entry`) takes
+:meth:`CompiledSample.take`): one C call (:func:`.entries._fom_take_entry`) takes
 the next message of the ``command`` subscription with rcl's ``rcl_take_serialized_message``,
 waiting in ``rcl_wait`` on a wait set of its own when there is none, and hands its bytes to
 the entry point above; a message it does not take stays readable
@@ -63,12 +63,16 @@ from __future__ import annotations
 import ctypes
 import dataclasses
 import functools
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
-from .. import kernels
-from ..kernels import (
+from ....kernels import FomHeldCall
+from ....models import MAX_PITCH, HeldPeriod
+from ...wire import ArrayReader, ArrayWriter, ClockWriter
+from . import entries
+from .entries import (
     _S_ARMED,
     _S_AWAITED,
     _S_CLOCK,
@@ -130,8 +134,7 @@ from ..kernels import (
     _W_TIMEOUT,
     _W_WAIT,
 )
-from ..models import MAX_PITCH, HeldPeriod
-from .wire import ArrayReader, ArrayWriter, ClockWriter
+from .rcl import publish_api, serialized_message, take_api
 
 #: :meth:`CompiledSample.call`: the command was not taken (the node's interpreted path runs)
 NOT_TAKEN = _S_NOT_TAKEN
@@ -146,19 +149,20 @@ CLOCK_PUBLISH, CLOCK_PUT = _S_CLOCK_PUBLISH, _S_CLOCK_PUT
 #: the bounds: nothing was written or published; the node settles it and stops the run)
 FAILED = _S_FAILED
 #: :meth:`CompiledSample.take`: nothing came within its timeout
-TIMED_OUT = kernels._S_TIMED_OUT
+TIMED_OUT = entries._S_TIMED_OUT
 #: :meth:`CompiledSample.take`: rcl failed to take or to wait (:attr:`CompiledSample.take_ret`)
-RCL_ERROR = kernels._S_RCL_ERROR
+RCL_ERROR = entries._S_RCL_ERROR
 #: :meth:`CompiledSample.take`: the wait ended, but with nothing to take (call it again)
-WOKEN = kernels._S_WOKEN
+WOKEN = entries._S_WOKEN
 
 
 @functools.cache
 def _entry() -> Any:
     """The C entry point as a ctypes function (compiled on first use, cached on disk), or
     the reason it could not be built (a str)."""
-    if kernels.numba is None:  # pragma: no cover
+    if entries.numba is None:  # pragma: no cover
         return 'numba is not installed'
+    entries.forget_stale_cache()
     try:
         import numba
         from numba import types
@@ -166,10 +170,9 @@ def _entry() -> Any:
         sig = types.int64(types.CPointer(types.int64), types.CPointer(types.float64),
                           types.CPointer(types.int64), types.CPointer(types.float64),
                           types.int64, types.int64)
-        # compiled from kernels.py's function, so numba's cache follows that file (the kernel
-        # it runs lives there)
+        # numba's cache follows the file of the compiled function: entries.py
         entry = numba.cfunc(sig, nopython=True, error_model='numpy', cache=True)(
-            kernels._fom_sample_entry)
+            entries._fom_sample_entry)
         proto = ctypes.CFUNCTYPE(ctypes.c_int64, ctypes.c_void_p, ctypes.c_void_p,
                                  ctypes.c_void_p, ctypes.c_void_p, ctypes.c_char_p,
                                  ctypes.c_int64)
@@ -180,10 +183,11 @@ def _entry() -> Any:
 
 @functools.cache
 def _take_entry() -> Any:
-    """The C entry point of :func:`fohssv_sim.kernels._fom_take_entry` as a ctypes function
+    """The C entry point of :func:`.entries._fom_take_entry` as a ctypes function
     (compiled on first use, cached on disk), or the reason it could not be built (a str)."""
-    if kernels.numba is None:  # pragma: no cover
+    if entries.numba is None:  # pragma: no cover
         return 'numba is not installed'
+    entries.forget_stale_cache()
     try:
         import numba
         from numba import types
@@ -191,76 +195,11 @@ def _take_entry() -> Any:
         i64p, f64p = types.CPointer(types.int64), types.CPointer(types.float64)
         sig = types.int64(i64p, f64p, i64p, f64p, i64p)
         entry = numba.cfunc(sig, nopython=True, error_model='numpy', cache=True)(
-            kernels._fom_take_entry)
+            entries._fom_take_entry)
         proto = ctypes.CFUNCTYPE(ctypes.c_int64, *([ctypes.c_void_p] * 5))
         return proto(entry.address), entry
     except Exception as exc:  # noqa: BLE001 - the executor's callback remains
         return f'the take entry point could not be compiled ({type(exc).__name__}: {exc})'
-
-
-class _Allocator(ctypes.Structure):
-    _fields_ = [(name, ctypes.c_void_p)       # rcutils_allocator_t: four functions, a state
-                for name in ('allocate', 'deallocate', 'reallocate', 'zero_allocate', 'state')]
-
-
-@functools.cache
-def _rcl_take() -> Any:
-    """rcl's functions for :meth:`CompiledSample.take_from` from the libraries rclpy has
-    loaded (a namespace), or the reason they are not available (a str)."""
-    try:
-        rcl = ctypes.CDLL('librcl.so')
-        rcutils = ctypes.CDLL('librcutils.so')
-        api = type('RclTake', (), {})()
-
-        def bind(lib: Any, name: str, *args: Any) -> Any:
-            fn = getattr(lib, name)
-            fn.restype, fn.argtypes = ctypes.c_int32, list(args)
-            return fn
-
-        vp, size = ctypes.c_void_p, ctypes.c_size_t
-        api.addresses = [ctypes.cast(getattr(rcl, name), vp).value for name in (
-            'rcl_take_serialized_message', 'rcl_wait_set_clear',
-            'rcl_wait_set_add_subscription', 'rcl_wait')]
-        api.allocator = rcutils.rcutils_get_default_allocator
-        api.allocator.argtypes, api.allocator.restype = [], _Allocator
-        api.wait_set_init = bind(rcl, 'rcl_wait_set_init', vp, size, size, size, size, size,
-                                 size, vp, _Allocator)
-        api.wait_set_fini = bind(rcl, 'rcl_wait_set_fini', vp)
-        api.array_init = bind(rcutils, 'rcutils_uint8_array_init', vp, size, vp)
-        api.array_fini = bind(rcutils, 'rcutils_uint8_array_fini', vp)
-        api.set_listener = bind(rcl, 'rcl_subscription_set_on_new_message_callback', vp, vp,
-                                vp)
-    except (OSError, AttributeError) as exc:
-        return f'rcl is not loadable here ({exc})'
-    return api
-
-
-class _ErrorString(ctypes.Structure):
-    _fields_ = [('str', ctypes.c_char * 1024)]      # rcutils_error_string_t
-
-
-@functools.cache
-def _rcl() -> Any:
-    """(rcl_publish_serialized_message's address, a function returning rcl's error text and
-    clearing it) from the rcl and rcutils libraries rclpy has loaded, or the reason they are
-    not available (a str)."""
-    try:
-        rcl = ctypes.CDLL('librcl.so')
-        rcutils = ctypes.CDLL('librcutils.so')
-        publish = ctypes.cast(rcl.rcl_publish_serialized_message, ctypes.c_void_p).value
-        get = rcutils.rcutils_get_error_string
-        get.argtypes, get.restype = [], _ErrorString
-        reset = rcutils.rcutils_reset_error
-        reset.argtypes, reset.restype = [], None
-    except (OSError, AttributeError) as exc:
-        return f'rcl is not loadable here ({exc})'
-
-    def take_error() -> str:
-        text = get().str.decode(errors='replace')
-        reset()
-        return text
-
-    return publish, take_error
 
 
 @dataclasses.dataclass
@@ -294,15 +233,6 @@ def _not_taken(raw: bytes, size: int) -> int:
     return NOT_TAKEN
 
 
-def _rcl_message(address: int, length: int) -> np.ndarray:
-    """An rcl_serialized_message_t for the ``length`` bytes at ``address``: buffer,
-    buffer_length, buffer_capacity, then an allocator that rcl does not use to publish (four
-    functions and a state: zeros)."""
-    message = np.zeros(8, dtype=np.int64)
-    message[:3] = (address, length, length)
-    return message
-
-
 class CompiledSample:
     """The compiled sample of one node (the module docstring). :meth:`call` ``(raw,
     len(raw))`` returns the steps taken when it published the sample, or :data:`NOT_TAKEN`,
@@ -320,9 +250,9 @@ class CompiledSample:
         force_address, force_length, force_doubles = force[0].address()
         clock_address, clock_length = clock[0].address()
         self._writers = (state, force[0], clock[0])     # keep the messages' buffers alive
-        self._message = _rcl_message(address, length)
-        self._force_message = _rcl_message(force_address, force_length)
-        self._clock_message = _rcl_message(clock_address, clock_length)
+        self._message = serialized_message(address, length)
+        self._force_message = serialized_message(force_address, force_length)
+        self._clock_message = serialized_message(clock_address, clock_length)
         m = np.zeros(_S_M_SIZE, dtype=np.int64)
         m[_S_CMD_HEAD] = self._head.ctypes.data
         m[_S_CMD_COUNT_AT], m[_S_CMD_COUNT] = count_at, count
@@ -339,7 +269,7 @@ class CompiledSample:
         self._g[_S_PITCH] = MAX_PITCH
         self._mv = memoryview(m)               # item writes without numpy scalars
         self._gv = memoryview(self._g)
-        self._held: kernels.FomHeldCall | None = None
+        self._held: FomHeldCall | None = None
         self._armed_taken = -2                 # m[_S_TAKEN] at the last arm
         self._prepared: tuple[np.ndarray, np.ndarray] | None = None
         m[_S_PREPARED] = -1
@@ -351,17 +281,20 @@ class CompiledSample:
 
     @classmethod
     def build(cls, period: HeldPeriod, state: ArrayWriter, command: ArrayReader,
-              publisher: int, force: tuple[ArrayWriter, int], clock: tuple[ClockWriter, int]
-              ) -> CompiledSample | str:
+              publisher: int, force: tuple[ArrayWriter, int], clock: tuple[ClockWriter, int],
+              sink: Callable[[int, int], int] | None = None) -> CompiledSample | str:
         """For ``period`` (the node's :class:`HeldPeriod`, writing into ``state``'s doubles),
         commands laid out as ``command`` reads them, the rcl publisher of the state at
         ``publisher``, the planing force's and the clock's messages with their rcl
-        publishers' addresses; or why not (a str)."""
-        built = _available(_entry, _rcl)
+        publishers' addresses; or why not (a str). ``sink(publish, publisher)``: the address
+        of a C function standing in for rcl's publish at ``publish`` (fault injection,
+        :meth:`fohssv_sim.ros.faults.StateFault.sink`)."""
+        built = _available(_entry, publish_api)
         if isinstance(built, str):
             return built
         entry, rcl = built
-        return cls(entry[0], rcl[0], rcl[1], period, state, command, publisher, force, clock)
+        publish = rcl[0] if sink is None else sink(rcl[0], publisher)
+        return cls(entry[0], publish, rcl[1], period, state, command, publisher, force, clock)
 
     def record_into(self, ring: Any, state: int = 0, command: int = 0, force: int = 0,
                     clock: int = 0) -> None:
@@ -478,11 +411,11 @@ class CompiledSample:
         ``handle.pointer``; ``context``: its rcl context's) in compiled code from now on:
         :meth:`take` waits for the next message at most ``timeout`` s, takes it with rcl
         and hands it to the compiled sample, with no executor, no Python frame and no bytes
-        object in between (:func:`fohssv_sim.kernels._fom_take_entry`). None when set up,
+        object in between (:func:`.entries._fom_take_entry`). None when set up,
         else why not (a str; nothing changed). The node must then take the subscription's
         messages only this way (:meth:`detach_listener`) and :meth:`close` it before its
         context shuts down."""
-        built = _available(_take_entry, _rcl_take)
+        built = _available(_take_entry, take_api)
         if isinstance(built, str):
             return built
         entry, api = built

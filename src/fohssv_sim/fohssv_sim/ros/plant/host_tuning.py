@@ -1,0 +1,41 @@
+"""Host tuning of the plant's process: CPU affinity, the CPU wake-up latency request and, in
+real time, timer slack, SCHED_FIFO and the kernel's preemption model (what a run on this host
+can expect). Each setting is a parameter of the plant (``cpu_affinity``, ``cpu_dma_latency``,
+``realtime_priority``); what cannot be set is said in one line and the run goes on.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from ..loop import PREEMPTIBLE, kernel_preemption
+from ..nodekit import hold_latency, pin_node, set_realtime_priority, tighten_timer_slack
+
+__all__ = ['tune_host']
+
+
+def tune_host(node: Any) -> None:
+    """Apply the plant ``node``'s host settings to its process (once, before it spins)."""
+    o = node.options
+    pinned = pin_node(node, o.cpu_affinity)
+    node.cpu_latency = hold_latency(node, o.cpu_dma_latency,
+                                    warn=o.mode == 'realtime')
+    if o.mode != 'realtime':
+        return
+    tighten_timer_slack()
+    refused = set_realtime_priority(o.realtime_priority)
+    model, hz = kernel_preemption()
+    if model is not None and model not in PREEMPTIBLE:
+        node.get_logger().info(
+            f'kernel preemption {model!r}' + (f' ({hz} Hz tick)' if hz else '') + ': the '
+            'pacing thread, SCHED_FIFO or not, waits for any kernel path another task runs '
+            'on its CPU (milliseconds at worst); for deadlines of a 1e-4 s control period, '
+            'a kernel with preempt=full (boot parameter, PREEMPT_DYNAMIC kernels) or '
+            'PREEMPT_RT')
+    if refused:
+        node.get_logger().warning(f'{refused}; running with the normal scheduler')
+    elif pinned and o.realtime_priority and len(o.cpu_affinity) == 1:
+        node.get_logger().warning(
+            'cpu_affinity names one CPU and the pacing thread runs under SCHED_FIFO: '
+            "behind schedule it can keep the process's own DDS threads (commands, "
+            'acknowledgements) off that CPU; give the plant two CPUs or realtime_priority:=0')

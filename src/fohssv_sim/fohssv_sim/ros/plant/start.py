@@ -1,0 +1,272 @@
+"""The start gate and the restart: peers, listed readers, a second plant or controller, the
+start, and the ``reset`` service.
+
+A room of :class:`fohssv_sim.ros.plant_node.PlantNode`: a mixin whose methods run on the node
+(its attributes are set in ``PlantNode.__init__``).
+"""
+
+from __future__ import annotations
+
+import time
+from time import monotonic
+
+from std_srvs.srv import Trigger
+
+from ..loop import (
+    BurstWait,
+    Pacer,
+    cpu_seconds,
+)
+from ..matching import UNKNOWN_NODE, node_path
+from .codes import (
+    EXIT_NO_PEERS,
+    EXIT_PUBLISH_FAILED,
+    EXIT_SECOND_CONTROLLER,
+    EXIT_SECOND_PLANT,
+    PublishFailed,
+)
+from .realtime import WATCHDOG_CHECK
+
+#: How long a plant whose minimum peers are there waits for the other listed subscribers of
+#: its sample topics to match before it starts anyway (_listed_matched).
+_LISTED_WAIT = 10.0
+
+#: Wall seconds between two looks at the graph for a second plant (a graph query, off the
+#: per-sample path).
+RIVAL_CHECK_PERIOD = 0.5
+
+#: Rival checks (of RIVAL_CHECK_PERIOD) a rival publisher's node name is waited for before
+#: the plant stops without it.
+_NAME_WAIT = 10
+
+#: While waiting for its peers, the plant says what it waits for this often (s) and whenever
+#: the matched counts change.
+_WAIT_LOG_PERIOD = 5.0
+
+
+class StartGate:
+    """The start gate of the plant node (the module docstring)."""
+
+    def _peers(self) -> tuple[int, int]:
+        """Matched (state subscribers, command publishers); a hosted law counts as one of
+        each (it reads every sample and commands), so the same minimums start a hosted plant
+        alone and a hosted plant with a recorder."""
+        subs = self.state_pub.get_subscription_count()
+        if self.hosted is not None:
+            return subs + 1, 1
+        return subs, self.command_sub.get_publisher_count()
+
+    def _views_matched(self) -> int:
+        """The fewest matched subscribers of any typed view (a large number with views off:
+        nothing to wait for)."""
+        if self.views is None:
+            return 1 << 30
+        return min(p.get_subscription_count() for p in self.views.publishers)
+
+    def _listed_matched(self) -> bool:
+        """Every subscription the graph lists on the sample topics and ``/clock`` has matched
+        the plant's writer (a recorder or probe whose planing_force reader matches after its
+        state reader would otherwise miss the start of a short, fast run; a volatile
+        ``command`` reader of a hosted plant would miss its first commands, and a ``/clock``
+        reader the first ``/clock`` messages, published only while someone subscribes).
+        Best effort: after :data:`_LISTED_WAIT` s with the minimums met the plant starts
+        anyway, saying which readers had not matched (one may never match, e.g. with
+        incompatible QoS)."""
+        if self._minimums_since is None:
+            self._minimums_since = time.monotonic()
+        unmatched = [f'{pub.topic_name} ({pub.get_subscription_count()} of {listed} '
+                     'matched)' for pub in self._sample_pubs + (self.clock_pub,)
+                     if pub.get_subscription_count() < (listed := self.count_subscribers(
+                         pub.topic_name))]
+        if not unmatched:
+            return True
+        if time.monotonic() - self._minimums_since > _LISTED_WAIT:
+            self.get_logger().warning(
+                f'starting although not every listed subscriber matched after '
+                f'{_LISTED_WAIT:g} s: {", ".join(unmatched)}; those readers may miss the '
+                'first samples (incompatible QoS?)')
+            return True
+        return False
+
+    def _waiting_for(self, subs: int, pubs: int) -> str:
+        """What the plant waits for, in words (logged at start, on a change, every 5 s)."""
+        o = self.options
+        missing = []
+        if pubs < o.min_command_publishers:
+            missing.append('a controller' if o.min_command_publishers - pubs == 1 else
+                           f'{o.min_command_publishers - pubs} command publishers')
+        if subs < o.min_state_subscribers:
+            missing.append(f'{o.min_state_subscribers - subs} more state subscriber(s) '
+                           '(controllers, recorders)')
+        views = self._views_matched()
+        if views < o.min_view_subscribers:
+            missing.append(f'{o.min_view_subscribers - views} more subscriber(s) of each view '
+                           '(a viewer)')
+        what = ' and '.join(missing) or 'the listed subscribers to match'
+        return (f'waiting for {what}: command has {pubs}/{o.min_command_publishers} '
+                f'publisher(s), {self.state_pub.topic_name} has {subs}/'
+                f'{o.min_state_subscribers} subscriber(s)')
+
+    def _check_rivals(self) -> None:
+        """Refuse to run beside another publisher of ``state`` (a second plant, a republishing
+        player): the two would take each other's commands and publish interleaved samples.
+        With a hosted controller, also beside another publisher of ``command``."""
+        if self.hosted is not None:
+            self._check_second_controller()
+        if self.finished.done() or self.count_publishers(self.state_pub.topic_name) <= 1:
+            return                                # only this plant's own publisher
+        nodes = self._publisher_nodes(self.state_pub.topic_name)
+        if nodes is None:
+            return
+        self._fail(EXIT_SECOND_PLANT,
+                   f'{len(nodes)} publishers of {self.state_pub.topic_name} (nodes: '
+                   f"{', '.join(nodes)}): another plant (or a republishing player) runs on this "
+                   'ROS_DOMAIN_ID and namespace, and the two would take each other\'s commands; '
+                   'stopping. Give each its own ROS_DOMAIN_ID or namespace.')
+
+    def _check_second_controller(self) -> None:
+        """A hosted plant and an external publisher of ``command`` (a controller node, a
+        player replaying commands): two controllers must never mix, so the plant stops."""
+        topic = self.command_topic
+        if self.finished.done() or self.count_publishers(topic) <= 1:
+            return                                # only the plant's own command publisher
+        nodes = self._publisher_nodes(topic)
+        if nodes is None:
+            return
+        self._fail(EXIT_SECOND_CONTROLLER,
+                   f'{len(nodes)} publishers of {topic} (nodes: {", ".join(nodes)}): this '
+                   f'plant hosts the controller {self.hosted.name!r} (controller:='
+                   f'{self.options.controller}) and another node publishes commands too; two '
+                   'controllers must not mix, stopping. Stop the external controller, or start '
+                   "the plant with controller:='' to use it.")
+
+    def _publisher_nodes(self, topic: str) -> list[str] | None:
+        """The nodes publishing ``topic``, sorted, for the one line that stops the plant; None
+        while a publisher's node is not named yet (DDS discovers an endpoint before its
+        node's name: the line said ``_NODE_NAMESPACE_UNKNOWN_/_NODE_NAME_UNKNOWN_``) and the
+        name has been waited for less than :data:`_NAME_WAIT` rival checks; after that the
+        stop goes ahead, naming the node as not yet known."""
+        infos = self.get_publishers_info_by_topic(topic)
+        unnamed = sum(i.node_name == UNKNOWN_NODE for i in infos)
+        if unnamed and self._unnamed_checks < _NAME_WAIT:
+            self._unnamed_checks += 1
+            return None
+        return sorted('(a node whose name is not discovered yet)' if i.node_name == UNKNOWN_NODE
+                      else node_path(i) for i in infos)
+
+    def _wait_for_peers(self) -> None:
+        if self.running or self.finished.done():
+            return    # a timer event queued before _start destroyed the timer: start once
+        subs, pubs = self._peers()
+        o = self.options
+        if (subs >= o.min_state_subscribers and pubs >= o.min_command_publishers
+                and self._views_matched() >= o.min_view_subscribers):
+            if self._listed_matched():
+                self._start()
+                return
+        else:
+            self._minimums_since = None    # a peer left again (a controller swapped)
+        now = time.monotonic()
+        waited = now - self._wall_start
+        if o.start_timeout == 0.0 or waited < o.start_timeout:
+            # no clock, no sample: say what is missing when it changes and every 5 s
+            if (subs, pubs) != self._peers_logged or now >= self._next_wait_log:
+                self._peers_logged = (subs, pubs)
+                self._next_wait_log = now + _WAIT_LOG_PERIOD
+                limit = ('no start timeout' if o.start_timeout == 0.0 else
+                         f'start_timeout {o.start_timeout:g} s')
+                hint = ('; start one in the same ROS_DOMAIN_ID and namespace, e.g. '
+                        '`ros2 run fohssv_controller state_feedback`'
+                        if pubs < o.min_command_publishers else '')
+                self.get_logger().info(f'{self._waiting_for(subs, pubs)} (waited {waited:.0f} '
+                                       f's, {limit}){hint}')
+            return
+        self._fail(EXIT_NO_PEERS, f'start timeout: state has {subs}/{o.min_state_subscribers} '
+                   f'subscriber(s), command has {pubs}/{o.min_command_publishers} '
+                   f'publisher(s) after {waited:.1f} s (start_timeout={o.start_timeout:g} s); '
+                   'is the controller running in the same ROS_DOMAIN_ID and namespace?')
+
+    def _start(self) -> None:
+        self.destroy_timer(self._peer_timer)
+        self.running = True
+        self._run_wall_start = time.monotonic()
+        self._cpu_start = cpu_seconds()
+        self._last_command_wall = self._run_wall_start
+        try:
+            self._start_run()
+        except PublishFailed as exc:
+            self._fail(EXIT_PUBLISH_FAILED, str(exc))
+
+    def _start_run(self) -> None:
+        subs, pubs = self._peers()
+        self.get_logger().info(f'peers matched (command: {pubs} publisher(s), state: {subs} '
+                               'subscriber(s)); starting at t = 0')
+        if self.record is not None:   # the law's name in the bag (plot titles)
+            self.record.name_controller(None if self.hosted is None
+                                        else self.get_parameter('controller').value)
+        # who subscribes to /clock (and a hosted plant's command): looked at again between
+        # chunks of samples (hosted) or in the timer's checks (external controller)
+        self._refresh_matched()
+        if self._free_run:           # lockstep, hosted: the spin loop runs chunks of samples
+            self._publish()
+            self._control()
+        elif self.options.mode == 'lockstep':
+            self._publish()
+            self._await_command()
+            period = min(0.05, max(self.options.command_timeout / 4.0, 0.001))
+            self._checked = monotonic()
+            self._timer = self.create_timer(period, self._check_lockstep_timeout)
+        else:
+            o = self.options
+            wall_period = o.control_period / o.real_time_factor
+            tick = max(o.pacing_period, wall_period)
+            batch = max(1, round(tick / wall_period))
+            pacer = Pacer(period=wall_period, tolerance=tick, max_batch=2 * batch,
+                          max_backlog=10 * batch)
+            # hosted: one wake-up per burst of samples (5 at the defaults, fewer while the
+            # machine is slow to wake the plant: BurstWait)
+            if self.hosted is not None:
+                self.bursts = BurstWait(period=wall_period, tolerance=tick)
+            pacer.begin(time.monotonic())
+            self._publish()
+            pacer.published(time.monotonic())
+            self.pacer = pacer   # from now on the spin loop publishes the samples when due
+            if self.hosted is None:
+                self._timer = self.create_timer(WATCHDOG_CHECK, self._check_watchdog)
+            else:
+                self._control()
+
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response
+                  ) -> Trigger.Response:
+        if self.finished.done() or self._announced:
+            response.success = False
+            response.message = 'the run has ended'
+            return response
+        self.resets += 1
+        self._samples_before += self.sim.samples
+        self._steps_before += self.sim.plant.n
+        self.sim.reset(self.options.initial_state)
+        if self.hosted is not None:
+            self.hosted.reset()
+        self._lag.over_since = None
+        self._watchdog_warned = False
+        self.get_logger().info(f'reset to t = 0 at {list(self.options.initial_state)}')
+        if self.running:
+            if self.pacer is not None:     # due from now on; its counts stay the run's
+                self.pacer.restart(time.monotonic())
+            try:
+                self._publish()
+            except PublishFailed as exc:
+                self._fail(EXIT_PUBLISH_FAILED, str(exc))
+                response.success = False
+                response.message = str(exc)
+                return response
+            if self.pacer is not None:
+                self.pacer.published(time.monotonic())
+            if self.hosted is not None:
+                self._control()
+            elif self.options.mode == 'lockstep':
+                self._await_command()
+        response.success = True
+        response.message = f't = {self.sim.t!r} s, state = {list(self.options.initial_state)}'
+        return response

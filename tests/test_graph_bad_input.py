@@ -9,7 +9,6 @@ peers missing at start; the real-time watchdog warning once.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import re
@@ -25,14 +24,12 @@ from fohssv_sim.ros.faults import STALL_STATE_VAR
 
 import rosproc
 
+pytestmark = pytest.mark.graph
+
 TOL = 1e-12
 T = 1e-4  # default control period
 ALONE = {'min_state_subscribers': 0, 'min_command_publishers': 0}
 
-
-def _summary(out: str) -> dict:
-    line = [ln for ln in out.splitlines() if 'summary: {' in ln][-1]
-    return json.loads(line.split('summary: ', 1)[1])
 
 
 def _plant(params: dict, env: dict):
@@ -75,8 +72,8 @@ def test_bad_commands_are_rejected_and_the_last_good_one_is_held(model):
     assert 'expected 3 values' in rejected[2]
     assert all('keeping the last good command delta_f=0.0, delta_c=0.002 rad' in ln
                for ln in rejected)
-    assert _summary(out)['rejected_commands'] == 3
-    assert _summary(out)['compiled_take'] is (model == 'fractional')
+    assert rosproc.summary(out)['rejected_commands'] == 3
+    assert rosproc.summary(out)['compiled_take'] is (model == 'fractional')
     ref, _ = batch_samples(model, applied, 0.02)
     got = probe.state_array()
     assert got.shape == ref.shape
@@ -300,7 +297,7 @@ def test_a_stopped_plant_does_not_blame_its_controller(tmp_path, stopped, timeou
     assert code == 0, text
     assert 'stopping cleanly at t=2.0 s' in text, text
     # the stop fell inside the run (its wall time holds it), the FOM's inside its compiled take
-    assert _summary(text)['wall_time'] > stopped, text
+    assert rosproc.summary(text)['wall_time'] > stopped, text
     assert f'"compiled_take": {"true" if model == "fractional" else "false"}' in text, text
 
 
@@ -341,7 +338,7 @@ def test_realtime_watchdog_warns_once_and_holds_the_command():
     warnings = [ln for ln in out.splitlines() if 'watchdog: no command for' in ln]
     assert len(warnings) == 1, out
     assert 'holding delta_f=0.0 rad, delta_c=0.0 rad' in warnings[0]
-    s = _summary(out)
+    s = rosproc.summary(out)
     assert s['samples_paced'] == 501 and s['t'] == pytest.approx(0.5)
     assert 0.0 <= s['deadline_miss_rate'] <= 1.0
 
@@ -415,7 +412,7 @@ def test_realtime_rejects_commands_from_the_future_and_stale_ones():
     finally:
         stop_all(plant)
         probe.close()
-    s = _summary(out)
+    s = rosproc.summary(out)
     rejected = [ln for ln in out.splitlines() if 'rejected command' in ln]
     assert s['stale_commands'] == 3 and s['rejected_commands'] == 3, out
     assert len(rejected) == 3, out

@@ -9,11 +9,14 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 from test_graph_support import Probe, batch_samples, finish, plant_args, stop_all
 
 from fohssv_controller.state_feedback import StateFeedback
 
 import rosproc
+
+pytestmark = pytest.mark.graph
 
 EXAMPLES = Path(__file__).parent / 'examples'
 sys.path.insert(0, str(EXAMPLES))

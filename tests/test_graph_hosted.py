@@ -14,7 +14,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +28,8 @@ from fohssv_sim.params import ModelParameters
 from fohssv_sim.simulate import simulate
 
 import rosproc
+
+pytestmark = pytest.mark.graph
 
 EXAMPLES = Path(__file__).parent / 'examples'
 TOL = 1e-12
@@ -92,10 +93,6 @@ class _Lockstep:
             probe.close()
 
 
-def _summary(out: str) -> dict:
-    line = next(ln for ln in out.splitlines() if 'summary: {' in ln)
-    return json.loads(line.split('summary: ', 1)[1])
-
 
 def _check(states: np.ndarray, commands: np.ndarray, ref: np.ndarray, inputs: np.ndarray,
            out: str) -> None:
@@ -121,7 +118,7 @@ def test_hosted_lockstep_equals_the_batch_runner_and_the_external_node(model):
         ref, inputs = _batch(model, name, DURATION)
         _check(states, commands, ref, inputs, out)
         if kind == 'hosted':
-            s = _summary(out)
+            s = rosproc.summary(out)
             assert s['controller'] == name and s['hosted_commands'] == len(ref) - 1, s
             assert f'controller {name}(' in out and 'hosted in the loop' in out
         else:
@@ -242,7 +239,7 @@ def test_a_late_external_controller_stops_the_realtime_plant_with_exit_6(tmp_pat
                   'a longer control_period (e.g. control_period:=0.01)', 'controller:=NAME'):
         assert words in line, line
     assert 'state beyond physical bounds' not in out
-    s = _summary(out)
+    s = rosproc.summary(out)
     assert s['command_lag_worst'] > 20 and s['commands_over_lag_limit'] > 0, s
     assert s['t'] < 1.0, s
 
@@ -272,7 +269,7 @@ def test_after_a_realtime_reset_the_summary_is_the_whole_runs(tmp_path):
         out = stop_all(plant) + log.read_text()
         probe.close()
     assert code == 0, out
-    s = _summary(out)
+    s = rosproc.summary(out)
     t = probe.state_array()[:, 0]
     back = np.flatnonzero(np.diff(t) < 0)
     assert len(back) == 1 and t[back[0] + 1] == 0.0, (back, out[-3000:])
@@ -311,7 +308,7 @@ def test_a_hosted_law_that_fails_every_sample_is_counted_and_rate_limited(tmp_pa
     out = log.read_text()
     assert code == 0 and 'Traceback' not in out, out
     n = round(DURATION / 1e-4) + 1                      # the samples at t = 0 .. DURATION
-    s = _summary(out)
+    s = rosproc.summary(out)
     assert s['law_failures'] == n - 1 and s['hosted_commands'] == 0, s
     lines = [ln for ln in out.splitlines() if 'no command for this sample' in ln]
     # 20 one by one, then at most one a second of a run far shorter than the 20 s allowed

@@ -12,6 +12,8 @@ import pytest
 
 import rosproc
 
+pytestmark = pytest.mark.graph
+
 NODES = {'plant': ('fohssv_sim', 'plant'), 'controller': ('fohssv_controller', 'state_feedback'),
          'recorder': ('fohssv_sim', 'recorder'), 'player': ('fohssv_sim', 'player'),
          'viewer': ('fohssv_sim', 'viewer')}
@@ -196,7 +198,6 @@ def test_standard_rclpy_parameters_stay_allowed(tmp_path, node):
     assert code == 1 and 'no such file or directory' in out and 'unknown' not in out, out
 
 
-@pytest.mark.graph
 def test_a_node_that_does_not_exit_in_time_fails_saying_where_its_threads_are():
     """``rosproc.wait_exit`` on a node that never ends by itself (a plant with no controller
     waits for one as long as it takes): the failure carries the Python stacks (faulthandler,

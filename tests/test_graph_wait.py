@@ -14,7 +14,6 @@ throughout; the plant counts it as a state subscriber, never as a controller.
 
 from __future__ import annotations
 
-import json
 import re
 import time
 
@@ -32,16 +31,12 @@ TOL = 1e-12
 DURATION = 0.05
 
 
-def _summary(out: str) -> dict:
-    line = [ln for ln in out.splitlines() if 'summary: {' in ln][-1]
-    return json.loads(line.split('summary: ', 1)[1])
-
 
 def _assert_ran_fully(code: int, out: str, probe: Probe) -> None:
     n = round(DURATION / 1e-4)
     assert code == 0, out
     assert 'peers matched' in out and 'stopping cleanly at t=' in out, out
-    assert _summary(out)['samples'] == n, out
+    assert rosproc.summary(out)['samples'] == n, out
     probe.wait(lambda: len(probe.states) >= n + 1, 20, f'{n + 1} samples at the probe')
     ref, _ = batch_samples('delay-free', StateFeedback(), DURATION)
     got = probe.state_array()

@@ -52,9 +52,10 @@ def overrides(params: dict[str, Any]) -> list[Parameter]:
 
 
 class Probe:
-    """A node that records every state (keep-all, as the recorder) and every command; with
-    ``answer`` it is the controller too, answering each state with ``answer(t, x)`` on
-    ``command`` (without, it publishes nothing: a listener, never a second controller)."""
+    """A node that records every state (keep-all, as the recorder). With ``answer`` it is the
+    controller, answering each state with ``answer(t, x)`` on ``command``; without, a
+    listener that records every command too and publishes nothing (never a second
+    controller)."""
 
     def __init__(self, context: Any, answer: Answer | None = None) -> None:
         self.node = rclpy.create_node('probe', context=context)
@@ -69,9 +70,10 @@ class Probe:
                                                profile(COMMAND)) if answer else None)
         self.node.create_subscription(Float64MultiArray, STATE.name, self._on_state,
                                       keep_all(STATE))
-        self.node.create_subscription(Float64MultiArray, COMMAND.name,
-                                      lambda m: self.commands.append(tuple(m.data)),
-                                      keep_all(COMMAND))
+        if answer is None:     # a controller knows its commands (one callback less a sample)
+            self.node.create_subscription(Float64MultiArray, COMMAND.name,
+                                          lambda m: self.commands.append(tuple(m.data)),
+                                          keep_all(COMMAND))
 
     def _on_state(self, msg: Float64MultiArray) -> None:
         data = tuple(msg.data)

@@ -138,3 +138,12 @@ def test_a_plugin_that_raises_is_logged_rate_limited_and_the_node_lives(graph, c
     lines = [ln for ln in out.splitlines() if 'raised RuntimeError: a bug in the plugin' in ln]
     assert 20 <= len(lines) < 60, out
 
+
+
+def test_controller_rejects_min_command_subscribers_below_one(graph):
+    """Refused when the node is built; the process's one line and exit 2 for such a refusal
+    are test_graph_startup's."""
+    with pytest.raises(ValueError) as refused:
+        graph.controller(min_command_subscribers=0)
+    assert ('min_command_subscribers=0 is outside the allowed range [1, 1000] (matched '
+            'subscriptions of command') in str(refused.value)

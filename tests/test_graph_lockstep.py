@@ -17,7 +17,6 @@ from ament_index_python.packages import get_package_share_directory
 from test_graph_support import Probe, batch_samples, plant_args, stop_all
 
 from fohssv_controller.fractional_pid import FractionalPID
-from fohssv_controller.lqr import LQR
 from fohssv_controller.state_feedback import StateFeedback
 from fohssv_sim.ros.spin import CPU_LATENCY_DEVICE, cpu_latency_limit
 
@@ -74,19 +73,6 @@ def test_lockstep_reproduces_batch_runner(model):
     assert f'"compiled_samples": {compiled}' in out, out
     # ... the FOM's commands taken by rcl in compiled code (PlantNode.spin_taking)
     assert f'"compiled_take": {"true" if model == "fractional" else "false"}' in out, out
-
-
-def test_swapping_the_controller_changes_only_the_response():
-    """The second built-in (LQR) through the generic node, same plant arguments: the response
-    differs from eq. 31 and equals the batch run under the LQR."""
-    duration = 0.1
-    states, _, _ = _run('delay-free', 'controller', duration,
-                        ['--ros-args', '-p', 'controller:=lqr'])
-    ref_lqr, _ = batch_samples('delay-free', LQR(), duration)
-    ref_sf, _ = batch_samples('delay-free', StateFeedback(), duration)
-    assert states.shape == ref_lqr.shape
-    assert np.max(np.abs(states - ref_lqr)) <= TOL
-    assert np.max(np.abs(states[:, 1:] - ref_sf[:, 1:])) > 1e-3
 
 
 #: The reset test's run length: long enough that the reset comes first (0: open-ended). The

@@ -21,8 +21,8 @@ TOL = 1e-12
 DURATION = 0.05
 N = round(DURATION / 1e-4) + 1                 # the samples at t = 0 .. DURATION
 CONTROLLERS = {'state_feedback': StateFeedback, 'lqr': LQR, 'fractional_pid': FractionalPID}
-#: (model, controller) whose external-node lockstep run over DDS tests/test_graph_lockstep.py
-#: compares with the batch runner already
+#: (model, controller) whose external-node lockstep run is compared with the batch runner
+#: already: over DDS by tests/test_graph_lockstep.py (eq. 31), or by the swap test here (LQR)
 EXTERNAL_ELSEWHERE = {('delay-free', 'state_feedback'), ('delayed', 'state_feedback'),
                       ('fractional', 'state_feedback'), ('delay-free', 'lqr')}
 
@@ -78,6 +78,22 @@ def test_the_external_controller_node_equals_the_batch_runner(graph, model, name
     ref, inputs = _batch(model, name, DURATION)
     # the node answers the last sample too
     _check(probe.state_array(), probe.command_array()[:N - 1], ref, inputs)
+
+
+def test_swapping_the_controller_changes_only_the_response(graph):
+    """The second built-in (LQR) in the generic node, same plant parameters: the response
+    differs from eq. 31 and equals the batch run under the LQR."""
+    probe = graph.probe()
+    graph.controller('lqr')
+    plant = graph.plant(model='delay-free', duration=0.1)
+    assert graph.run(plant) == 0
+    graph.wait(lambda: len(probe.states) >= 1001, 30, 'every sample at the probe')
+    states = probe.state_array()
+    ref_lqr, _ = _batch('delay-free', 'lqr', 0.1)
+    ref_sf, _ = _batch('delay-free', 'state_feedback', 0.1)
+    assert states.shape == ref_lqr.shape
+    assert np.max(np.abs(states - ref_lqr)) <= TOL
+    assert np.max(np.abs(states[:, 1:] - ref_sf[:, 1:])) > 1e-3
 
 
 def test_a_hosted_law_that_fails_every_sample_is_counted_and_rate_limited(graph, capfd):

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.node
+
 EXAMPLES = Path(__file__).parents[1] / 'examples'
 OVERFLOW = {'depth_gain': 1e308, 'pitch_gain': -1e308}   # eq. 31 overflows at z = 10 m
 

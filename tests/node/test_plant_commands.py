@@ -8,10 +8,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from rclpy.parameter import Parameter
 from test_graph_support import batch_samples
 
 import rosproc
+
+pytestmark = pytest.mark.node
 
 TOL = 1e-12
 T = 1e-4  # default control period

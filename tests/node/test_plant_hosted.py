@@ -17,6 +17,8 @@ from fohssv_sim.simulate import simulate
 
 import rosproc
 
+pytestmark = pytest.mark.node
+
 TOL = 1e-12
 DURATION = 0.05
 N = round(DURATION / 1e-4) + 1                 # the samples at t = 0 .. DURATION

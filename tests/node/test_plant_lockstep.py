@@ -10,6 +10,8 @@ from test_graph_support import batch_samples
 
 from fohssv_controller.state_feedback import StateFeedback
 
+pytestmark = pytest.mark.node
+
 TOL = 1e-12
 ALONE = {'min_state_subscribers': 0, 'min_command_publishers': 0}
 

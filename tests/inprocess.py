@@ -16,6 +16,7 @@ the recorder's bag) stays with the process tests (``tests/test_graph_*.py``).
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -111,6 +112,7 @@ class Graph:
         self.context = rosproc.init_context(self.domain, get_default_context())
         self.executor = SingleThreadedExecutor(context=self.context)
         self.nodes: list[Any] = []
+        self._threads: list[tuple] = []      # (stop, thread, executor, node) of threaded probes
 
     def add(self, node: Any) -> Any:
         self.executor.add_node(node)
@@ -126,10 +128,26 @@ class Graph:
         return self.add(ControllerNode(law, context=self.context,
                                        parameter_overrides=overrides(params)))
 
-    def probe(self, answer: Answer | None = None) -> Probe:
-        """A :class:`Probe` on this graph: the controller with ``answer``, else a listener."""
+    def probe(self, answer: Answer | None = None, *, thread: bool = False) -> Probe:
+        """A :class:`Probe` on this graph: the controller with ``answer``, else a listener.
+        On the graph's executor, or with ``thread`` on its own executor in its own thread,
+        as a controller process would be: a real-time plant serves its executor only
+        between samples, one callback at a time, and a probe served there falls behind."""
         probe = Probe(self.context, answer)
-        self.add(probe.node)
+        if thread:
+            executor = SingleThreadedExecutor(context=self.context)
+            executor.add_node(probe.node)
+            stop = threading.Event()
+
+            def spin() -> None:
+                while not stop.is_set() and self.context.ok():
+                    executor.spin_once(timeout_sec=0.01)
+
+            spinner = threading.Thread(target=spin, daemon=True)
+            spinner.start()
+            self._threads.append((stop, spinner, executor, probe.node))
+        else:
+            self.add(probe.node)
         return probe
 
     def run(self, plant: PlantNode, timeout: float = 60.0) -> int:
@@ -157,6 +175,11 @@ class Graph:
         return value
 
     def close(self) -> None:
+        for stop, spinner, executor, node in self._threads:
+            stop.set()
+            spinner.join(timeout=5)
+            executor.shutdown()
+            node.destroy_node()
         for node in self.nodes:
             self.executor.remove_node(node)
             node.destroy_node()

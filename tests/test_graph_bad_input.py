@@ -30,7 +30,6 @@ pytestmark = pytest.mark.graph
 
 TOL = 1e-12
 T = 1e-4  # default control period
-ALONE = {'min_state_subscribers': 0, 'min_command_publishers': 0}
 
 
 

@@ -27,11 +27,12 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.task import Future
 from rclpy.utilities import get_default_context
+from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
 from test_graph_support import keep_all
 
 from fohssv_controller.ros.controller_node import ControllerNode
-from fohssv_sim.contract import COMMAND, STATE
+from fohssv_sim.contract import CLOCK, COMMAND, STATE
 from fohssv_sim.ros.nodekit import array_message
 from fohssv_sim.ros.plant_node import PlantNode
 from fohssv_sim.ros.qos import profile
@@ -58,7 +59,7 @@ class Probe:
     listener that records every command too and publishes nothing (never a second
     controller)."""
 
-    def __init__(self, context: Any, answer: Answer | None = None) -> None:
+    def __init__(self, context: Any, answer: Answer | None = None, clock: bool = False) -> None:
         self.node = rclpy.create_node('probe', context=context)
         self.answer = answer
         #: called with (t, x) on each state before any answer (a test's hook into the run)
@@ -71,6 +72,11 @@ class Probe:
                                                profile(COMMAND)) if answer else None)
         self.node.create_subscription(Float64MultiArray, STATE.name, self._on_state,
                                       keep_all(STATE))
+        #: with ``clock``: the /clock times received (ns)
+        self.clocks: list[int] = []
+        if clock:
+            self.node.create_subscription(Clock, CLOCK.name, lambda m: self.clocks.append(
+                m.clock.sec * 1_000_000_000 + m.clock.nanosec), profile(CLOCK))
         if answer is None:     # a controller knows its commands (one callback less a sample)
             self.node.create_subscription(Float64MultiArray, COMMAND.name,
                                           lambda m: self.commands.append(tuple(m.data)),
@@ -128,12 +134,13 @@ class Graph:
         return self.add(ControllerNode(law, context=self.context,
                                        parameter_overrides=overrides(params)))
 
-    def probe(self, answer: Answer | None = None, *, thread: bool = False) -> Probe:
+    def probe(self, answer: Answer | None = None, *, thread: bool = False,
+              clock: bool = False) -> Probe:
         """A :class:`Probe` on this graph: the controller with ``answer``, else a listener.
         On the graph's executor, or with ``thread`` on its own executor in its own thread,
         as a controller process would be: a real-time plant serves its executor only
         between samples, one callback at a time, and a probe served there falls behind."""
-        probe = Probe(self.context, answer)
+        probe = Probe(self.context, answer, clock)
         if thread:
             executor = SingleThreadedExecutor(context=self.context)
             executor.add_node(probe.node)
@@ -173,6 +180,18 @@ class Graph:
                 raise AssertionError(f'timed out after {timeout} s waiting for {what}')
             self.executor.spin_once(timeout_sec=0.01)
         return value
+
+    def remove(self, node: Any) -> None:
+        """Take ``node`` off the graph and destroy it (a peer that leaves)."""
+        self.executor.remove_node(node)
+        self.nodes.remove(node)
+        node.destroy_node()
+
+    def spin_for(self, seconds: float) -> None:
+        """Spin every node for ``seconds`` of wall time."""
+        end = time.monotonic() + seconds
+        while (left := end - time.monotonic()) > 0:
+            self.executor.spin_once(timeout_sec=min(left, 0.05))
 
     def close(self) -> None:
         for stop, spinner, executor, node in self._threads:

@@ -1,7 +1,8 @@
 """Controller nodes over DDS: the write-your-own-controller example (docs/ros.md) run for real,
 both as a package-less node script and as a plugin found by the generic node, with the node's
 last line; an unknown name; the first answer held for the state publisher's own command
-subscription. (The node's handling of bad states and law outputs: tests/node.)"""
+subscription; many bad states, withheld commands and a raising plugin (the cases
+bench/bench_faults.py runs; the node's other handling of bad input: tests/node)."""
 
 from __future__ import annotations
 
@@ -164,3 +165,122 @@ def test_first_answer_waits_for_the_command_subscription_of_the_state_publisher(
         rclpy.shutdown(context=context)
         listener.close()
     assert got[0][0] == 0.0 and listener.commands[0] == got[0], out
+
+
+def _first_state_to_controller(probe: Probe) -> None:
+    """Wait for the controller node, then publish the state t = 0 once it is matched."""
+    probe.wait(lambda: probe.node.count_subscribers('state') > 0
+               and probe.node.count_publishers('command') > 0, 20, 'the controller')
+    probe.publish_state([0.0, 0.0, 0.0, 0.0, 0.0])
+    # matched by the probe's own subscription and by the controller's
+    probe.wait(lambda: probe._state_pub.get_subscription_count() >= 2, 20, 'matching')
+
+
+def test_controller_survives_many_bad_states_and_throttles_their_lines():
+    """Issue 21, class 1: the 21st dropped state killed the node (rclpy: "Requested logging
+    filters cannot be changed between calls"). 40 bad states: the node stays alive, answers
+    a good state after them, and logs the first 20 drops one by one, then at most one line a
+    second (docs/ros.md)."""
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    probe = Probe(domain)
+    ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
+    try:
+        _first_state_to_controller(probe)
+        for k in range(40):
+            probe.publish_state([0.1 + k * 1e-3, float('nan'), 0.0, 0.0, 0.0])
+        probe.publish_state([0.5, 0.01, 0.0, 0.0, 0.0])
+        probe.wait(lambda: any(c[0] == 0.5 for c in probe.commands), 20, 'the good answer')
+        alive = ctl.poll() is None
+    finally:
+        out = stop_all(ctl)
+        probe.close()
+    assert alive, out
+    assert 'Traceback' not in out and 'cannot be changed' not in out
+    lines = [ln for ln in out.splitlines() if 'dropped a state message' in ln]
+    # 20 one by one; the other 20 arrive within far less than a second on a quiet machine,
+    # and never more than one a second: at most 20 + (seconds taken + 1) lines
+    assert 20 <= len(lines) < 40, out
+    assert '(20 dropped) [logged one by one up to here' in lines[19]
+    assert 'answered 2 state(s), dropped 40' in out
+
+
+def test_controller_survives_many_withheld_commands_and_throttles_their_lines():
+    """Issue 21, class 1, its other half: the 21st withheld (non-finite) command killed the
+    node as the 21st dropped state did. Gains of 1e308 overflow for 40 states of z = 10 m:
+    no command for any of them, the node stays alive and answers a state after them."""
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    probe = Probe(domain)
+    ctl = rosproc.start('fohssv_controller', 'state_feedback',
+                        ['--ros-args', '-p', 'depth_gain:=1e308', '-p', 'pitch_gain:=-1e308'],
+                        env=env)
+    try:
+        _first_state_to_controller(probe)
+        for k in range(40):
+            probe.publish_state([0.1 + k * 1e-3, 10.0, 0.0, 10.0, 0.0])
+        probe.publish_state([0.5, 0.0, 0.0, 0.0, 0.0])
+        probe.wait(lambda: any(c[0] == 0.5 for c in probe.commands), 20, 'the good answer')
+        alive = ctl.poll() is None
+    finally:
+        out = stop_all(ctl)
+        probe.close()
+    assert alive, out
+    assert 'Traceback' not in out and 'cannot be changed' not in out
+    assert not [c for c in probe.commands if 0.1 <= c[0] < 0.5], probe.commands
+    lines = [ln for ln in out.splitlines() if 'no command sent for this state' in ln]
+    assert 20 <= len(lines) < 40, out
+    assert '(20 withheld) [logged one by one up to here' in lines[19]
+    assert 'answered 2 state(s), dropped 0, withheld 40 (non-finite law output)' in out
+
+
+_RAISING = '''
+import sys
+sys.path.insert(0, {examples!r})
+from pitch_damper import PitchDamper
+
+
+class Raising(PitchDamper):
+    name = 'raising'
+
+    def update(self, t, state):
+        if t > 0.0:
+            raise RuntimeError('a bug in the plugin')
+        return super().update(t, state)
+
+
+from fohssv_controller.ros.controller_node import main
+main(default_controller=Raising)
+'''
+
+
+def test_a_plugin_that_raises_is_logged_rate_limited_and_the_node_lives(tmp_path):
+    """Issue 21, class 1: a plugin whose ``update`` raised logged one ERROR per sample (10 000
+    a second). 60 states it raises for: counted, 20 lines one by one then at most one a
+    second; the state at t = 0 (which it answers) and the node's final line still come."""
+    import subprocess
+
+    script = tmp_path / 'raising.py'
+    script.write_text(_RAISING.format(examples=str(EXAMPLES)))
+    domain = rosproc.unique_domain_id()
+    env = rosproc.ros_env(domain)
+    probe = Probe(domain)
+    ctl = subprocess.Popen([sys.executable, str(script)], env=env, stdout=subprocess.PIPE,
+                           stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    rosproc.STARTED.append(ctl)
+    try:
+        _first_state_to_controller(probe)
+        probe.wait(lambda: any(c[0] == 0.0 for c in probe.commands), 20, 'the answer at t=0')
+        for k in range(60):
+            probe.publish_state([0.1 + k * 1e-3, 0.0, 0.0, 0.0, 0.0])
+        probe.wait(lambda: probe.node.count_publishers('command') > 0, 5, 'the node')
+        import time
+        time.sleep(1.0)
+        alive = ctl.poll() is None
+    finally:
+        out = stop_all(ctl)
+        probe.close()
+    assert alive, out
+    lines = [ln for ln in out.splitlines() if 'raised RuntimeError: a bug in the plugin' in ln]
+    assert 20 <= len(lines) < 60, out
+    assert 'answered 1 state(s), dropped 0, withheld 0 (non-finite law output), 60 raised' in out

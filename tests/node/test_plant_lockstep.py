@@ -1,5 +1,6 @@
-"""The plant node's start gate, lockstep timeout and parameters at run time, in the test
-process (the exit codes, stopped processes and stalls are the process tests')."""
+"""The plant node's lockstep timeout and its parameters at start and at run time, in the test
+process (stopped processes and stalls are the process tests'; the start gate:
+test_plant_start)."""
 
 from __future__ import annotations
 
@@ -14,13 +15,6 @@ pytestmark = pytest.mark.node
 
 TOL = 1e-12
 ALONE = {'min_state_subscribers': 0, 'min_command_publishers': 0}
-
-
-def test_missing_peers_at_start_end_the_run_with_exit_4(graph, capfd):
-    plant = graph.plant(model='delay-free', start_timeout=1.0)
-    assert graph.run(plant, 30) == 4
-    out = capfd.readouterr().err
-    assert 'start timeout: state has 0/1 subscriber(s), command has 0/1 publisher(s)' in out
 
 
 def test_lockstep_timeout_names_the_stalled_controller(graph, capfd):

@@ -2,10 +2,13 @@
 
 A :class:`Graph` is rclpy's default context, as a node's process has it, initialised on the
 test's own ROS_DOMAIN_ID (with the nodes' discovery settings, :func:`rosproc.init_context`)
-for the test and shut down after it, and one ``SingleThreadedExecutor`` that
-spins every node of the test: the plant and controller nodes the executables build, given
-their parameters as ``parameter_overrides`` (what ``--ros-args -p name:=value`` gives them),
-and a :class:`Probe` that records what they publish and can play the controller with whatever
+for the test and shut down after it, and one executor, the one the nodes' processes spin on
+(:func:`fohssv_sim.ros.spin.make_executor`: rclpy's EventsExecutor unless
+``FOHSSV_EXECUTOR=single``; a fraction of the single-threaded executor's cost per callback,
+which a lockstep run in one executor pays three times a sample), that spins every node of
+the test: the plant and controller nodes the executables build, given their parameters as
+``parameter_overrides`` (what ``--ros-args -p name:=value`` gives them), and a
+:class:`Probe` that records what they publish and can play the controller with whatever
 answers a test needs. The plant is spun the way its process spins it
 (:func:`fohssv_sim.ros.spin.spin_until`, paced by the node) until its run ends. The nodes
 log as in their processes (rcutils, to stderr): read their lines with pytest's ``capfd``.
@@ -36,7 +39,7 @@ from fohssv_sim.contract import CLOCK, COMMAND, STATE
 from fohssv_sim.ros.nodekit import array_message
 from fohssv_sim.ros.plant_node import PlantNode
 from fohssv_sim.ros.qos import profile
-from fohssv_sim.ros.spin import spin_until
+from fohssv_sim.ros.spin import make_executor, spin_until
 
 import rosproc
 
@@ -116,7 +119,7 @@ class Graph:
         self.domain = rosproc.unique_domain_id()
         # the default context: what the node's process spins on (rclpy.ok() included)
         self.context = rosproc.init_context(self.domain, get_default_context())
-        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor = make_executor()    # what the nodes spin on in their processes
         self.nodes: list[Any] = []
         self._threads: list[tuple] = []      # (stop, thread, executor, node) of threaded probes
 

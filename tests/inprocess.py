@@ -197,13 +197,17 @@ class Graph:
             self.executor.spin_once(timeout_sec=min(left, 0.05))
 
     def close(self) -> None:
-        for stop, spinner, executor, node in self._threads:
-            stop.set()
-            spinner.join(timeout=5)
-            executor.shutdown()
-            node.destroy_node()
-        for node in self.nodes:
-            self.executor.remove_node(node)
-            node.destroy_node()
-        self.executor.shutdown()
-        rclpy.shutdown()          # the default context: the next rclpy.init makes a new one
+        """Destroy the nodes and shut the context down, whatever fails on the way: a context
+        left initialised would fail every later test of this process at its ``rclpy.init``."""
+        try:
+            for stop, spinner, executor, node in self._threads:
+                stop.set()
+                spinner.join(timeout=5)
+                executor.shutdown()
+                node.destroy_node()
+            for node in self.nodes:
+                self.executor.remove_node(node)
+                node.destroy_node()
+            self.executor.shutdown()
+        finally:
+            rclpy.shutdown()      # the default context: the next rclpy.init makes a new one

@@ -32,6 +32,14 @@ def _clean_shared_memory(session, when: str) -> None:
         print(f'\nFast DDS shared memory {when} the run: ' + '; '.join(lines[1:]))
 
 
+def pytest_configure(config):
+    """A bad ``FOHSSV_TEST_DOMAINS`` stops the run at once, in one line, not in every test."""
+    try:
+        rosproc.domain_range()
+    except ValueError as exc:
+        raise pytest.UsageError(str(exc)) from None
+
+
 def pytest_sessionstart(session):
     _clean_shared_memory(session, 'before')
 

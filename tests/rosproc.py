@@ -3,6 +3,11 @@
 Every test gets its own ROS_DOMAIN_ID (so concurrent runs on one machine do not see each
 other) and localhost-only discovery. Processes are the colcon-installed executables, started
 exactly as ``ros2 run <pkg> <exe>`` would resolve them.
+
+The domains come from 1-200 unless ``FOHSSV_TEST_DOMAINS=LO-HI`` confines them (inclusive,
+within 0-232, Fast DDS's limit), e.g. on a host where other ROS 2 users or another run hold
+some domains: ``FOHSSV_TEST_DOMAINS=101-150 make test``. The range needs at least as many
+domains as pytest-xdist workers; a wider one lets concurrent runs overlap less.
 """
 
 from __future__ import annotations
@@ -21,8 +26,10 @@ from pathlib import Path
 from ament_index_python.packages import get_package_prefix
 
 _counter = itertools.count()
-#: ROS_DOMAIN_IDs the tests use: 1 to 200 (Fast DDS allows up to 232).
-_DOMAINS = 200
+#: The environment variable that confines the tests' ROS_DOMAIN_IDs, and its default.
+DOMAINS_VAR, DOMAINS_DEFAULT = 'FOHSSV_TEST_DOMAINS', '1-200'
+#: Fast DDS's largest domain id (its port arithmetic allows 232).
+_MAX_DOMAIN = 232
 #: Every process started by :func:`start`; conftest kills those still running after each test.
 STARTED: list[subprocess.Popen] = []
 
@@ -41,17 +48,36 @@ def _run_seed() -> int:
     return zlib.crc32(run_id.encode()) if run_id else os.getpid() * 7
 
 
+def domain_range(text: str | None = None) -> tuple[int, int]:
+    """(lo, hi), inclusive, of ``text`` (default: :data:`DOMAINS_VAR` from the environment,
+    else :data:`DOMAINS_DEFAULT`), a range ``LO-HI`` of ROS_DOMAIN_IDs. Raises ValueError
+    naming the variable, its value and what is allowed."""
+    if text is None:
+        text = os.environ.get(DOMAINS_VAR) or DOMAINS_DEFAULT
+    found = re.fullmatch(r'\s*(\d+)\s*-\s*(\d+)\s*', text)
+    lo, hi = (int(found.group(1)), int(found.group(2))) if found else (-1, -1)
+    if not 0 <= lo <= hi <= _MAX_DOMAIN:
+        raise ValueError(f'{DOMAINS_VAR}={text!r} is not a range LO-HI of ROS domain ids '
+                         f'with 0 <= LO <= HI <= {_MAX_DOMAIN} (e.g. {DOMAINS_DEFAULT})')
+    return lo, hi
+
+
 def unique_domain_id() -> int:
-    """A ROS_DOMAIN_ID in [1, 200] that differs between tests and between concurrent runs.
+    """A ROS_DOMAIN_ID in :func:`domain_range` that differs between tests and between
+    concurrent runs.
 
     The parallel workers of one run (``make test`` uses pytest-xdist) never share a domain:
-    worker k of n gets the domains 1 + m with m = k (mod n), in turn, so consecutive tests
+    worker k of n gets the domains lo + m with m = k (mod n), in turn, so consecutive tests
     of one worker differ too. Another run on the machine starts elsewhere in the cycle.
     """
+    lo, hi = domain_range()
     k, n = _worker()
-    span = (_DOMAINS // n) * n          # a multiple of n keeps the residue k when it wraps
+    span = ((hi - lo + 1) // n) * n     # a multiple of n keeps the residue k when it wraps
+    if span == 0:
+        raise ValueError(f'{DOMAINS_VAR}={lo}-{hi} holds {hi - lo + 1} domain(s), fewer than '
+                         f'the {n} pytest-xdist workers: widen it or run fewer workers (-n)')
     base = (_run_seed() % (span // n)) * n
-    return 1 + (base + k + n * next(_counter)) % span
+    return lo + (base + k + n * next(_counter)) % span
 
 
 def ros_env(domain_id: int | None = None, **extra: str) -> dict[str, str]:
@@ -66,8 +92,9 @@ def ros_env(domain_id: int | None = None, **extra: str) -> dict[str, str]:
     return env
 
 
-def init_context(domain_id: int):
-    """An initialised ``rclpy.Context`` on ``domain_id`` with the discovery settings every fohssv
+def init_context(domain_id: int, context=None):
+    """An initialised ``rclpy.Context`` (``context``, default a new one) on ``domain_id`` with
+    the discovery settings every fohssv
     node gives itself (``startup.init``: the package's loopback-only Fast DDS profile, and
     with it the range LOCALHOST handed to rcl as SUBNET), whatever the test process's own
     environment holds. A participant with LOCALHOST and the profile (what env.sh exported
@@ -75,6 +102,7 @@ def init_context(domain_id: int):
     node started after it saw it 0.5 to 2.9 s later, against 0 to 0.7 s for one configured
     like the nodes (measured), so a player that did not wait for it played to nobody."""
     import rclpy
+    from rclpy.signals import SignalHandlerOptions
 
     from fohssv_sim.ros.startup import default_transport
 
@@ -82,8 +110,10 @@ def init_context(domain_id: int):
                                             'FASTDDS_DEFAULT_PROFILES_FILE')}
     try:
         default_transport()            # rcl and Fast DDS read these at init
-        ctx = rclpy.Context()
-        rclpy.init(context=ctx, domain_id=domain_id)
+        ctx = rclpy.Context() if context is None else context
+        # the test process keeps its own signal handling (pytest's), default context or not
+        rclpy.init(context=ctx, domain_id=domain_id,
+                   signal_handler_options=SignalHandlerOptions.NO)
     finally:
         for k, v in saved.items():
             if v is None:
@@ -112,6 +142,26 @@ def start(package: str, name: str, args: Sequence[str] = (), *, env: dict[str, s
     proc = subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT, text=True,
                             start_new_session=True)
     STARTED.append(proc)
+    return proc
+
+
+def param_args(*settings: str) -> list[str]:
+    """``--ros-args -p s ...`` for ``settings`` such as ``'bag_path:=/tmp/run'``."""
+    out = ['--ros-args']
+    for setting in settings:
+        out += ['-p', setting]
+    return out
+
+
+def start_recorder(env: dict[str, str], log: Path, *settings: str,
+                   ready: bool = True) -> subprocess.Popen:
+    """The recorder node with the ``-p`` ``settings`` (e.g. ``f'bag_path:={bag}'``), its
+    output in ``log``; with ``ready``, returned once it has created its bag (its ``recording
+    to`` line), so that what a test starts next is recorded."""
+    proc = start('fohssv_sim', 'recorder', param_args(*settings), env=env, log=log)
+    if ready:
+        wait_for(lambda: 'recording to' in log.read_text(), 90,
+                 what=f'the recorder logging to {log}')
     return proc
 
 
@@ -252,6 +302,17 @@ def without_port_race(text: str) -> str:
     nodes at once in one domain checks each node's own lines."""
     return ''.join(line for line in text.splitlines(keepends=True)
                    if not FASTDDS_PORT_RACE.search(_COLOUR.sub('', line).rstrip()))
+
+
+def summary(text: str) -> dict:
+    """The plant's summary: the JSON after ``summary: `` on the last line of ``text`` (its log
+    or output) that has one; a run logs one, at its end or on the signal that ended it."""
+    import json
+
+    lines = [ln for ln in text.splitlines() if 'summary: {' in ln]
+    if not lines:
+        raise AssertionError(f'no summary line in the log; its end:\n{text[-3000:]}')
+    return json.loads(lines[-1].split('summary: ', 1)[1])
 
 
 def output(proc: subprocess.Popen) -> str:

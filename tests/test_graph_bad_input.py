@@ -1,15 +1,16 @@
 """Bad input to the plant node, with real processes over DDS.
 
-Each case of the issue: non-finite, out-of-range and wrong-length commands (rejected, logged,
-the plant keeps stepping with the last good command); invalid parameters at start and at run
-time (refused with a reason, the running simulation untouched); a state that turns
-non-finite (exit 1 naming time and state); lockstep timeouts naming the side that stalled;
-peers missing at start; the real-time watchdog warning once.
+What is between processes or needs the process: bad commands taken in compiled code (the
+FOM), lockstep timeouts with a stopped controller or plant, a stalled publish, an
+overrunning plant (exit 3), a second plant (exit 5) and a second state publisher. The node's
+own logic (bad commands rejected and held, stale and future ones, parameters refused at
+start and at run time, the start gate's exit 4, the lockstep timeout naming the controller,
+a lowered deflection limit, the watchdog, a state turning non-finite or leaving its bounds)
+is tested in the test process: tests/node.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import re
@@ -25,21 +26,18 @@ from fohssv_sim.ros.faults import STALL_STATE_VAR
 
 import rosproc
 
+pytestmark = pytest.mark.graph
+
 TOL = 1e-12
 T = 1e-4  # default control period
-ALONE = {'min_state_subscribers': 0, 'min_command_publishers': 0}
 
-
-def _summary(out: str) -> dict:
-    line = [ln for ln in out.splitlines() if 'summary: {' in ln][-1]
-    return json.loads(line.split('summary: ', 1)[1])
 
 
 def _plant(params: dict, env: dict):
     return rosproc.start('fohssv_sim', 'plant', plant_args(**params), env=env)
 
 
-@pytest.mark.parametrize('model', ['delay-free', 'fractional'])
+@pytest.mark.parametrize('model', ['fractional'])   # delay-free: tests/node
 def test_bad_commands_are_rejected_and_the_last_good_one_is_held(model):
     """The probe is the controller: good commands delta_c = 0.001 k at sample k, except a NaN,
     an out-of-range and a wrong-length answer at samples 3, 4, 5. The plant must hold the
@@ -75,103 +73,12 @@ def test_bad_commands_are_rejected_and_the_last_good_one_is_held(model):
     assert 'expected 3 values' in rejected[2]
     assert all('keeping the last good command delta_f=0.0, delta_c=0.002 rad' in ln
                for ln in rejected)
-    assert _summary(out)['rejected_commands'] == 3
-    assert _summary(out)['compiled_take'] is (model == 'fractional')
+    assert rosproc.summary(out)['rejected_commands'] == 3
+    assert rosproc.summary(out)['compiled_take'] is (model == 'fractional')
     ref, _ = batch_samples(model, applied, 0.02)
     got = probe.state_array()
     assert got.shape == ref.shape
     assert np.max(np.abs(got - ref)) <= TOL
-
-
-def test_invalid_parameter_change_is_refused_and_the_run_is_untouched():
-    domain = rosproc.unique_domain_id()
-    env = rosproc.ros_env(domain)
-    probe = Probe(domain)
-    ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
-    # 0.5 s (5000 lockstep samples): the run must outlast the four service calls, which a
-    # loaded machine can delay by seconds (a call to a plant that has ended gets no answer).
-    # Paced by the probe's acknowledgements: 5001 samples are more than the 2000-sample queue,
-    # and beside two CPU hogs the unpaced probe never got all of them (30 s after the run)
-    plant = _plant({'model': 'delay-free', 'duration': 0.5, 'min_state_subscribers': 2,
-                    'pace_to_subscribers': 512}, env)
-    try:
-        probe.wait(lambda: len(probe.states) > 50, 30, 'the run to start')
-        out_of_range, read_only, wrong_type = probe.set_plant_parameters(
-            real_time_factor=-1.0, speed=80.0, command_timeout='long')
-        # inside the descriptor's closed range but not the table's open one: our validation
-        open_bound, = probe.set_plant_parameters(real_time_factor=0.0)
-        accepted, = probe.set_plant_parameters(watchdog_timeout=0.5)
-        current = probe.result(probe.params.get_parameters(
-            ['real_time_factor', 'speed', 'watchdog_timeout'])).values
-        code, out = finish(plant, 60)
-        assert code == 0, out
-        probe.wait(lambda: len(probe.states) >= 5001, 30, 'all samples')
-    finally:
-        stop_all(plant, ctl)
-        probe.close()
-    assert not out_of_range.successful
-    # rclpy checks the descriptor's FloatingPointRange first
-    assert 'real_time_factor out of range Min: 0.0, Max: 1000.0' in out_of_range.reason
-    assert not open_bound.successful
-    assert ('real_time_factor=0.0 is outside the allowed range (0, 1000] (realtime mode: '
-            'simulated seconds per wall second)') in open_bound.reason
-    assert not read_only.successful and 'read-only' in read_only.reason
-    assert not wrong_type.successful
-    assert accepted.successful
-    assert [p.double_value for p in current] == [1.0, 75.0, 0.5]
-    ref, _ = batch_samples('delay-free', StateFeedback(), 0.5)
-    got = probe.state_array()
-    assert got.shape == ref.shape
-    assert np.max(np.abs(got - ref)) <= TOL
-
-
-@pytest.mark.parametrize('params, message', [
-    ({'speed': -1.0}, 'speed=-1.0 is outside the allowed range (0, inf) m/s'),
-    ({'control_period': 1.05e-4, 'model': 'delay-free'},
-     'control_period=0.000105 s must be a whole multiple of the integration step 1e-05 s'),
-    ({'model': 'quantum'}, "model='quantum' is not valid; choose one of 'fractional'"),
-    ({'mode': 'realtime', 'clock_period': 2.5e-4},
-     'clock_period=0.00025 s is not 0 or a whole multiple of control_period=0.0001 s '
-     '(allowed: 0 or k * control_period'),
-    # outside the descriptor's range too: checked against the table before rclpy declares it
-    ({'clock_period': 2.0}, 'invalid parameters: clock_period=2.0 is outside the allowed '
-     'range [0, 1] s (realtime mode: simulated time between /clock messages'),
-    ({'profile': 2}, 'profile=2 is outside the allowed range [0, 1]'),
-])
-def test_invalid_parameters_at_start_exit_2(params, message):
-    env = rosproc.ros_env()
-    code, out = finish(_plant(params, env), 30)
-    assert code == 2, out
-    assert message in out
-
-
-def test_integer_for_a_double_parameter_is_accepted():
-    env = rosproc.ros_env()
-    plant = _plant({'model': 'delay-free', 'speed': 80, 'mode': 'realtime',
-                    'control_period': 1e-3, 'duration': 0.05, **ALONE}, env)
-    code, out = finish(plant, 30)
-    assert code == 0, out
-    assert 'V=80 m/s' in out
-
-
-def test_non_finite_state_stops_the_run_with_exit_1_naming_time_and_state():
-    env = rosproc.ros_env()
-    plant = _plant({'model': 'delay-free', 'mode': 'realtime', 'duration': 1.0,
-                    'initial_state': [0.0, 1e307, 0.0, 0.0], **ALONE}, env)
-    code, out = finish(plant, 30)
-    assert code == 1, out
-    assert re.search(r'simulation failed: state became non-finite at t=1e-05 s: '
-                     r'\[z, w, theta, q\] = \[nan, nan, nan, nan\] \(from \[0\.0, 1e\+307',
-                     out), out
-
-
-def test_lockstep_timeout_names_the_stalled_controller():
-    env = rosproc.ros_env()
-    plant = _plant({'model': 'delay-free', 'command_timeout': 0.5, **ALONE}, env)
-    code, out = finish(plant, 30)
-    assert code == 3, out
-    assert ('lockstep timeout: the controller stalled: no command answering t=0.0 s within '
-            'command_timeout=0.5 s (no command received at all') in out
 
 
 def test_lockstep_timeout_lowered_during_the_run_still_fires():
@@ -300,7 +207,7 @@ def test_a_stopped_plant_does_not_blame_its_controller(tmp_path, stopped, timeou
     assert code == 0, text
     assert 'stopping cleanly at t=2.0 s' in text, text
     # the stop fell inside the run (its wall time holds it), the FOM's inside its compiled take
-    assert _summary(text)['wall_time'] > stopped, text
+    assert rosproc.summary(text)['wall_time'] > stopped, text
     assert f'"compiled_take": {"true" if model == "fractional" else "false"}' in text, text
 
 
@@ -321,109 +228,6 @@ def test_lockstep_timeout_names_an_overrunning_plant():
     assert 'lockstep timeout: the plant is overrunning: one control period (2500 steps)' in out
     # more CPU than the timeout (0.02 s) over the second period
     assert re.search(r'at t=0\.1 s, using (0\.0[2-9]|0\.[1-9]|[1-9])[0-9.]* s of CPU', out), out
-
-
-def test_missing_peers_at_start_exit_4():
-    env = rosproc.ros_env()
-    code, out = finish(_plant({'model': 'delay-free', 'start_timeout': 1.0}, env), 30)
-    assert code == 4, out
-    assert 'start timeout: state has 0/1 subscriber(s), command has 0/1 publisher(s)' in out
-
-
-def test_realtime_watchdog_warns_once_and_holds_the_command():
-    # the delayed model: with no command it stays within |w| <= V for more than 0.5 s (the
-    # delay-free one leaves it after 0.26 s, and the plant then stops with exit 1)
-    env = rosproc.ros_env()
-    plant = _plant({'model': 'delayed', 'mode': 'realtime', 'control_period': 1e-3,
-                    'watchdog_timeout': 0.2, 'duration': 0.5, **ALONE}, env)
-    code, out = finish(plant, 30)
-    assert code == 0, out
-    warnings = [ln for ln in out.splitlines() if 'watchdog: no command for' in ln]
-    assert len(warnings) == 1, out
-    assert 'holding delta_f=0.0 rad, delta_c=0.0 rad' in warnings[0]
-    s = _summary(out)
-    assert s['samples_paced'] == 501 and s['t'] == pytest.approx(0.5)
-    assert 0.0 <= s['deadline_miss_rate'] <= 1.0
-
-
-def test_lowering_a_deflection_limit_clamps_the_held_command():
-    """Issue 12, defect 6: the probe answers every state with delta_c = -0.11 rad; once
-    max_cavitator_deflection is lowered to 0.001 rad those commands are rejected, and the
-    command the plant holds must be the clamped -0.001 rad, not the old -0.11 rad."""
-    domain = rosproc.unique_domain_id()
-    env = rosproc.ros_env(domain)
-    probe = Probe(domain, answer=lambda t, x: [t, 0.0, -0.11])
-    # open loop at a fixed deflection the vehicle leaves |w| <= V after about 0.24 s
-    plant = _plant({'model': 'delay-free', 'duration': 0.1}, env)
-    try:
-        rosproc.wait_for(probe.params.services_are_ready, 30, what='the plant services')
-        probe.wait(lambda: len(probe.states) > 20, 30, 'the run to start')
-        result, = probe.set_plant_parameters(max_cavitator_deflection=0.001)
-        code, out = finish(plant, 60)
-        assert code == 0, out
-    finally:
-        stop_all(plant)
-        probe.close()
-    assert result.successful
-    changed = [ln for ln in out.splitlines() if 'deflection limits now' in ln]
-    assert len(changed) == 1, out
-    assert ("max_cavitator_deflection=0.001 rad at t=" in changed[0] and
-            'the held command delta_f=0.0, delta_c=-0.11 rad is beyond them; holding the '
-            'clamped command delta_f=0.0, delta_c=-0.001 rad' in changed[0]), changed
-    rejected = [ln for ln in out.splitlines() if 'rejected command' in ln]
-    assert rejected and all('delta_c=-0.11 rad exceeds max_cavitator_deflection=0.001 rad'
-                            in ln and 'keeping the last good command delta_f=0.0, '
-                            'delta_c=-0.001 rad' in ln for ln in rejected), rejected
-
-
-def test_state_beyond_physical_bounds_stops_the_run_with_exit_1():
-    """Issue 12, defect 7: the largest allowed step (0.01 s) is unstable for RK4 on eq. 17;
-    the run used to end at duration with exit 0 and w in the millions."""
-    env = rosproc.ros_env()
-    plant = _plant({'model': 'delay-free', 'step': 0.01, 'control_period': 0.01,
-                    'mode': 'realtime', 'real_time_factor': 100.0, 'duration': 5.0,
-                    'initial_state': [0.0, 1.0, 0.0, 0.0], **ALONE}, env)
-    code, out = finish(plant, 60)
-    assert code == 1, out
-    assert re.search(r'simulation failed: state beyond physical bounds at t=\S+ s: '
-                     r'\[z, w, theta, q\] = \[.*\] \(\|w\| must stay <= V = 75 m/s', out), out
-    assert 'stopping cleanly' not in out
-
-
-def test_realtime_rejects_commands_from_the_future_and_stale_ones():
-    """Issue 12, defect 14: answers at samples 3, 4, 5 claim t + 1 s (the future), t - 1 s
-    and -1e300 s (older than max_command_age); each is rejected, counted and logged, and the
-    largest command lag stays that of the good answers."""
-    bad = {3: lambda t: t + 1.0, 4: lambda t: t - 1.0, 5: lambda t: -1e300}
-
-    law = StateFeedback()
-
-    def answer(t, x):
-        k = round(t / 1e-3)
-        return [bad[k](t) if k in bad else t, *law.command(t, x)]
-
-    domain = rosproc.unique_domain_id()
-    env = rosproc.ros_env(domain)
-    probe = Probe(domain, answer=answer)
-    # 0.1 s of simulated time: the vehicle cannot leave its bounds within it even open loop
-    # (it does at 0.26 s), however late a loaded machine delivers the probe's answers
-    plant = _plant({'model': 'delay-free', 'mode': 'realtime', 'control_period': 1e-3,
-                    'duration': 0.1, 'max_command_age': 0.5, 'real_time_factor': 0.1}, env)
-    try:
-        code, out = finish(plant, 60)
-        assert code == 0, out
-    finally:
-        stop_all(plant)
-        probe.close()
-    s = _summary(out)
-    rejected = [ln for ln in out.splitlines() if 'rejected command' in ln]
-    assert s['stale_commands'] == 3 and s['rejected_commands'] == 3, out
-    assert len(rejected) == 3, out
-    assert ("stale command: it answers t=1.00" in rejected[0]
-            and "after the plant's current sample" in rejected[0]), rejected
-    assert 'older than max_command_age=0.5 s' in rejected[1]
-    assert 'it answers t=-1e+300 s' in rejected[2]
-    assert 0.0 <= s['max_command_lag'] <= 0.5
 
 
 def test_a_second_plant_on_the_same_domain_is_refused():

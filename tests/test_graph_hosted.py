@@ -1,10 +1,8 @@
 """Hosted controllers and the honest limits of external ones (issue 20), real processes over DDS.
 
-* A plant hosting the law (``controller:=NAME``) in lockstep gives the batch runner's
-  trajectory ``simulate(..., control_period=...)`` to 1e-12, for every model and every built-in
-  controller, and publishes the commands the batch runner applied (t = the answered sample);
-  the external controller node gives the same (the combinations tests/test_graph_lockstep.py
-  does not already run are run here), so hosted = external = batch.
+* A hosted law with no command for any sample is counted and rate-limited.
+* (The hosted lockstep run equal to the batch runner and to the external node, for every
+  model and built-in controller: tests/node.)
 * The hosted law's parameters are the plant's ``controller.*`` parameters: they change at run
   time and the commands follow; an out-of-range value is refused with its range.
 * A second publisher of ``command`` against a hosted plant stops it (exit 7).
@@ -14,118 +12,21 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 import pytest
-from ament_index_python.packages import get_package_share_directory
 from test_graph_support import Probe, finish, plant_args, stop_all
 
-from fohssv_controller.fractional_pid import FractionalPID
-from fohssv_controller.lqr import LQR
 from fohssv_controller.state_feedback import StateFeedback
-from fohssv_sim.params import ModelParameters
-from fohssv_sim.simulate import simulate
 
 import rosproc
 
-EXAMPLES = Path(__file__).parent / 'examples'
-TOL = 1e-12
+pytestmark = pytest.mark.graph
+
 DURATION = 0.05
-MODELS = ('delay-free', 'delayed', 'fractional')
-CONTROLLERS = {'state_feedback': StateFeedback, 'lqr': LQR, 'fractional_pid': FractionalPID}
-#: (model, controller) whose external-node lockstep run tests/test_graph_lockstep.py compares
-#: with the batch runner already
-EXTERNAL_ELSEWHERE = {('delay-free', 'state_feedback'), ('delayed', 'state_feedback'),
-                      ('fractional', 'state_feedback'), ('delay-free', 'lqr')}
 
-
-def _batch(model: str, name: str, duration: float) -> tuple[np.ndarray, np.ndarray]:
-    """The batch runner's samples [t, z, w, theta, q] and the inputs it applied from each
-    sample on [delta_f, delta_c], every 1e-4 s."""
-    p = ModelParameters(model=model)
-    r = simulate(p, CONTROLLERS[name](), duration, control_period=1e-4,
-                 sample_every=round(1e-4 / p.step))
-    return np.column_stack([r.t, r.state]), r.inputs
-
-
-class _Lockstep:
-    """One lockstep run, started at once and collected later (the runs of a test go
-    concurrently): the plant hosting ``hosted``, or with the controller executable
-    ``external``; a probe records the states and commands."""
-
-    def __init__(self, model: str, duration: float, hosted: str = '', external: str = ''
-                 ) -> None:
-        domain = rosproc.unique_domain_id()
-        env = rosproc.ros_env(domain)
-        self.n = round(duration / 1e-4) + 1
-        self.hosted = hosted
-        self.probe = Probe(domain, command_publisher=False)
-        yaml_file = f"{get_package_share_directory('fohssv_sim')}/config/plant.yaml"
-        # the controller holds its answers until the probe's reader is matched too: without
-        # that the plant alone gated them, and a probe discovered after the 0.05 s run got none
-        self.ctl = (rosproc.start('fohssv_controller', external, [
-            '--ros-args', '-p', 'min_command_subscribers:=2'], env=env) if external else None)
-        extra = {'controller': hosted} if hosted else {}
-        self.plant = rosproc.start(
-            'fohssv_sim', 'plant', ['--ros-args', '--params-file', yaml_file] + plant_args(
-                model=model, duration=duration, min_state_subscribers=2, end_linger=60.0,
-                **extra)[1:], env=env)
-
-    def collect(self) -> tuple[np.ndarray, np.ndarray, str]:
-        """The probe's states and commands (the ones answering all samples but the last: an
-        external node answers the last one too) and the plant's output."""
-        probe, plant, n = self.probe, self.plant, self.n
-        try:
-            probe.wait(lambda: (len(probe.states) >= n and len(probe.commands) >= n - 1)
-                       or plant.poll() is not None, 120, f'{n} samples at the probe')
-            out = stop_all(plant)
-            assert plant.returncode == 0, out
-            assert 'stopping cleanly at t=' in out, out
-            commands = np.array(probe.commands, dtype=float)
-            if not self.hosted:
-                commands = commands[:n - 1]
-            return probe.state_array(), commands, out
-        finally:
-            stop_all(plant, self.ctl)
-            probe.close()
-
-
-def _summary(out: str) -> dict:
-    line = next(ln for ln in out.splitlines() if 'summary: {' in ln)
-    return json.loads(line.split('summary: ', 1)[1])
-
-
-def _check(states: np.ndarray, commands: np.ndarray, ref: np.ndarray, inputs: np.ndarray,
-           out: str) -> None:
-    assert states.shape == ref.shape, out
-    assert np.array_equal(states[:, 0], ref[:, 0])
-    assert np.max(np.abs(states - ref)) <= TOL
-    # one command per sample but the last, answering it, equal to what the batch runner held
-    assert commands.shape == (len(ref) - 1, 3), out
-    assert np.array_equal(commands[:, 0], ref[:-1, 0])
-    assert np.max(np.abs(commands[:, 1:] - inputs[:-1])) <= TOL
-
-
-@pytest.mark.parametrize('model', MODELS)
-def test_hosted_lockstep_equals_the_batch_runner_and_the_external_node(model):
-    """Every built-in controller hosted, and through the external node where
-    tests/test_graph_lockstep.py does not run it already; all runs of a model at once."""
-    hosted = {name: _Lockstep(model, DURATION, hosted=name) for name in CONTROLLERS}
-    external = {name: _Lockstep(model, DURATION, external=name) for name in CONTROLLERS
-                if (model, name) not in EXTERNAL_ELSEWHERE}
-    results = {('hosted', k): run.collect() for k, run in hosted.items()}
-    results.update({('external', k): run.collect() for k, run in external.items()})
-    for (kind, name), (states, commands, out) in results.items():
-        ref, inputs = _batch(model, name, DURATION)
-        _check(states, commands, ref, inputs, out)
-        if kind == 'hosted':
-            s = _summary(out)
-            assert s['controller'] == name and s['hosted_commands'] == len(ref) - 1, s
-            assert f'controller {name}(' in out and 'hosted in the loop' in out
-        else:
-            assert np.max(np.abs(states - results['hosted', name][0])) <= TOL
+EXAMPLES = Path(__file__).parent / 'examples'
 
 
 def _realtime_hosted(env: dict, log: Path, **params) -> object:
@@ -242,7 +143,7 @@ def test_a_late_external_controller_stops_the_realtime_plant_with_exit_6(tmp_pat
                   'a longer control_period (e.g. control_period:=0.01)', 'controller:=NAME'):
         assert words in line, line
     assert 'state beyond physical bounds' not in out
-    s = _summary(out)
+    s = rosproc.summary(out)
     assert s['command_lag_worst'] > 20 and s['commands_over_lag_limit'] > 0, s
     assert s['t'] < 1.0, s
 
@@ -280,7 +181,7 @@ def test_after_a_realtime_reset_the_summary_is_the_whole_runs(tmp_path):
         out = stop_all(plant) + log.read_text()
         probe.close()
     assert code == 0, out
-    s = _summary(out)
+    s = rosproc.summary(out)
     t = probe.state_array()[:, 0]
     back = np.flatnonzero(np.diff(t) < 0)
     assert len(back) == 1 and t[back[0] + 1] == 0.0, (back, out[-3000:])
@@ -319,7 +220,7 @@ def test_a_hosted_law_that_fails_every_sample_is_counted_and_rate_limited(tmp_pa
     out = log.read_text()
     assert code == 0 and 'Traceback' not in out, out
     n = round(DURATION / 1e-4) + 1                      # the samples at t = 0 .. DURATION
-    s = _summary(out)
+    s = rosproc.summary(out)
     assert s['law_failures'] == n - 1 and s['hosted_commands'] == 0, s
     lines = [ln for ln in out.splitlines() if 'no command for this sample' in ln]
     # 20 one by one, then at most one a second of a run far shorter than the 20 s allowed

@@ -14,7 +14,6 @@ a bag through a writer process fed by shared memory. Real processes over DDS, re
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import signal
@@ -63,10 +62,6 @@ def _read(bag) -> tuple[dict, dict, dict]:
     return messages, channels, run.metadata
 
 
-def _summary(log: str) -> dict:
-    line = next(x for x in log.splitlines() if 'summary: {' in x)
-    return json.loads(line.split('summary: ', 1)[1])
-
 
 @pytest.mark.parametrize('model', ['delay-free', 'fractional'])
 def test_inplant_bag_equals_the_recorder_bag_of_the_same_run(tmp_path, model):
@@ -105,7 +100,7 @@ def test_inplant_bag_equals_the_recorder_bag_of_the_same_run(tmp_path, model):
         stop_all(*procs)
     text = plog.read_text()
     assert 'every message of the run is in the bag' in text, text
-    summary = _summary(text)
+    summary = rosproc.summary(text)
     assert summary['record_lost'] == 0 and summary['record_waits'] > 0, summary
     assert summary['compiled_samples'] == (n - 2 if model == 'fractional' else 0), summary
 
@@ -212,7 +207,7 @@ def test_a_realtime_writer_that_falls_behind_is_reported(tmp_path):
     text = log.read_text()
     assert code == 8, text
     assert 'in-plant recording: the writer fell behind' in text          # at once
-    summary = _summary(text)
+    summary = rosproc.summary(text)
     lost = summary['record_lost']
     assert lost > 0
     assert re.search(rf'in-plant recording: {lost} message\(s\) lost', text), text

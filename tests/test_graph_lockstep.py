@@ -9,7 +9,6 @@ operations in the same order).
 
 from __future__ import annotations
 
-import json
 import os
 
 import numpy as np
@@ -18,11 +17,12 @@ from ament_index_python.packages import get_package_share_directory
 from test_graph_support import Probe, batch_samples, plant_args, stop_all
 
 from fohssv_controller.fractional_pid import FractionalPID
-from fohssv_controller.lqr import LQR
 from fohssv_controller.state_feedback import StateFeedback
 from fohssv_sim.ros.spin import CPU_LATENCY_DEVICE, cpu_latency_limit
 
 import rosproc
+
+pytestmark = pytest.mark.graph
 
 TOL = 1e-12
 #: Simulated time per run: short, so the file stays well under a minute.
@@ -75,19 +75,6 @@ def test_lockstep_reproduces_batch_runner(model):
     assert f'"compiled_take": {"true" if model == "fractional" else "false"}' in out, out
 
 
-def test_swapping_the_controller_changes_only_the_response():
-    """The second built-in (LQR) through the generic node, same plant arguments: the response
-    differs from eq. 31 and equals the batch run under the LQR."""
-    duration = 0.1
-    states, _, _ = _run('delay-free', 'controller', duration,
-                        ['--ros-args', '-p', 'controller:=lqr'])
-    ref_lqr, _ = batch_samples('delay-free', LQR(), duration)
-    ref_sf, _ = batch_samples('delay-free', StateFeedback(), duration)
-    assert states.shape == ref_lqr.shape
-    assert np.max(np.abs(states - ref_lqr)) <= TOL
-    assert np.max(np.abs(states[:, 1:] - ref_sf[:, 1:])) > 1e-3
-
-
 #: The reset test's run length: long enough that the reset comes first (0: open-ended). The
 #: FOM's is finite because its 'soe' history is sized by the duration as the batch runner's is.
 RESET_DURATION = {'delay-free': 0.0, 'fractional': 5.0}
@@ -127,8 +114,7 @@ def test_reset_service_returns_to_t0_and_replays_the_run(model):
     assert len(back) == 1 and t[back[0] + 1] == 0.0, (back, t[back], t[back + 1], out[-3000:])
     # issue 21.2 / 22.8: the rates divide the whole run's samples by the whole run's time
     # (the probe saw back[0] advances before the reset: t = 0 and back[0] steps)
-    line = next(ln for ln in out.splitlines() if 'summary: {' in ln)
-    s = json.loads(line.split('summary: ', 1)[1])
+    s = rosproc.summary(out)
     assert s['resets'] == 1 and s['samples_total'] == s['samples'] + back[0], s
     assert s['samples_per_second'] * s['wall_time'] == pytest.approx(s['samples_total'])
     assert s['cpu_per_sample_us'] * s['samples_total'] == pytest.approx(s['cpu_time'] * 1e6)
@@ -250,7 +236,7 @@ def test_cpu_affinity_pins_every_thread_and_the_run_is_unchanged(tmp_path):
         assert ctl_holds and 'CPU wake-up latency at most 5 us' in ctl_log.read_text()
     else:
         assert not ctl_holds and 'cpu_dma_latency: 5 us not requested' in ctl_log.read_text()
-    summary = json.loads(plant_log.read_text().split('summary: ', 1)[1].splitlines()[0])
+    summary = rosproc.summary(plant_log.read_text())
     assert summary['cpu_affinity'] == [plant_cpu]
     ref, fref = batch_samples('fractional', StateFeedback(), duration)
     states, forces = probe.state_array(), np.array(probe.forces)
@@ -304,7 +290,7 @@ def test_cpu_dma_latency_is_held_by_the_process_while_it_runs(tmp_path):
     finally:
         stop_all(plant, ctl)
     text = plant_log.read_text()
-    summary = json.loads(text.split('summary: ', 1)[1].splitlines()[0])
+    summary = rosproc.summary(text)
     assert not ctl_held and 'cpu_dma_latency' not in ctl_log.read_text()
     if permitted:
         assert held and limit is not None and 0 <= limit <= 7, (held, limit)

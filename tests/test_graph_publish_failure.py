@@ -11,7 +11,6 @@ fail for real exists, see that module). The counts asserted come from the test's
 
 from __future__ import annotations
 
-import json
 from types import SimpleNamespace
 
 import numpy as np
@@ -64,10 +63,6 @@ def _run(tmp_path, refuse: str, hosted: bool, duration: float = DURATION,
                            recorder=rlog.read_text())
 
 
-def _summary(text: str) -> dict:
-    line = next(ln for ln in text.splitlines() if 'summary: {' in ln)
-    return json.loads(line.split('summary: ', 1)[1])
-
 
 @pytest.mark.parametrize(('hosted', 'inplant', 'model'), [
     (False, False, 'delay-free'), (True, False, 'delay-free'), (False, True, 'delay-free'),
@@ -93,7 +88,7 @@ def test_a_refused_sample_ends_the_run_with_exit_9_and_the_bag_agrees(tmp_path, 
     assert (f'/state: the sample at t={float(ref[N, 0])!r} s could not be published for 1 s '
             '(Failed to publish: ' in errors[0]), errors
     assert errors[0].rstrip().endswith('; stopping the run'), errors
-    summary = _summary(text)
+    summary = rosproc.summary(text)
     assert summary['published_states'] == N and summary['publish_retries'] == 1, summary
     if model == 'fractional':   # the refusal met the compiled fast path, not a slower one
         assert summary['compiled_samples'] >= N - 1, summary
@@ -134,7 +129,7 @@ def test_a_refusal_shorter_than_the_retry_loses_nothing(tmp_path):
     assert run.code == 0, run.plant
     assert 'stopping cleanly at t=' in run.plant and '[ERROR]' not in run.plant, run.plant
     assert f'/state: publishing the sample at t={float(ref[300, 0])!r} failed' in run.plant
-    summary = _summary(run.plant)
+    summary = rosproc.summary(run.plant)
     assert summary['publish_retries'] == 1 and summary['published_states'] == len(ref)
     assert run.rcode == 0, run.recorder
     bag = load_run(run.bag)

@@ -6,7 +6,6 @@ are.
 
 from __future__ import annotations
 
-import json
 import os
 import time
 
@@ -17,13 +16,11 @@ from test_graph_support import Probe, finish, plant_args, stop_all
 
 import rosproc
 
+pytestmark = pytest.mark.graph
+
 PARTS = ('advance', 'write_sample', 'publish_state', 'publish_planing_force', 'publish_clock',
          'command_callback', 'publish_views')
 
-
-def _summary(out: str) -> dict:
-    line = [ln for ln in out.splitlines() if 'summary: {' in ln][-1]
-    return json.loads(line.split('summary: ', 1)[1])
 
 
 class ClockListener:
@@ -55,7 +52,7 @@ def _run(duration: float, listen_to_clock: bool = True, clock_messages: int = 0,
         if clock is not None and clock_messages:
             probe.wait(lambda: len(clock.ns) >= clock_messages, 10,
                        f'{clock_messages} /clock messages at the probe')
-        return _summary(out), probe, clock, out
+        return rosproc.summary(out), probe, clock, out
     finally:
         stop_all(plant, ctl)
         probe.close()

@@ -80,10 +80,8 @@ def _publish(state, end, n: int, t0: float = 0.0, claim: int | None = None) -> N
 
 def _recorder(tmp_path, env, topics: str, end_timeout: float = 2.0):
     bag, log = tmp_path / 'bag', tmp_path / 'recorder.log'
-    rec = rosproc.start('fohssv_sim', 'recorder', [
-        '--ros-args', '-p', f'bag_path:={bag}', '-p', 'plant_node:=none', '-p',
-        f'end_timeout:={end_timeout}', '-p', f'topics:={topics}'], env=env, log=log)
-    rosproc.wait_for(lambda: 'recording to' in log.read_text(), 90, what='the recorder')
+    rec = rosproc.start_recorder(env, log, f'bag_path:={bag}', 'plant_node:=none',
+                                 f'end_timeout:={end_timeout}', f'topics:={topics}')
     return rec, bag, log
 
 

@@ -56,12 +56,7 @@ def busy():
 
 def _recorder(env, bag, log, *params: str):
     """A recorder of ``bag`` (extra ``-p`` settings), once it has created the bag."""
-    args = ['--ros-args', '-p', f'bag_path:={bag}', '-p', 'plant_timeout:=30.0']
-    for p in params:
-        args += ['-p', p]
-    rec = rosproc.start('fohssv_sim', 'recorder', args, env=env, log=log)
-    rosproc.wait_for(lambda: 'recording to' in log.read_text(), 90, what=f'the recorder of {bag}')
-    return rec
+    return rosproc.start_recorder(env, log, f'bag_path:={bag}', 'plant_timeout:=30.0', *params)
 
 
 def _controller(env, subscribers=2):
@@ -293,7 +288,6 @@ def test_after_sigint_a_lockstep_plant_steps_and_publishes_nothing(tmp_path, mod
     closed with "every message of the run is in the bag"). Now the bag, the run_end and the
     summary agree on the states published. (The FOM's samples take the compiled sample,
     compiled_sample.py, armed for the command awaited when the signal comes.)"""
-    import json
     import time
 
     # a probe besides the recorder: it keeps taking states after the run_end (the recorder
@@ -315,9 +309,8 @@ def test_after_sigint_a_lockstep_plant_steps_and_publishes_nothing(tmp_path, mod
             assert rosproc.wait_exit(loop.plant, 60) == 0, loop.plog.read_text()
             assert rosproc.wait_exit(loop.rec, 60) == 0, loop.log.read_text()
             text = loop.plog.read_text()
-            line = next(ln for ln in text.splitlines()
-                        if 'interrupted; stopping cleanly. summary' in ln)
-            summary = json.loads(line.split('summary: ', 1)[1])
+            assert 'interrupted; stopping cleanly. summary: {' in text, text
+            summary = rosproc.summary(text)
             ended = scan(loop.bag).run_metadata()['fohssv.run_end']
             in_bag = load_run(loop.bag).topics['/state']
             assert ended['published']['/state'] == summary['published_states'] == in_bag, (

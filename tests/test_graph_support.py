@@ -36,7 +36,7 @@ __test__ = False  # nothing to collect
 Answer = Callable[[float, tuple], Sequence[float] | None]
 
 
-def _keep_all(topic) -> QoSProfile:
+def keep_all(topic) -> QoSProfile:
     base = profile(topic)
     return QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=base.depth,
                       reliability=base.reliability, durability=base.durability)
@@ -63,10 +63,10 @@ class Probe:
         n = self.node
         # keep-all, as the recorder: a probe slower than a fast lockstep run stops acknowledging
         # instead of overwriting what it has not taken (a plant with pace_to_subscribers waits)
-        n.create_subscription(Float64MultiArray, STATE.name, self._on_state, _keep_all(STATE))
+        n.create_subscription(Float64MultiArray, STATE.name, self._on_state, keep_all(STATE))
         n.create_subscription(Float64MultiArray, PLANING_FORCE.name,
                               lambda m: self.forces.append(tuple(m.data)),
-                              _keep_all(PLANING_FORCE))
+                              keep_all(PLANING_FORCE))
         n.create_subscription(Float64MultiArray, COMMAND.name,
                               lambda m: self.commands.append(tuple(m.data)), profile(COMMAND))
         self.clocks: list[int] = []
@@ -152,6 +152,24 @@ class Probe:
         self.executor.shutdown()
         self.node.destroy_node()
         rclpy.shutdown(context=self.context)
+
+
+def bag_messages(bag: Any) -> dict[str, list]:
+    """Every message of the bag at ``bag``, decoded, by topic (in recorded order)."""
+    from fohssv_sim.bag.loader import scan
+    from fohssv_sim.bag.writer import typestore
+
+    sc, ts = scan(bag), typestore()
+    out: dict[str, list] = {}
+    for cid, _, raw in sc.messages:
+        chan = sc.channels[cid]
+        out.setdefault(chan.topic, []).append(ts.deserialize_cdr(raw, chan.msgtype))
+    return out
+
+
+def stamp_ns(stamp: Any) -> int:
+    """A ``builtin_interfaces/Time`` in nanoseconds."""
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
 def batch_samples(model: str, controller: Any, duration: float, control_period: float = 1e-4,

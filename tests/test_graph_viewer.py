@@ -21,33 +21,20 @@ from pathlib import Path
 
 import pytest
 from foxglove_client import FoxgloveClient
-from test_graph_support import plant_args, stop_all
+from test_graph_support import bag_messages, plant_args, stamp_ns, stop_all
 
 from fohssv_sim.bag import load_run
-from fohssv_sim.bag.loader import scan
-from fohssv_sim.bag.writer import typestore
 from fohssv_sim.ros.foxglove_live import TOPICS
 
 import rosproc
+
+pytestmark = pytest.mark.graph
 
 ROOT = Path(__file__).resolve().parents[1]
 LAYOUT = ROOT / 'docs' / 'foxglove' / 'fohssv_layout.json'
 DURATION = 0.2
 RATE = 10.0
 VIEW_NS = 10_000_000          # the plant's default view_period, 0.01 s
-
-
-def _bag_messages(bag: Path) -> dict[str, list]:
-    sc, ts = scan(bag), typestore()
-    out: dict[str, list] = {}
-    for cid, _, raw in sc.messages:
-        chan = sc.channels[cid]
-        out.setdefault(chan.topic, []).append(ts.deserialize_cdr(raw, chan.msgtype))
-    return out
-
-
-def _ns(stamp) -> int:
-    return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
 def _run(tmp_path: Path) -> tuple[FoxgloveClient, str]:
@@ -99,15 +86,14 @@ def _path_value(fields, path: str):
     return fields
 
 
-@pytest.mark.graph
 def test_a_foxglove_client_sees_the_runs_samples_at_the_viewer_rate(tmp_path):
     client, vout = _run(tmp_path)
     run = load_run(tmp_path / 'run')
-    bag = _bag_messages(tmp_path / 'run')
+    bag = bag_messages(tmp_path / 'run')
     row = {round(t * 1e9): i for i, t in enumerate(run.t)}
     fp_at = {round(t * 1e9): f for t, f in zip(run.planing_force_t, run.planing_force)}
-    markers = {(_ns(m.header.stamp), m.id): m for m in bag['/vehicle_marker']}
-    poses = {_ns(m.header.stamp): m.pose for m in bag['/pose']}
+    markers = {(stamp_ns(m.header.stamp), m.id): m for m in bag['/vehicle_marker']}
+    poses = {stamp_ns(m.header.stamp): m.pose for m in bag['/pose']}
 
     states = client.messages('/state')
     stamps = [r.log_time for r in states]
@@ -166,7 +152,6 @@ def test_a_foxglove_client_sees_the_runs_samples_at_the_viewer_rate(tmp_path):
             assert isinstance(_path_value(last[topic], path[len(topic):]), float), path
 
 
-@pytest.mark.graph
 def test_make_demo_with_viewer_waits_for_a_client_and_serves_the_run(tmp_path):
     """``scripts/demo.py --viewer 0`` (a free port): it names the URL, starts the run once
     the client subscribed, and the client sees the run up to its last view."""
@@ -222,7 +207,6 @@ def test_a_port_in_use_gives_one_line_and_exit_1():
     assert 'in use' in lines[0]
 
 
-@pytest.mark.graph
 def test_the_views_are_decimated_to_the_viewer_rate(tmp_path):
     """A lockstep closed loop without a recorder (0.3 s: 31 views, 0.1-0.6 s of wall time,
     longer under heavy load) seen at ``rate`` 10: the client gets at most ten views a second

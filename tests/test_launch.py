@@ -330,6 +330,7 @@ def test_the_reason_line_is_the_last_error_else_the_last_line():
     assert cl.reason_line([]) == ''
 
 
+@pytest.mark.graph
 @pytest.mark.parametrize('executable', [('fohssv_sim', 'plant'), ('fohssv_controller',
                                                                   'controller')])
 def test_a_signal_while_a_node_still_imports_ends_it_quietly(tmp_path, executable):

@@ -39,31 +39,22 @@ TOL = 1e-12
 DURATION = 0.05            # simulated s per lockstep run (501 samples at 1e-4 s)
 N = round(DURATION / 1e-4) + 1
 
-def _start(package: str, exe: str, args, env, log=None):
-    proc = rosproc.start(package, exe, list(args), env=env, log=log)
-    return proc
-
-
 def _player(env, *params: str, log=None):
-    args = ['--ros-args']
-    for p in params:
-        args += ['-p', p]
-    return _start('fohssv_sim', 'player', args, env, log)
+    return rosproc.start('fohssv_sim', 'player', rosproc.param_args(*params), env=env, log=log)
 
 
 def _plant(env, log, **params):
     yaml_file = f"{get_package_share_directory('fohssv_sim')}/config/plant.yaml"
-    return _start('fohssv_sim', 'plant', ['--ros-args', '--params-file', yaml_file]
-                  + plant_args(**params)[1:], env, log)
+    return rosproc.start('fohssv_sim', 'plant', ['--ros-args', '--params-file', yaml_file]
+                         + plant_args(**params)[1:], env=env, log=log)
 
 
 def _recorder(env, bag, log):
     # command_publishers:=1: the recorder subscribes to state (which the plant waits for) only
     # once its command subscription matched the command publisher; the feeder's
     # min_command_subscribers:=2 holds commands until its side of that match exists too
-    return _start('fohssv_sim', 'recorder', ['--ros-args', '-p', f'bag_path:={bag}',
-                                             '-p', 'plant_timeout:=20.0',
-                                             '-p', 'command_publishers:=1'], env, log)
+    return rosproc.start_recorder(env, log, f'bag_path:={bag}', 'plant_timeout:=20.0',
+                                  'command_publishers:=1', ready=False)
 
 
 def _recorded(bag) -> tuple[int, int]:
@@ -107,8 +98,8 @@ def _lockstep_run(tmp_path, name: str, feeder) -> tuple[object, str]:
 
 def test_commands_replay_reproduces_the_lockstep_run(tmp_path):
     def controller(env, log):
-        return _start('fohssv_controller', 'state_feedback',
-                      ['--ros-args', '-p', 'min_command_subscribers:=2'], env, log)
+        return rosproc.start('fohssv_controller', 'state_feedback',
+                             rosproc.param_args('min_command_subscribers:=2'), env=env, log=log)
 
     # Bag A holds every answer: the controller sent none before the recorder matched it.
     a, text_a = _lockstep_run(tmp_path, 'A', controller)
@@ -388,8 +379,8 @@ def test_a_recorder_started_together_with_the_player_gets_its_run_end(tmp_path):
     for i in range(3):
         env = rosproc.ros_env()
         out, log = tmp_path / f'copy{i}', tmp_path / f'rec{i}.log'
-        rec = _start('fohssv_sim', 'recorder', ['--ros-args', '-p', f'bag_path:={out}', '-p',
-                                                'plant_node:=none'], env, log=log)
+        rec = rosproc.start_recorder(env, log, f'bag_path:={out}', 'plant_node:=none',
+                                     ready=False)
         ply = _player(env, f'bag_path:={bag}', 'rate:=0.0', log=tmp_path / f'ply{i}.log')
         pairs.append((rec, ply, out, log))
     try:

@@ -15,34 +15,28 @@ import time
 from pathlib import Path
 
 import numpy as np
-from test_graph_support import batch_samples, finish, plant_args, stop_all
+import pytest
+from test_graph_support import (
+    bag_messages,
+    batch_samples,
+    finish,
+    plant_args,
+    stamp_ns,
+    stop_all,
+)
 
 from fohssv_controller.state_feedback import StateFeedback
 from fohssv_sim import contract
 from fohssv_sim.bag import load_run
 from fohssv_sim.bag.check import check
-from fohssv_sim.bag.loader import scan
-from fohssv_sim.bag.writer import typestore
 
 import rosproc
+
+pytestmark = pytest.mark.graph
 
 DURATION = 0.3
 ROOT = Path(__file__).resolve().parents[1]
 LAYOUT = ROOT / 'docs' / 'foxglove' / 'fohssv_layout.json'
-
-
-def _decoded(bag: Path) -> dict[str, list]:
-    """Every message of the bag, decoded, by topic (in recorded order)."""
-    sc, ts = scan(bag), typestore()
-    out: dict[str, list] = {}
-    for cid, _, raw in sc.messages:
-        chan = sc.channels[cid]
-        out.setdefault(chan.topic, []).append(ts.deserialize_cdr(raw, chan.msgtype))
-    return out
-
-
-def _ns(stamp) -> int:
-    return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
 def _assert_views_equal_the_samples(run, msgs: dict[str, list]) -> None:
@@ -52,16 +46,16 @@ def _assert_views_equal_the_samples(run, msgs: dict[str, list]) -> None:
     due = [round(t * 1e9) for t in run.t[::100]]          # t = 0, 0.01, ..., 0.3
     assert len(due) == 31
     for name in ('/pose', '/twist', '/planing_wrench'):
-        assert [_ns(m.header.stamp) for m in msgs[name]] == due, name
+        assert [stamp_ns(m.header.stamp) for m in msgs[name]] == due, name
     for m in msgs['/pose']:
-        z, w, theta, q = run.state[row[_ns(m.header.stamp)]]
+        z, w, theta, q = run.state[row[stamp_ns(m.header.stamp)]]
         assert m.header.frame_id == contract.VIEW_WORLD_FRAME
         p, o = m.pose.position, m.pose.orientation
         assert (p.x, p.y, p.z) == (0.0, 0.0, -z)
         assert o.x == o.z == 0.0 and abs(o.y ** 2 + o.w ** 2 - 1.0) <= 1e-15
         assert abs(-2.0 * math.atan2(o.y, o.w) - theta) <= 1e-15 + 1e-12 * abs(theta)
     for m in msgs['/twist']:
-        z, w, theta, q = run.state[row[_ns(m.header.stamp)]]
+        z, w, theta, q = run.state[row[stamp_ns(m.header.stamp)]]
         assert m.header.frame_id == contract.VIEW_BODY_FRAME
         lin, ang = m.twist.linear, m.twist.angular
         assert (lin.x, lin.y, lin.z) == (75.0, 0.0, -w)
@@ -70,12 +64,12 @@ def _assert_views_equal_the_samples(run, msgs: dict[str, list]) -> None:
     for m in msgs['/planing_wrench']:
         assert m.header.frame_id == contract.VIEW_BODY_FRAME
         f, tq = m.wrench.force, m.wrench.torque
-        assert (f.x, f.y, f.z) == (0.0, 0.0, -fp_at[_ns(m.header.stamp)])
+        assert (f.x, f.y, f.z) == (0.0, 0.0, -fp_at[stamp_ns(m.header.stamp)])
         assert (tq.x, tq.y, tq.z) == (0.0, 0.0, 0.0)
     assert any(m.wrench.force.z != 0.0 for m in msgs['/planing_wrench'])   # it planes
     markers = msgs['/vehicle_marker']
     assert [m.id for m in markers] == [0, 1] * 31
-    assert [_ns(m.header.stamp) for m in markers[::2]] == due
+    assert [stamp_ns(m.header.stamp) for m in markers[::2]] == due
     for body, pose in zip(markers[::2], msgs['/pose']):
         assert body.pose.orientation == pose.pose.orientation
         assert body.scale.x == 1.8 and body.scale.y == body.scale.z == 2 * 0.0508
@@ -158,7 +152,7 @@ def test_recorded_closed_loop_equals_batch_run_and_plots(tmp_path, capfd):
     assert np.array_equal(run.log_time['state'], np.round(ref[:, 0] * 1e9).astype(np.int64))
     assert run.parameters['model'] == 'delay-free' and run.parameters['control_period'] == 1e-4
     assert check(bag).ok
-    msgs = _decoded(bag)
+    msgs = bag_messages(bag)
     _assert_views_equal_the_samples(run, msgs)
     _assert_layout_names_what_the_bag_has(msgs)
 

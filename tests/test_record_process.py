@@ -46,6 +46,7 @@ from rosproc import (
     output,
     ros_env,
     start,
+    start_recorder,
     stop,
     unique_domain_id,
     wait_exit,
@@ -131,11 +132,8 @@ def plant(domain):
 
 def _recorder(tmp_path, domain, *params: str):
     log = tmp_path / 'recorder.log'
-    args = ['--ros-args', '-p', 'plant_timeout:=20.0']
-    for p in params:
-        args += ['-p', p]
-    proc = start('fohssv_sim', 'recorder', args, env=ros_env(domain), log=log)
-    return proc, log
+    return start_recorder(ros_env(domain), log, 'plant_timeout:=20.0', *params,
+                          ready=False), log
 
 
 def _assert_matches(run, plant, n=None):

@@ -85,19 +85,10 @@ def as_text(rows):
     return [{k: repr(v) for k, v in r.items()} for r in rows]
 
 
-@pytest.fixture(scope='module')
-def client():
-    from dask.distributed import Client, LocalCluster
-
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
-                      dashboard_address=None) as cluster, Client(cluster) as c:
-        yield c
-
-
-def test_interrupted_map_resumes_to_the_same_rows(tmp_path, client):
+def test_interrupted_map_resumes_to_the_same_rows(tmp_path, dask_client):
     spec = GainMapSpec(**SMALL)
     seen = []
-    full = run_gain_map(spec, tmp_path / 'full', client=client,
+    full = run_gain_map(spec, tmp_path / 'full', client=dask_client,
                         progress=lambda d, n, t: seen.append((d, n)))
     assert full.computed_chunks == 3 and len(full.rows) == 8
     assert seen[-1] == (8, 8) and len(seen) >= 3        # per point, not only per chunk
@@ -107,7 +98,7 @@ def test_interrupted_map_resumes_to_the_same_rows(tmp_path, client):
     (part / 'chunks' / 'chunk_00001.csv').unlink()
     (part / 'chunks' / 'chunk_00002.csv').rename(part / 'chunks' / 'chunk_00002.tmp')
     (part / 'chunks' / 'chunk_00002.tmp').write_text('point,pair\n6,3\n')
-    again = run_gain_map(spec, part, client=client)
+    again = run_gain_map(spec, part, client=dask_client)
     assert (again.computed_chunks, again.reused_chunks) == (2, 1)
     assert as_text(again.rows) == as_text(full.rows)     # NaN == NaN here
     worst = again.worst()
@@ -116,7 +107,7 @@ def test_interrupted_map_resumes_to_the_same_rows(tmp_path, client):
         rs = [r for r in again.rows if r['pair'] == w['pair']]
         assert w['alpha_margin'] == min(r['alpha_c'] - 0.85 for r in rs)
     with pytest.raises(GainMapError, match='different job'):
-        run_gain_map(GainMapSpec(**{**SMALL, 'duration': 0.2}), part, client=client)
+        run_gain_map(GainMapSpec(**{**SMALL, 'duration': 0.2}), part, client=dask_client)
 
 
 def run(*args):

@@ -168,18 +168,18 @@ def test_interrupted_sweep_resumes_without_recomputing_finished_chunks(tmp_path)
     assert (out / 'orbit_V.png').stat().st_size > 5000
 
 
-def test_same_results_with_the_local_default_and_an_explicit_cluster(tmp_path):
-    from dask.distributed import LocalCluster
-
+def test_same_results_with_the_local_default_and_an_explicit_cluster(tmp_path, dask_cluster):
+    """The sweep's own local cluster (``--workers 2``: worker processes) and an explicit
+    one (``--scheduler``: the session's cluster of threads in this process) give the same
+    rows."""
     a, b = tmp_path / 'local', tmp_path / 'cluster'
     r = subprocess.run([str(FOHSSV), *SWEEP, '--out', str(a)], capture_output=True, text=True,
                        timeout=300)
     assert r.returncode == 0, r.stderr
-    with LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None) as cluster:
-        r = subprocess.run([str(FOHSSV), *SWEEP, '--out', str(b), '--scheduler',
-                            cluster.scheduler_address], capture_output=True, text=True,
-                           timeout=300)
-        assert r.returncode == 0, r.stderr
+    r = subprocess.run([str(FOHSSV), *SWEEP, '--out', str(b), '--scheduler',
+                        dask_cluster.scheduler_address], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr
     assert read_chunks(a) == read_chunks(b)
 
 

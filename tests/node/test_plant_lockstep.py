@@ -1,0 +1,107 @@
+"""The plant node's lockstep timeout and its parameters at start and at run time, in the test
+process (stopped processes and stalls are the process tests'; the start gate:
+test_plant_start)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from rclpy.parameter import Parameter
+from test_graph_support import batch_samples
+
+from fohssv_controller.state_feedback import StateFeedback
+
+pytestmark = pytest.mark.node
+
+TOL = 1e-12
+ALONE = {'min_state_subscribers': 0, 'min_command_publishers': 0}
+
+
+def test_lockstep_timeout_names_the_stalled_controller(graph, capfd):
+    plant = graph.plant(model='delay-free', command_timeout=0.5, **ALONE)
+    assert graph.run(plant, 30) == 3
+    out = capfd.readouterr().err
+    assert ('lockstep timeout: the controller stalled: no command answering t=0.0 s within '
+            'command_timeout=0.5 s (no command received at all') in out, out
+
+
+def test_lockstep_timeout_lowered_during_the_run_still_fires(graph, capfd):
+    """command_timeout lowered from 5 s to 0.06 s while the run goes (a parameter that needs
+    no reset), then the controller stops answering: the run ends with exit 3 naming the
+    lockstep timeout. (The process test runs the same with the FOM plant, whose executor
+    serves the change between compiled takes.)"""
+    law, plant, results = StateFeedback(), None, []
+
+    def answer(t, x):
+        k = round(t / 1e-4)
+        if k == 50:
+            results.extend(plant.set_parameters([Parameter('command_timeout', value=0.06)]))
+        return [t, *law.command(t, x)] if k < 100 else None
+
+    graph.probe(answer)
+    plant = graph.plant(model='delay-free', duration=60.0)
+    assert graph.run(plant, 30) == 3
+    out = capfd.readouterr().err
+    assert [r.successful for r in results] == [True], [r.reason for r in results]
+    assert 'lockstep timeout: ' in out and 'command_timeout=0.06 s' in out, out
+
+
+def test_invalid_parameter_change_is_refused_and_the_run_is_untouched(graph, capfd):
+    """Parameter changes in the middle of a run of eq. 31's controller node: out of the
+    descriptor's range, read-only, of the wrong type, inside the descriptor's closed range
+    but outside the table's open one are refused with a reason; a valid one is taken. The
+    run is still the batch run of eq. 31."""
+    plant, results = None, {}
+    law = StateFeedback()
+
+    def answer(t, x):
+        if round(t / 1e-4) == 50:
+            for name, value in (('real_time_factor', -1.0), ('speed', 80.0),
+                                ('command_timeout', 'long'), ('real_time_factor', 0.0),
+                                ('watchdog_timeout', 0.5)):
+                results[(name, value)], = plant.set_parameters([Parameter(name, value=value)])
+        return [t, *law.command(t, x)]
+
+    probe = graph.probe(answer)
+    plant = graph.plant(model='delay-free', duration=0.05)
+    assert graph.run(plant) == 0
+    graph.wait(lambda: len(probe.states) >= 501, 30, 'all samples')
+    out_of_range = results[('real_time_factor', -1.0)]
+    assert not out_of_range.successful
+    # rclpy checks the descriptor's FloatingPointRange first
+    assert 'real_time_factor out of range Min: 0.0, Max: 1000.0' in out_of_range.reason
+    open_bound = results[('real_time_factor', 0.0)]
+    assert not open_bound.successful
+    assert ('real_time_factor=0.0 is outside the allowed range (0, 1000] (realtime mode: '
+            'simulated seconds per wall second)') in open_bound.reason
+    read_only = results[('speed', 80.0)]
+    assert not read_only.successful and 'read-only' in read_only.reason
+    assert not results[('command_timeout', 'long')].successful
+    assert results[('watchdog_timeout', 0.5)].successful
+    assert [plant.get_parameter(n).value for n in
+            ('real_time_factor', 'speed', 'watchdog_timeout')] == [1.0, 75.0, 0.5]
+    ref, _ = batch_samples('delay-free', StateFeedback(), 0.05)
+    got = probe.state_array()
+    assert got.shape == ref.shape
+    assert np.max(np.abs(got - ref)) <= TOL
+
+
+@pytest.mark.parametrize(('params', 'message'), [
+    ({'speed': -1.0}, 'speed=-1.0 is outside the allowed range (0, inf) m/s'),
+    ({'control_period': 1.05e-4, 'model': 'delay-free'},
+     'control_period=0.000105 s must be a whole multiple of the integration step 1e-05 s'),
+    ({'model': 'quantum'}, "model='quantum' is not valid; choose one of 'fractional'"),
+    ({'mode': 'realtime', 'clock_period': 2.5e-4},
+     'clock_period=0.00025 s is not 0 or a whole multiple of control_period=0.0001 s '
+     '(allowed: 0 or k * control_period'),
+    # outside the descriptor's range too: checked against the table before rclpy declares it
+    ({'clock_period': 2.0}, 'clock_period=2.0 is outside the allowed '
+     'range [0, 1] s (realtime mode: simulated time between /clock messages'),
+    ({'profile': 2}, 'profile=2 is outside the allowed range [0, 1]'),
+])
+def test_invalid_parameters_at_start_are_refused_naming_them(graph, params, message):
+    """The node refuses them when it is built; the process's one line and exit 2 for such a
+    refusal are test_graph_startup's."""
+    with pytest.raises(ValueError) as refused:
+        graph.plant(**params)
+    assert message in str(refused.value)

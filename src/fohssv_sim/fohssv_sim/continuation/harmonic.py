@@ -221,10 +221,12 @@ def _at_amplitude(problem: HarmonicBalance, u: np.ndarray, p: float, amplitude: 
 
 
 def hopf_point(problem: HarmonicBalance, u: np.ndarray, p: float, amplitude: float,
-               tol: float = 1e-10) -> tuple[float, np.ndarray, float, np.ndarray, float]:
+               tol: float = 1e-14) -> tuple[float, np.ndarray, float, np.ndarray, float]:
     """``(p_H, u_A, p_A, u_2A, p_2A)``: the Hopf point by Richardson extrapolation of the
     parameter at first-harmonic amplitudes A and 2A of the phase state, and those two orbits
-    (the first points of the branch leaving the Hopf point).
+    (the first points of the branch leaving the Hopf point). ``tol`` bounds the residual:
+    a small orbit fixes p only weakly (dR/dp ~ A), hence the tight default; Newton stops on
+    its step size where round-off keeps the residual above it.
 
     Raises:
         ContinuationError: no orbit of that amplitude near the guess.

@@ -62,7 +62,8 @@ class Bifurcation:
 @dataclass(frozen=True)
 class Settings:
     """Step control: initial, smallest and largest arclength step (in the scaled y), Newton
-    tolerance (max-norm of the residual) and iteration limit, and the most points."""
+    tolerance (max-norm of the residual) and iteration limit, the most points, and the
+    sharpest turn of the tangent accepted between two points."""
 
     ds: float = 0.02
     ds_min: float = 1e-6
@@ -70,6 +71,8 @@ class Settings:
     tol: float = 1e-9
     max_iter: int = 12
     max_points: int = 500
+    #: the least cosine between consecutive tangents; a sharper turn halves the step
+    min_cos: float = 0.95
 
 
 def fd_jacobian(fun: Callable[[np.ndarray], np.ndarray], y: np.ndarray) -> np.ndarray:
@@ -182,8 +185,8 @@ def continue_branch(problem: Any, start: tuple[np.ndarray, float], end: float, *
                     on_point: Callable[[BranchPoint, list[Bifurcation]], None] | None = None,
                     ) -> tuple[list[BranchPoint], list[Bifurcation]]:
     """Follow the branch through ``start`` = (u0, p0) (converged to ``settings.tol`` first)
-    until p reaches ``end`` (the last point is corrected onto p = end exactly), or passes
-    ``limit`` on the other side (a branch turning away), the step falls below ``ds_min`` or
+    until p reaches ``end`` or, on the other side, ``limit`` (a branch turning back), the last
+    point corrected onto that value exactly; or until the step falls below ``ds_min`` or
     ``max_points`` are taken.
 
     ``scale``: a typical size of each unknown and of p (n + 1 values, default ones); steps
@@ -241,30 +244,32 @@ def _follow(problem: _Scaled, start: tuple[np.ndarray, float], end: float,
     ds = s.ds
     while len(points) < s.max_points:
         prev = points[-1]
-        got = _step(problem, prev, ds, end, sign, s)
+        got = _step(problem, prev, ds, end, limit, sign, s)
         if got is None:      # a failed correction: a smaller step
             ds *= 0.5
             if ds < s.ds_min:
                 break
             continue
         y, iters = got
-        J = jacobian(problem, y[:-1], y[-1])
-        point = BranchPoint(y[:-1], float(y[-1]), _tangent(J, prev.tangent),
-                            _monitors(problem, y[:-1], y[-1]))
+        tangent = _tangent(jacobian(problem, y[:-1], y[-1]), prev.tangent)
+        if tangent @ prev.tangent < s.min_cos and ds > s.ds_min:
+            ds *= 0.5        # the branch turned too sharply: it may have jumped to another
+            continue
+        point = BranchPoint(y[:-1], float(y[-1]), tangent, _monitors(problem, y[:-1], y[-1]))
         points.append(point)
         bifs.extend(_detected(points))
         if on_point:
             on_point(point, bifs)
-        if point.p == end or (limit is not None and (point.p - limit) * sign < 0.0):
+        if point.p == end or point.p == limit:
             break
         ds = min(ds * (1.5 if iters <= 3 else 1.0), s.ds_max)
     return points, bifs
 
 
-def _step(problem: _Scaled, prev: BranchPoint, ds: float, end: float, sign: float,
-          s: Settings) -> tuple[np.ndarray, int] | None:
+def _step(problem: _Scaled, prev: BranchPoint, ds: float, end: float, limit: float | None,
+          sign: float, s: Settings) -> tuple[np.ndarray, int] | None:
     """The next point ``(y, Newton iterations)`` at arclength ``ds`` from ``prev``, landed on
-    p = ``end`` if it passed it; None when the correction fails or the problem refuses it."""
+    p = ``end`` or ``limit`` if it passed one; None when the correction fails or the problem refuses it."""
     y_prev = np.append(prev.u, prev.p)
     tp = prev.tangent
 
@@ -281,14 +286,18 @@ def _step(problem: _Scaled, prev: BranchPoint, ds: float, end: float, sign: floa
     valid = getattr(problem.problem, 'valid', None)
     if valid is not None and not valid(prev.u * problem.su, y[:-1] * problem.su):
         return None          # e.g. a jump onto a trivial solution
-    if (y[-1] - end) * sign <= 0.0:
+    if (y[-1] - end) * sign > 0.0:
+        bound = end
+    elif limit is not None and (y[-1] - limit) * sign < 0.0:
+        bound = limit
+    else:
         return y, iters
     n = prev.u.size
-    landed = newton(lambda u: problem.residual(u, end),
-                    lambda u: jacobian(problem, u, end)[:, :n],
-                    prev.u + (end - prev.p) / (y[-1] - prev.p) * (y[:-1] - prev.u),
+    landed = newton(lambda u: problem.residual(u, bound),
+                    lambda u: jacobian(problem, u, bound)[:, :n],
+                    prev.u + (bound - prev.p) / (y[-1] - prev.p) * (y[:-1] - prev.u),
                     s.tol, s.max_iter)
-    return None if landed is None else (np.append(landed[0], end), iters)
+    return None if landed is None else (np.append(landed[0], bound), iters)
 
 
 def _detected(points: list[BranchPoint]) -> list[Bifurcation]:

@@ -114,6 +114,12 @@ class ShootingProblem:
         self.field = field
         self.rtol = rtol
         self.ref: tuple[np.ndarray, np.ndarray] | None = None
+        self._last: tuple[bytes, float, np.ndarray] | None = None   # (u, p, monodromy)
+
+    def valid(self, previous: np.ndarray, u: np.ndarray) -> bool:
+        """Refuse a step that shrinks the period below half (x(0) = x0 holds trivially at
+        T = 0, and at any point of an equilibrium: degenerate solutions)."""
+        return float(u[-1]) > 0.5 * float(previous[-1])
 
     def accept(self, u: np.ndarray, p: float) -> None:
         """Put the phase condition's hyperplane through this point (called per point)."""
@@ -133,6 +139,7 @@ class ShootingProblem:
         n = self.field.dim
         x0, T = u[:-1], float(u[-1])
         xT, M, _ = _integrate(self.field, x0, T, p, True, self.rtol)
+        self._last = (np.asarray(u, dtype=float).tobytes(), float(p), M)
         d = 1e-6 * max(1.0, abs(p))
         xp = _integrate(self.field, x0, T, p + d, False, self.rtol)[0]
         xm = _integrate(self.field, x0, T, p - d, False, self.rtol)[0]
@@ -146,6 +153,11 @@ class ShootingProblem:
         return J
 
     def monodromy(self, u: np.ndarray, p: float) -> np.ndarray:
+        """X(T), the variational flow over one period (reused from the last Jacobian at the
+        same point)."""
+        if self._last is not None and self._last[0] == np.asarray(u, dtype=float).tobytes() \
+                and self._last[1] == float(p):
+            return self._last[2]
         return _integrate(self.field, u[:-1], float(u[-1]), p, True, self.rtol)[1]
 
     def multipliers(self, u: np.ndarray, p: float) -> np.ndarray:
@@ -166,13 +178,13 @@ class ShootingProblem:
 
 def floquet_tests(nontrivial: Any) -> dict[str, float]:
     """Test functions of the nontrivial multipliers, each changing sign at its bifurcation:
-    ``fold`` prod(mu - 1) (a multiplier through +1), ``period_doubling`` prod(mu + 1)
-    (through -1), ``torus`` prod over pairs (mu_i mu_j - 1) (a complex pair through the unit
-    circle; also zero at a real pair with product 1, a neutral saddle, which is reported as
-    torus only if the pair is complex on one side); ``stability`` 1 - max |mu|."""
+    ``period_doubling`` prod(mu + 1) (a real multiplier through -1) and ``torus``
+    prod over pairs i < j of (mu_i mu_j - 1) (a complex pair through the unit circle; it is
+    continuous where a pair turns real, and a real pair with product 1, a neutral saddle, also
+    zeroes it: such a sign change is reported as torus too and needs the multipliers to tell).
+    A multiplier through +1 is a fold of the branch, which the driver finds from its
+    tangent."""
     mu = np.asarray(nontrivial, dtype=complex)
-    pairs = [mu[i] * mu[j] - 1.0 for i in range(mu.size) for j in range(i + 1, mu.size)
-             if abs(mu[i].imag) > 1e-9 or abs(mu[j].imag) > 1e-9]
+    pairs = [mu[i] * mu[j] - 1.0 for i in range(mu.size) for j in range(i + 1, mu.size)]
     return {'period_doubling': float(np.prod(mu + 1.0).real),
-            'torus': float(np.prod(pairs).real) if pairs else 1.0,
-            'stability': float(1.0 - np.max(np.abs(mu))) if mu.size else 1.0}
+            'torus': float(np.prod(pairs).real) if pairs else 1.0}

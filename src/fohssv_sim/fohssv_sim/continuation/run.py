@@ -1,0 +1,266 @@
+"""``follow_orbits``: a branch of the vehicle's periodic orbits over one model parameter (the
+API beside :func:`fohssv_sim.simulate.simulate`; ``fohssv continue`` calls it).
+
+* ``model='fractional'``: harmonic balance (:mod:`.harmonic`) from the Hopf point, which is
+  found in the range as the point where the orbit's amplitude goes to zero; stability is not
+  given by the method (``stable: null``).
+* ``model='delay-free'``: shooting (:mod:`.shooting`) from an orbit found by simulating at the
+  start of the range; stability from the Floquet multipliers.
+* ``model='delayed'``: not supported yet (refused with a one-line error).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..params import ModelParameters, ParameterError
+from .branch import Branch
+from .driver import BranchPoint, ContinuationError, Settings, continue_branch
+from .harmonic import converge_harmonics, hopf_point, initial_guess
+from .shooting import ShootingProblem
+from .vehicle import VehicleSystem, orbit_measures
+
+__all__ = ['follow_orbits', 'start_orbit', 'MODELS']
+
+#: The models ``follow_orbits`` continues, with their method.
+MODELS = {'fractional': 'harmonic balance (AFT), Hopf point by amplitude extrapolation',
+          'delay-free': 'single shooting, Floquet multipliers from the monodromy matrix'}
+
+Progress = Callable[[str], None]
+
+
+def _summary(params: ModelParameters, parameter: str) -> str:
+    fixed = [f'V = {params.speed:g} m/s'] if parameter != 'speed' else []
+    if params.model == 'fractional' and parameter != 'fractional_order':
+        fixed.append(f'α = {params.fractional_order:g}')
+    return ', '.join(fixed)
+
+
+def follow_orbits(params: ModelParameters, controller: Any, parameter: str, start: float,
+                  end: float, *, points: int = 50, harmonics: int = 16,
+                  progress: Progress | None = None, checkpoint: Path | None = None,
+                  resume: Branch | None = None) -> Branch:
+    """The branch of periodic orbits of ``params.model`` under ``controller`` as
+    ``parameter`` goes from ``start`` to ``end`` (about ``points`` points; more near folds).
+
+    ``checkpoint``: a ``branch.json`` written after every point; ``resume``: a branch read
+    from one (same settings, not complete) to carry on from its last point.
+
+    Raises:
+        ParameterError: a parameter that is not numeric, a model not supported, a controller
+            that is not affine.
+        ContinuationError: no Hopf point (FOM) or no orbit (delay-free) at the start.
+    """
+    if params.model not in MODELS:
+        raise ParameterError(f"model={params.model!r}: fohssv continue follows "
+                             f"{' and '.join(MODELS)} orbits; the delayed model is not "
+                             'supported yet')
+    system = VehicleSystem(params, controller, parameter)
+    settings = {'start': start, 'end': end, 'points': points, 'harmonics': harmonics,
+                'model_parameters': params.to_dict(),
+                'controller': getattr(controller, 'describe', lambda: str(controller))(),
+                'summary': _summary(params, parameter)}
+    branch = Branch(parameter, params.model, MODELS[params.model], settings)
+    if resume is not None:
+        branch.points, branch.bifurcations = resume.points, resume.bifurcations
+        branch.resume = resume.resume
+    say = progress or (lambda text: None)
+    span = abs(end - start)
+    if params.model == 'fractional':
+        _fractional(system, branch, start, end, span, points, harmonics, say, checkpoint)
+    else:
+        _delay_free(system, branch, start, end, span, points, say, checkpoint)
+    branch.complete = True
+    branch.resume = {}
+    if checkpoint is not None:
+        branch.write(checkpoint)
+    return branch
+
+
+def _recorder(branch: Branch, measure: Callable[[BranchPoint], dict[str, Any]],
+              say: Progress, checkpoint: Path | None, end: float
+              ) -> Callable[[BranchPoint, list], None]:
+    """The driver's ``on_point``: measure, record, report, checkpoint."""
+    known = len(branch.bifurcations)
+    first = [True]
+
+    def on_point(pt: BranchPoint, bifs: list) -> None:
+        if first[0] and branch.points:      # a resumed start is the last recorded point
+            first[0] = False
+        else:
+            first[0] = False
+            branch.points.append(measure(pt))
+        for b in bifs[len(branch.bifurcations) - known:]:
+            near = min(branch.points, key=lambda q: abs(q['value'] - b.value))
+            branch.bifurcations.append({'kind': b.kind, 'value': b.value, 'w': near['w_max']})
+        branch.resume = {'u': pt.u.tolist(), 'p': pt.p, 'tangent': pt.tangent.tolist()}
+        q = branch.points[-1]
+        stable = {True: 'stable', False: 'unstable', None: 'stability unknown'}[q['stable']]
+        say(f"point {len(branch.points)}: {branch.parameter} = {q['value']:.6g}, "
+            f"{q['frequency_hz']:.6g} Hz, w amplitude {q['w_amplitude']:.4g} m/s, {stable} "
+            f"(to {end:g})")
+        if checkpoint is not None:
+            branch.write(checkpoint)
+    return on_point
+
+
+def _driver_settings(span: float, points: int, scale_p: float) -> Settings:
+    ds = span / max(points, 2) / scale_p
+    return Settings(ds=0.1 * ds, ds_max=ds, ds_min=1e-6 * ds, max_points=4 * points + 20)
+
+
+def _resumed(branch: Branch) -> tuple[np.ndarray, float, np.ndarray] | None:
+    r = branch.resume
+    if not r:
+        return None
+    return np.asarray(r['u']), float(r['p']), np.asarray(r['tangent'])
+
+
+def _fractional(system: VehicleSystem, branch: Branch, start: float, end: float, span: float,
+                points: int, harmonics: int, say: Progress, checkpoint: Path | None) -> None:
+    prob = system.harmonic_balance(harmonics)
+    guess_p, eq = _hopf_guess(system, start, end)
+    lam, vec = np.linalg.eig(eq.jacobian)
+    j = int(np.argmax(lam.imag))
+    shape = np.maximum(np.abs(vec[:, j] / vec[1, j]), 1e-3)    # per state, for w = 1 m/s
+    alpha = system.order(guess_p)
+    amplitude = 1e-3
+    u0 = initial_guess(prob, eq.state, eq.jacobian, alpha, amplitude)
+    scale_p = span
+    scale = prob.scale(shape, float(u0[-1]), scale_p)
+    resumed = _resumed(branch)
+    if resumed is None:
+        say(f'Hopf point near {branch.parameter} = {guess_p:.6g} (equilibrium w = '
+            f'{eq.state[1]:.4g} m/s); harmonic balance with H = {harmonics}')
+        p_h, u1, p1, u2, p2 = hopf_point(prob, u0, guess_p, amplitude)
+        branch.bifurcations.append({'kind': 'hopf', 'value': p_h, 'w': float(eq.state[1])})
+        say(f'Hopf point at {branch.parameter} = {p_h:.8g}')
+        begin, direction = (u2, p2), np.append(u2 - u1, p2 - p1)
+    else:
+        begin, direction = (resumed[0], resumed[1]), resumed[2] * scale
+        say(f"resuming from point {len(branch.points)} at {branch.parameter} = "
+            f"{resumed[1]:.6g}")
+
+    def measure(pt: BranchPoint) -> dict[str, Any]:
+        _, c = system.at(pt.p)
+        f = prob.frequency_hz(pt.u)
+        return {'value': pt.p, 'frequency_hz': f, 'period_s': 1.0 / f, 'stable': None,
+                **orbit_measures(prob.signal(pt.u, 1024), c)}
+
+    low, high = min(start, end), max(start, end)
+    target = high if direction[-1] >= 0 else low
+    pts, _ = continue_branch(prob, begin, target, scale=scale, direction=direction,
+                             limit=low if target == high else high,
+                             settings=_driver_settings(span, points, scale_p),
+                             on_point=_recorder(branch, measure, say, checkpoint, target))
+    last = pts[-1]
+    fine, _, history = converge_harmonics(prob, last.u, last.p, start=harmonics, rtol=1e-4)
+    branch.settings['harmonic_check'] = {
+        'value': last.p, 'history': [{'harmonics': h, 'frequency_hz': f} for h, f in history],
+        'rule': 'frequency change below 1e-4 relative when the harmonic count doubles'}
+    if fine.harmonics > harmonics:
+        say(f'warning: at {branch.parameter} = {last.p:.6g} the frequency needs '
+            f'{fine.harmonics} harmonics (rerun with --harmonics {fine.harmonics})')
+        branch.settings['harmonics_needed'] = fine.harmonics
+
+
+def _hopf_guess(system: VehicleSystem, start: float, end: float) -> tuple[float, Any]:
+    """Where the equilibrium loses Matignon stability in [start, end] (a guess that harmonic
+    balance then corrects) and the equilibrium there."""
+    grid = np.linspace(start, end, 9)
+
+    def margin(p: float) -> tuple[float, Any]:
+        eq = system.equilibrium(p)
+        if eq is None:
+            return math.nan, None
+        return system.order(p) - eq.critical_order, eq
+
+    values = [margin(p) for p in grid]
+    for (a, ea), (b, eb), pa, pb in zip(values, values[1:], grid, grid[1:]):
+        if ea is not None and eb is not None and (a < 0.0) != (b < 0.0):
+            guess = pa + a / (a - b) * (pb - pa)
+            return float(guess), system.equilibrium(guess) or ea
+    shown = ', '.join(f'{p:g}: {v:+.3g}' for p, (v, _) in zip(grid[::4], values[::4]))
+    raise ContinuationError(f'no Hopf point of the equilibrium between {start:g} and {end:g} '
+                            f'(alpha - alpha_c at {shown}): choose a range where the '
+                            'equilibrium loses stability')
+
+
+def start_orbit(system: VehicleSystem, p: float, settle: float = 1.0,
+                window: float = 0.5) -> np.ndarray:
+    """u = (x0, T) of the delay-free orbit a simulation at ``p`` settles on: x0 where w rises
+    through its mean, T the mean time between such crossings.
+
+    Raises:
+        ContinuationError: the simulation settles to an equilibrium (no orbit to start from).
+    """
+    from ..simulate import simulate
+
+    mp, _ = system.at(p)
+    r = simulate(mp, system.controller, settle + window)
+    keep = r.t >= settle
+    t, x = r.t[keep], r.state[keep]
+    w = x[:, 1]
+    if w.max() - w.min() < 1e-6 * max(1.0, abs(w.mean())):
+        raise ContinuationError(f'no periodic orbit at {system.parameter} = {p:g}: the '
+                                'simulation settles to an equilibrium; start where the orbit '
+                                'diagram of fohssv sweep shows one')
+    up = np.where((w[:-1] < w.mean()) & (w[1:] >= w.mean()))[0]
+    if up.size < 3:
+        raise ContinuationError(f'no periodic orbit at {system.parameter} = {p:g}: w crosses '
+                                f'its mean fewer than 3 times in {window:g} s')
+    frac = (w.mean() - w[up]) / (w[up + 1] - w[up])
+    crossings = t[up] + frac * (t[up + 1] - t[up])
+    x0 = x[up[-1]] + frac[-1] * (x[up[-1] + 1] - x[up[-1]])
+    return np.append(x0, float(np.mean(np.diff(crossings))))
+
+
+def _delay_free(system: VehicleSystem, branch: Branch, start: float, end: float, span: float,
+                points: int, say: Progress, checkpoint: Path | None) -> None:
+    prob = ShootingProblem(system.field(), rtol=1e-9)
+    resumed = _resumed(branch)
+    if resumed is None:
+        say(f'starting orbit: simulating at {branch.parameter} = {start:g}')
+        u0 = start_orbit(system, start)
+        begin, direction = (u0, start), None
+    else:
+        begin, direction = (resumed[0], resumed[1]), resumed[2]
+    scale = np.append(np.maximum(np.abs(begin[0]), 1e-2), span)
+
+    def measure(pt: BranchPoint) -> dict[str, Any]:
+        _, c = system.at(pt.p)
+        mu = prob.multipliers(pt.u, pt.p)
+        T = float(pt.u[-1])
+        return {'value': pt.p, 'frequency_hz': 1.0 / T, 'period_s': T,
+                'stable': bool(np.max(np.abs(mu[1:])) < 1.0),
+                'multipliers': [[float(m.real), float(m.imag)] for m in mu],
+                **orbit_measures(prob.samples(pt.u, pt.p, 400).T, c)}
+
+    grazing = _Grazing(prob, system)
+    continue_branch(grazing, begin, end, scale=scale,
+                    direction=None if direction is None else direction * scale,
+                    limit=start, settings=_driver_settings(span, points, span),
+                    on_point=_recorder(branch, measure, say, checkpoint, end))
+
+
+class _Grazing:
+    """The shooting problem with a ``grazing`` test function: the orbit's largest immersion
+    |h*| - R' (zero when the orbit just touches the cavity wall)."""
+
+    def __init__(self, prob: ShootingProblem, system: VehicleSystem) -> None:
+        self.prob = prob
+        self.system = system
+        self.residual = prob.residual
+        self.jacobian = prob.jacobian
+        self.accept = prob.accept
+        self.valid = prob.valid
+
+    def monitors(self, u: np.ndarray, p: float) -> dict[str, float]:
+        _, c = self.system.at(p)
+        m = orbit_measures(self.prob.samples(u, p, 400).T, c)
+        return {**self.prob.monitors(u, p), 'grazing': m['immersion_max']}

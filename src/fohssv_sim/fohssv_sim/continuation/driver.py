@@ -269,7 +269,8 @@ def _follow(problem: _Scaled, start: tuple[np.ndarray, float], end: float,
 def _step(problem: _Scaled, prev: BranchPoint, ds: float, end: float, limit: float | None,
           sign: float, s: Settings) -> tuple[np.ndarray, int] | None:
     """The next point ``(y, Newton iterations)`` at arclength ``ds`` from ``prev``, landed on
-    p = ``end`` or ``limit`` if it passed one; None when the correction fails or the problem refuses it."""
+    p = ``end`` or ``limit`` if it passed one; None when the correction fails or the problem
+    refuses it."""
     y_prev = np.append(prev.u, prev.p)
     tp = prev.tangent
 

@@ -108,3 +108,17 @@ def test_fom_at_order_one_harmonic_balance_equals_shooting():
 def test_a_parameter_that_is_not_numeric_is_refused():
     with pytest.raises(ParameterError, match="'model' is not a numeric model parameter"):
         VehicleSystem(ModelParameters(), StateFeedback(), 'model')
+
+
+def test_delay_free_field_equals_the_models_closed_loop_and_its_jacobian():
+    """The field's matrix form and Jacobian against the model's own closed-loop right-hand
+    side (equilibria.closed_loop_rhs) and its central differences, in and out of contact."""
+    from fohssv_sim.equilibria import closed_loop_rhs, jacobian
+
+    params = ModelParameters(model='delay-free', speed=84.5)
+    field = VehicleSystem(params, StateFeedback(), 'speed').field()
+    ref = closed_loop_rhs(params, StateFeedback())
+    for x in ([0.04, 1.0, 0.02, 0.3], [0.05, 2.3, 0.021, -1.0], [0.0, -2.5, -0.01, 2.0]):
+        x = np.array(x)
+        assert np.allclose(field.f(x, 84.5), ref(x), rtol=1e-13, atol=1e-12)
+        assert np.allclose(field.dfdx(x, 84.5), jacobian(ref, x), rtol=1e-6, atol=1e-6)

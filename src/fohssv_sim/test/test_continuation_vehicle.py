@@ -50,7 +50,7 @@ def test_delay_free_orbit_by_shooting_equals_a_long_simulation():
     orbit = prob.samples(u, 75.0, 2000)
     amp = 0.5 * (orbit[:, 1].max() - orbit[:, 1].min())
 
-    r = simulate(params, StateFeedback(), 1.5)
+    r = simulate(params, StateFeedback(), 1.5, sample_every=4)
     keep = r.t > 0.7
     t, w = r.t[keep], r.state[keep, 1]
     period = np.mean(np.diff(crossings(t, w, w.mean())))

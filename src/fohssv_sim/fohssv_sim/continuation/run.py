@@ -202,7 +202,7 @@ def start_orbit(system: VehicleSystem, p: float, settle: float = 1.0,
     from ..simulate import simulate
 
     mp, _ = system.at(p)
-    r = simulate(mp, system.controller, settle + window)
+    r = simulate(mp, system.controller, settle + window, sample_every=10)
     keep = r.t >= settle
     t, x = r.t[keep], r.state[keep]
     w = x[:, 1]

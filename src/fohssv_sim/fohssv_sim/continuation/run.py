@@ -230,7 +230,9 @@ def _delay_free(system: VehicleSystem, branch: Branch, start: float, end: float,
         begin, direction = (u0, start), None
     else:
         begin, direction = (resumed[0], resumed[1]), resumed[2]
-    scale = np.append(np.maximum(np.abs(begin[0]), 1e-2), span)
+    orbit = prob.samples(begin[0], begin[1], 200)   # each state by its swing or its level
+    size = np.maximum(orbit.max(axis=0) - orbit.min(axis=0), np.abs(orbit.mean(axis=0)))
+    scale = np.concatenate([np.maximum(size, 1e-6), [abs(begin[0][-1]), span]])
 
     def measure(pt: BranchPoint) -> dict[str, Any]:
         _, c = system.at(pt.p)

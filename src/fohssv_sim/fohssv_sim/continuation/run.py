@@ -23,7 +23,7 @@ from .branch import Branch
 from .driver import BranchPoint, ContinuationError, Settings, continue_branch
 from .harmonic import converge_harmonics, hopf_point, initial_guess
 from .shooting import ShootingProblem
-from .vehicle import VehicleSystem, orbit_measures
+from .vehicle import VehicleSystem, W, orbit_measures
 
 __all__ = ['follow_orbits', 'start_orbit', 'MODELS']
 
@@ -193,8 +193,9 @@ def _hopf_guess(system: VehicleSystem, start: float, end: float) -> tuple[float,
 
 def start_orbit(system: VehicleSystem, p: float, settle: float = 1.0,
                 window: float = 0.5) -> np.ndarray:
-    """u = (x0, T) of the delay-free orbit a simulation at ``p`` settles on: x0 where w rises
-    through its mean, T the mean time between such crossings.
+    """u = (x0, T) of the delay-free orbit a simulation at ``p`` settles on: x0 at the last
+    maximum of w (sampled every 10 steps), T the mean time between upward crossings of w
+    through its mean.
 
     Raises:
         ContinuationError: the simulation settles to an equilibrium (no orbit to start from).
@@ -216,13 +217,14 @@ def start_orbit(system: VehicleSystem, p: float, settle: float = 1.0,
                                 f'its mean fewer than 3 times in {window:g} s')
     frac = (w.mean() - w[up]) / (w[up + 1] - w[up])
     crossings = t[up] + frac * (t[up + 1] - t[up])
-    x0 = x[up[-1]] + frac[-1] * (x[up[-1] + 1] - x[up[-1]])
+    last = slice(up[-2], up[-1] + 1)               # the last whole period
+    x0 = x[last][int(np.argmax(w[last]))]
     return np.append(x0, float(np.mean(np.diff(crossings))))
 
 
 def _delay_free(system: VehicleSystem, branch: Branch, start: float, end: float, span: float,
                 points: int, say: Progress, checkpoint: Path | None) -> None:
-    prob = ShootingProblem(system.field(), rtol=1e-9)
+    prob = ShootingProblem(system.field(), rtol=1e-9, extremum_of=W)   # x0 at w's top
     resumed = _resumed(branch)
     if resumed is None:
         say(f'starting orbit: simulating at {branch.parameter} = {start:g}')

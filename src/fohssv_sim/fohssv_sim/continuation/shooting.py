@@ -1,12 +1,13 @@
 """Periodic orbits of an autonomous ODE x' = f(x, p) by single shooting, with Floquet
 multipliers from the monodromy matrix.
 
-Unknowns u = (x0, T); equations: x(T; x0, p) - x0 = 0 and the phase condition
+Unknowns u = (x0, T); equations: x(T; x0, p) - x0 = 0 and a phase condition: either
 f(x_ref, p_ref) . (x0 - x_ref) = 0 (x0 on the hyperplane through the previous point's start,
 normal to the flow there; :meth:`ShootingProblem.accept` moves the reference after each
-branch point). The flow and its variational equations X' = df/dx X, X(0) = I, are integrated
-with scipy's DOP853; the monodromy matrix is X(T) and its eigenvalues are the Floquet
-multipliers, one of which is 1 for any autonomous orbit (the flow direction).
+branch point), or f_k(x0) = 0 (x0 at an extremum of state k: a start that stays away from a
+switching surface the orbit crosses, where the flow map is least smooth). The flow and its
+variational equations X' = df/dx X, X(0) = I, are integrated with scipy's DOP853; the
+monodromy matrix is X(T) and its eigenvalues are the Floquet multipliers, one of which is 1 for any autonomous orbit (the flow direction).
 
 **Piecewise smooth fields.** A field may name switching surfaces (``switches(x, p)``: values
 whose sign changes where the field's formula changes, e.g. the tail touching the cavity wall).
@@ -110,9 +111,12 @@ def _integrate(field: Field, x0: np.ndarray, T: float, p: float, variational: bo
 class ShootingProblem:
     """Periodic orbits of ``field`` by single shooting; unknowns u = (x0, T)."""
 
-    def __init__(self, field: Field, rtol: float = 1e-11) -> None:
+    def __init__(self, field: Field, rtol: float = 1e-11, extremum_of: int | None = None
+                 ) -> None:
         self.field = field
         self.rtol = rtol
+        #: None: the moving orthogonal hyperplane; k: x0 at an extremum of state k (f_k = 0)
+        self.extremum_of = extremum_of
         self.ref: tuple[np.ndarray, np.ndarray] | None = None
         self._last: tuple[bytes, float, np.ndarray] | None = None   # (u, p, monodromy)
 
@@ -129,10 +133,15 @@ class ShootingProblem:
     def residual(self, u: np.ndarray, p: float) -> np.ndarray:
         x0, T = u[:-1], float(u[-1])
         xT, _, _ = _integrate(self.field, x0, T, p, False, self.rtol)
+        return np.append(xT - x0, self._phase(x0, p))
+
+    def _phase(self, x0: np.ndarray, p: float) -> float:
+        if self.extremum_of is not None:
+            return float(self.field.f(np.asarray(x0, dtype=float), p)[self.extremum_of])
         if self.ref is None:
-            self.accept(u, p)
+            self.accept(np.append(x0, 0.0), p)
         xr, fr = self.ref
-        return np.append(xT - x0, fr @ (x0 - xr))
+        return float(fr @ (x0 - xr))
 
     def jacobian(self, u: np.ndarray, p: float) -> np.ndarray:
         """Columns x0, T, p: M - I, f(x(T)), dx(T)/dp (central difference in p)."""
@@ -143,13 +152,16 @@ class ShootingProblem:
         d = 1e-6 * max(1.0, abs(p))
         xp = _integrate(self.field, x0, T, p + d, False, self.rtol)[0]
         xm = _integrate(self.field, x0, T, p - d, False, self.rtol)[0]
-        if self.ref is None:
-            self.accept(u, p)
         J = np.zeros((n + 1, n + 2))
         J[:n, :n] = M - np.eye(n)
         J[:n, n] = self.field.f(xT, p)
         J[:n, n + 1] = (xp - xm) / (2.0 * d)
-        J[n, :n] = self.ref[1]
+        if self.extremum_of is None:
+            self._phase(x0, p)
+            J[n, :n] = self.ref[1]
+        else:
+            J[n, :n] = self.field.dfdx(np.asarray(x0, dtype=float), p)[self.extremum_of]
+            J[n, n + 1] = (self._phase(x0, p + d) - self._phase(x0, p - d)) / (2.0 * d)
         return J
 
     def monodromy(self, u: np.ndarray, p: float) -> np.ndarray:

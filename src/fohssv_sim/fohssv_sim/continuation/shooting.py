@@ -7,7 +7,8 @@ normal to the flow there; :meth:`ShootingProblem.accept` moves the reference aft
 branch point), or f_k(x0) = 0 (x0 at an extremum of state k: a start that stays away from a
 switching surface the orbit crosses, where the flow map is least smooth). The flow and its
 variational equations X' = df/dx X, X(0) = I, are integrated with scipy's DOP853; the
-monodromy matrix is X(T) and its eigenvalues are the Floquet multipliers, one of which is 1 for any autonomous orbit (the flow direction).
+monodromy matrix is X(T) and its eigenvalues are the Floquet multipliers, one of which is 1
+for any autonomous orbit (the flow direction).
 
 **Piecewise smooth fields.** A field may name switching surfaces (``switches(x, p)``: values
 whose sign changes where the field's formula changes, e.g. the tail touching the cavity wall).

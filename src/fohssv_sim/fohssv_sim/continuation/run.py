@@ -97,7 +97,8 @@ def _recorder(branch: Branch, measure: Callable[[BranchPoint], dict[str, Any]],
             branch.points.append(measure(pt))
         for b in bifs[len(branch.bifurcations) - known:]:
             near = min(branch.points, key=lambda q: abs(q['value'] - b.value))
-            branch.bifurcations.append({'kind': b.kind, 'value': b.value, 'w': near['w_max']})
+            branch.bifurcations.append({'kind': b.kind.split(':')[0], 'value': b.value,
+                                        'w': near['w_max']})
         branch.resume = {'u': pt.u.tolist(), 'p': pt.p, 'tangent': pt.tangent.tolist()}
         q = branch.points[-1]
         stable = {True: 'stable', False: 'unstable', None: 'stability unknown'}[q['stable']]
@@ -253,8 +254,9 @@ def _delay_free(system: VehicleSystem, branch: Branch, start: float, end: float,
 
 
 class _Grazing:
-    """The shooting problem with a ``grazing`` test function: the orbit's largest immersion
-    |h*| - R' (zero when the orbit just touches the cavity wall)."""
+    """The shooting problem with two ``grazing`` test functions: the orbit's largest
+    immersion |h*| - R' (zero when an orbit clear of the wall just touches it) and its
+    smallest (zero when an orbit in contact just stops leaving it)."""
 
     def __init__(self, prob: ShootingProblem, system: VehicleSystem) -> None:
         self.prob = prob
@@ -267,4 +269,5 @@ class _Grazing:
     def monitors(self, u: np.ndarray, p: float) -> dict[str, float]:
         _, c = self.system.at(p)
         m = orbit_measures(self.prob.samples(u, p, 400).T, c)
-        return {**self.prob.monitors(u, p), 'grazing': m['immersion_max']}
+        return {**self.prob.monitors(u, p), 'grazing:max': m['immersion_max'],
+                'grazing:min': m['immersion_min']}

@@ -95,3 +95,13 @@ def test_harmonic_count_stops_when_the_frequency_settles():
     got, u, history = converge_harmonics(prob, prob.pack(c, omega), 1.0, start=2)
     assert [h for h, _ in history] == [2, 4]
     assert history[-1][1] == pytest.approx(omega / (2 * math.pi), rel=1e-10)
+
+
+def test_grazing_of_a_switching_surface_is_found_where_the_orbit_touches_it():
+    """The normal form's circle of radius sqrt(mu) touches the line x = 0.5 at mu = 0.25."""
+    field = Field(hopf_normal_form, 2, switches=lambda x, mu: (x[0] - 0.5,))
+    prob = ShootingProblem(field, rtol=1e-9)
+    _, bifs = continue_branch(prob, (np.array([0.6, 0.0, 2 * math.pi]), 0.36), 0.16,
+                              settings=Settings(ds=0.05, ds_max=0.1))
+    (graze,) = [b for b in bifs if b.kind.startswith('grazing')]
+    assert graze.value == pytest.approx(0.25, abs=5e-3)

@@ -246,28 +246,7 @@ def _delay_free(system: VehicleSystem, branch: Branch, start: float, end: float,
                 'multipliers': [[float(m.real), float(m.imag)] for m in mu],
                 **orbit_measures(prob.samples(pt.u, pt.p, 400).T, c)}
 
-    grazing = _Grazing(prob, system)
-    continue_branch(grazing, begin, end, scale=scale,
+    continue_branch(prob, begin, end, scale=scale,
                     direction=None if direction is None else direction * scale,
                     limit=start, settings=_driver_settings(span, points, span),
                     on_point=_recorder(branch, measure, say, checkpoint, end))
-
-
-class _Grazing:
-    """The shooting problem with two ``grazing`` test functions: the orbit's largest
-    immersion |h*| - R' (zero when an orbit clear of the wall just touches it) and its
-    smallest (zero when an orbit in contact just stops leaving it)."""
-
-    def __init__(self, prob: ShootingProblem, system: VehicleSystem) -> None:
-        self.prob = prob
-        self.system = system
-        self.residual = prob.residual
-        self.jacobian = prob.jacobian
-        self.accept = prob.accept
-        self.valid = prob.valid
-
-    def monitors(self, u: np.ndarray, p: float) -> dict[str, float]:
-        _, c = self.system.at(p)
-        m = orbit_measures(self.prob.samples(u, p, 400).T, c)
-        return {**self.prob.monitors(u, p), 'grazing:max': m['immersion_max'],
-                'grazing:min': m['immersion_min']}

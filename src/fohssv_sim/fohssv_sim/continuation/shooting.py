@@ -186,7 +186,16 @@ class ShootingProblem:
         return np.array(_integrate(self.field, u[:-1], T, p, False, self.rtol, t)[2])
 
     def monitors(self, u: np.ndarray, p: float) -> dict[str, float]:
-        return floquet_tests(self.multipliers(u, p)[1:])
+        """:func:`floquet_tests`, and for each switching surface k the largest and smallest
+        value of its function over the orbit (``grazing:k:max``, ``grazing:k:min``, from 400
+        samples): one of them through zero is an orbit grazing the surface."""
+        out = floquet_tests(self.multipliers(u, p)[1:])
+        if self.field.switches is not None:
+            g = np.array([self.field.switches(x, p) for x in self.samples(u, p, 400)])
+            for k in range(g.shape[1]):
+                out[f'grazing:{k}:max'] = float(g[:, k].max())
+                out[f'grazing:{k}:min'] = float(g[:, k].min())
+        return out
 
 
 def floquet_tests(nontrivial: Any) -> dict[str, float]:

@@ -122,3 +122,30 @@ def test_delay_free_field_equals_the_models_closed_loop_and_its_jacobian():
         x = np.array(x)
         assert np.allclose(field.f(x, 84.5), ref(x), rtol=1e-13, atol=1e-12)
         assert np.allclose(field.dfdx(x, 84.5), jacobian(ref, x), rtol=1e-6, atol=1e-6)
+
+
+def test_an_interrupted_branch_resumes_from_its_checkpoint(tmp_path):
+    """Stopped after three points, the branch carries on from branch.json and ends on the
+    same orbit at the end of the range as a run without interruption."""
+    from fohssv_sim.continuation.branch import load_branch
+    from fohssv_sim.continuation.run import follow_orbits
+
+    params = ModelParameters(speed=84.5)
+    args = (params, StateFeedback(), 'fractional_order', 0.74, 0.77)
+    whole = follow_orbits(*args, points=4, harmonics=8)
+
+    def stop(text):
+        if text.startswith('point 4:'):
+            raise KeyboardInterrupt
+
+    path = tmp_path / 'branch.json'
+    with pytest.raises(KeyboardInterrupt):
+        follow_orbits(*args, points=4, harmonics=8, checkpoint=path, progress=stop)
+    part = load_branch(path)
+    assert not part.complete and len(part.points) == 3
+    done = follow_orbits(*args, points=4, harmonics=8, checkpoint=path, resume=part)
+    assert done.complete and load_branch(path).complete
+    assert [b['kind'] for b in done.bifurcations] == [b['kind'] for b in whole.bifurcations]
+    assert done.points[-1]['value'] == whole.points[-1]['value'] == 0.77
+    assert done.points[-1]['frequency_hz'] == pytest.approx(whole.points[-1]['frequency_hz'],
+                                                            rel=1e-8)

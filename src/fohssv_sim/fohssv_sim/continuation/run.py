@@ -75,6 +75,12 @@ def follow_orbits(params: ModelParameters, controller: Any, parameter: str, star
         _fractional(system, branch, start, end, span, points, harmonics, say, checkpoint)
     else:
         _delay_free(system, branch, start, end, span, points, say, checkpoint)
+    last = branch.points[-1]['value']
+    if last not in (start, end):
+        say(f'the branch stopped at {parameter} = {last:.6g} before the end of the range (the '
+            'step fell below its minimum or the point limit was reached): see the last '
+            'points in branch.json')
+        branch.settings['stopped_early_at'] = last
     branch.complete = True
     branch.resume = {}
     if checkpoint is not None:
@@ -112,7 +118,7 @@ def _recorder(branch: Branch, measure: Callable[[BranchPoint], dict[str, Any]],
 
 def _driver_settings(span: float, points: int, scale_p: float) -> Settings:
     ds = span / max(points, 2) / scale_p
-    return Settings(ds=0.1 * ds, ds_max=ds, ds_min=1e-6 * ds, max_points=4 * points + 20)
+    return Settings(ds=0.1 * ds, ds_max=ds, ds_min=1e-6 * ds, max_points=10 * points + 50)
 
 
 def _resumed(branch: Branch) -> tuple[np.ndarray, float, np.ndarray] | None:

@@ -34,11 +34,16 @@ MODELS = {'fractional': 'harmonic balance (AFT), Hopf point by amplitude extrapo
 Progress = Callable[[str], None]
 
 
-def _summary(params: ModelParameters, parameter: str) -> str:
-    fixed = [f'V = {params.speed:g} m/s'] if parameter != 'speed' else []
-    if params.model == 'fractional' and parameter != 'fractional_order':
-        fixed.append(f'α = {params.fractional_order:g}')
-    return ', '.join(fixed)
+def _summary(params: ModelParameters, parameter: str, controller: str, harmonics: int) -> str:
+    """The figure's second title line: what is held fixed and how the orbits were computed."""
+    parts = [f'V = {params.speed:g} m/s'] if parameter != 'speed' else []
+    if params.model == 'fractional':
+        if parameter != 'fractional_order':
+            parts.append(f'α = {params.fractional_order:g}')
+        parts.append(f'{harmonics} harmonics')
+    else:
+        parts.append('DOP853, rtol 1e-9, restarted at contact')
+    return ', '.join(parts + [controller])
 
 
 def follow_orbits(params: ModelParameters, controller: Any, parameter: str, start: float,
@@ -63,8 +68,9 @@ def follow_orbits(params: ModelParameters, controller: Any, parameter: str, star
     system = VehicleSystem(params, controller, parameter)
     settings = {'start': start, 'end': end, 'points': points, 'harmonics': harmonics,
                 'model_parameters': params.to_dict(),
-                'controller': getattr(controller, 'describe', lambda: str(controller))(),
-                'summary': _summary(params, parameter)}
+                'controller': getattr(controller, 'describe', lambda: str(controller))()}
+    settings['summary'] = _summary(params, parameter, getattr(controller, 'name', '') or
+                                   type(controller).__name__, harmonics)
     branch = Branch(parameter, params.model, MODELS[params.model], settings)
     if resume is not None:
         branch.points, branch.bifurcations = resume.points, resume.bifurcations

@@ -155,7 +155,7 @@ def _fractional(system: VehicleSystem, branch: Branch, start: float, end: float,
         say(f'Hopf point at {branch.parameter} = {p_h:.8g}')
         begin, direction = (u2, p2), np.append(u2 - u1, p2 - p1)
     else:
-        begin, direction = (resumed[0], resumed[1]), resumed[2] * scale
+        begin, direction = (resumed[0], resumed[1]), resumed[2]
         say(f"resuming from point {len(branch.points)} at {branch.parameter} = "
             f"{resumed[1]:.6g}")
 
@@ -259,6 +259,6 @@ def _delay_free(system: VehicleSystem, branch: Branch, start: float, end: float,
                 **orbit_measures(prob.samples(pt.u, pt.p, 400).T, c)}
 
     continue_branch(prob, begin, end, scale=scale,
-                    direction=None if direction is None else direction * scale,
+                    direction=direction,
                     limit=start, settings=_driver_settings(span, points, span),
                     on_point=_recorder(branch, measure, say, checkpoint, end))

@@ -105,3 +105,33 @@ def test_grazing_of_a_switching_surface_is_found_where_the_orbit_touches_it():
                               settings=Settings(ds=0.05, ds_max=0.1))
     (graze,) = [b for b in bifs if b.kind.startswith('grazing')]
     assert graze.value == pytest.approx(0.25, abs=5e-3)
+
+
+def hutchinson(harmonics=6):
+    """Delayed logistic equation x' = r x(t) (1 - x(t - 1)) (tau = 1, p = r): about x = 1
+    the linearisation y' = -r y(t - 1) has lambda = i omega where omega tau = pi/2 and
+    omega = r, so the Hopf point is r tau = pi/2 with period 4 tau."""
+    def rhs(X, r, Xd):
+        return r * X * (1.0 - Xd)
+    return HarmonicBalance(rhs, 1, harmonics, lambda r: 1.0, delay=lambda r: 1.0)
+
+
+def test_delayed_logistic_hopf_point_by_harmonic_balance():
+    prob = hutchinson()
+    c = np.zeros((1, 13))
+    c[0, 0] = 1.0
+    c[0, 1] = 0.01
+    p_h, u1, *_ = hopf_point(prob, prob.pack(c, 1.3), 1.8, 1e-3)     # r, omega 15 % off
+    assert p_h == pytest.approx(math.pi / 2, abs=1e-8)
+    assert u1[-1] == pytest.approx(math.pi / 2, rel=1e-5)
+
+
+def test_delayed_harmonic_balance_jacobian_matches_differences():
+    from fohssv_sim.continuation.driver import fd_jacobian
+
+    prob = hutchinson(4)
+    rng = np.random.default_rng(3)
+    u = np.append(np.concatenate([[1.0], 0.2 * rng.standard_normal(7)]), 1.4)
+    J = prob.jacobian(u, 1.9)
+    F = fd_jacobian(lambda y: prob.residual(y[:-1], y[-1]), np.append(u, 1.9))
+    assert np.allclose(J, F, rtol=1e-6, atol=1e-6)

@@ -52,6 +52,9 @@ class HarmonicBalance:
     order: Callable[[float], float]
     phase_state: int = 0
     samples: int = 0
+    #: the delay tau(p) of a delay-differential system: ``rhs(X, p, X_delayed)`` then gets
+    #: the states at t - tau too (their coefficients rotated by k omega tau)
+    delay: Callable[[float], float] | None = None
 
     def __post_init__(self) -> None:
         self.samples = max(self.samples, 4 * self.harmonics + 4)
@@ -69,15 +72,31 @@ class HarmonicBalance:
         c = np.asarray(coefficients, dtype=float).T.ravel()
         return np.append(np.delete(c, self._drop), omega)
 
-    def signal(self, u: np.ndarray, count: int | None = None) -> np.ndarray:
-        """x at ``count`` equally spaced times over one period, shape (n, count)."""
+    def signal(self, u: np.ndarray, count: int | None = None, lag: float = 0.0) -> np.ndarray:
+        """x at ``count`` equally spaced times over one period, shape (n, count); with ``lag``
+        (s), x at those times minus ``lag``."""
         count = count or self.samples
         c = self.coefficients(u)
         H = self.harmonics
+        if lag:
+            phi = np.arange(1, H + 1) * float(u[-1]) * lag
+            a, b = c[:, 1::2].copy(), c[:, 2::2].copy()
+            c[:, 1::2] = a * np.cos(phi) - b * np.sin(phi)
+            c[:, 2::2] = a * np.sin(phi) + b * np.cos(phi)
         spec = np.zeros((self.dim, count // 2 + 1), dtype=complex)
         spec[:, 0] = c[:, 0] * count
         spec[:, 1:H + 1] = (c[:, 1::2] - 1j * c[:, 2::2]) * count / 2.0
         return np.fft.irfft(spec, n=count, axis=1)
+
+    def evaluate(self, u: np.ndarray, p: float, x: np.ndarray | None = None,
+                 xd: np.ndarray | None = None) -> np.ndarray:
+        """The right-hand side at the N sample times (at the states ``x`` / delayed states
+        ``xd`` if given, else those of u)."""
+        x = self.signal(u, self.samples) if x is None else x
+        if self.delay is None:
+            return self.rhs(x, p)
+        xd = self.signal(u, self.samples, self.delay(p)) if xd is None else xd
+        return self.rhs(x, p, xd)
 
     def residual(self, u: np.ndarray, p: float) -> np.ndarray:
         H, N = self.harmonics, self.samples
@@ -86,7 +105,7 @@ class HarmonicBalance:
         X = np.empty((self.dim, H + 1), dtype=complex)
         X[:, 0] = c[:, 0]
         X[:, 1:] = (c[:, 1::2] - 1j * c[:, 2::2]) / 2.0
-        F = np.fft.rfft(self.rhs(self.signal(u, N), p), axis=1)[:, :H + 1] / N
+        F = np.fft.rfft(self.evaluate(u, p), axis=1)[:, :H + 1] / N
         k = np.arange(H + 1)
         D = np.zeros(H + 1, dtype=complex)
         D[1:] = (1j * k[1:] * omega) ** self.order(p)
@@ -127,14 +146,14 @@ class HarmonicBalance:
         Phi[:, 2::2] = np.sin(np.outer(theta, k))
         E = Phi.T * (2.0 / N)
         E[0] /= 2.0
-        dfdx = np.empty((n, n, N))
-        for j in range(n):
-            d = 1e-7 * max(1.0, float(np.max(np.abs(x[j]))))
-            xp, xm = x.copy(), x.copy()
-            xp[j] += d
-            xm[j] -= d
-            dfdx[:, j] = (self.rhs(xp, p) - self.rhs(xm, p)) / (2.0 * d)
-        G = np.einsum('rt,ijt,tm->rimj', E, dfdx, Phi)
+        G = np.einsum('rt,ijt,tm->rimj', E, self._slopes(u, p, x, None), Phi)
+        if self.delay is not None:     # the delayed states: the basis at t - tau
+            lagged = theta - float(u[-1]) * self.delay(p)
+            Phi_d = np.ones((N, M))
+            Phi_d[:, 1::2] = np.cos(np.outer(lagged, k))
+            Phi_d[:, 2::2] = np.sin(np.outer(lagged, k))
+            xd = self.signal(u, N, self.delay(p))
+            G += np.einsum('rt,ijt,tm->rimj', E, self._slopes(u, p, x, xd), Phi_d)
         sign = np.full(M, -0.5)
         sign[0] = -1.0
         sign[2::2] = 0.5
@@ -158,11 +177,31 @@ class HarmonicBalance:
         d_p = (self.residual(u, p + d) - self.residual(u, p - d)) / (2.0 * d)
         return np.column_stack([J, d_omega, d_p])
 
+    def _slopes(self, u: np.ndarray, p: float, x: np.ndarray, xd: np.ndarray | None
+                ) -> np.ndarray:
+        """df_i/dx_j (n, n, N) at the sample times by central differences: with respect to
+        the current states, or with ``xd`` to the delayed ones."""
+        n = self.dim
+        out = np.empty((n, n, x.shape[1]))
+        moved = x if xd is None else xd
+        for j in range(n):
+            d = 1e-7 * max(1.0, float(np.max(np.abs(moved[j]))))
+            plus, minus = moved.copy(), moved.copy()
+            plus[j] += d
+            minus[j] -= d
+            if xd is None:
+                f1, f2 = self.evaluate(u, p, plus), self.evaluate(u, p, minus)
+            else:
+                f1, f2 = self.evaluate(u, p, x, plus), self.evaluate(u, p, x, minus)
+            out[:, j] = (f1 - f2) / (2.0 * d)
+        return out
+
     def frequency_hz(self, u: np.ndarray) -> float:
         return float(u[-1]) / (2.0 * np.pi)
 
     def with_harmonics(self, harmonics: int) -> HarmonicBalance:
-        return HarmonicBalance(self.rhs, self.dim, harmonics, self.order, self.phase_state)
+        return HarmonicBalance(self.rhs, self.dim, harmonics, self.order, self.phase_state,
+                               delay=self.delay)
 
     def resized(self, u: np.ndarray, harmonics: int) -> np.ndarray:
         """u of this problem as the unknowns of ``with_harmonics(harmonics)`` (zero-padded or

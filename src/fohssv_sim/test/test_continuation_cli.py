@@ -47,7 +47,6 @@ def test_fom_branch_writes_branch_json_and_the_diagram(tmp_path):
     (('--vary', 'fractional_order=0.5:1.5'), 'fractional_order=1.5'),
     (('--vary', 'speed'), 'must look like NAME=START:END'),
     (('--vary', 'fractional_order=0.8:0.9', '--set', 'speed=75'), 'no Hopf point'),
-    (('--vary', 'speed=75:90', '--set', 'model=delayed'), 'delayed model is not supported'),
 ])
 def test_bad_input_is_one_line_and_exit_2(tmp_path, args, text):
     out = run(*args, '--out', str(tmp_path))

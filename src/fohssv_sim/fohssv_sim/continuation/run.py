@@ -6,7 +6,9 @@ API beside :func:`fohssv_sim.simulate.simulate`; ``fohssv continue`` calls it).
   given by the method (``stable: null``).
 * ``model='delay-free'``: shooting (:mod:`.shooting`) from an orbit found by simulating at the
   start of the range; stability from the Floquet multipliers.
-* ``model='delayed'``: not supported yet (refused with a one-line error).
+* ``model='delayed'``: harmonic balance of the delay-differential equation (the delayed
+  states' coefficients rotated by k omega tau, tau = L/V moving with V) from an orbit found by
+  simulating at the start of the range; stability not given (``stable: null``).
 """
 
 from __future__ import annotations
@@ -18,10 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from ..params import ModelParameters, ParameterError
+from ..params import ModelParameters
 from .branch import Branch
 from .driver import BranchPoint, ContinuationError, Settings, continue_branch
-from .harmonic import converge_harmonics, hopf_point, initial_guess
+from .harmonic import HarmonicBalance, converge_harmonics, hopf_point, initial_guess
 from .shooting import ShootingProblem
 from .vehicle import VehicleSystem, W, orbit_measures
 
@@ -29,7 +31,9 @@ __all__ = ['follow_orbits', 'start_orbit', 'MODELS']
 
 #: The models ``follow_orbits`` continues, with their method.
 MODELS = {'fractional': 'harmonic balance (AFT), Hopf point by amplitude extrapolation',
-          'delay-free': 'single shooting, Floquet multipliers from the monodromy matrix'}
+          'delay-free': 'single shooting, Floquet multipliers from the monodromy matrix',
+          'delayed': 'harmonic balance of the delay-differential equation (AFT), from a '
+                     'simulated orbit'}
 
 Progress = Callable[[str], None]
 
@@ -61,10 +65,6 @@ def follow_orbits(params: ModelParameters, controller: Any, parameter: str, star
             that is not affine.
         ContinuationError: no Hopf point (FOM) or no orbit (delay-free) at the start.
     """
-    if params.model not in MODELS:
-        raise ParameterError(f"model={params.model!r}: fohssv continue follows "
-                             f"{' and '.join(MODELS)} orbits; the delayed model is not "
-                             'supported yet')
     system = VehicleSystem(params, controller, parameter)
     settings = {'start': start, 'end': end, 'points': points, 'harmonics': harmonics,
                 'model_parameters': params.to_dict(),
@@ -79,6 +79,8 @@ def follow_orbits(params: ModelParameters, controller: Any, parameter: str, star
     span = abs(end - start)
     if params.model == 'fractional':
         _fractional(system, branch, start, end, span, points, harmonics, say, checkpoint)
+    elif params.model == 'delayed':
+        _delayed(system, branch, start, end, span, points, harmonics, say, checkpoint)
     else:
         _delay_free(system, branch, start, end, span, points, say, checkpoint)
     last = branch.points[-1]['value']
@@ -205,10 +207,11 @@ def _hopf_guess(system: VehicleSystem, start: float, end: float) -> tuple[float,
 
 
 def start_orbit(system: VehicleSystem, p: float, settle: float = 1.0,
-                window: float = 0.5) -> np.ndarray:
-    """u = (x0, T) of the delay-free orbit a simulation at ``p`` settles on: x0 at the last
-    maximum of w (sampled every 10 steps), T the mean time between upward crossings of w
-    through its mean.
+                window: float = 0.5, samples: int = 0) -> Any:
+    """u = (x0, T) of the orbit a simulation at ``p`` settles on: x0 at the last maximum of w
+    (sampled every 10 steps), T the mean time between upward crossings of w through its
+    mean; with ``samples``, instead ``(x, T)``: the last period at that many equally spaced
+    times (4, samples) and its length.
 
     Raises:
         ContinuationError: the simulation settles to an equilibrium (no orbit to start from).
@@ -232,7 +235,30 @@ def start_orbit(system: VehicleSystem, p: float, settle: float = 1.0,
     crossings = t[up] + frac * (t[up + 1] - t[up])
     last = slice(up[-2], up[-1] + 1)               # the last whole period
     x0 = x[last][int(np.argmax(w[last]))]
+    if samples:
+        T = crossings[-1] - crossings[-2]
+        grid = crossings[-2] + T * np.arange(samples) / samples
+        return np.array([np.interp(grid, t, x[:, j]) for j in range(4)]), T
     return np.append(x0, float(np.mean(np.diff(crossings))))
+
+
+def _guess_from_simulation(system: VehicleSystem, prob: HarmonicBalance, p: float
+                           ) -> np.ndarray:
+    """Harmonic-balance unknowns of the orbit a simulation at ``p`` settles on (its last
+    period's Fourier coefficients, phase turned so that w's first sine coefficient is 0)."""
+    H, N = prob.harmonics, 8 * prob.harmonics + 8
+    x, T = start_orbit(system, p, samples=N)
+    spec = np.fft.rfft(x, axis=1)[:, :H + 1] / N
+    c = np.zeros((4, 2 * H + 1))
+    c[:, 0] = spec[:, 0].real
+    c[:, 1::2] = 2.0 * spec[:, 1:].real
+    c[:, 2::2] = -2.0 * spec[:, 1:].imag
+    phi = np.arctan2(c[W, 2], c[W, 1])
+    k = np.arange(1, H + 1)
+    a, b = c[:, 1::2].copy(), c[:, 2::2].copy()
+    c[:, 1::2] = a * np.cos(k * phi) + b * np.sin(k * phi)
+    c[:, 2::2] = b * np.cos(k * phi) - a * np.sin(k * phi)
+    return prob.pack(c, 2.0 * np.pi / T)
 
 
 def _delay_free(system: VehicleSystem, branch: Branch, start: float, end: float, span: float,
@@ -261,4 +287,28 @@ def _delay_free(system: VehicleSystem, branch: Branch, start: float, end: float,
     continue_branch(prob, begin, end, scale=scale,
                     direction=direction,
                     limit=start, settings=_driver_settings(span, points, span),
+                    on_point=_recorder(branch, measure, say, checkpoint, end))
+
+
+def _delayed(system: VehicleSystem, branch: Branch, start: float, end: float, span: float,
+             points: int, harmonics: int, say: Progress, checkpoint: Path | None) -> None:
+    prob = system.harmonic_balance_delayed(harmonics)
+    resumed = _resumed(branch)
+    if resumed is None:
+        say(f'starting orbit: simulating at {branch.parameter} = {start:g}')
+        begin, direction = (_guess_from_simulation(system, prob, start), start), None
+    else:
+        begin, direction = (resumed[0], resumed[1]), resumed[2]
+    x = prob.signal(begin[0], 64)
+    size = np.maximum(x.max(axis=1) - x.min(axis=1), np.abs(x.mean(axis=1)))
+    scale = prob.scale(np.maximum(size, 1e-6), float(begin[0][-1]), span)
+
+    def measure(pt: BranchPoint) -> dict[str, Any]:
+        _, c = system.at(pt.p)
+        f = prob.frequency_hz(pt.u)
+        return {'value': pt.p, 'frequency_hz': f, 'period_s': 1.0 / f, 'stable': None,
+                **orbit_measures(prob.signal(pt.u, 1024), c)}
+
+    continue_branch(prob, begin, end, scale=scale, direction=direction, limit=start,
+                    settings=_driver_settings(span, points, span),
                     on_point=_recorder(branch, measure, say, checkpoint, end))

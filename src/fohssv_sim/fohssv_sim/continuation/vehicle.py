@@ -21,7 +21,7 @@ import numpy as np
 
 from ..coefficients import Coefficients, coefficients
 from ..equilibria import find_equilibria
-from ..kernels import eq17, planing_exact
+from ..kernels import eq17, planing_delayed, planing_exact
 from ..params import PARAMETERS, ModelParameters, ParameterError
 from ..planing import planing_exact_array, planing_smooth_array
 from .harmonic import HarmonicBalance
@@ -111,12 +111,29 @@ class VehicleSystem:
     def rhs(self, X: np.ndarray, p: float, smooth: bool = True) -> np.ndarray:
         """eq. 17 of the closed loop at the states X (4, N), vectorised."""
         _, c = self.at(p)
+        w = X[W]
+        return self._eq17(X, c, planing_smooth_array(w, c) if smooth else
+                          planing_exact_array(w, c))
+
+    def _eq17(self, X: np.ndarray, c: Coefficients, fp: np.ndarray) -> np.ndarray:
         u = self.K @ X + self.u0[:, None]
         uf = np.clip(u[0], -self.limits[0], self.limits[0])
         uc = np.clip(u[1], -self.limits[1], self.limits[1])
-        w = X[W]
-        fp = planing_smooth_array(w, c) if smooth else planing_exact_array(w, c)
-        return np.array(np.broadcast_arrays(*eq17(c.kernel, w, X[2], X[3], uf, uc, fp)))
+        return np.array(np.broadcast_arrays(*eq17(c.kernel, X[W], X[2], X[3], uf, uc, fp)))
+
+    def delayed_rhs(self, X: np.ndarray, p: float, Xd: np.ndarray) -> np.ndarray:
+        """The delayed model's closed loop (eqs. 22-25) at the states X and the states Xd a
+        delay tau earlier, both (4, N)."""
+        mp, c = self.at(p)
+        fp = np.array([planing_delayed(x[0], x[2], xd[0], xd[1], xd[2], c.kernel,
+                                       mp.immersion_form) for x, xd in zip(X.T, Xd.T)])
+        return self._eq17(X, c, fp)
+
+    def harmonic_balance_delayed(self, harmonics: int) -> HarmonicBalance:
+        """The delayed model by harmonic balance of its delay-differential equation, with
+        tau = L/V (or as set) moving with the parameter; phase fixed on w."""
+        return HarmonicBalance(self.delayed_rhs, 4, harmonics, lambda p: 1.0, phase_state=W,
+                               delay=lambda p: self.at(p)[1].tau)
 
     def harmonic_balance(self, harmonics: int) -> HarmonicBalance:
         """The FOM with its smooth planing force (eqs. 28-29), phase fixed on w."""

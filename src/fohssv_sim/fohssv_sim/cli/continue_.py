@@ -29,7 +29,8 @@ def register(sub) -> None:
                        description='Follow a branch of periodic orbits as one model parameter '
                        'varies, by pseudo-arclength continuation (folds are passed): the FOM '
                        'by harmonic balance from its Hopf point, the delay-free model by '
-                       'shooting from an orbit found by simulation. Writes OUT/branch.json '
+                       'shooting and the delayed model by harmonic balance of its DDE, both '
+                       'from an orbit found by simulation. Writes OUT/branch.json '
                        'after every point and OUT/branch.png/.svg at the end; rerunning the '
                        'same command resumes an unfinished branch.')
     p.add_argument('--vary', required=True, metavar='NAME=START:END',

@@ -61,9 +61,9 @@ def follow_orbits(params: ModelParameters, controller: Any, parameter: str, star
     from one (same settings, not complete) to carry on from its last point.
 
     Raises:
-        ParameterError: a parameter that is not numeric, a model not supported, a controller
-            that is not affine.
-        ContinuationError: no Hopf point (FOM) or no orbit (delay-free) at the start.
+        ParameterError: a parameter that is not numeric, a controller that is not affine.
+        ContinuationError: no Hopf point (FOM) or no orbit (delay-free, delayed) at the
+            start.
     """
     system = VehicleSystem(params, controller, parameter)
     settings = {'start': start, 'end': end, 'points': points, 'harmonics': harmonics,

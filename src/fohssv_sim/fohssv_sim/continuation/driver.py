@@ -125,9 +125,11 @@ class _Scaled:
     """``problem`` in the coordinates y / scale, where a unit step means as much in every
     unknown and the parameter (the arclength norm sees them alike)."""
 
-    def __init__(self, problem: Any, scale: np.ndarray) -> None:
+    def __init__(self, problem: Any, scale: np.ndarray, bounds: tuple[float, ...] = ()
+                 ) -> None:
         self.problem = problem
         self.su, self.sp = scale[:-1], float(scale[-1])
+        self.bounds = bounds
 
     def residual(self, z: np.ndarray, zp: float) -> np.ndarray:
         return self.problem.residual(z * self.su, zp * self.sp)
@@ -140,7 +142,8 @@ class _Scaled:
 
     def point(self, q: BranchPoint) -> BranchPoint:
         t = q.tangent * np.append(self.su, self.sp)
-        return BranchPoint(q.u * self.su, q.p * self.sp, t / np.linalg.norm(t), q.monitors)
+        return BranchPoint(q.u * self.su, _snapped(q.p * self.sp, self.bounds),
+                           t / np.linalg.norm(t), q.monitors)
 
     def monitors(self, z: np.ndarray, zp: float) -> dict[str, float]:
         return _monitors(self.problem, z * self.su, zp * self.sp)
@@ -199,7 +202,7 @@ def continue_branch(problem: Any, start: tuple[np.ndarray, float], end: float, *
     """
     u0 = np.asarray(start[0], dtype=float)
     scale = np.ones(u0.size + 1) if scale is None else np.asarray(scale, dtype=float)
-    sc = _Scaled(problem, scale)
+    sc = _Scaled(problem, scale, tuple(b for b in (end, limit) if b is not None))
     sp = sc.sp
 
     def unscaled(bifs: list[Bifurcation]) -> list[Bifurcation]:
@@ -214,6 +217,11 @@ def continue_branch(problem: Any, start: tuple[np.ndarray, float], end: float, *
                            None if direction is None else np.asarray(direction) / scale,
                            None if limit is None else limit / sp, settings, report)
     return [sc.point(q) for q in points], unscaled(bifs)
+
+
+def _snapped(p: float, bounds: tuple[float, ...]) -> float:
+    """``p``, or the bound it equals to rounding (a point landed on the end of the range)."""
+    return next((b for b in bounds if abs(p - b) <= 1e-12 * max(1.0, abs(b))), p)
 
 
 def _follow(problem: _Scaled, start: tuple[np.ndarray, float], end: float,

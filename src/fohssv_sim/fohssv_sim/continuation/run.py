@@ -97,8 +97,7 @@ def follow_orbits(params: ModelParameters, controller: Any, parameter: str, star
 
 
 def _recorder(branch: Branch, measure: Callable[[BranchPoint], dict[str, Any]],
-              say: Progress, checkpoint: Path | None, end: float
-              ) -> Callable[[BranchPoint, list], None]:
+              say: Progress, checkpoint: Path | None) -> Callable[[BranchPoint, list], None]:
     """The driver's ``on_point``: measure, record, report, checkpoint."""
     known = len(branch.bifurcations)
     first = [True]
@@ -118,7 +117,7 @@ def _recorder(branch: Branch, measure: Callable[[BranchPoint], dict[str, Any]],
         stable = {True: 'stable', False: 'unstable', None: 'stability unknown'}[q['stable']]
         say(f"point {len(branch.points)}: {branch.parameter} = {q['value']:.6g}, "
             f"{q['frequency_hz']:.6g} Hz, w amplitude {q['w_amplitude']:.4g} m/s, {stable} "
-            f"(to {end:g})")
+            f"(range {branch.settings['start']:g} to {branch.settings['end']:g})")
         if checkpoint is not None:
             branch.write(checkpoint)
     return on_point
@@ -172,7 +171,7 @@ def _fractional(system: VehicleSystem, branch: Branch, start: float, end: float,
     pts, _ = continue_branch(prob, begin, target, scale=scale, direction=direction,
                              limit=low if target == high else high,
                              settings=_driver_settings(span, points, scale_p),
-                             on_point=_recorder(branch, measure, say, checkpoint, target))
+                             on_point=_recorder(branch, measure, say, checkpoint))
     last = pts[-1]
     fine, _, history = converge_harmonics(prob, last.u, last.p, start=harmonics, rtol=1e-4)
     branch.settings['harmonic_check'] = {
@@ -287,7 +286,7 @@ def _delay_free(system: VehicleSystem, branch: Branch, start: float, end: float,
     continue_branch(prob, begin, end, scale=scale,
                     direction=direction,
                     limit=start, settings=_driver_settings(span, points, span),
-                    on_point=_recorder(branch, measure, say, checkpoint, end))
+                    on_point=_recorder(branch, measure, say, checkpoint))
 
 
 def _delayed(system: VehicleSystem, branch: Branch, start: float, end: float, span: float,
@@ -311,4 +310,4 @@ def _delayed(system: VehicleSystem, branch: Branch, start: float, end: float, sp
 
     continue_branch(prob, begin, end, scale=scale, direction=direction, limit=start,
                     settings=_driver_settings(span, points, span),
-                    on_point=_recorder(branch, measure, say, checkpoint, end))
+                    on_point=_recorder(branch, measure, say, checkpoint))

@@ -13,8 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from .figures import STATE_UNITS, pyplot, save, titled
-from .orbits import OSCILLATING
-from .sweep import SweepResult
+from .sweep import SweepResult, alpha_star
 
 __all__ = ['plot_orbit_diagram', 'alpha_star', 'plot_alpha_v']
 
@@ -73,25 +72,6 @@ def plot_orbit_diagram(result: SweepResult, axis: str, paths: Sequence[Path],
     save(fig, paths, dpi=130)
     plt.close(fig)
     return fig
-
-
-def alpha_star(result: SweepResult) -> list[tuple[float, float]]:
-    """alpha*(V), the stability boundary: per speed, scanning alpha upward, the first change
-    between ``steady`` and an oscillating class (periodic or aperiodic), as the midpoint of
-    the two grid values (``drifting`` and ``diverged`` points are neither and are skipped);
-    NaN when the grid shows no such change."""
-    out = []
-    speeds = sorted({r['speed'] for r in result.rows})
-    for v in speeds:
-        rows = sorted((r for r in result.rows if r['speed'] == v and (
-            r['kind'] == 'steady' or r['kind'] in OSCILLATING)), key=lambda r: r['alpha'])
-        a = math.nan
-        for lo, hi in zip(rows, rows[1:]):
-            if (lo['kind'] == 'steady') != (hi['kind'] == 'steady'):
-                a = 0.5 * (lo['alpha'] + hi['alpha'])
-                break
-        out.append((v, a))
-    return out
 
 
 def plot_alpha_v(result: SweepResult, paths: Sequence[Path],

@@ -46,11 +46,11 @@ import numpy as np
 
 from ..control import make
 from ..params import ModelParameters
-from .orbits import METHOD, STEADY_RTOL, classify
+from .orbits import METHOD, OSCILLATING, STEADY_RTOL, classify
 
 __all__ = ['SweepSpec', 'SweepResult', 'ChunkedResult', 'run_chunks', 'check_half_step',
            'run_sweep', 'run_chunk', 'load_sweep', 'STATE_INDEX', 'ProgressPrinter',
-           'state_scale', 'WorkersLost', 'LOST_AFTER']
+           'state_scale', 'WorkersLost', 'LOST_AFTER', 'alpha_star']
 
 STATE_INDEX = {'z': 0, 'w': 1, 'theta': 2, 'q': 3}
 ROW_FIELDS = ('point', 'alpha', 'speed', 'label', 'kind', 'period', 'k01', 'amplitude',
@@ -509,11 +509,29 @@ def run_sweep(spec: SweepSpec, out: Path, *, scheduler: str | None = None, worke
     return result
 
 
+def alpha_star(result: SweepResult) -> list[tuple[float, float]]:
+    """alpha*(V), the stability boundary: per speed, scanning alpha upward, the first change
+    between ``steady`` and an oscillating class (periodic or aperiodic), as the midpoint of
+    the two grid values (``drifting`` and ``diverged`` points are neither and are skipped);
+    NaN when the grid shows no such change."""
+    out = []
+    speeds = sorted({r['speed'] for r in result.rows})
+    for v in speeds:
+        rows = sorted((r for r in result.rows if r['speed'] == v and (
+            r['kind'] == 'steady' or r['kind'] in OSCILLATING)), key=lambda r: r['alpha'])
+        a = math.nan
+        for lo, hi in zip(rows, rows[1:]):
+            if (lo['kind'] == 'steady') != (hi['kind'] == 'steady'):
+                a = 0.5 * (lo['alpha'] + hi['alpha'])
+                break
+        out.append((v, a))
+    return out
+
+
 def write_alpha_star(out: Path, result: SweepResult) -> None:
     """Add ``alpha_star`` to ``out/sweep.json``: per V of the sweep, alpha*(V), the boundary
-    between steady and oscillating orbits (:func:`.diagrams.alpha_star`; null where the grid
+    between steady and oscillating orbits (:func:`alpha_star`; null where the grid
     shows none), as ``[{"speed": V, "alpha_star": a}, ...]``."""
-    from .diagrams import alpha_star
 
     side_path = out / 'sweep.json'
     side = json.loads(side_path.read_text())

@@ -5,6 +5,7 @@
     fohssv sweep alpha|V|alpha-V [...]
     fohssv gainmap --x NAME=VALUES --y NAME=VALUES [...]
     fohssv report [--out DIR]
+    fohssv continue --vary NAME=START:END [...]
     fohssv repair BAG
 
 Model parameters are set with ``--set name=value`` (repeatable; names as in the README's
@@ -60,6 +61,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
              'envelope (differential evolution on Dask); writes the winner as a --params-file'),
     'fit': ('fit', 'identify the fractional order (and other model parameters) from a '
             'recorded run, or the alpha that best reproduces the delayed model'),
+    'continue': ('continue_', 'follow a branch of periodic orbits over one parameter by '
+                 'continuation: stability and bifurcations'),
 }
 
 

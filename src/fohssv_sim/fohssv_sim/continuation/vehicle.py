@@ -1,0 +1,183 @@
+"""The vehicle's closed loop as continuation problems: the delay-free model as a piecewise
+smooth field for shooting, the FOM as a harmonic-balance problem; one numeric model parameter
+varies (``fractional_order``, ``speed``, ...).
+
+The physics is the model's own: eq. 17 (:func:`fohssv_sim.kernels.eq17`), the planing forces
+of :mod:`fohssv_sim.planing`, the coefficients of :mod:`fohssv_sim.coefficients` and the
+closed-loop right-hand side of :mod:`fohssv_sim.equilibria`. The controller must be an affine
+state feedback (``affine()``, as the batched sweeps need), clamped to its deflection limits.
+
+Immersion is reported as |h*| - R' in body radii (h* = L w / (R V), eq. 12): negative while
+the tail is clear of the cavity wall, positive its depth in the wall; an orbit whose maximum
+crosses zero grazes the wall.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from ..coefficients import Coefficients, coefficients
+from ..equilibria import find_equilibria
+from ..kernels import eq17, planing_delayed, planing_exact
+from ..params import PARAMETERS, ModelParameters, ParameterError
+from ..planing import planing_exact_array, planing_smooth_array
+from .harmonic import HarmonicBalance
+from .shooting import Field
+
+__all__ = ['VehicleSystem', 'immersion', 'orbit_measures', 'varied_names', 'W']
+
+#: Index of w in the state [z, w, theta, q].
+W = 1
+
+
+def immersion(w: np.ndarray, c: Coefficients) -> np.ndarray:
+    """|h*| - R' (body radii) for vertical velocities ``w`` (delay-free immersion, eq. 12)."""
+    return np.abs(c.L * np.asarray(w) / (c.R * c.V)) - c.R_prime
+
+
+def orbit_measures(states: np.ndarray, c: Coefficients) -> dict[str, float]:
+    """Amplitude and mean of w and the immersion range of an orbit sampled over one period
+    (``states`` of shape (4, N))."""
+    w = states[W]
+    h = immersion(w, c)
+    return {'w_amplitude': float(0.5 * (w.max() - w.min())), 'w_mean': float(w.mean()),
+            'w_min': float(w.min()), 'w_max': float(w.max()),
+            'immersion_min': float(h.min()), 'immersion_max': float(h.max())}
+
+
+#: Solver settings: numeric, but not the model's.
+_SETTINGS = ('step', 'soe_tolerance', 'soe_horizon_steps')
+
+
+def varied_names(params: ModelParameters) -> list[str]:
+    """The model parameters a branch can vary: the numeric ones holding a number in
+    ``params`` (an option left at 'consistent' is set first with --set)."""
+    return [s.name for s in PARAMETERS if s.numeric and s.name not in _SETTINGS
+            and isinstance(getattr(params, s.name), float)]
+
+
+class VehicleSystem:
+    """The closed loop of ``params`` under ``controller`` with the model parameter
+    ``parameter`` set to p.
+
+    Raises:
+        ParameterError: ``parameter`` is not a numeric model parameter, or the controller is
+            not affine.
+    """
+
+    def __init__(self, params: ModelParameters, controller: Any, parameter: str) -> None:
+        if parameter not in varied_names(params):
+            raise ParameterError(f'parameter {parameter!r} is not a numeric model parameter; '
+                                 f"choose one of {', '.join(varied_names(params))}")
+        law = controller.affine() if hasattr(controller, 'affine') else None
+        if law is None:
+            raise ParameterError(f'controller {getattr(controller, "name", controller)!r} is '
+                                 'not an affine state feedback (u = K x + u0)')
+        self.params = params
+        self.controller = controller
+        self.parameter = parameter
+        self.K = np.asarray(law[0], dtype=float)
+        self.u0 = np.asarray(law[1], dtype=float)
+        p = controller.params
+        self.limits = (getattr(p, 'max_fin_deflection', math.inf),
+                       getattr(p, 'max_cavitator_deflection', math.inf))
+        self._cache: dict[float, tuple[ModelParameters, Coefficients]] = {}
+
+    # -- parameters ------------------------------------------------------------------------
+    def at(self, p: float) -> tuple[ModelParameters, Coefficients]:
+        """Model parameters and coefficients with the varied parameter at ``p`` (the order is
+        not validated here: Newton's differences may step just past alpha = 1)."""
+        key = float(p)
+        got = self._cache.get(key)
+        if got is None:
+            if self.parameter == 'fractional_order':
+                mp = self.params
+            else:
+                mp = self.params.replace(**{self.parameter: key})
+            got = (mp, coefficients(mp))
+            if len(self._cache) > 64:
+                self._cache.clear()
+            self._cache[key] = got
+        return got
+
+    def order(self, p: float) -> float:
+        return float(p) if self.parameter == 'fractional_order' else \
+            self.params.fractional_order
+
+    # -- right-hand sides ------------------------------------------------------------------
+    def rhs(self, X: np.ndarray, p: float, smooth: bool = True) -> np.ndarray:
+        """eq. 17 of the closed loop at the states X (4, N), vectorised."""
+        _, c = self.at(p)
+        w = X[W]
+        return self._eq17(X, c, planing_smooth_array(w, c) if smooth else
+                          planing_exact_array(w, c))
+
+    def _eq17(self, X: np.ndarray, c: Coefficients, fp: np.ndarray) -> np.ndarray:
+        u = self.K @ X + self.u0[:, None]
+        uf = np.clip(u[0], -self.limits[0], self.limits[0])
+        uc = np.clip(u[1], -self.limits[1], self.limits[1])
+        return np.array(np.broadcast_arrays(*eq17(c.kernel, X[W], X[2], X[3], uf, uc, fp)))
+
+    def delayed_rhs(self, X: np.ndarray, p: float, Xd: np.ndarray) -> np.ndarray:
+        """The delayed model's closed loop (eqs. 22-25) at the states X and the states Xd a
+        delay tau earlier, both (4, N)."""
+        mp, c = self.at(p)
+        fp = np.array([planing_delayed(x[0], x[2], xd[0], xd[1], xd[2], c.kernel,
+                                       mp.immersion_form) for x, xd in zip(X.T, Xd.T)])
+        return self._eq17(X, c, fp)
+
+    def harmonic_balance_delayed(self, harmonics: int) -> HarmonicBalance:
+        """The delayed model by harmonic balance of its delay-differential equation, with
+        tau = L/V (or as set) moving with the parameter; phase fixed on w."""
+        return HarmonicBalance(self.delayed_rhs, 4, harmonics, lambda p: 1.0, phase_state=W,
+                               delay=lambda p: self.at(p)[1].tau)
+
+    def harmonic_balance(self, harmonics: int) -> HarmonicBalance:
+        """The FOM with its smooth planing force (eqs. 28-29), phase fixed on w."""
+        return HarmonicBalance(lambda X, p: self.rhs(X, p, smooth=True), 4, harmonics,
+                               self.order, phase_state=W)
+
+    def field(self) -> Field:
+        """The delay-free closed loop with the exact switching planing force (eqs. 12-14):
+        a field continuous across the contact surfaces w = +-R'RV/L, which it names.
+
+        In the matrix form of eq. 17 (the coefficients' A, B, G, D), f = A x + B u + G +
+        D Fp(w) with u the clamped law, and df/dx = A + B K' + D Fp'(w) e_w (K' the gain
+        rows whose output is not clamped; Fp' by central differences): per evaluation a few
+        small products instead of differencing the whole field."""
+        def input_of(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            raw = self.K @ x + self.u0
+            lim = np.asarray(self.limits)
+            return np.clip(raw, -lim, lim), (np.abs(raw) < lim).astype(float)
+
+        def f(x: np.ndarray, p: float) -> np.ndarray:
+            _, c = self.at(p)
+            u, _ = input_of(x)
+            return c.A @ x + c.B @ u + c.G + c.D * planing_exact(float(x[W]), c.kernel)
+
+        def dfdx(x: np.ndarray, p: float) -> np.ndarray:
+            _, c = self.at(p)
+            _, free = input_of(x)
+            w = float(x[W])
+            d = 1e-7 * max(1.0, abs(w))
+            slope = (planing_exact(w + d, c.kernel) - planing_exact(w - d, c.kernel)) / (2 * d)
+            J = c.A + c.B @ (free[:, None] * self.K)
+            J[:, W] += c.D * slope
+            return J
+
+        def switches(x: np.ndarray, p: float) -> tuple[float, float]:
+            wc = self.at(p)[1].contact_velocity
+            return (x[W] - wc, x[W] + wc)
+
+        return Field(f, 4, switches, dfdx)
+
+    # -- equilibria ------------------------------------------------------------------------
+    def equilibrium(self, p: float):
+        """The closed-loop equilibrium nearest the cavity centre (as the Matignon curve of
+        ``fohssv stability`` takes it), or None."""
+        mp, _ = self.at(p)
+        eqs = find_equilibria(mp, self.controller)
+        return min(eqs, key=lambda e: abs(e.state[W])) if eqs else None

@@ -21,7 +21,6 @@ from typing import Any
 import numpy as np
 
 from ..control import deflection_limit
-from ..kernels import jitable
 from ..models import MAX_PITCH
 from ..params import (
     PARAMETER_BY_NAME,
@@ -30,6 +29,7 @@ from ..params import (
     ParameterSpec,
     steps_per_period,
 )
+from ..physics import jitable
 from ..ros.options import NODE_PARAMETERS, FlagSpec, StateSpec
 
 __all__ = ['ENV_PARAMETERS', 'Task', 'RewardFunction', 'default_reward', 'make_task',

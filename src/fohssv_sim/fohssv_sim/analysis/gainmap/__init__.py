@@ -4,7 +4,7 @@ scored, with the linearisation's Matignon boundary (issue 15; docs/gainmap.md).
 A map is a grid of gain pairs (``gain_x`` x ``gain_y``, every other controller parameter
 fixed) run over one scenario (model, alpha, V), or over an envelope of scenarios (a grid of V
 and alpha) for the worst case. Each (pair, scenario) is a point; points are split into chunks
-that run as Dask tasks through the sweeps' machinery (:func:`.sweep.run_chunks`: chunk CSV
+that run as Dask tasks through the sweeps' machinery (:func:`..sweep.run_chunks`: chunk CSV
 files, sidecar ``gainmap.json``, resume, progress per point), so an interrupted map resumes
 where it stopped.
 
@@ -18,7 +18,7 @@ Per chunk, the points of an affine controller (``Controller.affine()``: the eq. 
 Per point (columns of the rows; all from samples every ``sample_every`` steps, by default
 one per control period, so the held command is sampled exactly):
 
-* ``outcome``: the classifier of :mod:`.orbits` on w after ``transient``, grouped as
+* ``outcome``: the classifier of :mod:`..orbits` on w after ``transient``, grouped as
   steady (settled or converging) < drifting < periodic < chaotic (aperiodic: chaotic or
   quasi-periodic, the 0-1 statistic K in ``k01``) < diverged (non-finite state, or |w| > V or
   |theta| > pi/2, the plant's physical bounds); ``label`` keeps the classifier's label.

@@ -7,8 +7,8 @@ alpha). The optimiser is :func:`scipy.optimize.differential_evolution` (already 
 dependency; why it and not CMA-ES: docs/tune.md), run with ``vectorized=True,
 updating='deferred'``: it asks for a whole generation at once, and each generation runs as one
 chunked Dask job of batched solver calls (the gain map's evaluation,
-:func:`.gainmap.evaluate_points`, through the sweeps' chunk machinery,
-:func:`.sweep.run_chunks`: chunk files, resume, progress per point).
+:func:`..gainmap.evaluate_points`, through the sweeps' chunk machinery,
+:func:`..sweep.run_chunks`: chunk files, resume, progress per point).
 
 A candidate's **score** is lexicographic over its scenarios (:func:`score`):
 

@@ -78,7 +78,7 @@ class TuneSpec:
     otherwise); ``base``: model parameters shared by every scenario, without fractional_order
     and speed; the scenarios are ``envelope_speeds`` x ``envelope_alphas``. ``budget``:
     candidate evaluations at most (``population`` per generation; 0 = automatic, see
-    :attr:`population_size`). Run settings as :class:`.gainmap.GainMapSpec`.
+    :attr:`population_size`). Run settings as :class:`..gainmap.GainMapSpec`.
     """
 
     controller: str

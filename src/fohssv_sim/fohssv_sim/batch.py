@@ -26,8 +26,8 @@ from typing import Any
 import numpy as np
 
 from .coefficients import KernelCoefficients, coefficients
-from .kernels import eq17
 from .params import ModelParameters
+from .physics import eq17
 from .planing import planing_exact_array, planing_smooth_array
 from .simulate import simulate, steps_per_period
 from .solvers import SOLVERS, soe_options

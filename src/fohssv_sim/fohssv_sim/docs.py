@@ -1,7 +1,9 @@
-"""The one Markdown table writer of the generated docs, and the topic table it writes.
+"""The text writers of the generated docs: Markdown tables (the topic table among them) and
+parameter YAML files.
 
-:mod:`fohssv_sim.ros.docs` generates the tables of docs/parameters.md with it (a test keeps
-that page equal to them); ``fohssv fit`` writes its report tables with it.
+:mod:`fohssv_sim.ros.docs` generates the tables of docs/parameters.md and the nodes' YAML files
+with them (a test keeps those equal to them); ``fohssv fit`` and ``fohssv tune`` write their
+report tables and parameter files with them.
 """
 
 from __future__ import annotations
@@ -9,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Sequence
 
 from .contract import TOPICS, Topic
+from .params import ParameterSpec
 
 
 def markdown_table(columns: Sequence[str], rows: Iterable[Sequence[str]]) -> str:
@@ -26,3 +29,31 @@ def topic_table(topics: Sequence[Topic] = TOPICS, qos: Callable[[Topic], str] | 
         ('topic', 'type', 'data', 'units', 'QoS', last),
         ((f'`{t.name}`', f'`{t.type}`', f'[{", ".join(t.fields)}]', ', '.join(t.units),
           qos(t) if qos else t.qos, t.description) for t in topics))
+
+
+def yaml_value(value: object) -> str:
+    """A YAML scalar/list that both rcl's parser and PyYAML read back with the same type."""
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        s = repr(value)
+        if 'e' in s and '.' not in s:
+            s = s.replace('e', '.0e')
+        return s
+    if isinstance(value, (tuple, list)):
+        return '[' + ', '.join(yaml_value(v) for v in value) + ']'
+    return f"'{value}'"
+
+
+def parameters_yaml(header: str, specs: Iterable[ParameterSpec]) -> str:
+    """A ``--params-file`` for any node (``/**``) with every row at its default."""
+    lines = [f'# {line}' if line else '#' for line in header.splitlines()]
+    lines += ['/**:', '  ros__parameters:']
+    for s in specs:
+        unit = f' [{s.unit}]' if s.unit and s.unit != '-' else ''
+        ro = '; read-only while running' if s.needs_reset else ''
+        lines.append(f'    # {s.description}{unit}; allowed: {s.range_text()}{ro}')
+        lines.append(f'    {s.name}: {yaml_value(s.default)}')
+    return '\n'.join(lines) + '\n'

@@ -22,8 +22,8 @@ from scipy.optimize import root
 
 from .coefficients import coefficients
 from .control import as_law
-from .kernels import eq17
 from .params import ModelParameters
+from .physics import eq17
 from .planing import planing_exact, planing_smooth
 
 __all__ = ['Equilibrium', 'closed_loop_rhs', 'find_equilibria', 'jacobian',

@@ -39,8 +39,9 @@ from . import drivers, kernels
 from .bounds import MAX_PITCH, StateOutOfBounds, check_state
 from .coefficients import Coefficients, coefficients
 from .held_period import HeldPeriod
-from .kernels import eq17, hermite_delayed, pack_law
+from .kernels import pack_law
 from .params import ModelParameters
+from .physics import eq17, hermite_delayed
 from .planing import planing_delayed, planing_exact, planing_smooth
 from .solvers import SOLVERS, soe_options
 

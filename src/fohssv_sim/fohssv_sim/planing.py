@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from .coefficients import Coefficients
-from .kernels import planing_delayed, planing_exact, planing_force_law, planing_smooth
+from .physics import planing_delayed, planing_exact, planing_force_law, planing_smooth
 
 __all__ = [
     'planing_force_law',

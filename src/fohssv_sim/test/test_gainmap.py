@@ -175,7 +175,8 @@ def test_map_figures_carry_units_the_unstable_side_and_the_papers_gains(tmp_path
     -0.3, w gain 0) marked where the grid holds them."""
     import matplotlib
 
-    from fohssv_sim.analysis.gainmap import GainMapResult, _sidecar, plot_gain_map
+    from fohssv_sim.analysis.gainmap import GainMapResult, plot_gain_map
+    from fohssv_sim.analysis.gainmap.result import _sidecar
 
     spec, rows = grid_rows
     result = GainMapResult([dict(r) for r in rows], _sidecar(spec, [list(range(len(rows)))]))

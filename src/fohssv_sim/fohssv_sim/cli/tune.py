@@ -154,8 +154,8 @@ def winner_yaml(record: dict[str, Any], args: argparse.Namespace) -> str:
     """The winner's parameters as a ``--params-file`` of the generic controller node."""
     from ..analysis.tune import TuneSpec, describe_score
     from ..control import load
+    from ..docs import parameters_yaml
     from ..params import field_specs
-    from ..ros.docs import parameters_yaml
 
     spec = TuneSpec.from_dict(record['spec'])
     cls = load(spec.controller)

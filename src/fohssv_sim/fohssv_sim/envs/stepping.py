@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from .. import kernels
+from .. import kernels, physics
 from .task import default_reward
 
 __all__ = ['fom_periods', 'int_periods', 'take_actions', 'score_step']
@@ -27,7 +27,7 @@ __all__ = ['fom_periods', 'int_periods', 'take_actions', 'score_step']
 _PI_2 = math.pi / 2
 
 
-@kernels.jitable
+@physics.jitable
 def _status(taken, hold, x, v):
     if taken < hold:
         return 1
@@ -62,7 +62,7 @@ def fom_periods(X, X0, N, hold, CV, smooth, U, active, H, W, fill, eps_k, ET, a0
                                 last_f, bad)
         N[p] += k
         c = kernels._coefficients(CV[p])
-        FP[p] = kernels.planing_smooth(x[1], c) if smooth else kernels.planing_exact(x[1], c)
+        FP[p] = physics.planing_smooth(x[1], c) if smooth else physics.planing_exact(x[1], c)
         status[p] = _status(k, hold, x, speeds[p])
 
 
@@ -93,16 +93,16 @@ def int_periods(X, N, hold, H, CV, smooth, delayed, HX, HF, LAG, TAU, X0, paper,
             if TAU[p] == 0.0:
                 zd, wd, td = x[0], x[1], x[2]
             else:
-                zd, wd, td, _ = kernels.hermite_delayed(HX[p], HF[p], N[p], 0.0, LAG[p], H[p],
+                zd, wd, td, _ = physics.hermite_delayed(HX[p], HF[p], N[p], 0.0, LAG[p], H[p],
                                                         X0[p])
             if paper:
-                FP[p] = kernels.planing_delayed(x[0], x[2], zd, wd, td, c, 'paper')
+                FP[p] = physics.planing_delayed(x[0], x[2], zd, wd, td, c, 'paper')
             else:
-                FP[p] = kernels.planing_delayed(x[0], x[2], zd, wd, td, c, 'geometric')
+                FP[p] = physics.planing_delayed(x[0], x[2], zd, wd, td, c, 'geometric')
         else:
             k = kernels.delay_free_run(x, hold, H[p], CV[p], smooth, held, False, bad)
             N[p] += k
-            FP[p] = kernels.planing_smooth(x[1], c) if smooth else kernels.planing_exact(x[1], c)
+            FP[p] = physics.planing_smooth(x[1], c) if smooth else physics.planing_exact(x[1], c)
         status[p] = _status(k, hold, x, speeds[p])
 
 

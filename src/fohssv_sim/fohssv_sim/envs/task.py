@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 
 from ..control import deflection_limit
-from ..kernels import jitable
 from ..models import MAX_PITCH
+from ..param_kinds import CONTROL_PERIOD, INITIAL_STATE, FlagSpec, StateSpec
 from ..params import (
     PARAMETER_BY_NAME,
     ModelParameters,
@@ -30,7 +30,7 @@ from ..params import (
     ParameterSpec,
     steps_per_period,
 )
-from ..ros.options import NODE_PARAMETERS, FlagSpec, StateSpec
+from ..physics import jitable
 
 __all__ = ['ENV_PARAMETERS', 'Task', 'RewardFunction', 'default_reward', 'make_task',
            'DEFAULT_EPISODE_STEPS', 'DEFAULT_SPREAD', 'LOST_PENALTY']
@@ -43,7 +43,6 @@ DEFAULT_SPREAD = (0.01, 0.1, 0.002, 0.05)
 #: Added (negated) to the reward of the step that loses the vehicle.
 LOST_PENALTY = 100.0
 
-_NODE = {s.name: s for s in NODE_PARAMETERS}
 _P = ParameterSpec
 
 
@@ -116,7 +115,7 @@ _LIMITS = {
     'max_fin_deflection': deflection_limit('max_fin_deflection',
                                            'largest |delta_f| an action may ask'),
 }
-_TAKEN = {'control_period': _NODE['control_period'], 'initial_state': _NODE['initial_state'],
+_TAKEN = {'control_period': CONTROL_PERIOD, 'initial_state': INITIAL_STATE,
           **_LIMITS, **_ENV}
 
 #: ``reward(state, action, previous_action, planing_force, target_depth) -> float``: state
@@ -253,7 +252,7 @@ class Task:
             changes['fractional_order'] = float(rng.uniform(*self.order_range))
         params = self.params.replace(**changes) if changes else self.params
         if initial_state is not None:
-            return params, _NODE['initial_state'].validate(initial_state)
+            return params, INITIAL_STATE.validate(initial_state)
         noise = rng.uniform(-1.0, 1.0, 4) * np.array(self.initial_spread)
         return params, tuple((np.array(self.initial_state) + noise).tolist())
 

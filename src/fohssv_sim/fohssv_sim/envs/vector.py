@@ -34,7 +34,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from .. import kernels
+from .. import kernels, physics
 from ..analysis.population import _soe_arrays, check_population
 from ..coefficients import coefficients
 from ..models import make_plant
@@ -235,8 +235,8 @@ class HSSVVectorEnv(VectorEnv):
             f['fill'][i] = 0
             c = kernels._coefficients(f['CV'][i])
             w = float(x0[1])
-            self.FP[i] = kernels.planing_smooth(w, c) if f['smooth'] else \
-                kernels.planing_exact(w, c)
+            self.FP[i] = physics.planing_smooth(w, c) if f['smooth'] else \
+                physics.planing_exact(w, c)
         elif self._kind is not None:
             f = self._int
             f['X0'][i] = x0
@@ -251,10 +251,10 @@ class HSSVVectorEnv(VectorEnv):
             z, w, th, _ = (float(v) for v in x0)
             if f['delayed']:      # before t = 0 the history is x(0): the delayed state is x0
                 form = 'paper' if f['paper'] else 'geometric'
-                self.FP[i] = kernels.planing_delayed(z, th, z, w, th, c, form)
+                self.FP[i] = physics.planing_delayed(z, th, z, w, th, c, form)
             else:
-                self.FP[i] = kernels.planing_smooth(w, c) if f['smooth'] else \
-                    kernels.planing_exact(w, c)
+                self.FP[i] = physics.planing_smooth(w, c) if f['smooth'] else \
+                    physics.planing_exact(w, c)
         else:
             plant = self._plants[i]
             if plant is not None and plant.params == params:

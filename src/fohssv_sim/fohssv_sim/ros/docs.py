@@ -22,7 +22,7 @@ from collections.abc import Iterable
 from .. import control
 from .. import docs as _docs
 from ..contract import TOPICS, VIEW_TOPICS, Topic
-from ..docs import markdown_table
+from ..docs import markdown_table, parameters_yaml, yaml_value
 from ..params import PARAMETERS, ParameterSpec, field_specs
 from .bag_options import PLAYER_PARAMETERS, RECORDER_PARAMETERS
 from .options import NODE_PARAMETERS, ros_type_name
@@ -30,34 +30,6 @@ from .viewer_options import VIEWER_PARAMETERS
 
 __all__ = ['yaml_value', 'parameters_yaml', 'plant_yaml', 'parameter_table', 'topic_table',
            'ros_type_name']
-
-
-def yaml_value(value: object) -> str:
-    """A YAML scalar/list that both rcl's parser and PyYAML read back with the same type."""
-    if isinstance(value, bool):
-        return 'true' if value else 'false'
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        s = repr(value)
-        if 'e' in s and '.' not in s:
-            s = s.replace('e', '.0e')
-        return s
-    if isinstance(value, (tuple, list)):
-        return '[' + ', '.join(yaml_value(v) for v in value) + ']'
-    return f"'{value}'"
-
-
-def parameters_yaml(header: str, specs: Iterable[ParameterSpec]) -> str:
-    """A ``--params-file`` for any node (``/**``) with every row at its default."""
-    lines = [f'# {line}' if line else '#' for line in header.splitlines()]
-    lines += ['/**:', '  ros__parameters:']
-    for s in specs:
-        unit = f' [{s.unit}]' if s.unit and s.unit != '-' else ''
-        ro = '; read-only while running' if s.needs_reset else ''
-        lines.append(f'    # {s.description}{unit}; allowed: {s.range_text()}{ro}')
-        lines.append(f'    {s.name}: {yaml_value(s.default)}')
-    return '\n'.join(lines) + '\n'
 
 
 def plant_yaml() -> str:

@@ -1,15 +1,15 @@
 """Options of the plant node that are not model parameters: one table, one dataclass; and
-the kinds of rows and the validated options every node's table uses.
+the validated options every node's table uses.
 
 Pure (no rclpy): the table :data:`NODE_PARAMETERS` is declared as ROS parameters next to
 :data:`fohssv_sim.params.PARAMETERS` by :mod:`fohssv_sim.ros.ros_params`, and documented in
 ``docs/ros.md`` from the same rows. ``needs_reset=True`` rows are read-only on a running node.
 
-Rows besides numbers and names (:class:`~fohssv_sim.params.ParameterSpec`): a state
-(:class:`StateSpec`, a double array), a switch (:class:`FlagSpec`, a bool), free text such as
-a path (:class:`TextSpec`, a string) and a list of names (:class:`NamesSpec`, a string array).
-:class:`TableOptions` turns a table's values into validated attributes (the recorder's and the
-player's options, :mod:`.bag_options`).
+The kinds of row besides numbers and names (state, switch, text, names) are in
+:mod:`fohssv_sim.param_kinds`, with the rows the environments share (``control_period``,
+``initial_state``); this module re-exports the kinds for the nodes. :class:`TableOptions`
+turns a table's values into validated attributes (the recorder's and the player's options,
+:mod:`.bag_options`).
 
 Control period versus docs/model.md §7: the plant holds each command for ``control_period``
 (zero-order hold). The default 1e-4 s (5 FOM steps of 2e-5 s, 10 RK4 steps of 1e-5 s) shifts
@@ -25,6 +25,14 @@ import os
 from dataclasses import dataclass
 from typing import Any
 
+from ..param_kinds import (
+    CONTROL_PERIOD,
+    INITIAL_STATE,
+    FlagSpec,
+    NamesSpec,
+    StateSpec,
+    TextSpec,
+)
 from ..params import (
     ModelParameters,
     ParameterError,
@@ -42,95 +50,6 @@ __all__ = ['MODES', 'NODE_PARAMETERS', 'NODE_PARAMETER_BY_NAME', 'StateSpec', 'F
 
 #: The plant node's two modes.
 MODES = ('lockstep', 'realtime')
-
-
-@dataclass(frozen=True)
-class StateSpec(ParameterSpec):
-    """A parameter holding a state [z, w, theta, q] (a double array in ROS)."""
-
-    def range_text(self) -> str:
-        return '4 finite numbers [z m, w m/s, theta rad, q rad/s]'
-
-    def validate(self, value: Any) -> Any:
-        """Return the state as a tuple of 4 floats.
-
-        Raises:
-            ParameterError: not 4 finite numbers.
-        """
-        try:
-            vals = tuple(float(v) for v in value)
-        except (TypeError, ValueError):
-            vals = ()
-        if len(vals) != 4 or not all(math.isfinite(v) for v in vals):
-            raise ParameterError(f'{self.name}={value!r} is not valid; allowed: '
-                                 f'{self.range_text()} ({self.description})')
-        return vals
-
-
-@dataclass(frozen=True)
-class FlagSpec(ParameterSpec):
-    """A switch: true or false (a bool in ROS)."""
-
-    numeric: bool = False
-
-    def range_text(self) -> str:
-        return 'true | false'
-
-    def validate(self, value: Any) -> bool:
-        """Return the value.
-
-        Raises:
-            ParameterError: not a bool.
-        """
-        if not isinstance(value, bool):
-            raise self.refuse(value, 'is not true or false')
-        return value
-
-
-@dataclass(frozen=True)
-class TextSpec(ParameterSpec):
-    """Free text, such as a path or a node name (a string in ROS), kept as given; ``allowed``
-    says what it names, ``required`` refuses an empty value."""
-
-    numeric: bool = False
-    allowed: str = 'any text'
-    required: bool = False
-
-    def range_text(self) -> str:
-        return self.allowed
-
-    def validate(self, value: Any) -> str:
-        """Return the value.
-
-        Raises:
-            ParameterError: not a string, or empty when required.
-        """
-        if not isinstance(value, str):
-            raise self.refuse(value, 'is not text')
-        if self.required and not value.strip():
-            raise self.refuse(value, f'is empty: {self.name} is required')
-        return value
-
-
-@dataclass(frozen=True)
-class NamesSpec(ParameterSpec):
-    """A list of names, such as topics (a string array in ROS); ``allowed`` says which."""
-
-    numeric: bool = False
-    allowed: str = 'names'
-
-    def range_text(self) -> str:
-        return self.allowed
-
-    def validate(self, value: Any) -> tuple[str, ...]:
-        """Return the names as a tuple.
-
-        Raises:
-            ParameterError: not a list of strings.
-        """
-        if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
-            raise self.refuse(value, 'is not a list of names')
-        return tuple(value)
 
 
 def usable_cpus() -> tuple[int, ...]:
@@ -289,15 +208,11 @@ NODE_PARAMETERS: tuple[ParameterSpec, ...] = (
     _P('mode', '-', 'lockstep', '-', "'lockstep': publish the state, wait for the command that "
        "answers it, then advance (deterministic); 'realtime': advance paced by the wall clock, "
        'holding the latest command', choices=MODES, numeric=False),
-    _P('control_period', 'T', 1e-4, 's', 'simulated time between published samples; the '
-       'command is held over it (zero-order hold); a whole multiple of step', low=0.0,
-       high=1.0, high_open=False),
+    CONTROL_PERIOD,
     _P('duration', '-', 0.0, 's', 'simulated time after which the plant stops and exits 0; '
        '0 = run until stopped', low=0.0, low_open=False, high=1e6, high_open=False,
        needs_reset=False),
-    StateSpec('initial_state', 'x(0)', (0.0, 0.0, 0.0, 0.0), 'm, m/s, rad, rad/s',
-              'state at t = 0 [z, w, theta, q]; a change applies at the next reset',
-              numeric=False, needs_reset=False),
+    INITIAL_STATE,
     _P('real_time_factor', '-', 1.0, '-', 'realtime mode: simulated seconds per wall second',
        low=0.0, high=1000.0, high_open=False, needs_reset=False),
     _P('pacing_period', '-', 1e-3, 's', 'realtime mode: deadline tolerance (one pacing tick): '

@@ -25,7 +25,7 @@ def params_yaml(params: ModelParameters, control_period: float,
                 initial_state: Sequence[float], header: str) -> str:
     """A ``--params-file`` for the plant node with the fitted model: every model parameter,
     the control period and the initial state."""
-    from ...ros.docs import yaml_value
+    from ...docs import yaml_value
 
     lines = [f'# {line}' for line in header.splitlines()]
     lines += ['/**:', '  ros__parameters:']

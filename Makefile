@@ -50,10 +50,10 @@ $(BUILD_STAMP): $(VENV_STAMP) $(PKG_INPUTS)
 setup: $(BUILD_STAMP)
 
 lint: setup
-	$(IN_ENV) ruff check src tests bench scripts
+	$(IN_ENV) ruff check src tests bench scripts tools
 
 test: setup
-	$(IN_ENV) ruff check src tests bench scripts
+	$(IN_ENV) ruff check src tests bench scripts tools
 	@# byte-compile the sources once: hundreds of node and CLI processes start in the tests, and
 	@# where PYTHONDONTWRITEBYTECODE is set each would compile every module it imports again
 	@$(IN_ENV) python -m compileall -q -j 0 src > /dev/null

@@ -136,14 +136,10 @@ def test_the_circle_finder_finds_a_circle_and_only_it():
     assert import_circles(graph) == {frozenset('abc'), frozenset('e')}
 
 
-#: Known and being removed on another branch; delete once it is gone.
-_KNOWN_CIRCLES = {frozenset({'fohssv_sim.analysis.diagrams', 'fohssv_sim.analysis.sweep'})}
-
-
 def test_no_import_circle():
     graph = _import_graph()
     assert 'fohssv_sim.analysis.tune' in graph['fohssv_sim.cli.tune']   # lazy imports count
-    assert import_circles(graph) - _KNOWN_CIRCLES == set()
+    assert import_circles(graph) == set()
 
 
 def test_only_the_cli_imports_the_cli():

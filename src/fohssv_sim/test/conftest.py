@@ -12,7 +12,8 @@ def dask_cluster():
     from dask.distributed import LocalCluster
 
     with LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
-                      protocol='tcp://', host='127.0.0.1', dashboard_address=None) as cluster:
+                      protocol='tcp://', host='127.0.0.1', dashboard_address=':0',
+                      scheduler_kwargs={'dashboard': False}) as cluster:
         yield cluster
 
 

@@ -4,7 +4,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from fohssv_sim.bag.loader import load_run
+from fohssv_sim.bag import load_run
 from fohssv_sim.envs import ENV_ID, HSSVEnv, HSSVVectorEnv, RecordEpisodes
 from fohssv_sim.params import ParameterError
 

@@ -121,13 +121,9 @@ class _Tick:
         return 0.0, None
 
 
-@pytest.fixture(scope='module')
-def client():
-    from dask.distributed import Client, LocalCluster
-
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
-                      dashboard_address=None) as cluster, Client(cluster) as c:
-        yield c
+@pytest.fixture
+def client(dask_client):
+    return dask_client
 
 
 def test_interrupted_search_resumes_to_the_same_winner(tmp_path, client):

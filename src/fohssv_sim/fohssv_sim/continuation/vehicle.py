@@ -2,7 +2,7 @@
 smooth field for shooting, the FOM as a harmonic-balance problem; one numeric model parameter
 varies (``fractional_order``, ``speed``, ...).
 
-The physics is the model's own: eq. 17 (:func:`fohssv_sim.kernels.eq17`), the planing forces
+The physics is the model's own: eq. 17 (:func:`fohssv_sim.physics.eq17`), the planing forces
 of :mod:`fohssv_sim.planing`, the coefficients of :mod:`fohssv_sim.coefficients` and the
 closed-loop right-hand side of :mod:`fohssv_sim.equilibria`. The controller must be an affine
 state feedback (``affine()``, as the batched sweeps need), clamped to its deflection limits.
@@ -21,8 +21,8 @@ import numpy as np
 
 from ..coefficients import Coefficients, coefficients
 from ..equilibria import find_equilibria
-from ..kernels import eq17, planing_delayed, planing_exact
 from ..params import PARAMETERS, ModelParameters, ParameterError
+from ..physics import eq17, planing_delayed, planing_exact
 from ..planing import planing_exact_array, planing_smooth_array
 from .harmonic import HarmonicBalance
 from .shooting import Field

@@ -19,6 +19,7 @@ _spec.loader.exec_module(runner)
 
 
 @pytest.mark.graph      # some benchmarks start nodes, a writer process or a Dask cluster
+@pytest.mark.bench_smoke    # minutes of CPU: `make bench-smoke` (CI runs it after `make test`)
 @pytest.mark.parametrize('name', BENCHMARKS)
 def test_each_benchmark_runs_its_quick_case(name, tmp_path):
     out = subprocess.run([sys.executable, str(ROOT / 'scripts' / 'bench.py'), '--quick',

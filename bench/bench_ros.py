@@ -88,9 +88,9 @@ import time
 from pathlib import Path
 
 from ament_index_python.packages import get_package_prefix
-from benchutil import host_cpu_ticks, kernel_preemption, steal_seconds, steal_share
+from benchutil import host_cpu_ticks, steal_seconds, steal_share
 
-from fohssv_sim.ros.loop import BurstWait
+from fohssv_sim.ros.loop import BurstWait, kernel_preemption
 
 HERE = Path(__file__).resolve().parent
 MODELS = ('delay-free', 'delayed', 'fractional')

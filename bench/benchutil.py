@@ -7,10 +7,8 @@ Not a benchmark itself (scripts/bench.py runs ``bench_*.py`` only).
 
 from __future__ import annotations
 
-import gzip
 import json
 import os
-import zlib
 from pathlib import Path
 
 
@@ -77,55 +75,3 @@ def steal_seconds(before: tuple[int, int] | None, after: tuple[int, int] | None
     if before is None or after is None:
         return None
     return (after[1] - before[1]) / os.sysconf('SC_CLK_TCK')
-
-
-def _config_lines(config: str) -> list[str]:
-    try:
-        if config.endswith('.gz'):
-            with gzip.open(config, 'rt', encoding='ascii', errors='replace') as f:
-                return f.read().splitlines()
-        with open(config, encoding='ascii', errors='replace') as f:
-            return f.read().splitlines()
-    except (OSError, EOFError, zlib.error):
-        return []
-
-
-def kernel_preemption() -> tuple[str | None, int | None]:
-    """(the running kernel's preemption model, its timer tick in Hz), each None where Linux
-    does not say: the bracketed model of debugfs' ``sched/preempt`` (root's), else a
-    ``preempt=`` boot parameter (a PREEMPT_DYNAMIC kernel), else the build's
-    ``CONFIG_PREEMPT_*`` (/proc/config.gz or /boot/config-RELEASE; ``uname -v`` names
-    PREEMPT_RT and PREEMPT_DYNAMIC where no config does). Under ``none`` or ``voluntary`` a
-    SCHED_FIFO thread waits for kernel paths of other tasks on its CPU."""
-    uname = os.uname()
-    options: dict[str, str] = {}
-    for line in (_config_lines('/proc/config.gz')
-                 or _config_lines(f'/boot/config-{uname.release}')):
-        if line.startswith('CONFIG_PREEMPT') or line.startswith('CONFIG_HZ='):
-            key, _, value = line.strip().partition('=')
-            options[key] = value
-    for word in ('PREEMPT_RT', 'PREEMPT_DYNAMIC'):
-        if word in uname.version.split():
-            options.setdefault(f'CONFIG_{word}', 'y')
-    hz = options.get('CONFIG_HZ')
-    tick = int(hz) if hz is not None and hz.isdigit() else None
-    try:
-        with open('/sys/kernel/debug/sched/preempt', encoding='ascii') as f:
-            text = f.read()
-        if '(' in text:
-            return text.split('(', 1)[1].split(')', 1)[0], tick
-    except OSError:
-        pass
-    try:
-        with open('/proc/cmdline', encoding='ascii', errors='replace') as f:
-            for word in f.read().split():
-                if word.startswith('preempt=') and options.get('CONFIG_PREEMPT_DYNAMIC') == 'y':
-                    return word.split('=', 1)[1], tick
-    except OSError:
-        pass
-    for key, model in (('CONFIG_PREEMPT_RT', 'rt'), ('CONFIG_PREEMPT', 'full'),
-                       ('CONFIG_PREEMPT_LAZY', 'lazy'), ('CONFIG_PREEMPT_VOLUNTARY', 'voluntary'),
-                       ('CONFIG_PREEMPT_NONE', 'none')):
-        if options.get(key) == 'y':
-            return model, tick
-    return None, tick

@@ -16,6 +16,9 @@ BENCHMARKS = sorted(p.stem.removeprefix('bench_') for p in (ROOT / 'bench').glob
 _spec = importlib.util.spec_from_file_location('bench_runner', ROOT / 'scripts' / 'bench.py')
 runner = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(runner)
+_spec = importlib.util.spec_from_file_location('benchutil', ROOT / 'bench' / 'benchutil.py')
+benchutil = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(benchutil)
 
 
 @pytest.mark.graph      # some benchmarks start nodes, a writer process or a Dask cluster
@@ -56,3 +59,27 @@ def test_the_results_file_lists_each_figure_with_its_target_and_the_echo(tmp_pat
     assert '| model | keep 1 |' in text and '| fractional | 0.0123 |' in text
     assert '| lockstep FOM / echo | 0.61 | >= 0.5 | yes |' in text
     assert '## ros (bench/bench_ros.py: FAILED, exit 1, 9 s)' in text
+
+
+def test_host_steal_share_from_two_proc_stat_readings(tmp_path):
+    """/proc/stat's cpu line: user nice system idle iowait irq softirq steal guest guest_nice
+    (guest time is already inside user, so it is not added again)."""
+    stat = tmp_path / 'stat'
+    stat.write_text('cpu  100 5 40 800 10 0 5 40 30 0\ncpu0 50 2 20 400 5 0 2 20 15 0\n')
+    before = benchutil.host_cpu_ticks(str(stat))
+    assert before == (1000, 40)
+    stat.write_text('cpu  150 5 60 1000 10 0 5 70 60 0\n')
+    after = benchutil.host_cpu_ticks(str(stat))
+    assert after == (1300, 70)
+    assert benchutil.steal_share(before, after) == pytest.approx(30 / 300)
+    assert benchutil.steal_share(after, after) is None
+    assert benchutil.steal_share(None, after) is None
+    # 30 ticks of 1 / SC_CLK_TCK s stolen (0.3 s of CPU time at Linux's 100 Hz)
+    steal = benchutil.steal_seconds
+    assert steal(before, after) == pytest.approx(30 / os.sysconf('SC_CLK_TCK'))
+    assert steal(None, after) is None and steal(after, after) == 0.0
+    stat.write_text('intr 1 2 3\n')
+    assert benchutil.host_cpu_ticks(str(stat)) is None
+    assert benchutil.host_cpu_ticks(str(tmp_path / 'missing')) is None
+    real = benchutil.host_cpu_ticks()      # this machine's, where Linux gives it
+    assert real is None or (real[0] > 0 and 0 <= real[1] <= real[0])

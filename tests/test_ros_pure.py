@@ -32,10 +32,7 @@ from fohssv_sim.ros.loop import (
     SampledPlant,
     answered_time,
     check_command,
-    host_cpu_ticks,
     kernel_preemption,
-    steal_seconds,
-    steal_share,
 )
 from fohssv_sim.ros.options import (
     NODE_PARAMETER_BY_NAME,
@@ -217,30 +214,6 @@ def test_burst_wait_ignores_stalls_no_wait_would_save():
     b = BurstWait(period=1e-4, tolerance=1e-3)
     _wake_ups(b, 2e-3, 5.0)                        # 2 ms stalls: late whatever the wait
     assert b.periods == 4 and b.near_misses == 0
-
-
-def test_host_steal_share_from_two_proc_stat_readings(tmp_path):
-    """/proc/stat's cpu line: user nice system idle iowait irq softirq steal guest guest_nice
-    (guest time is already inside user, so it is not added again)."""
-    stat = tmp_path / 'stat'
-    stat.write_text('cpu  100 5 40 800 10 0 5 40 30 0\ncpu0 50 2 20 400 5 0 2 20 15 0\n')
-    before = host_cpu_ticks(str(stat))
-    assert before == (1000, 40)
-    stat.write_text('cpu  150 5 60 1000 10 0 5 70 60 0\n')
-    after = host_cpu_ticks(str(stat))
-    assert after == (1300, 70)
-    assert steal_share(before, after) == pytest.approx(30 / 300)
-    assert steal_share(after, after) is None and steal_share(None, after) is None
-    # 30 ticks of 1/100 s (SC_CLK_TCK) stolen: 0.3 s of CPU time; 1/250 s ticks: 0.12 s
-    assert steal_seconds(before, after, 100) == pytest.approx(0.3)
-    assert steal_seconds(before, after, 250) == pytest.approx(0.12)
-    assert steal_seconds(before, after) == pytest.approx(30 / os.sysconf('SC_CLK_TCK'))
-    assert steal_seconds(None, after) is None and steal_seconds(after, after) == 0.0
-    stat.write_text('intr 1 2 3\n')
-    assert host_cpu_ticks(str(stat)) is None
-    assert host_cpu_ticks(str(tmp_path / 'missing')) is None
-    real = host_cpu_ticks()      # this machine's, where Linux gives it
-    assert real is None or (real[0] > 0 and 0 <= real[1] <= real[0])
 
 
 def test_kernel_preemption_from_the_config_the_boot_line_and_debugfs(tmp_path):

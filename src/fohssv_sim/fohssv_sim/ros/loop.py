@@ -43,8 +43,7 @@ from ..simulate import steps_per_period
 
 __all__ = ['CommandRejected', 'SampledPlant', 'check_command', 'answered_time', 'Pacer',
            'BurstWait',
-           'HostedLaw', 'CommandLag', 'cpu_seconds', 'host_cpu_ticks',
-           'steal_share']
+           'HostedLaw', 'CommandLag', 'cpu_seconds']
 
 
 class CommandRejected(ValueError):
@@ -425,23 +424,6 @@ def cpu_seconds() -> float:
     return time.process_time()
 
 
-def host_cpu_ticks(stat: str = '/proc/stat') -> tuple[int, int] | None:
-    """(all ticks, steal ticks) of the machine's CPUs since boot, from ``stat`` (Linux's
-    /proc/stat ``cpu`` line); None where unavailable. Steal is time the hypervisor ran
-    something else while this virtual machine had work: a vCPU stalled for milliseconds, which
-    no scheduling inside the guest (SCHED_FIFO included) avoids."""
-    try:
-        with open(stat, encoding='ascii') as f:
-            fields = f.readline().split()
-        if fields[0] != 'cpu':
-            return None
-        # user nice system idle iowait irq softirq steal (guest time is inside user)
-        ticks = [int(v) for v in fields[1:9]]
-    except (OSError, ValueError, IndexError):
-        return None
-    if len(ticks) < 8:
-        return None
-    return sum(ticks), ticks[7]
 
 
 #: Kernel preemption models (``/sys/kernel/debug/sched/preempt`` names, Linux 6.x) under which
@@ -512,23 +494,3 @@ def kernel_preemption(config: str = '/proc/config.gz', cmdline: str = '/proc/cmd
         if options.get(key) == 'y':
             return model, tick
     return None, tick
-
-
-def steal_seconds(before: tuple[int, int] | None, after: tuple[int, int] | None,
-                  ticks_per_second: int | None = None) -> float | None:
-    """The CPU time (s, all CPUs) stolen by the hypervisor between two
-    :func:`host_cpu_ticks` readings (None when either is missing): /proc/stat counts in
-    ticks of 1 / ``ticks_per_second`` s (``SC_CLK_TCK``, 100 on Linux), so +-1 tick."""
-    if before is None or after is None:
-        return None
-    hz = ticks_per_second or (os.sysconf('SC_CLK_TCK') if hasattr(os, 'sysconf') else 100)
-    return (after[1] - before[1]) / hz
-
-
-def steal_share(before: tuple[int, int] | None, after: tuple[int, int] | None
-                ) -> float | None:
-    """The share of all CPU time stolen by the hypervisor between two
-    :func:`host_cpu_ticks` readings (None when either is missing or no tick passed)."""
-    if before is None or after is None or after[0] <= before[0]:
-        return None
-    return (after[1] - before[1]) / (after[0] - before[0])

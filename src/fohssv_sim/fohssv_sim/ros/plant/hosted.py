@@ -18,7 +18,7 @@ from ...control import NonFiniteCommand
 from ...models import check_state
 from ...params import ParameterError, ParameterSpec, field_specs
 from ..loop import HostedLaw
-from ..nodekit import declare, install_validation
+from ..nodekit import build_plugin, declare, install_validation
 from .codes import CONTROLLER_PREFIX, EXIT_PUBLISH_FAILED, PublishFailed
 
 #: With a hosted controller: the wall time (s) one chunk of samples runs before the executor
@@ -60,7 +60,7 @@ class HostedRoom:
         n = len(CONTROLLER_PREFIX)
         fields = {k[n:]: v for k, v in values.items() if k.startswith(CONTROLLER_PREFIX)}
         try:
-            return cls(cls.Parameters(**fields))
+            return build_plugin(cls, cls.Parameters(**fields))
         except ParameterError as exc:   # the dataclass names the field without the prefix
             text = str(exc)
             if any(text.startswith(f'{f}=') for f in fields):

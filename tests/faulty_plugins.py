@@ -1,0 +1,47 @@
+"""Controller plugins with a bug, registered the way ``pip install`` registers a plugin (a
+dist-info with ``entry_points.txt``): :func:`register` writes them under a directory to put
+on the path (``sys.path`` in the test process, ``PYTHONPATH`` for a node process)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+__test__ = False  # nothing to collect
+
+MODULE = '''
+from fohssv_controller.state_feedback import StateFeedback
+
+
+class BadReset(StateFeedback):
+    """Eq. 31, whose reset() raises once built (the constructor resets it first)."""
+    name = 'bad_reset'
+
+    def __init__(self, parameters=None):
+        super().__init__(parameters)
+        self.built = True
+
+    def reset(self):
+        if getattr(self, 'built', False):
+            raise RuntimeError('memory stuck')
+        super().reset()
+
+
+class BadInit(StateFeedback):
+    """A plugin whose constructor raises."""
+    name = 'bad_init'
+
+    def __init__(self, parameters=None):
+        raise RuntimeError('no gains file')
+'''
+
+
+def register(root: Path) -> Path:
+    """Write the module ``faulty_laws`` and its dist-info under ``root``; returns ``root``."""
+    (root / 'faulty_laws.py').write_text(MODULE)
+    dist = root / 'faulty_laws-0.1.dist-info'
+    dist.mkdir()
+    (dist / 'METADATA').write_text('Metadata-Version: 2.1\nName: faulty-laws\nVersion: 0.1\n')
+    (dist / 'entry_points.txt').write_text(
+        '[fohssv.controllers]\nbad_reset = faulty_laws:BadReset\n'
+        'bad_init = faulty_laws:BadInit\n')
+    return root

@@ -9,6 +9,8 @@ from pathlib import Path
 __test__ = False  # nothing to collect
 
 MODULE = '''
+import sys
+
 from fohssv_controller.state_feedback import StateFeedback
 
 
@@ -32,6 +34,29 @@ class BadInit(StateFeedback):
 
     def __init__(self, parameters=None):
         raise RuntimeError('no gains file')
+
+
+class Quits(StateFeedback):
+    """Eq. 31 per sample (not affine) that calls sys.exit(3) from t = 0.005 s on."""
+    name = 'quits'
+
+    def affine(self):
+        return None
+
+    def update(self, t, state):
+        if t >= 0.005:
+            sys.exit(3)
+        return super().update(t, state)
+
+
+class Interrupts(Quits):
+    """Eq. 31 per sample that raises KeyboardInterrupt from t = 0.005 s on."""
+    name = 'interrupts'
+
+    def update(self, t, state):
+        if t >= 0.005:
+            raise KeyboardInterrupt
+        return StateFeedback.update(self, t, state)
 '''
 
 
@@ -43,5 +68,6 @@ def register(root: Path) -> Path:
     (dist / 'METADATA').write_text('Metadata-Version: 2.1\nName: faulty-laws\nVersion: 0.1\n')
     (dist / 'entry_points.txt').write_text(
         '[fohssv.controllers]\nbad_reset = faulty_laws:BadReset\n'
-        'bad_init = faulty_laws:BadInit\n')
+        'bad_init = faulty_laws:BadInit\nquits = faulty_laws:Quits\n'
+        'interrupts = faulty_laws:Interrupts\n')
     return root

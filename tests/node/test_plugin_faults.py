@@ -55,3 +55,33 @@ def test_a_reset_that_raises_leaves_the_controller_node_answering(graph, faulty,
     assert {c[0] for c in probe.commands} == {0.0, 0.1, 0.05, 0.2}
     assert ('state time went back to t=0.05 s: bad_reset.reset() raised RuntimeError: memory '
             'stuck; answering without a reset') in capfd.readouterr().err
+
+
+@pytest.mark.parametrize(('law', 'raised'), [('quits', 'SystemExit: 3'),
+                                             ('interrupts', 'KeyboardInterrupt: ')])
+def test_a_law_that_exits_or_interrupts_is_a_failing_law_call(graph, faulty, capfd, law,
+                                                               raised):
+    """sys.exit() or KeyboardInterrupt from a hosted law's call neither ends the plant nor
+    passes for a signal: counted and held as any exception from the law; the run completes."""
+    probe = graph.probe()
+    plant = graph.plant(controller=law, duration=DURATION)
+    assert graph.run(plant) == 0
+    graph.wait(lambda: len(probe.states) >= N, 20, 'every sample at the probe')
+    # commands for t = 0 .. 0.0049 (50 samples), none from t = 0.005 on (the last sample
+    # gets no command at all)
+    assert plant.law_failures == N - 1 - 50
+    assert f'{law}.command(t=0.005) raised {raised}' in capfd.readouterr().err
+
+
+def test_a_law_that_exits_is_a_failing_law_call_in_the_controller_node(graph, faulty, capfd):
+    import faulty_laws
+
+    probe = graph.probe()
+    ctl = graph.add(ControllerNode(faulty_laws.Quits, context=graph.context))
+    graph.wait(lambda: probe.node.count_subscribers('state') > 0
+               and probe.node.count_publishers('command') > 0, 20, 'the controller')
+    for t in (0.0, 0.01, 0.001):                  # 0.01: sys.exit(3) in the law
+        probe.publish_state([t, 0.01, 0.0, 0.0, 0.0])
+    graph.wait(lambda: any(c[0] == 0.001 for c in probe.commands), 20, 'the answer at 0.001')
+    assert {c[0] for c in probe.commands} == {0.0, 0.001} and ctl.raised == 1
+    assert 'quits.command(t=0.01) raised SystemExit: 3; no command sent' in capfd.readouterr().err

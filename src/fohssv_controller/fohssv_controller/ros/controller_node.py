@@ -50,6 +50,7 @@ from fohssv_sim.params import ParameterSpec, field_specs
 from fohssv_sim.ros.nodekit import (
     CPU_AFFINITY,
     CPU_DMA_LATENCY,
+    PLUGIN_FAULTS,
     ArrayReader,
     ArrayWriter,
     HoldReporter,
@@ -195,7 +196,7 @@ class ControllerNode(Node):
             self._log_withheld(f'{exc}; no command sent for this state ({self.withheld} '
                                'withheld)')
             return
-        except Exception as exc:  # a plugin's bug must not kill the node, nor flood the log
+        except PLUGIN_FAULTS as exc:  # a plugin's bug must not end the node, nor flood the log
             self.raised += 1
             self._log_raised(f'{self.controller.name}.command(t={t!r}) raised '
                              f'{type(exc).__name__}: {exc}; no command sent ({self.raised} '

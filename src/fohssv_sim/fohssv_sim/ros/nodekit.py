@@ -77,9 +77,15 @@ __all__ = ['run_node', 'spin_node', 'EXIT_OK', 'EXIT_BAD_PARAMETERS',
            'SecondPublisherWarning',
            'PausedCollector', 'set_realtime_priority', 'tighten_timer_slack', 'init', 'report',
            'LogLimiter', 'pin_node', 'CPU_AFFINITY', 'CPU_DMA_LATENCY', 'hold_latency',
-           'PluginFailed', 'build_plugin', 'reset_plugin']
+           'PluginFailed', 'build_plugin', 'reset_plugin', 'PLUGIN_FAULTS']
 
 EXIT_OK = 0
+
+
+#: What a plugin's call may raise that a node catches as the plugin's failure: any exception,
+#: and ``sys.exit()`` and ``KeyboardInterrupt`` from its code (the nodes' signals never raise:
+#: they set :data:`STOP`), so a law can neither end the node nor pass for a signal.
+PLUGIN_FAULTS = (Exception, SystemExit, KeyboardInterrupt)
 
 
 class PluginFailed(ValueError):
@@ -105,7 +111,7 @@ def reset_plugin(name: str, reset: Callable[[], None]) -> str | None:
     caller refuses the reset with it and stays alive."""
     try:
         reset()
-    except Exception as exc:  # noqa: BLE001 - a plugin's bug must not kill the node
+    except PLUGIN_FAULTS as exc:  # a plugin's bug must not end the node
         return f'{name}.reset() raised {type(exc).__name__}: {exc}'
     return None
 

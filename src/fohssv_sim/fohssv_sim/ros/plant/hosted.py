@@ -18,7 +18,7 @@ from ...control import NonFiniteCommand
 from ...models import check_state
 from ...params import ParameterError, ParameterSpec, field_specs
 from ..loop import HostedLaw
-from ..nodekit import build_plugin, declare, install_validation
+from ..nodekit import PLUGIN_FAULTS, build_plugin, declare, install_validation
 from .codes import CONTROLLER_PREFIX, EXIT_PUBLISH_FAILED, PublishFailed
 
 #: With a hosted controller: the wall time (s) one chunk of samples runs before the executor
@@ -168,7 +168,7 @@ class HostedRoom:
         t = sim.plant.t
         try:
             df, dc = self.hosted.command(t, sim.plant.x)
-        except Exception as exc:  # noqa: BLE001 - a plugin's bug must not kill the plant
+        except PLUGIN_FAULTS as exc:  # a plugin's bug (even sys.exit) must not end the plant
             self._law_failed(t, exc)
             return
         self._publish_command(t, df, dc)
@@ -189,7 +189,7 @@ class HostedRoom:
             self._send_command(self._command_out.payload())
             self.commands_sent += 1
 
-    def _law_failed(self, t: float, exc: Exception) -> None:
+    def _law_failed(self, t: float, exc: BaseException) -> None:
         self.law_failures += 1
         what = (str(exc) if isinstance(exc, NonFiniteCommand) else
                 f'{self.hosted.name}.command(t={t!r}) raised {type(exc).__name__}: {exc}')

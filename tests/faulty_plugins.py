@@ -10,6 +10,7 @@ __test__ = False  # nothing to collect
 
 MODULE = '''
 import sys
+import time
 
 from fohssv_controller.state_feedback import StateFeedback
 
@@ -57,6 +58,17 @@ class Interrupts(Quits):
         if t >= 0.005:
             raise KeyboardInterrupt
         return StateFeedback.update(self, t, state)
+
+
+class Slow(Quits):
+    """Eq. 31 per sample that takes 300 us a call (three 1e-4 s control periods)."""
+    name = 'slow'
+
+    def update(self, t, state):
+        end = time.perf_counter() + 3e-4
+        while time.perf_counter() < end:
+            pass
+        return StateFeedback.update(self, t, state)
 '''
 
 
@@ -69,5 +81,5 @@ def register(root: Path) -> Path:
     (dist / 'entry_points.txt').write_text(
         '[fohssv.controllers]\nbad_reset = faulty_laws:BadReset\n'
         'bad_init = faulty_laws:BadInit\nquits = faulty_laws:Quits\n'
-        'interrupts = faulty_laws:Interrupts\n')
+        'interrupts = faulty_laws:Interrupts\nslow = faulty_laws:Slow\n')
     return root

@@ -282,6 +282,7 @@ class PlantNode(StartGate, Publishing, HostedRoom, Lockstep, CompiledTaking, Rea
         self._last_command_t: float | None = None  # t of the last command received
         self._last_command_wall: float | None = None
         self._watchdog_warned = False
+        self._slow_warn_at = 0.0                  # realtime: when "not keeping real time" may come
         self._max_lag = 0.0                       # realtime: sim time between state and command
         self._wall_start = time.monotonic()
         self._run_wall_start = 0.0

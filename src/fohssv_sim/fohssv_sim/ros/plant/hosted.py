@@ -204,6 +204,7 @@ class HostedRoom:
         realtime: each when due, sleeping in between: ``time.sleep`` costs about half the
         CPU of a ``spin_once`` wait, and nothing is to be taken between samples."""
         self._refresh_matched()
+        self._check_real_time()
         now = monotonic()
         end = now + _CHUNK
         pacer, bursts = self.pacer, self.bursts

@@ -16,6 +16,13 @@ from .codes import EXIT_COMMAND_LAG
 #: Realtime mode: wall-clock period of the watchdog check (s).
 WATCHDOG_CHECK = 0.01
 
+#: Realtime: a run that missed more than this share of its deadlines does not keep real time:
+#: warned during the run (after :data:`SLOW_AFTER` paced samples, then at most every
+#: :data:`SLOW_WARN_EVERY` s of wall time) and said in the run's last line.
+SLOW_MISS_RATE = 0.01
+SLOW_AFTER = 1000
+SLOW_WARN_EVERY = 10.0
+
 
 class RealTime:
     """The plant node in real time (the module docstring)."""
@@ -45,6 +52,7 @@ class RealTime:
     def _check_watchdog(self) -> None:
         if not self.running:
             return
+        self._check_real_time()
         self._refresh_matched()
         wd = self.options.watchdog_timeout
         if wd > 0.0 and not self._watchdog_warned and self._last_command_wall is not None:
@@ -55,6 +63,31 @@ class RealTime:
                 self.get_logger().warning(
                     f'watchdog: no command for {silent:.3f} s (watchdog_timeout={wd:g} s) at '
                     f't={self.sim.t:.6f} s; holding delta_f={df!r} rad, delta_c={dc!r} rad')
+
+    def _check_real_time(self) -> None:
+        """Warn while the run misses more than :data:`SLOW_MISS_RATE` of its deadlines (the
+        first time after :data:`SLOW_AFTER` paced samples, then at most every
+        :data:`SLOW_WARN_EVERY` s), naming the plant's cost per sample."""
+        p = self.pacer
+        if p is None or p.produced < SLOW_AFTER or p.misses <= SLOW_MISS_RATE * p.produced:
+            return
+        now = monotonic()
+        if now < self._slow_warn_at:
+            return
+        self._slow_warn_at = now + SLOW_WARN_EVERY
+        self.get_logger().warning(
+            f'not keeping real time: {100 * p.misses / p.produced:.2f} % of deadlines missed '
+            f'so far, {p.slips} slips, at t={self.sim.t:.6g} s ({self._cost_text()}); '
+            + self._remedies())
+
+    def _real_time_verdict(self, s: dict) -> str | None:
+        """The run's last word on real time from its summary ``s``: None when it kept it."""
+        rate = s.get('deadline_miss_rate', 0.0)
+        if rate <= SLOW_MISS_RATE:
+            return None
+        return (f"not real time: RTF {s['achieved_real_time_factor']:.2f} (real_time_factor="
+                f"{s['real_time_factor']:g} asked), {100 * rate:.2f} % of deadlines missed, "
+                f"plant CPU {s['cpu_per_sample_us']:.0f} us per sample")
 
     def _cost_text(self) -> str:
         samples = self.sim.samples

@@ -95,7 +95,11 @@ class RunEnd:
             return
         self.exit_code = code
         self.flush_views()      # the summary counts a view's last messages too
-        self.get_logger().info('summary: ' + json.dumps(self.summary()))
+        s = self.summary()
+        self.get_logger().info('summary: ' + json.dumps(s))
+        verdict = self._real_time_verdict(s)
+        if verdict is not None:
+            self.get_logger().warning(verdict)
         self.running = False
         if self._timer is not None:
             self.destroy_timer(self._timer)

@@ -24,11 +24,14 @@ def test_a_plant_that_cannot_keep_real_time_says_so(graph, tmp_path, monkeypatch
     assert s['achieved_real_time_factor'] < 0.4 and s['deadline_miss_rate'] > 0.5, s
     assert out.count('not keeping real time: ') == 1, out      # rate-limited: once in 0.6 s
     m = re.search(r'not real time: RTF (\d\.\d\d) \(real_time_factor=1 asked\), '
-                  r'(\d+\.\d\d) % of deadlines missed, plant CPU (\d+) us per sample', out)
+                  r'(\d+\.\d\d) % of deadlines missed, plant CPU (\d+) us per sample, the '
+                  r'hosted law (\d+) us of it', out)
     assert m, out
     assert float(m[1]) == pytest.approx(s['achieved_real_time_factor'], abs=0.006)
     assert float(m[2]) == pytest.approx(100 * s['deadline_miss_rate'], abs=0.006)
-    assert int(m[3]) >= 300                          # the law's 300 us are the plant's CPU
+    assert int(m[4]) >= 300 and int(m[3]) > 0       # the law's 300 us a call (wall time)
+    assert re.search(r'not keeping real time: .*plant CPU \d+ us per sample = \d+ % of the 100 '
+                     r'us period, of which the hosted law (\d+) us', out)
 
 
 def test_the_last_line_speaks_of_real_time_only_past_the_threshold(graph, capfd):

@@ -236,6 +236,7 @@ class PlantNode(StartGate, Publishing, HostedRoom, Lockstep, CompiledTaking, Rea
         self.commands_sent = 0                    # hosted: of those, published (subscribed)
                                                   # or put into the in-plant bag
         self.law_failures = 0                     # hosted: samples the law gave no command
+        self.law_time = 0.0                       # hosted, per sample: wall time in its calls
         self._announced = False                   # run_end published
         self.forces_lost = 0                      # planing_force samples not published
         self._cut: tuple[float, int] | None = None  # (t, steps) where a burst ended the run

@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping
-from time import monotonic, sleep
+from time import monotonic, perf_counter, sleep
 from typing import Any
 
 from ... import control
@@ -166,11 +166,14 @@ class HostedRoom:
         stays held, and it is counted and logged."""
         sim = self.sim
         t = sim.plant.t
+        start = perf_counter()
         try:
             df, dc = self.hosted.command(t, sim.plant.x)
         except PLUGIN_FAULTS as exc:  # a plugin's bug (even sys.exit) must not end the plant
+            self.law_time += perf_counter() - start
             self._law_failed(t, exc)
             return
+        self.law_time += perf_counter() - start
         self._publish_command(t, df, dc)
         o = self.options
         if abs(df) <= o.max_fin_deflection and abs(dc) <= o.max_cavitator_deflection:

@@ -87,7 +87,9 @@ class RealTime:
             return None
         return (f"not real time: RTF {s['achieved_real_time_factor']:.2f} (real_time_factor="
                 f"{s['real_time_factor']:g} asked), {100 * rate:.2f} % of deadlines missed, "
-                f"plant CPU {s['cpu_per_sample_us']:.0f} us per sample")
+                f"plant CPU {s['cpu_per_sample_us']:.0f} us per sample"
+                + (f", the hosted law {s['law_us_per_sample']:.0f} us of it"
+                   if s.get('law_us_per_sample') else ''))
 
     def _cost_text(self) -> str:
         samples = self.sim.samples
@@ -97,6 +99,10 @@ class RealTime:
         period = self.options.control_period / self.options.real_time_factor
         text = (f'plant CPU {cpu * 1e6:.0f} us per sample = {100 * cpu / period:.0f} % of the '
                 f'{period * 1e6:.0f} us period')
+        if self.law_time:             # a hosted law called per sample: its share
+            law = self.law_time / (self._samples_before + samples)
+            text += (f', of which the hosted law {law * 1e6:.0f} us ({100 * law / cpu:.0f} % of '
+                     'the plant)')
         if self.pacer is not None and self.pacer.produced:
             p = self.pacer
             text += f', deadline misses {p.misses}/{p.produced}'

@@ -54,7 +54,8 @@ class RunEnd:
         }
         if self.hosted is not None:
             s.update(hosted_commands=self.commanded, commands_published=self.commands_sent,
-                     law_failures=self.law_failures)
+                     law_failures=self.law_failures,
+                     law_us_per_sample=self.law_time / total * 1e6 if total else 0.0)
         elif self._lockstep:       # samples the compiled sample took (fastpath/sample.py)
             s['compiled_samples'] = self._compiled.taken if self._compiled is not None else 0
             s['compiled_take'] = self._taking   # commands taken by rcl in compiled code

@@ -69,6 +69,16 @@ class Slow(Quits):
         while time.perf_counter() < end:
             pass
         return StateFeedback.update(self, t, state)
+
+
+class Hangs(Quits):
+    """Eq. 31 per sample whose call at t >= 0.005 s never returns (sleeps forever)."""
+    name = 'hangs'
+
+    def update(self, t, state):
+        while t >= 0.005:
+            time.sleep(0.05)
+        return StateFeedback.update(self, t, state)
 '''
 
 
@@ -81,5 +91,6 @@ def register(root: Path) -> Path:
     (dist / 'entry_points.txt').write_text(
         '[fohssv.controllers]\nbad_reset = faulty_laws:BadReset\n'
         'bad_init = faulty_laws:BadInit\nquits = faulty_laws:Quits\n'
-        'interrupts = faulty_laws:Interrupts\nslow = faulty_laws:Slow\n')
+        'interrupts = faulty_laws:Interrupts\nslow = faulty_laws:Slow\n'
+        'hangs = faulty_laws:Hangs\n')
     return root

@@ -1,11 +1,17 @@
-"""A plugin whose constructor raises, in a node process: one line naming it, exit 2, no
-traceback (the plant hosting it and the controller node)."""
+"""Plugins with a bug, in a node process: a constructor that raises is one line naming it
+and exit 2, no traceback (the plant hosting it and the controller node); a hosted law that
+hangs is reported, and a signal ends the run in order (exit 10)."""
 
 from __future__ import annotations
 
+import signal
+import time
+
 import pytest
 from faulty_plugins import register
-from test_graph_support import finish
+from test_graph_support import finish, plant_args, stop_all
+
+from fohssv_sim.bag import load_run
 
 import rosproc
 
@@ -24,3 +30,31 @@ def test_a_constructor_that_raises_is_one_line_and_exit_2(tmp_path, package, exe
     assert ("controller 'bad_init' could not be built: its constructor raised RuntimeError: "
             'no gains file') in out
     assert 'Traceback' not in out, out
+
+
+def test_a_hung_law_is_reported_and_a_signal_ends_the_run_with_its_bag(tmp_path):
+    """A hosted law whose call at t = 0.005 s never returns: logged once it has hung for
+    LAW_TIMEOUT (plugin, t), and SIGINT then ends the run in order: exit 10, the summary, and
+    an in-plant bag closed with the 51 samples t = 0 .. 0.005 s (SIGKILL was the only way
+    out before: the handler set a flag the stuck call never reached)."""
+    env = rosproc.ros_env()
+    env['PYTHONPATH'] = f"{register(tmp_path)}:{env.get('PYTHONPATH', '')}"
+    bag, log = tmp_path / 'run', tmp_path / 'plant.log'
+    plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+        model='delay-free', duration=1.0, controller='hangs', record=str(bag)), env=env,
+        log=log)
+    try:
+        deadline = time.monotonic() + 60
+        while 'has not returned' not in log.read_text():
+            assert time.monotonic() < deadline and plant.poll() is None, log.read_text()
+            time.sleep(0.1)
+        plant.send_signal(signal.SIGINT)
+        assert rosproc.wait_exit(plant, 30) == 10, log.read_text()
+    finally:
+        stop_all(plant)
+    out = log.read_text()
+    assert 'hosted law hangs.command(t=0.005) has not returned for ' in out, out
+    assert ': stopped by a signal' in out and 'summary: ' in out, out
+    assert rosproc.summary(out)['samples'] == 50, out      # t = 0.005 s is sample 50
+    run = load_run(bag)
+    assert len(run.t) == 51 and run.t[-1] == pytest.approx(0.005, abs=1e-12)

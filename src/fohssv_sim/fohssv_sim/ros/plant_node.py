@@ -46,13 +46,15 @@ another publisher of ``command`` (an external controller) on the same domain and
 failed),
 9 a sample could not be published (DDS refused it for a second: rclpy's ``RCLError``, seen
 on a loaded machine; ``FOHSSV_FAULT_REFUSE_STATE``, :mod:`.faults`, injects it for tests): the
-run ends there with its summary and a ``run_end`` listing what was published.
+run ends there with its summary and a ``run_end`` listing what was published,
+10 a hosted law's call hung (no return for ``LAW_TIMEOUT`` s, logged) and a signal ended it.
 """
 
 from __future__ import annotations
 
 import math
 import sys
+import threading
 import time
 from collections.abc import Mapping
 from time import monotonic
@@ -154,6 +156,8 @@ class PlantNode(StartGate, Publishing, HostedRoom, Lockstep, CompiledTaking, Rea
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('plant', **kwargs)
         values = declare(self, PARAMETERS + NODE_PARAMETERS)
+        self._law_started = 0.0                   # hosted: perf_counter of the call in progress
+        self._law_watch_end = threading.Event()   # ends the hung-law watch (at the run's end)
         self.hosted = self._host(values['controller'])   # the hosted law, or None
         refuse_unknown(self)
         self.model, self.options, hold = build_config(values)
@@ -350,6 +354,7 @@ class PlantNode(StartGate, Publishing, HostedRoom, Lockstep, CompiledTaking, Rea
             return False
         if self.hosted is not None:
             self._control()
+            return self.running      # False when the law hung and a signal ended the run
         return True
 
     def _diverged(self, exc: Exception) -> None:

@@ -95,6 +95,7 @@ class RunEnd:
         if self.finished.done():
             return
         self.exit_code = code
+        self._law_watch_end.set()
         self.flush_views()      # the summary counts a view's last messages too
         s = self.summary()
         self.get_logger().info('summary: ' + json.dumps(s))

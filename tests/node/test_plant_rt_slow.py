@@ -44,3 +44,19 @@ def test_the_last_line_speaks_of_real_time_only_past_the_threshold(graph, capfd)
     rate = rosproc.summary(out)['deadline_miss_rate']
     assert ('not real time: ' in out) == (rate > 0.01), (rate, out)
     assert 'not keeping real time' not in out             # under 1000 samples: no warning
+
+
+def test_max_deadline_miss_rate_stops_a_plant_that_cannot_keep_real_time(graph, tmp_path,
+                                                                         monkeypatch, capfd):
+    """The optional stop: past 1000 paced samples, over a quarter of the deadlines missed
+    (here most of them) ends the run with exit 11 and one line naming the limit."""
+    monkeypatch.syspath_prepend(str(register(tmp_path)))
+    plant = graph.plant(mode='realtime', controller='slow', control_period=1e-4, duration=1.0,
+                        max_deadline_miss_rate=0.25)
+    assert graph.run(plant) == 11
+    out = capfd.readouterr().err
+    s = rosproc.summary(out)
+    assert s['samples_paced'] >= 1000 and s['deadline_miss_rate'] > 0.25, s
+    assert s['t'] < 0.5, s                    # stopped early: 1 s of simulated time not run
+    assert re.search(r'not real time: \d+\.\d\d % of deadlines missed, over '
+                     r'max_deadline_miss_rate=0.25, at t=', out), out

@@ -47,7 +47,8 @@ failed),
 9 a sample could not be published (DDS refused it for a second: rclpy's ``RCLError``, seen
 on a loaded machine; ``FOHSSV_FAULT_REFUSE_STATE``, :mod:`.faults`, injects it for tests): the
 run ends there with its summary and a ``run_end`` listing what was published,
-10 a hosted law's call hung (no return for ``LAW_TIMEOUT`` s, logged) and a signal ended it.
+10 a hosted law's call hung (no return for ``LAW_TIMEOUT`` s, logged) and a signal ended it,
+11 realtime: over ``max_deadline_miss_rate`` of the deadlines missed (when set; default off).
 """
 
 from __future__ import annotations

@@ -243,6 +243,8 @@ class HostedRoom:
         CPU of a ``spin_once`` wait, and nothing is to be taken between samples."""
         self._refresh_matched()
         self._check_real_time()
+        if not self.running:         # max_deadline_miss_rate ended the run
+            return
         now = monotonic()
         end = now + _CHUNK
         pacer, bursts = self.pacer, self.bursts

@@ -11,7 +11,7 @@ import time
 from time import monotonic
 
 from ..loop import cpu_seconds
-from .codes import EXIT_COMMAND_LAG
+from .codes import EXIT_COMMAND_LAG, EXIT_NOT_REAL_TIME
 
 #: Realtime mode: wall-clock period of the watchdog check (s).
 WATCHDOG_CHECK = 0.01
@@ -53,6 +53,8 @@ class RealTime:
         if not self.running:
             return
         self._check_real_time()
+        if not self.running:      # max_deadline_miss_rate ended the run
+            return
         self._refresh_matched()
         wd = self.options.watchdog_timeout
         if wd > 0.0 and not self._watchdog_warned and self._last_command_wall is not None:
@@ -67,16 +69,25 @@ class RealTime:
     def _check_real_time(self) -> None:
         """Warn while the run misses more than :data:`SLOW_MISS_RATE` of its deadlines (the
         first time after :data:`SLOW_AFTER` paced samples, then at most every
-        :data:`SLOW_WARN_EVERY` s), naming the plant's cost per sample."""
+        :data:`SLOW_WARN_EVERY` s), naming the plant's cost per sample; stop it (exit 11)
+        beyond ``max_deadline_miss_rate`` when that is set."""
         p = self.pacer
-        if p is None or p.produced < SLOW_AFTER or p.misses <= SLOW_MISS_RATE * p.produced:
+        if p is None or p.produced < SLOW_AFTER:
+            return
+        rate, limit = p.misses / p.produced, self.options.max_deadline_miss_rate
+        if limit and rate > limit:
+            self._fail(EXIT_NOT_REAL_TIME, f'not real time: {100 * rate:.2f} % of deadlines '
+                       f'missed, over max_deadline_miss_rate={limit:g}, at t={self.sim.t:.6g} '
+                       f's ({self._cost_text()}); stopping. ' + self._remedies())
+            return
+        if rate <= SLOW_MISS_RATE:
             return
         now = monotonic()
         if now < self._slow_warn_at:
             return
         self._slow_warn_at = now + SLOW_WARN_EVERY
         self.get_logger().warning(
-            f'not keeping real time: {100 * p.misses / p.produced:.2f} % of deadlines missed '
+            f'not keeping real time: {100 * rate:.2f} % of deadlines missed '
             f'so far, {p.slips} slips, at t={self.sim.t:.6g} s ({self._cost_text()}); '
             + self._remedies())
 

@@ -79,6 +79,18 @@ class Hangs(Quits):
         while t >= 0.005:
             time.sleep(0.05)
         return StateFeedback.update(self, t, state)
+
+
+class Stalls(Quits):
+    """Eq. 31 per sample whose first call at t >= 0.2 s takes 0.12 s (a stall, once)."""
+    name = 'stalls'
+    stalled = False
+
+    def update(self, t, state):
+        if t >= 0.2 and not self.stalled:
+            self.stalled = True
+            time.sleep(0.12)
+        return StateFeedback.update(self, t, state)
 '''
 
 
@@ -92,5 +104,5 @@ def register(root: Path) -> Path:
         '[fohssv.controllers]\nbad_reset = faulty_laws:BadReset\n'
         'bad_init = faulty_laws:BadInit\nquits = faulty_laws:Quits\n'
         'interrupts = faulty_laws:Interrupts\nslow = faulty_laws:Slow\n'
-        'hangs = faulty_laws:Hangs\n')
+        'hangs = faulty_laws:Hangs\nstalls = faulty_laws:Stalls\n')
     return root

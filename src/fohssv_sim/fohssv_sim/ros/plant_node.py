@@ -287,6 +287,9 @@ class PlantNode(StartGate, Publishing, HostedRoom, Lockstep, CompiledTaking, Rea
         self._resumed = -math.inf                 # lockstep: when it last came late
         self._last_command_t: float | None = None  # t of the last command received
         self._last_command_wall: float | None = None
+        self._lag_wall: float | None = None       # wall time the lag stop's span began
+        self._lag_from = (0.0, 0.0)               # (t, lag in control periods) then
+        self._lag_gap = 0.0                       # the controller's silence before that lag (s)
         self._watchdog_warned = False
         self._slow_warn_at = 0.0                  # realtime: when "not keeping real time" may come
         self._max_lag = 0.0                       # realtime: sim time between state and command

@@ -12,6 +12,7 @@ from time import monotonic
 
 from ..loop import cpu_seconds
 from .codes import EXIT_COMMAND_LAG, EXIT_NOT_REAL_TIME
+from .commands import LAG_WALL
 
 #: Realtime mode: wall-clock period of the watchdog check (s).
 WATCHDOG_CHECK = 0.01
@@ -127,9 +128,13 @@ class RealTime:
 
     def _lag_stop(self) -> None:
         lag, o = self._lag, self.options
+        gap = self._lag_gap
+        stall = (f'it began with a stall: no command for {gap:.3f} s of wall time, and the '
+                 'lag has not recovered since; ' if gap > 10 * self.pacer.period else '')
         self._fail(EXIT_COMMAND_LAG,
-                   f'command lag: the external controller\'s commands lagged by more than '
-                   f'max_command_lag={o.max_command_lag:g} control periods for as long (at '
+                   f'command lag: {stall}the external controller\'s commands lagged by more '
+                   f'than max_command_lag={o.max_command_lag:g} control periods for as long, not '
+                   f'falling back within {LAG_WALL:g} s of wall time (at '
                    f'least {lag.over_least:.0f} periods since t={lag.over_since:.6g} s, now '
                    f'{lag.last:.0f}; mean {lag.mean:.1f}, worst {lag.worst:.0f} over the run) '
                    f'at t={self.sim.t!r} s: the plant and its controller cannot keep up with '

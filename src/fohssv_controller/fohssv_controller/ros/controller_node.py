@@ -7,8 +7,9 @@ lockstep and real time alike. The controller's parameters are declared from its
 ``Parameters`` table (descriptions, ranges); a change is validated by rebuilding the
 controller and applied only when that succeeds. A state message that does not fit the
 contract is dropped and logged; a state whose time goes backwards (the plant was reset) resets
-the controller. A control law whose output is not finite (NaN or infinite: clamping it would
-command a full deflection), or that raises an exception, gets no command sent for that state:
+the controller (a plugin whose reset raises is logged and answers on). A control law whose
+output is not finite (NaN or infinite: clamping it would command a full deflection), or that
+raises an exception, gets no command sent for that state:
 the node logs it (the first 20 one by one, then at most one line a second, see
 :class:`~fohssv_sim.ros.nodekit.LogLimiter`) and counts it; the plant keeps its last good
 command (in lockstep it waits for an answer and ends with exit 3 after ``command_timeout``,
@@ -49,12 +50,14 @@ from fohssv_sim.params import ParameterSpec, field_specs
 from fohssv_sim.ros.nodekit import (
     CPU_AFFINITY,
     CPU_DMA_LATENCY,
+    PLUGIN_FAULTS,
     ArrayReader,
     ArrayWriter,
     HoldReporter,
     LogLimiter,
     SecondPublisherWarning,
     SubscriptionGate,
+    build_plugin,
     declare,
     declare_rows,
     destroy_on_error,
@@ -64,6 +67,7 @@ from fohssv_sim.ros.nodekit import (
     pin_node,
     profile,
     refuse_unknown,
+    reset_plugin,
     run_node,
 )
 from fohssv_sim.ros.wire import raw_publish
@@ -150,7 +154,7 @@ class ControllerNode(Node):
         return control.load(self.get_parameter('controller').value)
 
     def _build(self, values: Mapping[str, Any]) -> Controller:
-        return self.cls(self.cls.Parameters(**values))
+        return build_plugin(self.cls, self.cls.Parameters(**values))
 
     def _apply(self, controller: Controller) -> None:
         self.controller = controller
@@ -177,8 +181,12 @@ class ControllerNode(Node):
         last = self._last_t
         self._last_t = t
         if last is not None and t < last:
-            self.controller.reset()
-            self.get_logger().info(f'state time went back to t={t!r} s: controller reset')
+            failed = reset_plugin(self.controller.name, self.controller.reset)
+            if failed is None:
+                self.get_logger().info(f'state time went back to t={t!r} s: controller reset')
+            else:       # the node stays; the law answers with the memory it has
+                self.get_logger().error(f'state time went back to t={t!r} s: {failed}; '
+                                        'answering without a reset')
         try:
             df, dc = self._law(t, x)
         except NonFiniteCommand as exc:
@@ -188,7 +196,7 @@ class ControllerNode(Node):
             self._log_withheld(f'{exc}; no command sent for this state ({self.withheld} '
                                'withheld)')
             return
-        except Exception as exc:  # a plugin's bug must not kill the node, nor flood the log
+        except PLUGIN_FAULTS as exc:  # a plugin's bug must not end the node, nor flood the log
             self.raised += 1
             self._log_raised(f'{self.controller.name}.command(t={t!r}) raised '
                              f'{type(exc).__name__}: {exc}; no command sent ({self.raised} '

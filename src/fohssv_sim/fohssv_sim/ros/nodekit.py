@@ -38,7 +38,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-from ..params import ParameterSpec
+from ..params import ParameterError, ParameterSpec
 from .matching import HoldReporter, SecondPublisherWarning, SubscriptionGate
 from .options import CPU_AFFINITY, CPU_DMA_LATENCY
 from .qos import offered_qos, profile
@@ -76,9 +76,44 @@ __all__ = ['run_node', 'spin_node', 'EXIT_OK', 'EXIT_BAD_PARAMETERS',
            'spin_until', 'STOP', 'final_log', 'SubscriptionGate', 'HoldReporter',
            'SecondPublisherWarning',
            'PausedCollector', 'set_realtime_priority', 'tighten_timer_slack', 'init', 'report',
-           'LogLimiter', 'pin_node', 'CPU_AFFINITY', 'CPU_DMA_LATENCY', 'hold_latency']
+           'LogLimiter', 'pin_node', 'CPU_AFFINITY', 'CPU_DMA_LATENCY', 'hold_latency',
+           'PluginFailed', 'build_plugin', 'reset_plugin', 'PLUGIN_FAULTS']
 
 EXIT_OK = 0
+
+
+#: What a plugin's call may raise that a node catches as the plugin's failure: any exception,
+#: and ``sys.exit()`` and ``KeyboardInterrupt`` from its code (the nodes' signals never raise:
+#: they set :data:`STOP`), so a law can neither end the node nor pass for a signal.
+PLUGIN_FAULTS = (Exception, SystemExit, KeyboardInterrupt)
+
+
+class PluginFailed(ValueError):
+    """A controller plugin's constructor raised: at start one line and exit 2
+    (:func:`run_node`); on a parameter change the change is refused with this reason."""
+
+
+def build_plugin(cls: Any, parameters: Any) -> Any:
+    """``cls(parameters)``, a plugin's own failure as :class:`PluginFailed` naming the plugin,
+    the exception and its text (a :class:`~fohssv_sim.params.ParameterError` passes as is)."""
+    try:
+        return cls(parameters)
+    except ParameterError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a plugin's bug: one line, not a traceback
+        name = getattr(cls, 'name', '') or cls.__name__
+        raise PluginFailed(f'controller {name!r} could not be built: its constructor raised '
+                           f'{type(exc).__name__}: {exc}') from None
+
+
+def reset_plugin(name: str, reset: Callable[[], None]) -> str | None:
+    """Call a plugin's ``reset``; the reason when it raised (None when it did not). The
+    caller refuses the reset with it and stays alive."""
+    try:
+        reset()
+    except PLUGIN_FAULTS as exc:  # a plugin's bug must not end the node
+        return f'{name}.reset() raised {type(exc).__name__}: {exc}'
+    return None
 
 
 def pin_node(node: Any, cpus: tuple[int, ...]) -> bool:
@@ -218,11 +253,11 @@ def run_node(name: str, args: list[str] | None, build: Callable[[], Node],
        one line, exit :data:`EXIT_BAD_PARAMETERS`.
     2. ``build()`` makes the node. A ``ValueError`` or rclpy ``ParameterException`` (invalid
        parameters) gives one line explained with ``specs`` and exit 2; an exception of
-       ``refused`` (e.g. an unknown plugin) is logged under ``name`` and gives exit 2; any
-       other goes to ``on_error(exc)`` for its line and code (without one: its traceback and
-       exit 1); a signal during the build exits 0. Each ends the process at once
-       (:func:`.startup.exit_now`): the half-built node is never torn down
-       (:func:`.startup.destroy_on_error`).
+       ``refused`` (e.g. an unknown plugin) or a :class:`PluginFailed` is logged under
+       ``name`` and gives exit 2; any other goes to ``on_error(exc)`` for its line and code
+       (without one: its traceback and exit 1); a signal during the build exits 0. Each
+       ends the process at once (:func:`.startup.exit_now`): the half-built node is never
+       torn down (:func:`.startup.destroy_on_error`).
     3. ``run(node)`` spins it (default :func:`spin_node`) and returns the exit code. A
        ``KeyboardInterrupt`` or ``ExternalShutdownException`` ends it; ``on_interrupt(node)``
        then gives the code (default: 0). Any other exception goes to ``on_error(exc)``,
@@ -244,7 +279,7 @@ def run_node(name: str, args: list[str] | None, build: Callable[[], Node],
     try:
         try:
             node = build()
-        except refused as exc:
+        except (PluginFailed, *refused) as exc:
             rclpy.logging.get_logger(name).error(str(exc))
             exit_now(EXIT_BAD_PARAMETERS)
         except (ValueError, ParameterException) as exc:   # ParameterError, BadParameters

@@ -297,6 +297,11 @@ NODE_PARAMETERS: tuple[ParameterSpec, ...] = (
        'control period), the plant stops with exit code 6, naming the lag, its cost per '
        'sample and the remedies', low=1.0, low_open=False, high=1e6, high_open=False,
        needs_reset=False),
+    _P('max_deadline_miss_rate', '-', 0.0, '-', 'realtime mode: when over this share of the '
+       'deadlines (0 to 1) has been missed once 1000 samples were paced, the plant stops with '
+       'exit code 11, naming its cost per sample and the remedies; 0 (default): never stops '
+       '(it warns above 0.01 and says "not real time" at the end)', low=0.0, low_open=False,
+       high=1.0, high_open=False, needs_reset=False),
     TextSpec('record', '-', '', '-', "in-plant recording: bag directory to create for the "
              "plant's own run (rosbag2 MCAP as the recorder node writes it: every message the "
              'plant publishes and every command it takes, written by a writer process fed '
@@ -418,6 +423,7 @@ class PlantOptions:
     realtime_priority: int = _f('realtime_priority')
     controller: str = _f('controller')
     max_command_lag: float = _f('max_command_lag')
+    max_deadline_miss_rate: float = _f('max_deadline_miss_rate')
     record: str = _f('record')
     record_buffer: int = _f('record_buffer')
     cpu_affinity: tuple[int, ...] = _f('cpu_affinity')

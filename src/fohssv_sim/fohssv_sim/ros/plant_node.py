@@ -46,13 +46,16 @@ another publisher of ``command`` (an external controller) on the same domain and
 failed),
 9 a sample could not be published (DDS refused it for a second: rclpy's ``RCLError``, seen
 on a loaded machine; ``FOHSSV_FAULT_REFUSE_STATE``, :mod:`.faults`, injects it for tests): the
-run ends there with its summary and a ``run_end`` listing what was published.
+run ends there with its summary and a ``run_end`` listing what was published,
+10 a hosted law's call hung (no return for ``LAW_TIMEOUT`` s, logged) and a signal ended it,
+11 realtime: over ``max_deadline_miss_rate`` of the deadlines missed (when set; default off).
 """
 
 from __future__ import annotations
 
 import math
 import sys
+import threading
 import time
 from collections.abc import Mapping
 from time import monotonic
@@ -154,6 +157,8 @@ class PlantNode(StartGate, Publishing, HostedRoom, Lockstep, CompiledTaking, Rea
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('plant', **kwargs)
         values = declare(self, PARAMETERS + NODE_PARAMETERS)
+        self._law_started = 0.0                   # hosted: perf_counter of the call in progress
+        self._law_watch_end = threading.Event()   # ends the hung-law watch (at the run's end)
         self.hosted = self._host(values['controller'])   # the hosted law, or None
         refuse_unknown(self)
         self.model, self.options, hold = build_config(values)
@@ -236,6 +241,7 @@ class PlantNode(StartGate, Publishing, HostedRoom, Lockstep, CompiledTaking, Rea
         self.commands_sent = 0                    # hosted: of those, published (subscribed)
                                                   # or put into the in-plant bag
         self.law_failures = 0                     # hosted: samples the law gave no command
+        self.law_time = 0.0                       # hosted, per sample: wall time in its calls
         self._announced = False                   # run_end published
         self.forces_lost = 0                      # planing_force samples not published
         self._cut: tuple[float, int] | None = None  # (t, steps) where a burst ended the run
@@ -281,7 +287,11 @@ class PlantNode(StartGate, Publishing, HostedRoom, Lockstep, CompiledTaking, Rea
         self._resumed = -math.inf                 # lockstep: when it last came late
         self._last_command_t: float | None = None  # t of the last command received
         self._last_command_wall: float | None = None
+        self._lag_wall: float | None = None       # wall time the lag stop's span began
+        self._lag_from = (0.0, 0.0)               # (t, lag in control periods) then
+        self._lag_gap = 0.0                       # the controller's silence before that lag (s)
         self._watchdog_warned = False
+        self._slow_warn_at = 0.0                  # realtime: when "not keeping real time" may come
         self._max_lag = 0.0                       # realtime: sim time between state and command
         self._wall_start = time.monotonic()
         self._run_wall_start = 0.0
@@ -348,6 +358,7 @@ class PlantNode(StartGate, Publishing, HostedRoom, Lockstep, CompiledTaking, Rea
             return False
         if self.hosted is not None:
             self._control()
+            return self.running      # False when the law hung and a signal ended the run
         return True
 
     def _diverged(self, exc: Exception) -> None:

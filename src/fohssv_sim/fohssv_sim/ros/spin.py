@@ -15,6 +15,7 @@ import os
 import signal
 import struct
 import sys
+from collections.abc import Callable
 from time import monotonic as _monotonic
 from typing import Protocol
 
@@ -24,7 +25,7 @@ from rclpy.task import Future
 
 __all__ = ['Paced', 'make_executor', 'spin_until', 'tighten_timer_slack', 'final_log',
            'StopSignal', 'STOP', 'pin_threads', 'hold_cpu_latency', 'cpu_latency_limit',
-           'CPU_LATENCY_DEVICE', 'NO_LATENCY_LIMIT']
+           'CPU_LATENCY_DEVICE', 'NO_LATENCY_LIMIT', 'PluginHung']
 
 _PR_SET_TIMERSLACK = 29
 #: Seconds between two looks at ``rclpy.ok()`` in :func:`spin_until`.
@@ -51,6 +52,10 @@ class StopSignal:
     def __init__(self) -> None:
         self.received: int | None = None
         self.count = 0
+        #: a hook the plant sets while it hosts a law: the reason when a call of that law is
+        #: stuck (has not returned for its timeout), else None. A signal then raises
+        #: :class:`PluginHung` in that call, as a stuck call would never reach the loop.
+        self.stuck: Callable[[], str | None] | None = None
 
     def install(self) -> StopSignal:
         for sig in (signal.SIGINT, signal.SIGTERM):
@@ -69,6 +74,15 @@ class StopSignal:
         self.count += 1
         if self.received is None:
             self.received = signum
+        stuck = self.stuck() if self.stuck is not None else None
+        if stuck is not None:
+            raise PluginHung(stuck)
+
+
+class PluginHung(BaseException):
+    """Raised by a SIGINT/SIGTERM inside a hosted law's call that has not returned for its
+    timeout (:attr:`StopSignal.stuck`); a BaseException, so the law's own ``except
+    Exception`` does not swallow it. The message names the plugin and the sample's time."""
 
 
 #: The process's stop request (set by SIGINT/SIGTERM once :meth:`StopSignal.install` ran).

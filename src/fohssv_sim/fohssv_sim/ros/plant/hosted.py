@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import threading
 from collections.abc import Mapping
-from time import monotonic, sleep
+from time import monotonic, perf_counter, sleep
 from typing import Any
 
 from ... import control
@@ -18,8 +19,9 @@ from ...control import NonFiniteCommand
 from ...models import check_state
 from ...params import ParameterError, ParameterSpec, field_specs
 from ..loop import HostedLaw
-from ..nodekit import declare, install_validation
-from .codes import CONTROLLER_PREFIX, EXIT_PUBLISH_FAILED, PublishFailed
+from ..nodekit import PLUGIN_FAULTS, STOP, build_plugin, declare, install_validation
+from ..spin import PluginHung
+from .codes import CONTROLLER_PREFIX, EXIT_LAW_HUNG, EXIT_PUBLISH_FAILED, PublishFailed
 
 #: With a hosted controller: the wall time (s) one chunk of samples runs before the executor
 #: is spun again (services, parameters, the graph checks, signals).
@@ -30,6 +32,10 @@ _FREE_BURST = 32
 
 #: Most samples of one burst (a realtime backlog beyond it is taken in several).
 BURST_ROWS = 64
+
+#: A hosted law's call that has not returned after this wall time (s) is hung: logged (plugin,
+#: sample time), and a SIGINT/SIGTERM then ends the run in order with exit 10.
+LAW_TIMEOUT = 1.0
 
 
 class HostedRoom:
@@ -53,14 +59,39 @@ class HostedRoom:
         law = HostedLaw(self._build_controller(declare(self, specs)))
         install_validation(self, tuple(s.name for s in specs), self._build_controller,
                            self._apply_controller)
+        STOP.stuck = self._law_stuck
+        threading.Thread(target=self._watch_law, name='law-watch', daemon=True).start()
         return law
+
+    def _law_stuck(self) -> str | None:
+        """The hosted law's call in progress when it has not returned for
+        :data:`LAW_TIMEOUT` s (plugin, sample time, how long), else None. Read by the signal
+        handler (:attr:`~fohssv_sim.ros.spin.StopSignal.stuck`) and the watch thread."""
+        start = self._law_started
+        if not start:
+            return None
+        late = perf_counter() - start
+        if late < LAW_TIMEOUT:
+            return None
+        return (f'hosted law {self.hosted.name}.command(t={self.sim.plant.t!r}) has not '
+                f'returned for {late:.1f} s (LAW_TIMEOUT={LAW_TIMEOUT:g} s)')
+
+    def _watch_law(self) -> None:
+        """A daemon thread: log a hung law call once per call (the loop is stuck in it)."""
+        reported = 0.0
+        while not self._law_watch_end.wait(LAW_TIMEOUT / 4):
+            start, why = self._law_started, self._law_stuck()
+            if why is not None and start != reported:
+                reported = start
+                self.get_logger().error(f'{why}; SIGINT or SIGTERM now ends the run (exit '
+                                        f'{EXIT_LAW_HUNG}) after closing its outputs')
 
     def _build_controller(self, values: Mapping[str, Any]) -> control.Controller:
         cls = self._controller_cls
         n = len(CONTROLLER_PREFIX)
         fields = {k[n:]: v for k, v in values.items() if k.startswith(CONTROLLER_PREFIX)}
         try:
-            return cls(cls.Parameters(**fields))
+            return build_plugin(cls, cls.Parameters(**fields))
         except ParameterError as exc:   # the dataclass names the field without the prefix
             text = str(exc)
             if any(text.startswith(f'{f}=') for f in fields):
@@ -133,7 +164,7 @@ class HostedRoom:
                 return False
             if j == last and status == 3:   # the law's command needs the slow path
                 sim.samples += 1
-                self._control()
+                self._control()             # may end the run (a hung law and a signal)
                 break
             df, dc = row[5], row[6]
             sim.took((df, dc))
@@ -144,9 +175,9 @@ class HostedRoom:
             except FloatingPointError as exc:
                 self._diverged(exc)
             return False
-        if every and sim.samples % every == 0:
+        if every and self.running and sim.samples % every == 0:
             self._keep_subscribers_up()
-        return True
+        return self.running
 
     def _advance_each(self, periods: int) -> bool:
         """``periods`` samples one at a time (:meth:`_advance`); False when the run ended."""
@@ -166,11 +197,18 @@ class HostedRoom:
         stays held, and it is counted and logged."""
         sim = self.sim
         t = sim.plant.t
+        self._law_started = start = perf_counter()   # watched by _law_stuck
         try:
             df, dc = self.hosted.command(t, sim.plant.x)
-        except Exception as exc:  # noqa: BLE001 - a plugin's bug must not kill the plant
+        except PluginHung as exc:     # a signal after the call hung for LAW_TIMEOUT
+            self._fail(EXIT_LAW_HUNG, f'{exc}: stopped by a signal')
+            return
+        except PLUGIN_FAULTS as exc:  # a plugin's bug (even sys.exit) must not end the plant
             self._law_failed(t, exc)
             return
+        finally:
+            self._law_started = 0.0
+            self.law_time += perf_counter() - start
         self._publish_command(t, df, dc)
         o = self.options
         if abs(df) <= o.max_fin_deflection and abs(dc) <= o.max_cavitator_deflection:
@@ -189,7 +227,7 @@ class HostedRoom:
             self._send_command(self._command_out.payload())
             self.commands_sent += 1
 
-    def _law_failed(self, t: float, exc: Exception) -> None:
+    def _law_failed(self, t: float, exc: BaseException) -> None:
         self.law_failures += 1
         what = (str(exc) if isinstance(exc, NonFiniteCommand) else
                 f'{self.hosted.name}.command(t={t!r}) raised {type(exc).__name__}: {exc}')
@@ -204,6 +242,9 @@ class HostedRoom:
         realtime: each when due, sleeping in between: ``time.sleep`` costs about half the
         CPU of a ``spin_once`` wait, and nothing is to be taken between samples."""
         self._refresh_matched()
+        self._check_real_time()
+        if not self.running:         # max_deadline_miss_rate ended the run
+            return
         now = monotonic()
         end = now + _CHUNK
         pacer, bursts = self.pacer, self.bursts

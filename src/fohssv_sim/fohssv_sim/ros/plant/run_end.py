@@ -54,7 +54,8 @@ class RunEnd:
         }
         if self.hosted is not None:
             s.update(hosted_commands=self.commanded, commands_published=self.commands_sent,
-                     law_failures=self.law_failures)
+                     law_failures=self.law_failures,
+                     law_us_per_sample=self.law_time / total * 1e6 if total else 0.0)
         elif self._lockstep:       # samples the compiled sample took (fastpath/sample.py)
             s['compiled_samples'] = self._compiled.taken if self._compiled is not None else 0
             s['compiled_take'] = self._taking   # commands taken by rcl in compiled code
@@ -94,8 +95,13 @@ class RunEnd:
         if self.finished.done():
             return
         self.exit_code = code
+        self._law_watch_end.set()
         self.flush_views()      # the summary counts a view's last messages too
-        self.get_logger().info('summary: ' + json.dumps(self.summary()))
+        s = self.summary()
+        self.get_logger().info('summary: ' + json.dumps(s))
+        verdict = self._real_time_verdict(s)
+        if verdict is not None:
+            self.get_logger().warning(verdict)
         self.running = False
         if self._timer is not None:
             self.destroy_timer(self._timer)

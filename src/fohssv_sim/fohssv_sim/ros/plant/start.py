@@ -18,6 +18,7 @@ from ..loop import (
     cpu_seconds,
 )
 from ..matching import UNKNOWN_NODE, node_path
+from ..nodekit import reset_plugin
 from .codes import (
     EXIT_NO_PEERS,
     EXIT_PUBLISH_FAILED,
@@ -242,12 +243,17 @@ class StartGate:
             response.success = False
             response.message = 'the run has ended'
             return response
+        if self.hosted is not None:   # first: a law that cannot reset refuses the reset
+            failed = reset_plugin(self.hosted.name, self.hosted.reset)
+            if failed is not None:
+                response.success = False
+                response.message = f'{failed}; the plant was not reset'
+                self.get_logger().error(f'reset refused: {response.message}')
+                return response
         self.resets += 1
         self._samples_before += self.sim.samples
         self._steps_before += self.sim.plant.n
         self.sim.reset(self.options.initial_state)
-        if self.hosted is not None:
-            self.hosted.reset()
         self._lag.over_since = None
         self._watchdog_warned = False
         self.get_logger().info(f'reset to t = 0 at {list(self.options.initial_state)}')

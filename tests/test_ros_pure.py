@@ -482,3 +482,11 @@ def test_recorder_and_player_rows_are_read_only_with_unit_and_allowed_values(spe
     assert d.read_only and d.additional_constraints == (
         f'allowed: {spec.range_text()}' + (f' [{spec.unit}]' if spec.unit != '-' else ''))
     assert d.description.startswith(spec.description)
+
+
+def test_log_lines_give_simulated_time_as_a_person_writes_it():
+    from fohssv_sim.ros.loop import time_text
+
+    assert 0.1 + 0.2 != 0.3 and time_text(0.1 + 0.2) == '0.3'    # not 0.30000000000000004
+    assert time_text(3 * 0.1) == '0.3' and time_text(1.0) == '1.0' and time_text(2e-5) == '2e-05'
+    assert time_text(1234.5678) == '1234.5678'

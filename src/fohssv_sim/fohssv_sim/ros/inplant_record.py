@@ -35,6 +35,7 @@ from rclpy.serialization import serialize_message
 
 from .. import contract
 from ..bag.inplant import Ring, TopicSpec, WriterConfig, kind_of, read_reply, send
+from .loop import time_text
 from .matching import UNKNOWN_NODE, node_path
 from .options import NODE_PARAMETER_BY_NAME, PlantOptions
 from .qos import offered_qos
@@ -248,7 +249,7 @@ class InPlantRecording:
         name = self.config.topics[index].name
         self.node.get_logger().error(
             f'in-plant recording: the writer fell behind: ring of {self.ring.capacity} bytes '
-            f'full at t={self.node.sim.t!r} s, a {name} message not recorded ({self.lost} '
+            f'full at t={time_text(self.node.sim.t)} s, a {name} message not recorded ({self.lost} '
             'lost so far; record_buffer is the ring size)', throttle_duration_sec=1.0)
 
     def _writer_failed(self) -> None:

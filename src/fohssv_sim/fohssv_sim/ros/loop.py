@@ -43,7 +43,7 @@ from ..simulate import steps_per_period
 
 __all__ = ['CommandRejected', 'SampledPlant', 'check_command', 'answered_time', 'Pacer',
            'BurstWait',
-           'HostedLaw', 'CommandLag', 'cpu_seconds']
+           'HostedLaw', 'CommandLag', 'cpu_seconds', 'time_text']
 
 
 class CommandRejected(ValueError):
@@ -417,6 +417,12 @@ class CommandLag:
         return {'command_lag_mean': self.mean, 'command_lag_worst': self.worst,
                 'command_lag_last': self.last, 'commands_over_lag_limit': self.over,
                 'max_command_lag_periods': self.limit}
+
+
+def time_text(t: float) -> str:
+    """Simulated time for a log line: ``0.3``, not ``0.30000000000000004`` (rounded to 1e-12 s,
+    far below any step; ``1.0`` stays ``1.0``)."""
+    return repr(round(t, 12))
 
 
 def cpu_seconds() -> float:

@@ -80,6 +80,7 @@ from .loop import (
     CommandLag,
     Pacer,
     SampledPlant,
+    time_text,
 )
 from .nodekit import (
     STOP,
@@ -326,7 +327,8 @@ class PlantNode(StartGate, Publishing, HostedRoom, Lockstep, CompiledTaking, Rea
             self.sim.command = held
             self.get_logger().warning(
                 f'deflection limits now max_fin_deflection={lf:g} rad, '
-                f'max_cavitator_deflection={lc:g} rad at t={self.sim.t!r} s: the held command '
+                f'max_cavitator_deflection={lc:g} rad at t={time_text(self.sim.t)} s: the held '
+                'command '
                 f'delta_f={df!r}, delta_c={dc!r} rad is beyond them; holding the clamped '
                 f'command delta_f={held[0]!r}, delta_c={held[1]!r} rad')
 

@@ -13,6 +13,7 @@ from ..loop import (
     CommandRejected,
     answered_time,
     check_command,
+    time_text,
 )
 
 #: Rejected commands logged one by one; later ones are throttled to one line per second.
@@ -89,6 +90,7 @@ class CommandIntake:
         second); the last good command stays held."""
         self.rejected += 1
         df, dc = self.sim.command
-        self._log_rejected(f'rejected command at t={self.sim.t!r} s: {reason}; keeping the last '
+        self._log_rejected(f'rejected command at t={time_text(self.sim.t)} s: {reason}; keeping '
+                           'the last '
                            f'good command delta_f={df!r}, delta_c={dc!r} rad ({self.rejected} '
                            'rejected)')

@@ -18,7 +18,7 @@ from ... import control
 from ...control import NonFiniteCommand
 from ...models import check_state
 from ...params import ParameterError, ParameterSpec, field_specs
-from ..loop import HostedLaw
+from ..loop import HostedLaw, time_text
 from ..nodekit import PLUGIN_FAULTS, STOP, build_plugin, declare, install_validation
 from ..spin import PluginHung
 from .codes import CONTROLLER_PREFIX, EXIT_LAW_HUNG, EXIT_PUBLISH_FAILED, PublishFailed
@@ -73,7 +73,7 @@ class HostedRoom:
         late = perf_counter() - start
         if late < LAW_TIMEOUT:
             return None
-        return (f'hosted law {self.hosted.name}.command(t={self.sim.plant.t!r}) has not '
+        return (f'hosted law {self.hosted.name}.command(t={time_text(self.sim.plant.t)}) has not '
                 f'returned for {late:.1f} s (LAW_TIMEOUT={LAW_TIMEOUT:g} s)')
 
     def _watch_law(self) -> None:
@@ -230,7 +230,7 @@ class HostedRoom:
     def _law_failed(self, t: float, exc: BaseException) -> None:
         self.law_failures += 1
         what = (str(exc) if isinstance(exc, NonFiniteCommand) else
-                f'{self.hosted.name}.command(t={t!r}) raised {type(exc).__name__}: {exc}')
+                f'{self.hosted.name}.command(t={time_text(t)}) raised {type(exc).__name__}: {exc}')
         df, dc = self.sim.command
         text = (f'{what}; no command for this sample, holding delta_f={df!r}, delta_c={dc!r} '
                 f'rad ({self.law_failures} without a command)')

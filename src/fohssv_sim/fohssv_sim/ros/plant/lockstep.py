@@ -13,6 +13,7 @@ from typing import Any
 
 from rclpy.duration import Duration
 
+from ..loop import time_text
 from .codes import EXIT_PUBLISH_FAILED, EXIT_TIMEOUT, PublishFailed
 from .fastpath import sample as fastpath
 
@@ -78,7 +79,8 @@ class Lockstep:
             if self._awaiting is not None and waited > timeout:
                 self.get_logger().info(
                     f'lockstep: the plant did not run for {late:.3f} s (a stopped process or '
-                    f'a stalled host) while awaiting the command for t={self._awaiting!r} s: '
+                    f'a stalled host) while awaiting the command for '
+                    f't={time_text(self._awaiting)} s: '
                     f'its controller gets command_timeout + {_RESUME_GRACE:g} s from now (a '
                     'command lost meanwhile comes again at its writer\'s next heartbeat)')
             return
@@ -92,13 +94,13 @@ class Lockstep:
                 if self._undelivered != self._awaiting:
                     self._undelivered = self._awaiting
                     self.get_logger().info(
-                        f'the state for t={self._awaiting!r} s is not acknowledged by all '
+                        f'the state for t={time_text(self._awaiting)} s is not acknowledged by all '
                         f'{self.state_pub.get_subscription_count()} subscriber(s) of '
                         f'{self.state_pub.topic_name} after {waited:.1f} s (discovery not '
                         'finished on their side?): command_timeout counts from its delivery')
                 return
             self._fail(EXIT_TIMEOUT,
-                       f'lockstep timeout: the state for t={self._awaiting!r} s was not '
+                       f'lockstep timeout: the state for t={time_text(self._awaiting)} s was not '
                        f'acknowledged by the subscribers of {self.state_pub.topic_name} within '
                        f'{waited:.1f} s (command_timeout={self.options.command_timeout:g} s + '
                        f'{_DELIVERY_GRACE:g} s for delivery; command has {self._peers()[1]} '
@@ -110,10 +112,10 @@ class Lockstep:
             self._published_wall = now
             return
         last = ('no command received at all' if self._last_command_t is None else
-                f'the last command answered t={self._last_command_t!r} s')
+                f'the last command answered t={time_text(self._last_command_t)} s')
         self._fail(EXIT_TIMEOUT,
                    f'lockstep timeout: the controller stalled: no command answering '
-                   f't={self._awaiting!r} s within command_timeout='
+                   f't={time_text(self._awaiting)} s within command_timeout='
                    f'{self.options.command_timeout:g} s ({last}; command has '
                    f'{self._peers()[1]} publisher(s))')
 
@@ -166,13 +168,14 @@ class Lockstep:
             self._fail(EXIT_TIMEOUT,
                        f'lockstep timeout: the plant is overrunning: one control period '
                        f'({self.sim.hold} steps) took {took:.3f} s > command_timeout='
-                       f'{timeout:g} s at t={self.sim.t!r} s, using {cpu - mark[1]:.3f} s of '
+                       f'{timeout:g} s at t={time_text(self.sim.t)} s, using '
+                       f'{cpu - mark[1]:.3f} s of '
                        'CPU with the wait for its command (the one before took too long '
                        'as well)')
             return True
         self.get_logger().warning(
             f'one control period ({self.sim.hold} steps) took {took:.3f} s > command_timeout='
-            f'{timeout:g} s of wall time at t={self.sim.t!r} s: not an overrun unless the '
+            f'{timeout:g} s of wall time at t={time_text(self.sim.t)} s: not an overrun unless the '
             'next one takes as long in CPU time (a publish blocked by DDS, e.g. for a stopped '
             'subscriber, or a stalled host)')
         return False
@@ -203,7 +206,7 @@ class Lockstep:
             self._all_acked[topic] = -1
             self.get_logger().warning(
                 f'{topic}: a subscriber has not acknowledged up to {behind} samples for '
-                f'{_STALL_TIMEOUT:g} s at t={self.sim.t!r} s (the queue holds '
+                f'{_STALL_TIMEOUT:g} s at t={time_text(self.sim.t)} s (the queue holds '
                 f'{pub.qos_profile.depth}); continuing (it may lose samples)')
 
     def _on_command_lockstep(self, raw: bytes) -> None:

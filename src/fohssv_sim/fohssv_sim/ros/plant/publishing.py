@@ -12,6 +12,7 @@ import time
 from time import monotonic
 from typing import Any
 
+from ..loop import time_text
 from .codes import PublishFailed
 from .fastpath import sample as fastpath
 
@@ -59,7 +60,8 @@ class Publishing:
             try:
                 self._send_clock(self._clock_out.payload(round(self._state_data[0] * 1e9)))
             except Exception as exc:  # noqa: BLE001 - keep-last 1: the next one replaces it
-                self._log_retry(f'/clock at t={self._state_data[0]!r} s not published: {exc}')
+                self._log_retry(f'/clock at t={time_text(self._state_data[0])} s not published: '
+                                f'{exc}')
         self._send_views(sample)
 
     def _send_views(self, sample: int) -> None:
@@ -72,14 +74,15 @@ class Publishing:
                 elif views.pending:
                     views.publish_next()
             except Exception as exc:  # noqa: BLE001 - views are for people: never fatal
-                self._log_retry(f'views at t={self._state_data[0]!r} s not published: {exc}')
+                self._log_retry(f'views at t={time_text(self._state_data[0])} s not published: '
+                                f'{exc}')
 
     def _retry_publish(self, send: Any, name: str, payload: Any, exc: Exception,
                        state: bool = False) -> None:
         """Publish again every millisecond for up to :data:`_PUBLISH_RETRY` s (counted, the
         first lines logged); raise :class:`PublishFailed` if DDS still refuses."""
         self.publish_retries += 1
-        self._log_retry(f'{name}: publishing the sample at t={self._state_data[0]!r} '
+        self._log_retry(f'{name}: publishing the sample at t={time_text(self._state_data[0])} '
                         f'failed ({exc}); retrying ({self.publish_retries} retried)')
         deadline = monotonic() + _PUBLISH_RETRY
         while monotonic() < deadline and self.context.ok():
@@ -95,7 +98,7 @@ class Publishing:
                              # sent) its planing_force, which is not published after it
         else:
             self.forces_lost += 1              # the state went out, its planing_force not
-        raise PublishFailed(f'{name}: the sample at t={self._state_data[0]!r} s '
+        raise PublishFailed(f'{name}: the sample at t={time_text(self._state_data[0])} s '
                             f'could not be published for {_PUBLISH_RETRY:g} s ({exc}); '
                             'stopping the run')
 
@@ -105,7 +108,7 @@ class Publishing:
         and the views when due."""
         c = self._compiled
         if c.clock_asked & fastpath.CLOCK_PUBLISH and c.clock_ret != 0:
-            self._log_retry(f'/clock at t={self._state_data[0]!r} s not published: '
+            self._log_retry(f'/clock at t={time_text(self._state_data[0])} s not published: '
                             f'rcl_publish_serialized_message returned {c.clock_ret}: '
                             f'{c.take_error()}')
         self._send_views(sample)

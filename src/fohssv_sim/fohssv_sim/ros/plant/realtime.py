@@ -10,7 +10,7 @@ from __future__ import annotations
 import time
 from time import monotonic
 
-from ..loop import cpu_seconds
+from ..loop import cpu_seconds, time_text
 from .codes import EXIT_COMMAND_LAG, EXIT_NOT_REAL_TIME
 from .commands import LAG_WALL
 
@@ -137,7 +137,8 @@ class RealTime:
                    f'falling back within {LAG_WALL:g} s of wall time (at '
                    f'least {lag.over_least:.0f} periods since t={lag.over_since:.6g} s, now '
                    f'{lag.last:.0f}; mean {lag.mean:.1f}, worst {lag.worst:.0f} over the run) '
-                   f'at t={self.sim.t!r} s: the plant and its controller cannot keep up with '
+                   f'at t={time_text(self.sim.t)} s: the plant and its controller cannot keep '
+                   'up with '
                    f'control_period={o.control_period:g} s in real time here '
                    f'({self._cost_text()}); stopping before late commands lose the vehicle. '
                    + self._remedies())
@@ -161,8 +162,10 @@ class RealTime:
         than ``max_command_age``."""
         self.stale += 1
         if t > now:
-            why = f"it answers t={t!r} s, after the plant's current sample t={now!r} s"
+            why = (f"it answers t={time_text(t)} s, after the plant's current sample "
+                   f"t={time_text(now)} s")
         else:
-            why = (f'it answers t={t!r} s, {now - t:g} s of simulated time before the current '
+            why = (f'it answers t={time_text(t)} s, {now - t:g} s of simulated time before the '
+                   'current '
                    f'sample: older than max_command_age={self.options.max_command_age:g} s')
         self._reject(f'stale command: {why}')

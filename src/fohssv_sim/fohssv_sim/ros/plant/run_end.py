@@ -15,7 +15,7 @@ from rclpy.duration import Duration
 from std_msgs.msg import String
 
 from ...contract import run_end_text
-from ..loop import cpu_seconds
+from ..loop import cpu_seconds, time_text
 from ..nodekit import STOP, final_log
 from .codes import EXIT_OK
 
@@ -141,7 +141,7 @@ class RunEnd:
             final_log(self.get_name(), f'run_end not published: {exc}')
 
     def _finish(self, why: str) -> None:
-        self.get_logger().info(f'stopping cleanly at t={self.sim.t!r} s: {why}')
+        self.get_logger().info(f'stopping cleanly at t={time_text(self.sim.t)} s: {why}')
         self._end(EXIT_OK)
 
     def _fail(self, code: int, message: str) -> None:

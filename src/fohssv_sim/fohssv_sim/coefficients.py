@@ -14,7 +14,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .params import ModelParameters
+from .params import PARAMETERS, ModelParameters, ParameterError
 
 __all__ = ['Coefficients', 'KernelCoefficients', 'coefficients']
 
@@ -84,7 +84,25 @@ def coefficients(p: ModelParameters) -> Coefficients:
 
     Exact fractions are used where the paper prints rounded decimals (0.18 -> 11/60,
     0.328 -> 133/405, 0.7 -> 7/9, 0.2 -> 17/36 or 11/36).
+
+    Raises:
+        ParameterError: legal but extreme values (e.g. ``speed=1e308``) whose coefficients
+            overflow; the message names the values that differ from the defaults.
     """
+    try:
+        c = _coefficients(p)
+    except (OverflowError, ZeroDivisionError, ValueError):
+        c = None
+    if c is None or not np.isfinite(c.kernel).all():
+        changed = ', '.join(f'{s.name}={getattr(p, s.name)!r}' for s in PARAMETERS
+                            if isinstance(s.default, float) and getattr(p, s.name) != s.default)
+        raise ParameterError(f"the model's coefficients overflow with {changed or 'these values'}"
+                             ': each is inside its range, but together they leave the floating-'
+                             'point range; give values nearer the vehicle\'s scale')
+    return c
+
+
+def _coefficients(p: ModelParameters) -> Coefficients:
     V, L, R, Rn = p.speed, p.length, p.body_radius, p.cavitator_radius
     m, n, sigma = p.density_ratio, p.fin_effectiveness, p.cavitation_number
 

@@ -2,6 +2,7 @@
 the numbers asserted here)."""
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -80,3 +81,14 @@ def test_matrices_hold_the_scalars():
     assert c.B[1, 0] == c.b21 and c.B[3, 1] == c.b42 and c.D[1] == c.d2 and c.G[1] == 9.81
     with pytest.raises(ValueError):
         c.A[0, 0] = 1.0   # read-only
+
+
+@pytest.mark.parametrize('changes', [{'speed': 1e308}, {'speed': 5e153},
+                                     {'fin_effectiveness': 1e308}])
+def test_legal_values_whose_coefficients_overflow_are_refused_naming_them(changes):
+    from fohssv_sim.params import ParameterError
+
+    (name, value), = changes.items()
+    words = re.escape(f'coefficients overflow with {name}={value!r}:')
+    with pytest.raises(ParameterError, match=words):
+        coefficients(ModelParameters(**changes))

@@ -98,6 +98,11 @@ def test_invalid_parameter_change_is_refused_and_the_run_is_untouched(graph, cap
     ({'clock_period': 2.0}, 'clock_period=2.0 is outside the allowed '
      'range [0, 1] s (realtime mode: simulated time between /clock messages'),
     ({'profile': 2}, 'profile=2 is outside the allowed range [0, 1]'),
+    # a number beyond a double reaches the node as a string: named as such
+    ({'speed': '1e400'}, "speed='1e400' is beyond the range of a double (about 1.8e308)"),
+    ({'speed': 'abc'}, "speed='abc' is a string, not a number"),
+    # legal values whose coefficients overflow: refused, not a traceback
+    ({'speed': 1e308}, "the model's coefficients overflow with speed=1e+308:"),
 ])
 def test_invalid_parameters_at_start_are_refused_naming_them(graph, params, message):
     """The node refuses them when it is built; the process's one line and exit 2 for such a

@@ -364,6 +364,18 @@ def _kind_name(value: Any) -> str:
         value).__name__
 
 
+def _not_a_number(value: object, got: str) -> str:
+    """Why a value ROS did not give as a number is refused: a number beyond a double's range
+    (``1e400``) reaches the node as a string, and is named as such."""
+    try:
+        beyond = isinstance(value, str) and math.isinf(float(value)) and 'inf' not in value.lower()
+    except ValueError:
+        beyond = False
+    if beyond:
+        return 'is beyond the range of a double (about 1.8e308), so ROS passed it as a string'
+    return f'is {_a(got)}, not a number'
+
+
 def _a(kind: str) -> str:
     return f"{'an' if kind[0] in 'aeiou' else 'a'} {kind}"
 
@@ -389,14 +401,14 @@ def precheck(node: Node, specs: Iterable[ParameterSpec], kinds: Mapping[str, int
         got = _kind_name(value)
         if kind == ParameterType.PARAMETER_DOUBLE:
             if got not in ('double', 'integer'):
-                raise spec.refuse(value, f'is {_a(got)}, not a number')
+                raise spec.refuse(value, _not_a_number(value, got))
         elif kind == ParameterType.PARAMETER_INTEGER:
             if got == 'double' and math.isfinite(value) and value == int(value):
                 overrides[spec.name] = Parameter(spec.name, value=int(value))
                 value = int(value)
             elif got != 'integer':
-                what = 'not a whole number' if got == 'double' else f'{_a(got)}, not a number'
-                raise spec.refuse(value, f'is {what}')
+                raise spec.refuse(value, 'is not a whole number' if got == 'double'
+                                  else _not_a_number(value, got))
         elif kind == ParameterType.PARAMETER_STRING:
             if got != 'string':
                 raise spec.refuse(value, f'is {_a(got)}, not a name')

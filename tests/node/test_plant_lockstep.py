@@ -25,6 +25,19 @@ def test_lockstep_timeout_names_the_stalled_controller(graph, capfd):
             'command_timeout=0.5 s (no command received at all') in out, out
 
 
+def test_lockstep_timeout_counts_commands_that_answer_no_sample(graph, capfd):
+    """Commands with no finite t were received: the timeout line says so, not 'no command
+    received at all'."""
+    graph.probe(lambda t, x: [float('nan'), 0.0, 0.0])
+    plant = graph.plant(model='delay-free', command_timeout=0.5)
+    assert graph.run(plant, 30) == 3
+    out = capfd.readouterr().err
+    assert 'no command received at all' not in out, out
+    assert ('lockstep timeout: the controller stalled: no command answering t=0.0 s within '
+            'command_timeout=0.5 s (1 command(s) received, none answering a sample: empty or '
+            'without a finite t') in out, out
+
+
 def test_lockstep_timeout_lowered_during_the_run_still_fires(graph, capfd):
     """command_timeout lowered from 5 s to 0.06 s while the run goes (a parameter that needs
     no reset), then the controller stops answering: the run ends with exit 3 naming the

@@ -286,7 +286,7 @@ class PlantNode(StartGate, Publishing, HostedRoom, Lockstep, CompiledTaking, Rea
         self._slow: tuple[int, float] | None = None  # lockstep: (samples, CPU s), slow period
         self._checked = 0.0                       # lockstep: when the timer last checked
         self._resumed = -math.inf                 # lockstep: when it last came late
-        self._last_command_t: float | None = None  # t of the last command received
+        self._last_command_t: float | None = None  # t of the last command with a finite t
         self._last_command_wall: float | None = None
         self._lag_wall: float | None = None       # wall time the lag stop's span began
         self._lag_from = (0.0, 0.0)               # (t, lag in control periods) then

@@ -36,7 +36,9 @@ class CommandIntake:
         if self.record is not None:
             self.record.command(raw)
         data = self._command_in.read(raw)
-        self._last_command_t = t = answered_time(data)
+        t = answered_time(data)
+        if t is not None:
+            self._last_command_t = t
         prev = self._last_command_wall
         self._last_command_wall = wall = monotonic()
         if self._watchdog_warned:

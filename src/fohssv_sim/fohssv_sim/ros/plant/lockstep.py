@@ -111,8 +111,13 @@ class Lockstep:
             self._undelivered = None
             self._published_wall = now
             return
-        last = ('no command received at all' if self._last_command_t is None else
-                f'the last command answered t={time_text(self._last_command_t)} s')
+        if self._last_command_t is not None:
+            last = f'the last command answered t={time_text(self._last_command_t)} s'
+        elif self.received:
+            last = (f'{self.received} command(s) received, none answering a sample: empty or '
+                    'without a finite t')
+        else:
+            last = 'no command received at all'
         self._fail(EXIT_TIMEOUT,
                    f'lockstep timeout: the controller stalled: no command answering '
                    f't={time_text(self._awaiting)} s within command_timeout='

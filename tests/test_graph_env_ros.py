@@ -93,3 +93,19 @@ def test_ros_env_terminates_when_the_plant_loses_the_vehicle(ros_env):
 def test_ros_env_refuses_domain_randomisation():
     with pytest.raises(ParameterError, match='speed_range=.* is not supported by HSSVRos-v0'):
         gym.make(ROS_ENV_ID, speed_range=(70.0, 80.0))     # registered, made through Gymnasium
+
+
+def test_an_env_never_closed_still_stops_its_plant():
+    """A notebook or a failing script may never call close(): the plant the env started (its
+    own session, so a terminal's Ctrl-C does not reach it) ends when the env is collected."""
+    import gc
+
+    from fohssv_sim.ros.env import HSSVRosEnv
+
+    env = HSSVRosEnv(domain_id=rosproc.unique_domain_id(), episode_steps=10)
+    env.reset(seed=1)
+    proc = env.process
+    assert proc.poll() is None
+    del env
+    gc.collect()
+    assert proc.wait(timeout=20) is not None

@@ -28,6 +28,7 @@ import os
 import subprocess
 import tempfile
 import time
+import weakref
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -141,6 +142,9 @@ class HSSVRosEnv(gym.Env):
         self.process = subprocess.Popen([str(exe), *self.plant_args(x0)], env=env,
                                         stdout=self._log, stderr=subprocess.STDOUT, text=True,
                                         start_new_session=True)
+        # an env never closed (a notebook, a failing script) still stops its plant when it is
+        # collected or the interpreter exits: the plant would otherwise wait for a controller
+        weakref.finalize(self, _stop, self.process)
 
     def _plant_ended(self) -> str:
         """Why the plant the env started has ended ('' while it runs or when not ours)."""
@@ -271,14 +275,8 @@ class HSSVRosEnv(gym.Env):
     def close(self) -> None:
         """Stop the plant the env started (SIGINT, then SIGKILL after 10 s) and leave the
         ROS context."""
-        proc = self.process
-        if proc is not None and proc.poll() is None:
-            proc.send_signal(2)
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=5)
+        if self.process is not None:
+            _stop(self.process)
         if self._log is not None:
             self._log.close()
             self._log = None
@@ -309,3 +307,14 @@ def _context(domain_id: int | None) -> Any:
             else:
                 os.environ[k] = v
     return ctx
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    """SIGINT to a plant the env started, SIGKILL after 10 s."""
+    if proc.poll() is None:
+        proc.send_signal(2)
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=5)

@@ -21,7 +21,7 @@ DEMO_ARGS ?=
 TEST_WORKERS ?= 2
 TEST_PATHS := src/fohssv_sim/test src/fohssv_controller/test tests
 
-.PHONY: setup test demo bench bench-smoke lint lock clean help
+.PHONY: setup test demo bench bench-smoke launch-soak lint lock clean help
 .DEFAULT_GOAL := help
 
 help:
@@ -29,6 +29,7 @@ help:
 	@echo "make test   set up, then lint and run every test"
 	@echo "make bench  set up, then run the benchmarks (figures in bench/RESULTS.md)"
 	@echo "make bench-smoke  every benchmark's tiny case (CI runs it after make test)"
+	@echo "make launch-soak  the default closed loop ten times under load (CI runs it too)"
 	@echo "make setup  only create the venv and build the colcon workspace"
 
 $(VENV_STAMP): requirements.txt constraints.txt
@@ -74,6 +75,10 @@ demo: setup
 # that no longer starts fails CI (.ci/run runs it after `make test`).
 bench-smoke: setup
 	$(IN_ENV) python -m pytest -n $(TEST_WORKERS) -m bench_smoke tests/test_bench.py $(PYTEST_ARGS)
+
+# The default closed loop ten times with two busy loops beside it: every bag complete (CI).
+launch-soak: setup
+	FOHSSV_LAUNCH_RUNS=10 $(IN_ENV) python -m pytest -n 0 tests/test_launch_load.py $(PYTEST_ARGS)
 
 # Every benchmark, its figures and targets into bench/RESULTS.md (committed, overwritten each run).
 bench: setup

@@ -5,9 +5,8 @@ two busy processes beside it, and every bag complete.
 With ``launch`` and ``launch_ros`` importable (a full ROS 2 install, or the public sources on
 ``PYTHONPATH``) the launch file itself runs, as ``ros2 launch`` runs it; without them (the
 project's venv: launch is not on PyPI) the same node list runs as processes, started as the
-launch file starts them. ``make test`` runs one such run; the issue's ten:
-
-    FOHSSV_LAUNCH_RUNS=10 scripts/in-env python -m pytest -n 0 tests/test_launch_load.py
+launch file starts them. ``make test`` runs one such run; ``make launch-soak`` (CI runs it)
+runs ten.
 """
 
 from __future__ import annotations

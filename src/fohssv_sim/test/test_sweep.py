@@ -141,7 +141,7 @@ SWEEP = ['sweep', 'V', '--set', 'model=delay-free', '--speed', '75:90:5', '--tra
          '0.05', '--window', '0.05', '--chunk-size', '1', '--workers', '2']
 
 
-def test_interrupted_sweep_resumes_without_recomputing_finished_chunks(tmp_path):
+def test_interrupted_sweep_resumes_without_recomputing_finished_chunks(tmp_path, dask_cluster):
     out = tmp_path / 'sweep'
     proc = subprocess.Popen([str(FOHSSV), *SWEEP, '--out', str(out)], stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
@@ -157,8 +157,11 @@ def test_interrupted_sweep_resumes_without_recomputing_finished_chunks(tmp_path)
     assert finished, 'no chunk finished before the kill'
     side = json.loads((out / 'sweep.json').read_text())
     assert side['step'] == 1e-5 and side['solver'] == 'rk4' and len(side['chunks']) == 4
-    res = subprocess.run([str(FOHSSV), *SWEEP, '--out', str(out)], capture_output=True,
-                         text=True, timeout=300)
+    # the resumed run on the session's cluster of threads: what it resumes from is the
+    # folder, not the killed cluster (no worker processes to start a second time)
+    res = subprocess.run([str(FOHSSV), *SWEEP, '--out', str(out), '--scheduler',
+                          dask_cluster.scheduler_address], capture_output=True, text=True,
+                         timeout=300)
     assert res.returncode == 0, res.stderr
     assert f'{len(finished)} reused' in res.stdout or f'{4 - len(finished)} chunks computed' \
         in res.stdout
@@ -202,11 +205,12 @@ def test_sweep_rejects_bad_input_in_one_line(tmp_path, capfd):
 
 
 def test_progress_counts_points_inside_a_chunk_and_writes_lines_to_a_pipe(tmp_path):
-    # three FOM points batch into one chunk (one Dask task on one worker): progress still
-    # advances point by point, from the worker; stderr is a pipe, so no carriage returns
+    # three FOM points batch into one chunk (one Dask task on one worker process, so one
+    # worker is all it can use): progress still advances point by point, from the worker;
+    # stderr is a pipe, so no carriage returns
     r = subprocess.run([str(FOHSSV), 'sweep', 'alpha', '--set', 'solver=soe', '--alpha',
                         '0.8,0.9,1.0', '--speed', '84.5', '--transient', '0.05', '--window',
-                        '0.05', '--workers', '2', '--check-step', '1', '--out',
+                        '0.05', '--workers', '1', '--check-step', '1', '--out',
                         str(tmp_path / 's')], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     assert '1 chunks computed' in r.stdout

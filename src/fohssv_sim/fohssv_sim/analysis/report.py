@@ -56,7 +56,7 @@ class ReportSettings:
 
     @classmethod
     def quick(cls) -> ReportSettings:
-        return cls(duration=0.3, transient=0.2, window=0.1, alphas=(0.7, 0.85),
+        return cls(duration=0.3, transient=0.1, window=0.05, alphas=(0.7, 0.85),
                    speeds=(75.0, 84.5), grid_alphas=(0.7, 0.85), grid_speeds=(75.0, 84.5),
                    curve_speeds=(75.0, 80.0, 85.0, 90.0),
                    check_step=2, label=QUICK_LABEL)

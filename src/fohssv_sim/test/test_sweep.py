@@ -92,15 +92,20 @@ def test_classification_agrees_with_matignon_and_the_root_finder():
     base.pop('speed')
     s = SweepSpec(base=base, alphas=(0.7, 0.85), speeds=(84.5,), transient=0.5, window=0.3,
                   sample_every=2)
-    unstable = run_chunk(s.to_dict(), [1])[0]
+    # both points in one batch (one pass of the batch stepper for the two orders)
+    stable, unstable = run_chunk(s.to_dict(), [0, 1])
     assert unstable['label'].startswith('periodic') and unstable['amplitude'] > 0.05
-    r = simulate_batch([p.replace(solver='soe', fractional_order=0.7)], [StateFeedback()], 0.8,
-                       sample_every=2, record_from=0.5)
-    cls, _ = classify(r.t, r.states[0, :, 1])
+    assert stable['kind'] == 'steady'
+    # the stable point's end state from the compiled single run (batched = per-point runs:
+    # test_batched_points_equal_per_point_runs), also classified steady on its own
+    r = simulate(p.replace(solver='soe', fractional_order=0.7), StateFeedback(), 0.8,
+                 sample_every=2)
+    last = r.t >= 0.5
+    cls, _ = classify(r.t[last], r.state[last, 1])
     assert cls.kind == 'steady'
     # algebraic convergence: w is within 1e-4 after 0.8 s, the slow modes within a few 1e-3
-    assert abs(r.states[0, -1, 1] - eq.state[1]) < 1e-4
-    assert np.allclose(r.states[0, -1], eq.state, atol=[1e-3, 1e-4, 1e-3, 2e-2])
+    assert abs(r.state[-1, 1] - eq.state[1]) < 1e-4
+    assert np.allclose(r.state[-1], eq.state, atol=[1e-3, 1e-4, 1e-3, 2e-2])
 
 
 def test_alpha_star_is_within_one_grid_step_of_matignons_alpha_c():
@@ -141,7 +146,7 @@ SWEEP = ['sweep', 'V', '--set', 'model=delay-free', '--speed', '75:90:5', '--tra
          '0.05', '--window', '0.05', '--chunk-size', '1', '--workers', '2']
 
 
-def test_interrupted_sweep_resumes_without_recomputing_finished_chunks(tmp_path):
+def test_interrupted_sweep_resumes_without_recomputing_finished_chunks(tmp_path, dask_cluster):
     out = tmp_path / 'sweep'
     proc = subprocess.Popen([str(FOHSSV), *SWEEP, '--out', str(out)], stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
@@ -157,8 +162,11 @@ def test_interrupted_sweep_resumes_without_recomputing_finished_chunks(tmp_path)
     assert finished, 'no chunk finished before the kill'
     side = json.loads((out / 'sweep.json').read_text())
     assert side['step'] == 1e-5 and side['solver'] == 'rk4' and len(side['chunks']) == 4
-    res = subprocess.run([str(FOHSSV), *SWEEP, '--out', str(out)], capture_output=True,
-                         text=True, timeout=300)
+    # the resumed run on the session's cluster of threads: what it resumes from is the
+    # folder, not the killed cluster (no worker processes to start a second time)
+    res = subprocess.run([str(FOHSSV), *SWEEP, '--out', str(out), '--scheduler',
+                          dask_cluster.scheduler_address], capture_output=True, text=True,
+                         timeout=300)
     assert res.returncode == 0, res.stderr
     assert f'{len(finished)} reused' in res.stdout or f'{4 - len(finished)} chunks computed' \
         in res.stdout
@@ -202,11 +210,12 @@ def test_sweep_rejects_bad_input_in_one_line(tmp_path, capfd):
 
 
 def test_progress_counts_points_inside_a_chunk_and_writes_lines_to_a_pipe(tmp_path):
-    # three FOM points batch into one chunk (one Dask task on one worker): progress still
-    # advances point by point, from the worker; stderr is a pipe, so no carriage returns
+    # three FOM points batch into one chunk (one Dask task on one worker process, so one
+    # worker is all it can use): progress still advances point by point, from the worker;
+    # stderr is a pipe, so no carriage returns
     r = subprocess.run([str(FOHSSV), 'sweep', 'alpha', '--set', 'solver=soe', '--alpha',
                         '0.8,0.9,1.0', '--speed', '84.5', '--transient', '0.05', '--window',
-                        '0.05', '--workers', '2', '--check-step', '1', '--out',
+                        '0.05', '--workers', '1', '--check-step', '1', '--out',
                         str(tmp_path / 's')], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     assert '1 chunks computed' in r.stdout

@@ -47,6 +47,7 @@ class ReportSettings:
     speeds: tuple[float, ...] = tuple(np.round(np.arange(75.0, 90.001, 1.0), 4))
     grid_alphas: tuple[float, ...] = tuple(np.round(np.arange(0.70, 1.0001, 0.05), 4))
     grid_speeds: tuple[float, ...] = tuple(np.round(np.arange(75.0, 90.001, 2.5), 4))
+    curve_speeds: tuple[float, ...] = tuple(np.linspace(75.0, 90.0, 31))  # alpha_c(V) figure
     check_step: int = 4            # re-run every k-th sweep point at half step
     workers: int = 0
     scheduler: str | None = None
@@ -55,8 +56,9 @@ class ReportSettings:
 
     @classmethod
     def quick(cls) -> ReportSettings:
-        return cls(duration=0.3, transient=0.2, window=0.1, alphas=(0.7, 0.85),
+        return cls(duration=0.3, transient=0.1, window=0.05, alphas=(0.7, 0.85),
                    speeds=(75.0, 84.5), grid_alphas=(0.7, 0.85), grid_speeds=(75.0, 84.5),
+                   curve_speeds=(75.0, 80.0, 85.0, 90.0),
                    check_step=2, label=QUICK_LABEL)
 
 
@@ -165,8 +167,7 @@ def _stability(s: ReportSettings, out: Path, log: Callable[[str], None]) -> list
                              'it by simulation',
                  'verdict': 'holds' if (verdicts[0.85] and not verdicts[0.78]) else
                             'does not hold'})
-    speeds = np.linspace(75, 90, 31)
-    curve = critical_order_curve(p75, make('state_feedback'), speeds)
+    curve = critical_order_curve(p75, make('state_feedback'), s.curve_speeds)
     plot_critical_order(curve, [out / 'alpha_c_of_V.png', out / 'alpha_c_of_V.svg'], 0.85,
                         caption=f'{p75.model} model, planing {p75.planing_form}, eq. 31',
                         label=s.label)

@@ -310,7 +310,7 @@ def test_a_dead_writer_costs_the_lockstep_loop_a_count_per_lost_message(tmp_path
                                record_buffer=65536)
     assert code == 8, text
     deaths = [ln for ln in text.splitlines() if 'writer process was killed by SIGKILL' in ln]
-    assert len(deaths) == 1 and 'at t=0.0 s' in deaths[0], text
+    assert len(deaths) == 1 and 'noticed at t=0.0 s' in deaths[0], text
     assert 'fell behind' not in text, text
     summary, unrecorded = rosproc.summary(text), rosproc.summary(plain)
     recorded = rosproc.summary(live)

@@ -314,8 +314,8 @@ class InPlantRecording:
         self.failed = f'the writer process {cause}'
         self.put = self._lose
         self.node.get_logger().error(
-            f'in-plant recording: {self.failed} at t={time_text(self.node.sim.t)} s: the run '
-            f'goes on, what follows is not recorded (counted as record_lost; exit '
+            f'in-plant recording: {self.failed} (noticed at t={time_text(self.node.sim.t)} s): '
+            f'from then on the run is not recorded (counted as record_lost; exit '
             f'{EXIT_RECORD_LOST}); {held}')
 
     # -- start and end ----------------------------------------------------------------------

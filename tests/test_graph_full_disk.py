@@ -13,7 +13,7 @@ import pytest
 import rclpy
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray
-from test_graph_support import stop_all
+from test_graph_support import plant_args, stop_all
 
 from fohssv_sim.bag import load_run
 
@@ -81,3 +81,79 @@ def test_a_full_disk_ends_in_one_line_and_the_bag_repairs(small_disk, tmp_path):
                              env=env, timeout=120)
     assert checked.returncode == 0, checked.stdout + checked.stderr
     assert load_run(bag).topics['/state'] > 1000
+
+
+def _fill(disk) -> None:
+    """Fill ``disk`` to its last byte."""
+    fd = os.open(disk / 'filler', os.O_WRONLY | os.O_CREAT)
+    try:
+        while os.write(fd, b'\0' * 512):
+            pass
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _hosted_plant(bag, log):
+    """A hosted lockstep run of 1 s at 1e-4 s (10 001 samples, about 2.5 MB of messages)
+    recorded in-plant to ``bag``."""
+    return rosproc.start('fohssv_sim', 'plant', plant_args(
+        model='delay-free', mode='lockstep', duration=1.0, control_period=1e-4,
+        controller='state_feedback', min_state_subscribers=0, end_linger=0.0,
+        record=str(bag)), env=rosproc.ros_env(), log=log)
+
+
+def test_inplant_recording_onto_a_full_disk_is_refused_and_leaves_nothing(small_disk,
+                                                                          tmp_path):
+    """Issue 51.5: the disk is full before the run: the plant refuses ``record`` in one line
+    naming "No space left" (exit 2), and leaves no bag directory behind (a 0-byte bag.mcap
+    blocked the path before)."""
+    _fill(small_disk)
+    bag, log = small_disk / 'bag', tmp_path / 'plant.log'
+    plant = _hosted_plant(bag, log)
+    try:
+        code = rosproc.wait_exit(plant, 120)
+    finally:
+        stop_all(plant)
+    text = log.read_text()
+    assert code == 2, text
+    assert 'Traceback' not in text, text
+    lines = [ln for ln in text.splitlines() if 'No space left' in ln]
+    assert len(lines) == 1 and 'record' in lines[0], text
+    assert not bag.exists()
+
+
+def test_inplant_recording_that_fills_the_disk_says_so_once_and_counts_the_rest(small_disk,
+                                                                                 tmp_path):
+    """Issue 51.5: a small disk fills during the run: one line naming "No space left" (no
+    writer traceback), the run goes on and ends with exit 8, and the summary's record_lost
+    covers every message the bag lacks (the run's 4 a sample: state, force, clock and a
+    command for each sample but the last, and the views, counted against the bag repaired;
+    the messages the writer took since its last flush count as lost, so record_lost may
+    exceed the shortfall, never fall short of it). The disk holds one 1 MiB chunk of the
+    bag, not all of it."""
+    subprocess.run(['mount', '-o', 'remount,size=1600k', str(small_disk)], check=True)
+    bag, log = small_disk / 'bag', tmp_path / 'plant.log'
+    plant = _hosted_plant(bag, log)
+    try:
+        code = rosproc.wait_exit(plant, 300)
+    finally:
+        stop_all(plant)
+    text = log.read_text()
+    assert code == 8, text
+    assert 'Traceback' not in text, text
+    lines = [ln for ln in text.splitlines() if 'No space left' in ln]
+    assert len(lines) == 1 and 'in-plant recording: the writer process failed' in lines[0], text
+    summary = rosproc.summary(text)
+    # a view is 5 messages: pose, twist, wrench and two markers (the body, the cavity)
+    made = (3 * summary['published_states'] + summary['hosted_commands']
+            + 5 * summary['views'])
+    subprocess.run(['mount', '-o', 'remount,size=8m', str(small_disk)], check=True)
+    fohssv = rosproc.executable('fohssv_sim', 'fohssv')
+    repaired = subprocess.run([str(fohssv), 'repair', str(bag)], capture_output=True,
+                              text=True, timeout=120)
+    assert repaired.returncode == 0, repaired.stdout + repaired.stderr
+    held = sum(load_run(bag).topics.values())
+    assert 0 < held < made
+    assert made - held <= summary['record_lost'] <= made, (held, made, summary['record_lost'])

@@ -273,3 +273,52 @@ def test_a_killed_plant_leaves_a_bag_that_repair_restores(tmp_path, kill_writer)
     assert states > 100 and states - forces in (0, 1), (states, forces)
     assert_doctor_clean(_mcap(bag))
 
+
+
+def _lockstep_run(tmp_path, name: str, kill_writer: bool = False, **record) -> tuple[int, str]:
+    """A hosted lockstep run of 1 s at 1e-4 s (10 001 samples), its exit code and log; with
+    ``kill_writer``, its writer SIGKILLed as soon as it is named (while it loads, before the
+    run starts: the plant waits for it)."""
+    log = tmp_path / f'{name}.log'
+    plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+        model='delay-free', mode='lockstep', duration=1.0, control_period=1e-4,
+        controller='state_feedback', min_state_subscribers=0, end_linger=0.0, **record),
+        env=rosproc.ros_env(), log=log)
+    try:
+        if kill_writer:
+            os.kill(_writer(log), signal.SIGKILL)
+        code = rosproc.wait_exit(plant, 300)
+    finally:
+        stop_all(plant)
+    return code, log.read_text()
+
+
+def test_a_dead_writer_costs_the_lockstep_loop_a_count_per_lost_message(tmp_path):
+    """Issue 51.3: the writer SIGKILLed and a 64 KiB ring that fills at once: every message
+    of the run is lost, and each costs a count, no more than the put it replaces: no wait, no
+    log line, no look at the process (170-270 us each before: the loop fell to a few hundred
+    samples a second). The same run three times: unrecorded, recorded, recorded with its
+    writer killed. The last keeps the rate of the first within the cost of recording, and
+    costs no more CPU a sample than the second; the death is said once, with its cause; the
+    summary counts every message the run made (4 a sample: state, force, clock, a command
+    answering each sample but the last, and the views); exit 8."""
+    code, plain = _lockstep_run(tmp_path, 'plain')
+    assert code == 0, plain
+    code, live = _lockstep_run(tmp_path, 'live', record=str(tmp_path / 'live'))
+    assert code == 0, live
+    code, text = _lockstep_run(tmp_path, 'dead', kill_writer=True, record=str(tmp_path / 'bag'),
+                               record_buffer=65536)
+    assert code == 8, text
+    deaths = [ln for ln in text.splitlines() if 'writer process was killed by SIGKILL' in ln]
+    assert len(deaths) == 1 and 'noticed at t=0.0 s' in deaths[0], text
+    assert 'fell behind' not in text, text
+    summary, unrecorded = rosproc.summary(text), rosproc.summary(plain)
+    recorded = rosproc.summary(live)
+    assert summary['published_states'] == unrecorded['published_states'] == 10001
+    # a view is 5 messages: pose, twist, wrench and two markers (the body, the cavity)
+    made = (3 * summary['published_states'] + summary['hosted_commands']
+            + 5 * summary['views'])
+    assert summary['record_lost'] == made
+    assert recorded['record_lost'] == 0
+    assert summary['samples_per_second'] > 0.25 * unrecorded['samples_per_second'], text
+    assert summary['cpu_per_sample_us'] < 1.5 * recorded['cpu_per_sample_us'], text

@@ -33,6 +33,14 @@ writer paces the loop; counted as ``record_waits``), in real time it counts the 
 (``record_lost``, logged at once, in the summary, and in the bag's ``run_end`` check: the
 writer names each topic's shortfall and the plant exits 8).
 
+A writer that cannot write (a full disk, an I/O error) answers one line, the error in words
+("No space left on device") and the messages it took since its last flush (``unsaved``: the
+plant counts them as lost, with what it leaves in the ring; some may have reached the disk in a
+chunk), and exits 1 without a traceback; the plant goes on unrecorded and exits 8. A bag
+directory none of whose files holds a byte (a disk full from the start) is removed: nothing
+blocks the path. At open the writer flushes the bag's first bytes, so a disk full from the
+start refuses ``record`` at once (exit 2).
+
 Pure module: no rclpy.
 """
 
@@ -43,6 +51,7 @@ import json
 import os
 import pickle
 import select
+import shutil
 import signal
 import struct
 import sys
@@ -50,6 +59,7 @@ import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
+from pathlib import Path
 from typing import Any, BinaryIO
 
 from .. import contract
@@ -198,6 +208,10 @@ class _Session:
                 self._log.append(times.clock)
             else:
                 self._log.append(lambda raw, _type=t.type: times.stamped(raw, _type))
+        # the bag's first bytes to the disk now: a full disk refuses the bag at its start
+        self.writer.flush()
+        self.taken = 0             # records taken from the ring (and released)
+        self.saved = 0             # of which handed to the OS by the last flush that succeeded
         ids = self.writer.channel_ids()
         self._channel = [ids[t.name] for t in self.topics]
         self.expected: dict[str, int] | None = None
@@ -237,13 +251,20 @@ class _Session:
         """Write what the ring holds (at most ``limit`` bytes of records) in one batch;
         records written."""
         if self.packer is not None:
-            return self.packer.drain(limit)
-        records = self.ring.take(limit)
-        if not records:
-            return 0
-        self._write(records)
-        self.ring.release()
-        return len(records)
+            n = self.packer.drain(limit)
+        else:
+            records = self.ring.take(limit)
+            if not records:
+                return 0
+            self._write(records)
+            self.ring.release()
+            n = len(records)
+        self.taken += n
+        return n
+
+    def flush(self) -> None:
+        self.writer.flush()
+        self.saved = self.taken
 
     def _write(self, records: list[tuple[int, memoryview]]) -> None:
         """The interpreted path: ``(index, bytes)`` records into the bag."""
@@ -306,7 +327,7 @@ def _serve(session: _Session, control: _Control, flush_period: float) -> str | N
         rate = backlog / max(now - last_look, 1e-6)             # bytes per second
         last_look = now
         if now - last_flush >= flush_period:
-            session.writer.flush()
+            session.flush()
             last_flush = now
         sleep = min(_IDLE, quarter / rate if rate > 0 else _IDLE,
                     max(0.0, last_flush + flush_period - now))
@@ -317,6 +338,26 @@ def _serve(session: _Session, control: _Control, flush_period: float) -> str | N
                 return message[1]
         if control.eof:
             return None
+
+
+def _os_text(exc: Exception) -> str:
+    """An error in a few words: an OSError's text ("No space left on device") without its
+    number and file name (the caller names the bag)."""
+    return (exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc))
+
+
+def _remove_if_empty(path: str) -> bool:
+    """Remove the bag directory ``path`` the writer made when none of its files holds a byte
+    (a disk full from the start): nothing is left to block the path. The plant checked that
+    ``path`` did not exist before. Whether it was removed."""
+    bag = Path(path)
+    try:
+        if bag.is_dir() and all(f.is_file() and f.stat().st_size == 0 for f in bag.iterdir()):
+            shutil.rmtree(bag)
+            return True
+    except OSError:
+        pass
+    return False
 
 
 def _yield_to_the_loop() -> None:
@@ -352,16 +393,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         session = _Session(config, ring)
     except Exception as exc:  # noqa: BLE001 - reported to the plant in one line
-        _reply(out, {'error': f'{config.path}: {exc}'})
+        _remove_if_empty(config.path)
+        _reply(out, {'error': f'{config.path}: {_os_text(exc)}'})
         return 1
     _reply(out, {'opened': config.path, 'pid': os.getpid()})
     compiled = session.use_compiled()   # before the run: the plant waits for 'ready'
     _reply(out, {'ready': True, 'compiled': compiled, 'load_cpu_time': session.load_cpu,
                  'error': session.compile_error})
-    run_end = _serve(session, control, config.flush_period)
-    while session.drain():
-        pass
-    result = session.end(run_end)
+    try:
+        run_end = _serve(session, control, config.flush_period)
+        while session.drain():
+            pass
+        result = session.end(run_end)
+    except OSError as exc:   # a full disk, an I/O error: one line for the plant, no traceback
+        _reply(out, {'error': f'{config.path}: {_os_text(exc)}',
+                     'unsaved': session.taken - session.saved,
+                     'removed': _remove_if_empty(config.path)})
+        return 1
     _reply(out, result)
     if result['missing'] or result['lost']:
         return EXIT_LOST

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import os
 import select
+import signal
 import subprocess
 import sys
 import time
@@ -43,7 +44,9 @@ from .qos import offered_qos
 __all__ = ['InPlantRecording', 'start', 'check_record', 'EXIT_RECORD_LOST']
 
 #: Plant exit code when its in-plant bag misses messages (a realtime writer that fell
-#: behind, or a writer that failed); the run itself ended well otherwise.
+#: behind, or a writer that died); the run itself ended well otherwise. A writer's death
+#: does not stop the run: it goes on at full speed, each message it can no longer record
+#: costs a failed put and a count (``record_lost`` in the summary).
 EXIT_RECORD_LOST = 8
 #: Wall seconds to wait for the writer to open the bag.
 _OPEN_TIMEOUT = 60.0
@@ -52,6 +55,8 @@ _CLOSE_STALL = 30.0
 #: Wall seconds a run that ended waits for the controller node's name (the bag's
 #: ``fohssv.controller``) before its bag is closed without it.
 _NAME_WAIT = 5.0
+#: Wall seconds between two "the writer fell behind" lines (and checks of the writer's life).
+_SAY_EVERY = 1.0
 #: Wall seconds the run's start waits for the writer to be ready (its compiled path loaded:
 #: 0.4-0.5 s from numba's cache, a few seconds the first time).
 _READY_TIMEOUT = 30.0
@@ -89,10 +94,15 @@ class InPlantRecording:
         self.path = path
         self.lockstep = node.options.mode == 'lockstep'
         self.ring = Ring.create(node.options.record_buffer)
+        #: the per-message put: the ring's, or once the writer is dead :meth:`_lose`
+        self.put = self.ring.put
         self.waits = 0
         self.wait_seconds = 0.0
         self.lost = 0
         self._woken_at = -1
+        self._unsaved = 0         # records a failed writer had taken but not saved
+        self._left: int | None = None   # records a dead writer left in the ring (finish)
+        self._say_at = 0.0        # monotonic time of the next "fell behind" line (_fell_behind)
         self.failed = ''
         self.result: dict | None = None
         self._ended = False
@@ -145,6 +155,10 @@ class InPlantRecording:
                 how = 'compiled' if reply.get('compiled') else 'interpreted'
                 log.info(f'in-plant recording: writer ready ({how} path, {waited})')
             return
+        try:           # its pipe closes just before it can be reaped: a moment for that
+            self.proc.wait(timeout=0.5)
+        except subprocess.TimeoutExpired:
+            pass
         if self.proc.poll() is not None:
             self._writer_failed()
             return
@@ -173,13 +187,13 @@ class InPlantRecording:
         what the bag holds (the serializer leaves alignment padding undefined)."""
         index = self._index[pub.topic_name]
         publish = pub.publish
-        put = self.ring.put
+        rec = self
         full = self._full
 
         def publish_recorded(msg: Any) -> None:
             data = msg if isinstance(msg, (bytes, bytearray)) else serialize_message(msg)
             publish(data)
-            if not put(index, data):
+            if not rec.put(index, data):
                 full(index, data)
 
         pub.publish = publish_recorded
@@ -194,18 +208,18 @@ class InPlantRecording:
         reads), and put into the ring either way."""
         index = self._index[topic_name]
         send = getattr(node, attr)
-        put = self.ring.put
+        rec = self
         full = self._full
 
         def send_recorded(data: bytes) -> Any:
             result = send(data)
-            if not put(index, data):
+            if not rec.put(index, data):
                 full(index, data)
             return result
 
         def send_if_wanted(data: bytes) -> Any:
             result = send(data) if getattr(node, wanted) else None
-            if not put(index, data):
+            if not rec.put(index, data):
                 full(index, data)
             return result
 
@@ -215,47 +229,94 @@ class InPlantRecording:
         """Put a message the plant published without its tapped publish call (the compiled
         lockstep sample's state) into the ring, as :meth:`tap_send`'s call does."""
         index = self._index[topic_name]
-        if not self.ring.put(index, data):
+        if not self.put(index, data):
             self._full(index, data)
 
     def command(self, raw: bytes) -> None:
         """A command the plant took while running (the raw bytes it received)."""
-        if not self.ring.put(self.command_index, raw):
+        if not self.put(self.command_index, raw):
             self._full(self.command_index, raw)
 
     def _full(self, index: int, data: bytes) -> None:
         """The ring is full: lockstep waits for the writer (it paces the run), real time
-        counts the record as lost and says so at once."""
-        if self.lockstep and not self.failed:
-            begin = time.monotonic()
-            self.waits += 1
-            self.ring.add_wait()
-            self._send(('wake',))            # the writer sleeps between batches: now
-            while not self.ring.put(index, data):
-                if self.proc.poll() is not None:
-                    self._writer_failed()
-                    break
-                time.sleep(0.0002)
-            self.wait_seconds += time.monotonic() - begin
-            return
-        if not self.failed and self.proc.poll() is not None:
-            self._writer_failed()
+        counts the record as lost, says so at once and then at most once a second. Once the
+        writer is dead (said once, with its cause, by :meth:`_writer_failed`) :attr:`put` is
+        :meth:`_lose`: a record costs its count only, no wait, no wake, no log line; the run
+        goes on at full speed and ends with :data:`EXIT_RECORD_LOST` (:meth:`finish`)."""
+        if not self.failed:
+            if self.lockstep:
+                begin = time.monotonic()
+                self.waits += 1
+                self.ring.add_wait()
+                self._send(('wake',))            # the writer sleeps between batches: now
+                while not self.ring.put(index, data):
+                    if self.proc.poll() is not None:
+                        self._writer_failed()
+                        break
+                    time.sleep(0.0002)
+                self.wait_seconds += time.monotonic() - begin
+                if not self.failed:
+                    return
+            else:
+                self._fell_behind(index)
+        self.lost += 1
+        self.ring.add_lost()
+
+    def _lose(self, index: int, data: bytes) -> bool:
+        """:attr:`put` once the writer is dead: the record counted as lost, nothing else."""
+        self.lost += 1
+        return True
+
+    def _fell_behind(self, index: int) -> None:
+        """A live writer's ring is full in real time: wake it once per batch it took, check
+        that it lives and say so at the first loss, then at most every
+        :data:`_SAY_EVERY` wall seconds (checked here, not by a throttled logger, whose
+        call-site lookup costs more than the put)."""
         tail = self.ring.consumed
         if tail != self._woken_at:           # once per batch the writer took since: wake it
             self._woken_at = tail
             self._send(('wake',))
-        self.lost += 1
-        self.ring.add_lost()
+        now = time.monotonic()
+        if now < self._say_at:
+            return
+        self._say_at = now + _SAY_EVERY
+        if self.proc.poll() is not None:
+            self._writer_failed()
+            return
         name = self.config.topics[index].name
         self.node.get_logger().error(
             f'in-plant recording: the writer fell behind: ring of {self.ring.capacity} bytes '
-            f'full at t={time_text(self.node.sim.t)} s, a {name} message not recorded ({self.lost} '
-            'lost so far; record_buffer is the ring size)', throttle_duration_sec=1.0)
+            f'full at t={time_text(self.node.sim.t)} s, a {name} message not recorded '
+            f'({self.lost + 1} lost so far; record_buffer is the ring size)')
 
-    def _writer_failed(self) -> None:
-        self.failed = f'the writer process exited with code {self.proc.returncode}'
-        self.node.get_logger().error(f'in-plant recording: {self.failed}; {self.path} holds '
-                                     'what it wrote (fohssv repair completes a cut bag)')
+    def _writer_failed(self, cause: str = '', reply: dict | None = None) -> None:
+        """The writer process died (or ``cause``): said once, with its cause: its own line
+        (``reply``, or read now: "No space left on device"), else how it ended."""
+        if self.failed:
+            return
+        while reply is None and not cause:
+            reply = self._reply(0)
+            if reply is None:
+                break
+            if not _failure(reply):
+                reply = None                # a late 'ready': the next line
+        held = f'{self.path} holds what it wrote (fohssv repair completes a cut bag)'
+        code = self.proc.returncode
+        if reply is not None:
+            cause = f'failed: {reply["error"]}'
+            self._unsaved = int(reply.get('unsaved', 0))
+            if reply.get('removed'):
+                held = f'nothing was written: {self.path} removed'
+        elif not cause:
+            cause = (f'was killed by {signal.Signals(-code).name}' if code is not None
+                     and code < 0 and -code in signal.valid_signals()
+                     else f'exited with code {code}')
+        self.failed = f'the writer process {cause}'
+        self.put = self._lose
+        self.node.get_logger().error(
+            f'in-plant recording: {self.failed} (noticed at t={time_text(self.node.sim.t)} s): '
+            f'from then on the run is not recorded (counted as record_lost; exit '
+            f'{EXIT_RECORD_LOST}); {held}')
 
     # -- start and end ----------------------------------------------------------------------
     def metadata(self, values: dict[str, Any]) -> None:
@@ -368,13 +429,15 @@ class InPlantRecording:
             if not self._ended:          # no run_end (an error): the writer takes EOF as such
                 self._close_control()
             self.result = self._wait_closed()
+            self._left = self._unwritten() if self.failed else 0
             self._close_control()
             self.ring.close()
         r = self.result or {}
         log = self.node.get_logger()
         if 'closed' not in r:
-            log.error(f'in-plant recording: {self.failed or "the writer did not close the bag"}'
-                      f'; {self.path} holds what it wrote (fohssv repair completes a cut bag)')
+            if not self.failed:        # a dead writer was said when it was found dead
+                log.error(f'in-plant recording: the writer did not close the bag; {self.path} '
+                          'holds what it wrote (fohssv repair completes a cut bag)')
             return code or EXIT_RECORD_LOST
         counts = ', '.join(f'{k}: {v}' for k, v in r['counts'].items())
         if r['missing'] or r['lost']:
@@ -407,6 +470,9 @@ class InPlantRecording:
             reply = self._reply(0.2)
             if reply is not None and 'ready' in reply:
                 continue                 # a run that never started, or a late 'ready'
+            if reply is not None and _failure(reply):
+                self._writer_failed(reply=reply)
+                return None
             if reply is not None:     # the bag is closed (the process ends on its own: reap)
                 return reply
             if self.proc.poll() is not None:
@@ -417,13 +483,32 @@ class InPlantRecording:
                 last_used, since = used, time.monotonic()
             elif time.monotonic() - since > _CLOSE_STALL:
                 self.proc.kill()
-                self.failed = f'the writer made no progress for {_CLOSE_STALL:g} s'
+                self._writer_failed(f'made no progress for {_CLOSE_STALL:g} s')
                 return None
 
+    def _unwritten(self) -> int:
+        """Records in the ring that a dead writer never took (read through a second view of
+        the mapping: the plant's own ring is the producer's)."""
+        view = Ring(os.dup(self.ring.fd), self.ring.size)
+        try:
+            return len(view.take())
+        finally:
+            view.close()
+
     def summary(self) -> dict[str, Any]:
-        """The recording's figures for the plant's summary."""
-        return {'record': str(self.path), 'record_lost': self.lost,
+        """The recording's figures for the plant's summary; with the writer dead, its lost
+        records include those it left in the ring."""
+        if self._left is None and not self.failed and self.proc.poll() is not None:
+            self._writer_failed()
+        left = self._left if self._left is not None else (
+            self._unwritten() if self.failed else 0)
+        return {'record': str(self.path), 'record_lost': self.lost + left + self._unsaved,
                 'record_waits': self.waits, 'record_wait_time': self.wait_seconds}
+
+
+def _failure(reply: dict) -> bool:
+    """Whether a writer's reply is its last line before it gave up (a full disk)."""
+    return 'error' in reply and 'ready' not in reply
 
 
 def _command_name(node: Any) -> str:

@@ -20,6 +20,7 @@ from test_graph_support import batch_samples, plant_args, stop_all
 from fohssv_controller.state_feedback import StateFeedback
 from fohssv_sim.bag import load_run
 from fohssv_sim.ros.faults import REFUSE_STATE_VAR, STALL_STATE_VAR
+from fohssv_sim.ros.loop import time_text
 from fohssv_sim.ros.plant_node import EXIT_PUBLISH_FAILED
 
 import rosproc
@@ -85,8 +86,8 @@ def test_a_refused_sample_ends_the_run_with_exit_9_and_the_bag_agrees(tmp_path, 
     # retry time and rclpy's error
     errors = [ln for ln in text.splitlines() if '[ERROR]' in ln]
     assert len(errors) == 1, text
-    assert (f'/state: the sample at t={float(ref[N, 0])!r} s could not be published for 1 s '
-            '(Failed to publish: ' in errors[0]), errors
+    assert (f'/state: the sample at t={time_text(float(ref[N, 0]))} s could not be published '
+            'for 1 s (Failed to publish: ' in errors[0]), errors
     assert errors[0].rstrip().endswith('; stopping the run'), errors
     summary = rosproc.summary(text)
     assert summary['published_states'] == N and summary['publish_retries'] == 1, summary
@@ -128,7 +129,7 @@ def test_a_refusal_shorter_than_the_retry_loses_nothing(tmp_path):
     run = _run(tmp_path, '300:50', False, duration=duration)
     assert run.code == 0, run.plant
     assert 'stopping cleanly at t=' in run.plant and '[ERROR]' not in run.plant, run.plant
-    assert f'/state: publishing the sample at t={float(ref[300, 0])!r} failed' in run.plant
+    assert f'/state: publishing the sample at t={time_text(float(ref[300, 0]))} failed' in run.plant
     summary = rosproc.summary(run.plant)
     assert summary['publish_retries'] == 1 and summary['published_states'] == len(ref)
     assert run.rcode == 0, run.recorder

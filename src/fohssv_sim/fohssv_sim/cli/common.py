@@ -170,6 +170,8 @@ def _check_coefficients(params: ModelParameters, given: dict[str, Any]) -> None:
         c = coefficients(params)
         finite = all(math.isfinite(float(v)) for v in vars(c).values()
                      if isinstance(v, (int, float)))
+    except ParameterError as e:          # coefficients() names the values that overflow
+        raise CliError(f'the model cannot be evaluated at {shown}: {e}') from None
     except (OverflowError, ZeroDivisionError, FloatingPointError, ValueError) as e:
         raise CliError(f'the model cannot be evaluated at {shown}: {type(e).__name__} ({e}) '
                        'in its coefficients (docs/model.md §3); give smaller values') from None

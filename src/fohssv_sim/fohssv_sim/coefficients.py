@@ -93,7 +93,8 @@ def coefficients(p: ModelParameters) -> Coefficients:
         c = _coefficients(p)
     except (OverflowError, ZeroDivisionError, ValueError):
         c = None
-    if c is None or not np.isfinite(c.kernel).all():
+    if c is None or not all(math.isfinite(v) for v in (*c.kernel, c.C, c.S, c.T, c.K1, c.K2,
+                                                        c.Rc)):
         changed = ', '.join(f'{s.name}={getattr(p, s.name)!r}' for s in PARAMETERS
                             if isinstance(s.default, float) and getattr(p, s.name) != s.default)
         raise ParameterError(f"the model's coefficients overflow with {changed or 'these values'}"

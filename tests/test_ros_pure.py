@@ -44,7 +44,7 @@ from fohssv_sim.ros.options import (
     usable_cpus,
     view_samples,
 )
-from fohssv_sim.ros.ros_params import _coerce, descriptor, python_value, ros_type
+from fohssv_sim.ros.ros_params import _coerce, check_value, descriptor, python_value, ros_type
 from fohssv_sim.ros.spin import (
     CPU_LATENCY_DEVICE,
     NO_LATENCY_LIMIT,
@@ -415,6 +415,27 @@ def test_descriptor_carries_unit_range_and_read_only():
     assert d.name == 'speed' and '[m/s]' in d.description
     assert d.additional_constraints.startswith('allowed: ')
     assert d.read_only == spec.needs_reset
+    # typed by the one check (check_value), so a wrong type gets the row's words, not rclpy's
+    assert d.dynamic_typing
+
+
+def test_one_check_refuses_a_wrong_type_in_the_rows_words():
+    by_name = {s.name: s for s in PARAMETERS + NODE_PARAMETERS}
+    cases = [('speed', "'abc'", "speed='abc' is a string, not a number"),
+             ('speed', "'1e400'", 'is beyond the range of a double (about 1.8e308), so ROS '
+              'passed it as a string'),
+             ('profile', '1.5', 'profile=1.5 is not a whole number'),
+             ('model', '3', 'model=3 is an integer, not a name'),
+             ('step', '[1.0]', 'step=[1.0] is an array'),
+             ('step', '0.5', 'step=0.5 is outside the allowed range')]
+    for name, text, words in cases:
+        spec = by_name[name]
+        value = _coerce(ros_type(spec), eval(text))
+        with pytest.raises(ParameterError) as err:
+            check_value(spec, ros_type(spec), value)
+        assert words in str(err.value), (name, str(err.value))
+    speed = by_name['speed']
+    check_value(speed, ros_type(speed), _coerce(ros_type(speed), 80))   # an int is taken
 
 
 def test_integers_for_double_rows_become_doubles():
@@ -425,6 +446,9 @@ def test_integers_for_double_rows_become_doubles():
     mixed = [0, 1.5]
     assert _coerce(DA, mixed) is mixed
     assert _coerce(ParameterType.PARAMETER_INTEGER, 3) == 3
+    assert _coerce(ParameterType.PARAMETER_INTEGER, 3.0) == 3 and \
+        isinstance(_coerce(ParameterType.PARAMETER_INTEGER, 3.0), int)
+    assert _coerce(ParameterType.PARAMETER_INTEGER, 3.5) == 3.5
     assert python_value([1.0, 2.0]) == (1.0, 2.0) and python_value('auto') == 'auto'
 
 

@@ -89,7 +89,11 @@ def test_invalid_parameter_change_is_refused_and_the_run_is_untouched(graph, cap
             'simulated seconds per wall second)') in open_bound.reason
     read_only = results[('speed', 80.0)]
     assert not read_only.successful and 'read-only' in read_only.reason
-    assert not results[('command_timeout', 'long')].successful
+    wrong_type = results[('command_timeout', 'long')]
+    # the row's own line (issue 51.11: not rclpy's "expected '3' got '4'")
+    assert not wrong_type.successful
+    assert "command_timeout='long' is a string, not a number" in wrong_type.reason, \
+        wrong_type.reason
     assert results[('watchdog_timeout', 0.5)].successful
     assert [plant.get_parameter(n).value for n in
             ('real_time_factor', 'speed', 'watchdog_timeout')] == [1.0, 75.0, 0.5]

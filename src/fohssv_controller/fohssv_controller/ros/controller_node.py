@@ -50,6 +50,7 @@ from fohssv_sim.params import ParameterSpec, field_specs
 from fohssv_sim.ros.nodekit import (
     CPU_AFFINITY,
     CPU_DMA_LATENCY,
+    NODE_OPTIONS,
     PLUGIN_FAULTS,
     ArrayReader,
     ArrayWriter,
@@ -95,7 +96,7 @@ class ControllerNode(Node):
     @destroy_on_error
     def __init__(self, default_controller: str | type[Controller] = 'state_feedback',
                  **kwargs: Any) -> None:
-        super().__init__('controller', **kwargs)
+        super().__init__('controller', **NODE_OPTIONS, **kwargs)
         if isinstance(default_controller, type):
             self.cls = default_controller
         else:

@@ -58,6 +58,7 @@ from .spin import (
 )
 from .startup import (
     EXIT_BAD_PARAMETERS,
+    NODE_OPTIONS,
     BadParameters,
     declare_rows,
     destroy_on_error,
@@ -69,7 +70,7 @@ from .startup import (
 )
 from .wire import ArrayReader, ArrayWriter, ClockWriter, array_message, message_class
 
-__all__ = ['run_node', 'spin_node', 'EXIT_OK', 'EXIT_BAD_PARAMETERS',
+__all__ = ['run_node', 'spin_node', 'EXIT_OK', 'EXIT_BAD_PARAMETERS', 'NODE_OPTIONS',
            'array_message', 'message_class', 'ArrayReader', 'ArrayWriter', 'ClockWriter',
            'profile', 'offered_qos', 'declare', 'install_validation', 'declare_rows',
            'refuse_unknown', 'error_line', 'destroy_on_error', 'BadParameters', 'make_executor',

@@ -69,7 +69,7 @@ class CpusSpec(ParameterSpec):
     run on."""
 
     numeric: bool = False
-    #: a ROS array is one of its forms (startup.precheck lets it through)
+    #: a ROS array is one of its forms (ros_params.check_value lets it through)
     accepts_array = True
 
     def range_text(self) -> str:

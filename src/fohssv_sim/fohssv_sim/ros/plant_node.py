@@ -83,6 +83,7 @@ from .loop import (
     time_text,
 )
 from .nodekit import (
+    NODE_OPTIONS,
     STOP,
     ArrayReader,
     ArrayWriter,
@@ -156,7 +157,7 @@ class PlantNode(StartGate, Publishing, HostedRoom, Lockstep, CompiledTaking, Rea
 
     @destroy_on_error
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__('plant', **kwargs)
+        super().__init__('plant', **NODE_OPTIONS, **kwargs)
         values = declare(self, PARAMETERS + NODE_PARAMETERS)
         self._law_started = 0.0                   # hosted: perf_counter of the call in progress
         self._law_watch_end = threading.Event()   # ends the hung-law watch (at the run's end)

@@ -70,6 +70,7 @@ from ..bag.replay import (
 )
 from .bag_options import PLAYER_MODES, PLAYER_PARAMETERS, PlayerOptions
 from .nodekit import (
+    NODE_OPTIONS,
     STOP,
     HoldReporter,
     SubscriptionGate,
@@ -116,7 +117,7 @@ class Player(Node):
 
     @destroy_on_error
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__('player', **kwargs)
+        super().__init__('player', **NODE_OPTIONS, **kwargs)
         self.options = PlayerOptions(**declare(self, PLAYER_PARAMETERS))
         refuse_unknown(self)
         self.scan = scan(self.options.bag_path)          # BagError: one line from main

@@ -93,6 +93,7 @@ from .bag_options import (
 )
 from .matching import UNKNOWN_NODE, node_path
 from .nodekit import (
+    NODE_OPTIONS,
     STOP,
     SecondPublisherWarning,
     declare,
@@ -188,7 +189,7 @@ class Recorder(Node):
 
     @destroy_on_error
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__('recorder', **kwargs)
+        super().__init__('recorder', **NODE_OPTIONS, **kwargs)
         self.options = RecorderOptions(**declare(self, RECORDER_PARAMETERS))
         refuse_unknown(self)
         self.end_timeout = self.options.end_timeout

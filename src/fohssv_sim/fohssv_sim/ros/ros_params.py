@@ -18,18 +18,23 @@ ROS typing of the rows:
   (:class:`~fohssv_sim.ros.options.TextSpec`) -> ``string``; a list of names
   (:class:`~fohssv_sim.ros.options.NamesSpec`) -> ``string_array``.
 
-An integer given for a ``double`` row (``-p speed:=80``, or ``speed: 80`` in YAML) is
-converted to a double instead of failing with rclpy's type error, at start and on set.
-
-Validation (``on_set``) only validates: it rebuilds the pure dataclasses from the current
-values plus the change, and refuses with the :class:`~fohssv_sim.params.ParameterError` text.
-The node applies an accepted change afterwards (``post_set``).
+One validation path: a value is checked by :func:`check_value` (its ROS type, then its row's
+range and wording) at start, for each given value (:func:`declare`), and on set, for each
+change, before the node's own cross-row rules (:func:`install_validation`); the refusal is the
+row's one line (:class:`~fohssv_sim.params.ParameterError`). Every descriptor is declared with
+``dynamic_typing`` (its type is still the value's: ``ros2 param describe`` shows ``double``),
+so a value of the wrong type reaches that check instead of rclpy's ``Wrong parameter type,
+expected '3' got '4'``; the descriptor carries the range (rclpy applies it first, as it does
+for any node), the unit, the description and ``read_only``. An integer given for a ``double``
+row (``-p speed:=80``, ``speed: 80`` in YAML, or on set) and a whole double for an ``integer``
+row are converted, not refused. The node applies an accepted change afterwards (``post_set``).
 """
 
 from __future__ import annotations
 
 import array
 import math
+import weakref
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
@@ -45,10 +50,14 @@ from rclpy.parameter import Parameter
 
 from ..params import ParameterSpec
 from .options import NamesSpec, StateSpec, ros_type_name
-from .startup import precheck
+from .startup import _a, _kind_name, _not_a_number, given, redeclare
 
-__all__ = ['ros_type', 'descriptor', 'declare', 'values_of', 'install_validation',
-           'python_value']
+__all__ = ['ros_type', 'descriptor', 'declare', 'check_value', 'values_of',
+           'install_validation', 'python_value']
+
+#: Each node's rows by name with their ROS types: what a change is checked against.
+_ROWS: weakref.WeakKeyDictionary[Node, dict[str, tuple[ParameterSpec, int]]] = \
+    weakref.WeakKeyDictionary()
 
 
 #: ROS parameter types by the names :func:`.options.ros_type_name` gives.
@@ -76,12 +85,9 @@ def descriptor(spec: ParameterSpec) -> ParameterDescriptor:
         description=f'{spec.description}{unit}{ref}',
         additional_constraints=f'allowed: {spec.range_text()}{unit}',
         read_only=spec.needs_reset,
+        dynamic_typing=True,     # the type is checked by check_value, in the row's words
     )
     kind = ros_type(spec)
-    if kind == ParameterType.PARAMETER_NOT_SET:
-        d.dynamic_typing = True
-    else:
-        d.type = kind
     bounded = (spec.numeric and spec.low is not None and spec.high is not None
                and math.isfinite(spec.low) and math.isfinite(spec.high))
     if bounded and kind == ParameterType.PARAMETER_DOUBLE:
@@ -102,10 +108,14 @@ def _ros_default(spec: ParameterSpec) -> Any:
 
 
 def _coerce(kind: int, value: Any) -> Any:
-    """An integer (array) for a double (array) row, as a double (array); else unchanged."""
+    """An integer (array) for a double (array) row as a double (array), a whole double for an
+    integer row as an integer; anything else unchanged."""
     if kind == ParameterType.PARAMETER_DOUBLE and isinstance(value, int) \
             and not isinstance(value, bool):
         return float(value)
+    if kind == ParameterType.PARAMETER_INTEGER and isinstance(value, float) \
+            and math.isfinite(value) and value == int(value):
+        return int(value)
     if kind == ParameterType.PARAMETER_DOUBLE_ARRAY and isinstance(value, (list, tuple,
                                                                            array.array)):
         if all(isinstance(v, int) and not isinstance(v, bool) for v in value):
@@ -113,37 +123,60 @@ def _coerce(kind: int, value: Any) -> Any:
     return value
 
 
-def declare(node: Node, specs: Iterable[ParameterSpec]) -> dict[str, Any]:
-    """Declare every row on ``node`` (overrides from ``--ros-args``/YAML apply) and return the
-    values as plain Python (tuples for arrays).
+def check_value(spec: ParameterSpec, kind: int, value: Any) -> None:
+    """Check one value (already converted by :func:`_coerce`) against its row's ROS type
+    ``kind`` and then the row itself.
 
     Raises:
-        ParameterError: an override of the wrong type or out of range, in the table's words
-            (checked before rclpy declares it: see :func:`.startup.precheck`).
+        ParameterError: a value of the wrong type or outside the row's range (one line naming
+            the parameter, the value, the allowed range, the unit and the meaning).
+    """
+    got = _kind_name(value)
+    if kind == ParameterType.PARAMETER_DOUBLE and got != 'double':
+        raise spec.refuse(value, _not_a_number(value, got))
+    if kind == ParameterType.PARAMETER_INTEGER and got != 'integer':
+        raise spec.refuse(value, 'is not a whole number' if got == 'double'
+                          else _not_a_number(value, got))
+    if kind == ParameterType.PARAMETER_STRING and got != 'string':
+        raise spec.refuse(value, f'is {_a(got)}, not a name')
+    if kind == ParameterType.PARAMETER_NOT_SET and got not in ('double', 'integer', 'string') \
+            and not (got == 'array' and getattr(spec, 'accepts_array', False)):
+        raise spec.refuse(value, f'is {_a(got)}')
+    spec.validate(value)   # ParameterError: out of range, not a choice, not 4 numbers
+
+
+def declare(node: Node, specs: Iterable[ParameterSpec]) -> dict[str, Any]:
+    """Declare every row on ``node``, with its given value (``--ros-args``, YAML,
+    ``parameter_overrides``) where one was given, and return the values as plain Python
+    (tuples for arrays).
+
+    Raises:
+        ParameterError: a given value of the wrong type or out of range, in the row's words.
     """
     specs = tuple(specs)
-    kinds = {s.name: ros_type(s) for s in specs}
-    precheck(node, specs, kinds)
-    # Integers given where doubles are declared: convert them before rclpy's type check.
-    overrides = getattr(node, '_parameter_overrides', None)
-    if isinstance(overrides, dict):
-        for name, kind in kinds.items():
-            p = overrides.get(name)
-            if p is not None:
-                v = _coerce(kind, p.value)
-                if v is not p.value:
-                    overrides[name] = Parameter(name, value=v)
-    node.declare_parameters('', [(s.name, _ros_default(s), descriptor(s)) for s in specs])
+    first = node not in _ROWS
+    rows = _ROWS.setdefault(node, {})
+    values = given(node)
+    declared = []
+    for s in specs:
+        kind = rows.setdefault(s.name, (s, ros_type(s)))[1]
+        if s.name in values:
+            value = _coerce(kind, values[s.name])
+            check_value(s, kind, value)
+        else:
+            value = _ros_default(s)
+        declared.append((s.name, value, descriptor(s)))
+    redeclare(node, declared)
 
     def pre_set(params: list[Parameter]) -> list[Parameter]:
         out = []
         for p in params:
-            kind = kinds.get(p.name)
-            v = _coerce(kind, p.value) if kind is not None else p.value
+            v = _coerce(rows[p.name][1], p.value) if p.name in rows else p.value
             out.append(p if v is p.value else Parameter(p.name, value=v))
         return out
 
-    node.add_pre_set_parameters_callback(pre_set)
+    if first:
+        node.add_pre_set_parameters_callback(pre_set)
     return values_of(node, specs)
 
 
@@ -172,12 +205,16 @@ def install_validation(node: Node, names: Sequence[str],
     names = tuple(names)
     pending: list[Any] = []
 
+    rows = _ROWS.get(node, {})
+
     def on_set(params: list[Parameter]) -> SetParametersResult:
         values = {n: python_value(node.get_parameter(n).value) for n in names}
-        for p in params:
-            if p.name in values:
-                values[p.name] = python_value(p.value)
         try:
+            for p in params:
+                if p.name in values:
+                    if p.name in rows:
+                        check_value(*rows[p.name], p.value)
+                    values[p.name] = python_value(p.value)
             config = check(values)
         except ValueError as exc:
             pending.clear()

@@ -23,20 +23,19 @@ Shared by the plant, the controller node, the recorder and the player (one imple
   :func:`refuse_unknown` also refuses a file with no section for this node (a misspelt node
   name: the node would run on its defaults without a word); a section is the node's name
   (``plant``, ``/ns/plant``) or an rcl wildcard (``/**``, ``/*/plant``).
-* :func:`precheck`: checks the overrides of a node's table rows (``--ros-args -p`` and params
-  files) against the table *before* rclpy declares them, so a wrong type or a value out of
-  range is reported by the table's own text (name, value, allowed range, unit, meaning)
-  instead of rclpy's exception.
+* the values given at start (``--ros-args -p``, params files, ``parameter_overrides``): every
+  fohssv node is built with rclpy's ``automatically_declare_parameters_from_overrides``
+  (:data:`NODE_OPTIONS`), so each given value is a parameter of the node, in the type it was
+  given in, until the node declares its row: :func:`given` reads them through rclpy's public
+  API, and :func:`redeclare` replaces each by its row (descriptor, checked value). No private
+  rclpy attribute is read.
 * :func:`declare_rows`: declares plain rows ``(name, default, descriptor)`` (the controller
-  node's plugin name; every other parameter is a table row, :mod:`.ros_params`)
-  and turns rclpy's type errors into one line with the descriptor's allowed values.
-* :func:`refuse_unknown`: an override no parameter of the node declares (``-p sped:=80.0``, a
+  node's plugin name; every other parameter is a table row, :mod:`.ros_params`) and refuses a
+  given value of the wrong type in one line with the descriptor's allowed values.
+* :func:`refuse_unknown`: a given value no row of the node declares (``-p sped:=80.0``, a
   misspelt key in a params file, including keys under ``/**``) is refused with the close
-  matches (``difflib``). rclpy itself ignores such overrides (``allow_undeclared_parameters``
-  only governs ``set_parameters``), so the node checks ``Node._parameter_overrides`` (rclpy
-  9.1.2 has no public accessor for the overrides) against what it declared, after its last
-  declaration. Parameters rclpy declares itself (``use_sim_time``,
-  ``start_type_description_service``) are declared, hence allowed.
+  matches (``difflib``), after the node's last declaration. Parameters rclpy declares itself
+  (:data:`RCLPY_PARAMETERS`) are allowed.
 * :func:`explain` and :func:`report`: the one line for any of these errors, and the exit code.
 * :func:`destroy_on_error`: a node whose construction fails is destroyed at once when it was
   built in a process that goes on (a half-built node left for interpreter exit crashed or hung
@@ -57,7 +56,8 @@ import os
 import re
 import sys
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+import weakref
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any, NoReturn
 
 import rclpy
@@ -71,7 +71,8 @@ from ..params import ParameterSpec
 __all__ = ['EXIT_BAD_PARAMETERS', 'DEFAULT_DISCOVERY_RANGE', 'default_discovery',
            'default_transport', 'localhost_profile', 'NETWORK_VAR',
            'MAX_PARAMS_BYTES', 'MAX_PARAMS_KEYS', 'read_params_file', 'params_file_args',
-           'BadParameters', 'init', 'precheck', 'declare_rows',
+           'BadParameters', 'init', 'NODE_OPTIONS', 'RCLPY_PARAMETERS', 'given', 'redeclare',
+           'declare_rows',
            'refuse_unknown', 'explain', 'one_line', 'report', 'destroy_on_error',
            'end_process_on_build_error', 'exit_now']
 
@@ -92,6 +93,13 @@ MAX_PARAMS_BYTES = 1 << 20
 MAX_PARAMS_KEYS = 10_000
 #: Params files of this process's arguments -> their node sections (set by :func:`init`).
 _PARAMS_SECTIONS: dict[str, list[str]] = {}
+#: What every fohssv node passes to ``rclpy.node.Node``: each given value becomes a parameter
+#: at once, so :func:`given` reads it through the public API.
+NODE_OPTIONS = {'automatically_declare_parameters_from_overrides': True}
+#: Parameters rclpy declares on every node itself (a given value for them is allowed).
+RCLPY_PARAMETERS = frozenset({'use_sim_time', 'start_type_description_service'})
+#: The names each node declared from its own rows (:func:`redeclare`).
+_DECLARED: weakref.WeakKeyDictionary[Node, set[str]] = weakref.WeakKeyDictionary()
 
 
 def default_discovery(environ: dict[str, str] | None = None) -> bool:
@@ -346,9 +354,24 @@ def init(args: Sequence[str] | None = None, **kwargs: Any) -> None:
             'reach nodes on other hosts')
 
 
-def _overrides(node: Node) -> dict[str, Any]:
-    overrides = getattr(node, '_parameter_overrides', None)
-    return overrides if isinstance(overrides, dict) else {}
+def given(node: Node) -> dict[str, Any]:
+    """The values given for ``node`` at start that no row of it has declared yet, by name
+    (rclpy declared each from the overrides: :data:`NODE_OPTIONS`)."""
+    ours = _DECLARED.get(node, ())
+    names = node.list_parameters([], 0).names
+    return {n: node.get_parameter(n).value for n in names
+            if n not in ours and n not in RCLPY_PARAMETERS}
+
+
+def redeclare(node: Node, rows: Sequence[tuple[str, Any, ParameterDescriptor]]) -> None:
+    """Declare ``rows`` ``(name, value, descriptor)``, their values already checked: a
+    parameter rclpy declared from a given value is replaced by its row."""
+    ours = _DECLARED.setdefault(node, set())
+    for name, _, _ in rows:
+        if name not in ours and node.has_parameter(name):
+            node.undeclare_parameter(name)
+    node.declare_parameters('', list(rows), ignore_override=True)
+    ours.update(name for name, _, _ in rows)
 
 
 def _kind_name(value: Any) -> str:
@@ -380,74 +403,26 @@ def _a(kind: str) -> str:
     return f"{'an' if kind[0] in 'aeiou' else 'a'} {kind}"
 
 
-def precheck(node: Node, specs: Iterable[ParameterSpec], kinds: Mapping[str, int]) -> None:
-    """Check the overrides of ``specs`` before they are declared with the ROS types ``kinds``
-    (name -> ``ParameterType``). Whole doubles given for integer rows are converted.
-
-    Raises:
-        ParameterError: a value of the wrong type or outside the row's range (one line naming
-            the parameter, the value, the allowed range, the unit and the meaning).
-    """
-    from rcl_interfaces.msg import ParameterType
-    from rclpy.parameter import Parameter
-
-    overrides = _overrides(node)
-    for spec in specs:
-        p = overrides.get(spec.name)
-        if p is None:
-            continue
-        value = p.value
-        kind = kinds.get(spec.name)
-        got = _kind_name(value)
-        if kind == ParameterType.PARAMETER_DOUBLE:
-            if got not in ('double', 'integer'):
-                raise spec.refuse(value, _not_a_number(value, got))
-        elif kind == ParameterType.PARAMETER_INTEGER:
-            if got == 'double' and math.isfinite(value) and value == int(value):
-                overrides[spec.name] = Parameter(spec.name, value=int(value))
-                value = int(value)
-            elif got != 'integer':
-                raise spec.refuse(value, 'is not a whole number' if got == 'double'
-                                  else _not_a_number(value, got))
-        elif kind == ParameterType.PARAMETER_STRING:
-            if got != 'string':
-                raise spec.refuse(value, f'is {_a(got)}, not a name')
-        elif kind == ParameterType.PARAMETER_NOT_SET:
-            if got not in ('double', 'integer', 'string') and not (
-                    got == 'array' and getattr(spec, 'accepts_array', False)):
-                raise spec.refuse(value, f'is {_a(got)}')
-        spec.validate(value)   # ParameterError: out of range, not a choice, not 4 numbers
-
-
 def declare_rows(node: Node, rows: Sequence[tuple[str, Any, ParameterDescriptor]]) -> None:
-    """Declare plain rows ``(name, default, descriptor)``; an integer given for a double row
-    is converted.
+    """Declare plain rows ``(name, default, descriptor)``, each with its given value if one
+    was given; an integer given for a double row is converted.
 
     Raises:
-        BadParameters: a value of the wrong type (names it, the expected type and the
-            descriptor's allowed values and description).
+        BadParameters: a given value of the default's type (names it, the expected type and
+            the descriptor's allowed values and description).
     """
-    from rclpy.parameter import Parameter
-
-    overrides = _overrides(node)
-    for name, default, _ in rows:
-        p = overrides.get(name)
-        if p is not None and isinstance(default, float) and isinstance(p.value, int) \
-                and not isinstance(p.value, bool):
-            overrides[name] = Parameter(name, value=float(p.value))
-    try:
-        node.declare_parameters('', list(rows))
-    except ParameterException as exc:
-        described = {name: d for name, _, d in rows}
-        name = _failed_name(exc, described)
-        if name is None:
-            raise BadParameters(one_line(str(exc))) from None
-        d = described[name]
-        default = next(v for n, v, _ in rows if n == name)
-        value = overrides[name].value if name in overrides else None
-        allowed = f'; {d.additional_constraints}' if d.additional_constraints else ''
-        raise BadParameters(f'{name}={value!r} is {_a(_kind_name(value))}, expected '
-                            f'{_a(_kind_name(default))}{allowed} ({d.description})') from None
+    values = given(node)
+    checked = []
+    for name, default, d in rows:
+        value = values.get(name, default)
+        if isinstance(default, float) and _kind_name(value) == 'integer':
+            value = float(value)
+        if _kind_name(value) != _kind_name(default):
+            allowed = f'; {d.additional_constraints}' if d.additional_constraints else ''
+            raise BadParameters(f'{name}={value!r} is {_a(_kind_name(value))}, expected '
+                                f'{_a(_kind_name(default))}{allowed} ({d.description})')
+        checked.append((name, value, d))
+    redeclare(node, checked)
 
 
 def _failed_name(exc: Exception, names: Iterable[str]) -> str | None:
@@ -465,10 +440,10 @@ def refuse_unknown(node: Node) -> None:
         BadParameters: the unknown names, each with its close matches, and the valid names.
     """
     _refuse_foreign_params_files(node)
-    unknown = sorted(n for n in _overrides(node) if not node.has_parameter(n))
+    unknown = sorted(given(node))
     if not unknown:
         return
-    declared = sorted(node.list_parameters([], 0).names)
+    declared = sorted(n for n in node.list_parameters([], 0).names if n not in unknown)
     parts = []
     for name in unknown:
         close = difflib.get_close_matches(name, declared, n=3, cutoff=0.6)

@@ -48,7 +48,15 @@ from visualization_msgs.msg import Marker as MarkerMsg
 
 from .. import contract
 from .foxglove_live import LiveServer, Marker, ViewAssembler
-from .nodekit import declare, destroy_on_error, error_line, final_log, refuse_unknown, run_node
+from .nodekit import (
+    NODE_OPTIONS,
+    declare,
+    destroy_on_error,
+    error_line,
+    final_log,
+    refuse_unknown,
+    run_node,
+)
 from .viewer_options import VIEWER_PARAMETERS, ViewerOptions
 
 __all__ = ['Viewer', 'main']
@@ -79,7 +87,7 @@ class Viewer(Node):
 
     @destroy_on_error
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__('viewer', **kwargs)
+        super().__init__('viewer', **NODE_OPTIONS, **kwargs)
         self.options = ViewerOptions(**declare(self, VIEWER_PARAMETERS))
         refuse_unknown(self)
         o = self.options

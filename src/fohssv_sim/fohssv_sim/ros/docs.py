@@ -25,7 +25,7 @@ from ..contract import TOPICS, VIEW_TOPICS, Topic
 from ..docs import markdown_table, parameters_yaml, yaml_value
 from ..params import PARAMETERS, ParameterSpec, field_specs
 from .bag_options import PLAYER_PARAMETERS, RECORDER_PARAMETERS
-from .options import NODE_PARAMETERS, ros_type_name
+from .options import ADVANCED, NODE_PARAMETERS, ros_type_name
 from .viewer_options import VIEWER_PARAMETERS
 
 __all__ = ['yaml_value', 'parameters_yaml', 'plant_yaml', 'parameter_table', 'topic_table',
@@ -84,7 +84,12 @@ def tables() -> str:
     parts = ['<!-- generated: topics -->\n' + topic_table(),
              '<!-- generated: view topics -->\n' + topic_table(VIEW_TOPICS),
              '<!-- generated: model parameters -->\n' + parameter_table(PARAMETERS),
-             '<!-- generated: plant node parameters -->\n' + parameter_table(NODE_PARAMETERS),
+             '<!-- generated: plant node parameters -->\n'
+             + parameter_table(s for s in NODE_PARAMETERS if s.name not in ADVANCED),
+             '<!-- generated: plant node parameters, advanced -->\n'
+             '**Advanced: host tuning and measurement.** Their defaults suit a run of your own; '
+             'the demo and the benchmarks set them ([performance.md](performance.md)).\n\n'
+             + parameter_table(s for s in NODE_PARAMETERS if s.name in ADVANCED),
              '<!-- generated: recorder parameters -->\n' + parameter_table(RECORDER_PARAMETERS),
              '<!-- generated: player parameters -->\n' + parameter_table(PLAYER_PARAMETERS),
              '<!-- generated: viewer parameters -->\n' + parameter_table(VIEWER_PARAMETERS)]

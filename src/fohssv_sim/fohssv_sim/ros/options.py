@@ -43,7 +43,8 @@ from ..params import (
     validate_fields,
 )
 
-__all__ = ['MODES', 'NODE_PARAMETERS', 'NODE_PARAMETER_BY_NAME', 'StateSpec', 'FlagSpec',
+__all__ = ['MODES', 'NODE_PARAMETERS', 'NODE_PARAMETER_BY_NAME', 'ADVANCED', 'StateSpec',
+           'FlagSpec',
            'TextSpec', 'NamesSpec', 'CpusSpec', 'CPU_AFFINITY', 'CPU_DMA_LATENCY', 'usable_cpus',
            'TableOptions', 'PlantOptions', 'check_options',
            'clock_samples', 'view_samples', 'ros_type_name', 'whole_number']
@@ -321,6 +322,10 @@ NODE_PARAMETERS: tuple[ParameterSpec, ...] = (
 )
 
 NODE_PARAMETER_BY_NAME: dict[str, ParameterSpec] = {p.name: p for p in NODE_PARAMETERS}
+#: The plant's host-tuning and measurement rows, listed apart in the docs: their defaults suit
+#: a user's run; the demo and the benchmarks set them.
+ADVANCED = ('pacing_period', 'profile', 'pace_to_subscribers', 'realtime_priority',
+            'record_buffer', 'cpu_affinity', 'cpu_dma_latency', 'end_linger')
 
 
 def _f(name: str) -> Any:

@@ -90,7 +90,8 @@ from pathlib import Path
 from ament_index_python.packages import get_package_prefix
 from benchutil import host_cpu_ticks, steal_seconds, steal_share
 
-from fohssv_sim.ros.loop import BurstWait, kernel_preemption
+from fohssv_sim.ros.host import kernel_preemption
+from fohssv_sim.ros.pacing import BurstWait
 
 HERE = Path(__file__).resolve().parent
 MODELS = ('delay-free', 'delayed', 'fractional')
@@ -799,7 +800,7 @@ def case_latency(domains: Domains, quick: bool) -> dict:
     alternating, each loop against the echo run just before it. The gain is the loop's rate
     with the limit over without it in the same round. Skipped where this process may not
     write ``/dev/cpu_dma_latency`` (the nodes then hold nothing either)."""
-    from fohssv_sim.ros.spin import CPU_LATENCY_DEVICE, NO_LATENCY_LIMIT, cpu_latency_limit
+    from fohssv_sim.ros.host import CPU_LATENCY_DEVICE, NO_LATENCY_LIMIT, cpu_latency_limit
 
     if not os.access(CPU_LATENCY_DEVICE, os.W_OK):
         print(f'latency   skipped: {CPU_LATENCY_DEVICE} is not writable here', flush=True)
@@ -882,7 +883,7 @@ import json, math, os, sys, time, ctypes
 ctypes.CDLL(None).prctl(29, 1, 0, 0, 0)            # 1 ns timer slack, as the plant asks
 if sys.argv[1] == 'fifo':
     os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))
-from fohssv_sim.ros.spin import hold_cpu_latency
+from fohssv_sim.ros.host import hold_cpu_latency
 try:       # the CPU wake-up latency limit the plant holds by default (cpu_dma_latency 0)
     hold_cpu_latency(0)
 except OSError:

@@ -50,9 +50,10 @@ from rclpy.task import Future
 from std_msgs.msg import Float64MultiArray
 
 from fohssv_sim.contract import COMMAND, STATE
+from fohssv_sim.ros.host import pin_threads
 from fohssv_sim.ros.nodekit import hold_latency
 from fohssv_sim.ros.qos import profile
-from fohssv_sim.ros.spin import make_executor, pin_threads, spin_until
+from fohssv_sim.ros.spin import make_executor, spin_until
 from fohssv_sim.ros.wire import ArrayReader, ArrayWriter
 
 STATE_TOPIC, COMMAND_TOPIC = 'echo_state', 'echo_command'

@@ -18,7 +18,7 @@ from test_graph_support import Probe, batch_samples, plant_args, stop_all
 
 from fohssv_controller.fractional_pid import FractionalPID
 from fohssv_controller.state_feedback import StateFeedback
-from fohssv_sim.ros.spin import CPU_LATENCY_DEVICE, cpu_latency_limit
+from fohssv_sim.ros.host import CPU_LATENCY_DEVICE, cpu_latency_limit
 
 import rosproc
 

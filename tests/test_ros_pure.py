@@ -14,7 +14,7 @@ import pytest
 from rcl_interfaces.msg import ParameterType
 
 from fohssv_sim.params import PARAMETERS, ModelParameters, ParameterError
-from fohssv_sim.ros import spin
+from fohssv_sim.ros import host
 from fohssv_sim.ros.bag_options import (
     PLAYER_PARAMETERS,
     RECORDER_PARAMETERS,
@@ -23,16 +23,19 @@ from fohssv_sim.ros.bag_options import (
     new_bag_path,
 )
 from fohssv_sim.ros.docs import ros_type_name
+from fohssv_sim.ros.host import (
+    CPU_LATENCY_DEVICE,
+    NO_LATENCY_LIMIT,
+    cpu_latency_limit,
+    hold_cpu_latency,
+    kernel_preemption,
+)
 from fohssv_sim.ros.loop import (
-    BurstWait,
-    CommandLag,
     CommandRejected,
     HostedLaw,
-    Pacer,
     SampledPlant,
     answered_time,
     check_command,
-    kernel_preemption,
 )
 from fohssv_sim.ros.options import (
     NODE_PARAMETER_BY_NAME,
@@ -44,13 +47,8 @@ from fohssv_sim.ros.options import (
     usable_cpus,
     view_samples,
 )
+from fohssv_sim.ros.pacing import BurstWait, CommandLag, Pacer
 from fohssv_sim.ros.ros_params import _coerce, check_value, descriptor, python_value, ros_type
-from fohssv_sim.ros.spin import (
-    CPU_LATENCY_DEVICE,
-    NO_LATENCY_LIMIT,
-    cpu_latency_limit,
-    hold_cpu_latency,
-)
 
 
 # -- loop.py ----------------------------------------------------------------------------------
@@ -226,7 +224,7 @@ def test_kernel_preemption_from_the_config_the_boot_line_and_debugfs(tmp_path):
     only normal tasks) and rt preempt them."""
     import gzip
 
-    from fohssv_sim.ros.loop import PREEMPTIBLE
+    from fohssv_sim.ros.host import PREEMPTIBLE
 
     def config(*lines: str, gz: bool = True) -> str:
         path = tmp_path / (f'config{len(list(tmp_path.iterdir()))}' + ('.gz' if gz else ''))
@@ -367,16 +365,16 @@ def test_cpu_latency_request_writes_a_native_s32_and_keeps_the_file_open(tmp_pat
     stays open: the kernel holds a request only while it is."""
     path = tmp_path / 'device'
     path.write_bytes(b'')
-    before = list(spin._LATENCY_REQUESTS)
+    before = list(host._LATENCY_REQUESTS)
     hold_cpu_latency(7, str(path))
     try:
-        fd = spin._LATENCY_REQUESTS[-1]
-        assert spin._LATENCY_REQUESTS[:-1] == before
+        fd = host._LATENCY_REQUESTS[-1]
+        assert host._LATENCY_REQUESTS[:-1] == before
         assert path.read_bytes() == (7).to_bytes(4, sys.byteorder, signed=True)
         assert os.fstat(fd).st_ino == path.stat().st_ino       # still open
         assert cpu_latency_limit(str(path)) == 7
     finally:
-        os.close(spin._LATENCY_REQUESTS.pop())
+        os.close(host._LATENCY_REQUESTS.pop())
 
 
 # -- ros_params.py ----------------------------------------------------------------------------

@@ -24,7 +24,6 @@ imports its ROS helpers from here and never from another node's module:
 
 from __future__ import annotations
 
-import errno
 import sys
 import traceback
 from collections.abc import Callable, Iterable
@@ -39,23 +38,12 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from ..params import ParameterError, ParameterSpec
+from .host import hold_latency, pin_node, set_realtime_priority, tighten_timer_slack
 from .matching import HoldReporter, SecondPublisherWarning, SubscriptionGate
 from .options import CPU_AFFINITY, CPU_DMA_LATENCY
 from .qos import offered_qos, profile
 from .ros_params import declare, install_validation
-from .spin import (
-    CPU_LATENCY_DEVICE,
-    STOP,
-    PausedCollector,
-    cpu_latency_limit,
-    final_log,
-    hold_cpu_latency,
-    make_executor,
-    pin_threads,
-    set_realtime_priority,
-    spin_until,
-    tighten_timer_slack,
-)
+from .spin import STOP, PausedCollector, final_log, make_executor, spin_until
 from .startup import (
     EXIT_BAD_PARAMETERS,
     NODE_OPTIONS,
@@ -115,47 +103,6 @@ def reset_plugin(name: str, reset: Callable[[], None]) -> str | None:
     except PLUGIN_FAULTS as exc:  # a plugin's bug must not end the node
         return f'{name}.reset() raised {type(exc).__name__}: {exc}'
     return None
-
-
-def pin_node(node: Any, cpus: tuple[int, ...]) -> bool:
-    """Pin every thread of the node's process to ``cpus`` (its validated ``cpu_affinity``;
-    ``()`` leaves the scheduler's choice) and say so in one line; when the kernel refuses, say
-    why in one line and run unpinned. True when pinned."""
-    if not cpus:
-        return False
-    text = ','.join(map(str, cpus))
-    try:
-        threads = pin_threads(cpus)
-    except OSError as exc:
-        node.get_logger().warning(f'cpu_affinity: CPU {text} refused by the kernel '
-                                  f'({exc.strerror}); running unpinned')
-        return False
-    node.get_logger().info(f"cpu_affinity: the process's {threads} threads run on CPU {text}")
-    return True
-
-
-def hold_latency(node: Any, us: int, warn: bool = False) -> int | None:
-    """Hold the node's validated ``cpu_dma_latency`` (``us`` microseconds; -1: no request)
-    until the process ends (:func:`.spin.hold_cpu_latency`) and say so in one line; where
-    the kernel's device cannot be written, say why in one line (a warning with ``warn``,
-    else information: the run does not depend on it) and run on. Returns the limit held, or
-    None."""
-    if us < 0:
-        return None
-    try:
-        hold_cpu_latency(us)
-    except OSError as exc:
-        why = (' (writing it needs root)' if exc.errno in (errno.EACCES, errno.EPERM) else '')
-        line = (f'cpu_dma_latency: {us} us not requested: {CPU_LATENCY_DEVICE}: '
-                f'{exc.strerror}{why}; idle CPUs may take longer to wake for a message; '
-                'cpu_dma_latency:=-1 asks for nothing')
-        (node.get_logger().warning if warn else node.get_logger().info)(line)
-        return None
-    limit = cpu_latency_limit()
-    node.get_logger().info(
-        f'cpu_dma_latency: CPU wake-up latency at most {us} us while this process runs'
-        + ('' if limit is None else f' (system-wide limit now {limit} us)'))
-    return us
 
 
 class LogLimiter:

@@ -75,13 +75,7 @@ from ..params import PARAMETERS, ModelParameters
 from .faults import StateFault
 from .inplant_record import EXIT_RECORD_LOST
 from .inplant_record import start as start_recording
-from .loop import (
-    BurstWait,
-    CommandLag,
-    Pacer,
-    SampledPlant,
-    time_text,
-)
+from .loop import SampledPlant, time_text
 from .nodekit import (
     NODE_OPTIONS,
     STOP,
@@ -100,6 +94,7 @@ from .nodekit import (
     spin_until,
 )
 from .options import NODE_PARAMETERS, PlantOptions, check_options, clock_samples, view_samples
+from .pacing import BurstWait, CommandLag, Pacer
 from .plant.codes import (
     CONTROLLER_PREFIX,
     EXIT_BAD_PARAMETERS,

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import os
 import signal
-import struct
 import sys
 from collections.abc import Callable
 from time import monotonic as _monotonic
@@ -23,11 +22,9 @@ import rclpy
 from rclpy.executors import Executor
 from rclpy.task import Future
 
-__all__ = ['Paced', 'make_executor', 'spin_until', 'tighten_timer_slack', 'final_log',
-           'StopSignal', 'STOP', 'pin_threads', 'hold_cpu_latency', 'cpu_latency_limit',
-           'CPU_LATENCY_DEVICE', 'NO_LATENCY_LIMIT', 'PluginHung']
+__all__ = ['Paced', 'make_executor', 'spin_until', 'final_log', 'StopSignal', 'STOP',
+           'PluginHung']
 
-_PR_SET_TIMERSLACK = 29
 #: Seconds between two looks at ``rclpy.ok()`` in :func:`spin_until`.
 _OK_EVERY = 0.005
 
@@ -166,25 +163,6 @@ def spin_until(executor: Executor, future: Future | None = None, poll: float = 0
                 spin_once(timeout_sec=0.0)
 
 
-def tighten_timer_slack() -> bool:
-    """Ask Linux for 1 ns timer slack on the calling thread (``prctl(PR_SET_TIMERSLACK)``).
-
-    The default slack of 50 us makes every timed wait overshoot by 50-75 us (measured: a
-    ``spin_once`` timeout or ``time.sleep`` of 100 us returns 75 us late; 20-25 us with 1 ns
-    slack), which a real-time plant pacing 100 us samples cannot afford. Returns False where
-    unavailable (not Linux); the node then just runs with the default slack.
-    """
-    if not sys.platform.startswith('linux'):
-        return False
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        return libc.prctl(_PR_SET_TIMERSLACK, 1, 0, 0, 0) == 0
-    except (OSError, AttributeError):
-        return False
-
-
 class PausedCollector:
     """Context manager: Python's cyclic garbage collector off while a real-time run is paced.
 
@@ -209,101 +187,6 @@ class PausedCollector:
         gc.unfreeze()
         if self._was_enabled:
             gc.enable()
-
-
-def set_realtime_priority(priority: int) -> str | None:
-    """Run the calling thread under SCHED_FIFO at ``priority`` (1-99); 0 leaves the normal
-    scheduler. Returns None on success (or for 0), else why it was not possible (no
-    permission: needs CAP_SYS_NICE or an rtprio limit; not Linux)."""
-    if priority <= 0:
-        return None
-    if not hasattr(os, 'sched_setscheduler'):
-        return 'SCHED_FIFO is not available on this platform'
-    # children (the in-plant writer is started before, but any later one) do not inherit it
-    policy = os.SCHED_FIFO | getattr(os, 'SCHED_RESET_ON_FORK', 0)
-    try:
-        os.sched_setscheduler(0, policy, os.sched_param(priority))
-    except OSError as exc:
-        return f'SCHED_FIFO priority {priority} not permitted ({exc.strerror})'
-    return None
-
-
-def pin_threads(cpus: tuple[int, ...]) -> int:
-    """Pin every thread of this process to ``cpus`` (``sched_setaffinity`` of each thread in
-    ``/proc/self/task``: rclpy's and DDS's threads already exist when a node reads its
-    parameters; threads started later inherit it from the thread that starts them, and a
-    thread started during a pass by one not yet pinned is caught by the next pass). Without
-    ``/proc``, only the calling thread. Returns the number of threads pinned; ``()`` pins
-    nothing.
-
-    Raises:
-        OSError: the kernel refused (e.g. a CPU taken away by a cpuset since the check).
-    """
-    if not cpus:
-        return 0
-    pinned: set[int] = set()
-    while True:
-        try:
-            new = {int(t) for t in os.listdir('/proc/self/task')} - pinned
-        except OSError:                      # no /proc
-            os.sched_setaffinity(0, cpus)
-            return 1
-        if not new:
-            return len(pinned)
-        for tid in sorted(new):
-            try:
-                os.sched_setaffinity(tid, cpus)
-            except ProcessLookupError:       # a thread that ended meanwhile
-                pass
-            pinned.add(tid)
-
-
-#: Linux's PM QoS device for the system-wide CPU wake-up latency limit (microseconds).
-CPU_LATENCY_DEVICE = '/dev/cpu_dma_latency'
-
-#: What the device reads while no process holds a request (Linux's PM QoS default, 2000 s).
-NO_LATENCY_LIMIT = 2_000_000_000
-
-#: The open requests of this process: the kernel holds a request while its file is open and
-#: drops it when the file closes, which the process's end does however it ends (SIGKILL too).
-_LATENCY_REQUESTS: list[int] = []
-
-
-def hold_cpu_latency(us: int, device: str = CPU_LATENCY_DEVICE) -> None:
-    """Ask Linux to keep every CPU's wake-up latency at most ``us`` microseconds until this
-    process ends (Linux PM QoS, as ``cyclictest`` and real-time Linux guides do): the cpuidle
-    governor then picks no idle state that takes longer to leave; with 0 an idle CPU polls
-    (on a VM: the vCPU does not halt, so the host need not wake it for the next message).
-    The limit is system-wide, the least of all the requests held.
-
-    Raises:
-        OSError: the device is missing (not Linux, a container without it) or not writable
-            (it is root's: mode 0600).
-    """
-    fd = os.open(device, os.O_WRONLY | os.O_CLOEXEC)
-    try:
-        os.write(fd, struct.pack('=i', us))
-    except OSError:
-        os.close(fd)
-        raise
-    _LATENCY_REQUESTS.append(fd)
-
-
-def cpu_latency_limit(device: str = CPU_LATENCY_DEVICE) -> int | None:
-    """The kernel's current system-wide CPU wake-up latency limit in microseconds (the least
-    of the requests held; :data:`NO_LATENCY_LIMIT` when none is), or None where it cannot be
-    read."""
-    try:
-        fd = os.open(device, os.O_RDONLY | os.O_CLOEXEC)
-    except OSError:
-        return None
-    try:
-        raw = os.read(fd, 4)
-    except OSError:
-        return None
-    finally:
-        os.close(fd)
-    return struct.unpack('=i', raw)[0] if len(raw) == 4 else None
 
 
 def final_log(name: str, text: str) -> None:

@@ -8,8 +8,14 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..loop import PREEMPTIBLE, kernel_preemption
-from ..nodekit import hold_latency, pin_node, set_realtime_priority, tighten_timer_slack
+from ..host import (
+    PREEMPTIBLE,
+    hold_latency,
+    kernel_preemption,
+    pin_node,
+    set_realtime_priority,
+    tighten_timer_slack,
+)
 
 __all__ = ['tune_host']
 

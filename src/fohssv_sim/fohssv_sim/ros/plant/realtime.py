@@ -10,7 +10,8 @@ from __future__ import annotations
 import time
 from time import monotonic
 
-from ..loop import cpu_seconds, time_text
+from ..loop import time_text
+from ..pacing import cpu_seconds
 from .codes import EXIT_COMMAND_LAG, EXIT_NOT_REAL_TIME
 from .commands import LAG_WALL
 

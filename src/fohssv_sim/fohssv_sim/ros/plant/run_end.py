@@ -15,8 +15,9 @@ from rclpy.duration import Duration
 from std_msgs.msg import String
 
 from ...contract import run_end_text
-from ..loop import cpu_seconds, time_text
+from ..loop import time_text
 from ..nodekit import STOP, final_log
+from ..pacing import cpu_seconds
 from .codes import EXIT_OK
 
 #: After the run (and ``end_linger``): the longest wait for the readers of ``run_end`` (the

@@ -12,13 +12,9 @@ from time import monotonic
 
 from std_srvs.srv import Trigger
 
-from ..loop import (
-    BurstWait,
-    Pacer,
-    cpu_seconds,
-)
 from ..matching import UNKNOWN_NODE, node_path
 from ..nodekit import reset_plugin
+from ..pacing import BurstWait, Pacer, cpu_seconds
 from .codes import (
     EXIT_NO_PEERS,
     EXIT_PUBLISH_FAILED,

@@ -14,8 +14,9 @@ imports its ROS helpers from here and never from another node's module:
   :func:`declare_rows` (plain rows: the controller node's plugin name),
   :func:`refuse_unknown`, :func:`destroy_on_error` (:mod:`.startup`);
 * spinning: :func:`make_executor`, :func:`spin_until`, :data:`STOP`, :func:`final_log`,
-  and for the real-time plant :class:`PausedCollector`, :func:`set_realtime_priority`,
-  :func:`tighten_timer_slack` (:mod:`.spin`);
+  and for the real-time plant :class:`PausedCollector` (:mod:`.spin`);
+* the host: :func:`pin_node`, :func:`hold_latency`, :func:`set_realtime_priority`,
+  :func:`tighten_timer_slack` (:mod:`.host`);
 * subscription gating: :class:`SubscriptionGate`, :class:`HoldReporter`,
   :class:`SecondPublisherWarning` (:mod:`.matching`);
 * counted faults: :class:`LogLimiter` (the first lines one by one, then at most one a

@@ -21,9 +21,11 @@ import numpy as np
 
 from ..coefficients import Coefficients, coefficients
 from ..equilibria import find_equilibria
+from ..kernels import pack_law
 from ..params import PARAMETERS, ModelParameters, ParameterError
 from ..physics import eq17, planing_delayed, planing_exact
 from ..planing import planing_exact_array, planing_smooth_array
+from .flow import flow, pack_coefficients
 from .harmonic import HarmonicBalance
 from .shooting import Field
 
@@ -140,9 +142,11 @@ class VehicleSystem:
         return HarmonicBalance(lambda X, p: self.rhs(X, p, smooth=True), 4, harmonics,
                                self.order, phase_state=W)
 
-    def field(self) -> Field:
+    def field(self, steps: int = 1000, compiled: bool = True) -> Field:
         """The delay-free closed loop with the exact switching planing force (eqs. 12-14):
-        a field continuous across the contact surfaces w = +-R'RV/L, which it names.
+        a field continuous across the contact surfaces w = +-R'RV/L, which it names;
+        integrated by the compiled RK4 of :mod:`.flow` with ``steps`` steps per period (or,
+        ``compiled=False``, by DOP853).
 
         In the matrix form of eq. 17 (the coefficients' A, B, G, D), f = A x + B u + G +
         D Fp(w) with u the clamped law, and df/dx = A + B K' + D Fp'(w) e_w (K' the gain
@@ -172,7 +176,17 @@ class VehicleSystem:
             wc = self.at(p)[1].contact_velocity
             return (x[W] - wc, x[W] + wc)
 
-        return Field(f, 4, switches, dfdx)
+        law = pack_law(self.K, self.u0, self.limits)
+
+        def integrate(x0: np.ndarray, T: float, p: float, variational: bool, count: int):
+            cv = pack_coefficients(self.at(p)[1])
+            every = -(-steps // count) if count else 0
+            n = every * count if count else steps
+            record = np.empty((count + 1 if count else 1, 4))
+            xT, X = flow(x0, T, n, cv, law, variational, every, record)
+            return xT, (X if variational else None), (record[:count] if count else None)
+
+        return Field(f, 4, switches, dfdx, integrate if compiled else None)
 
     # -- equilibria ------------------------------------------------------------------------
     def equilibrium(self, p: float):

@@ -146,14 +146,14 @@ class HarmonicBalance:
         Phi[:, 2::2] = np.sin(np.outer(theta, k))
         E = Phi.T * (2.0 / N)
         E[0] /= 2.0
-        G = np.einsum('rt,ijt,tm->rimj', E, self._slopes(u, p, x, None), Phi)
+        G = _sandwich(E, self._slopes(u, p, x, None), Phi)
         if self.delay is not None:     # the delayed states: the basis at t - tau
             lagged = theta - float(u[-1]) * self.delay(p)
             Phi_d = np.ones((N, M))
             Phi_d[:, 1::2] = np.cos(np.outer(lagged, k))
             Phi_d[:, 2::2] = np.sin(np.outer(lagged, k))
             xd = self.signal(u, N, self.delay(p))
-            G += np.einsum('rt,ijt,tm->rimj', E, self._slopes(u, p, x, xd), Phi_d)
+            G += _sandwich(E, self._slopes(u, p, x, xd), Phi_d)
         sign = np.full(M, -0.5)
         sign[0] = -1.0
         sign[2::2] = 0.5
@@ -211,6 +211,16 @@ class HarmonicBalance:
         m = min(c.shape[1], out.shape[1])
         out[:, :m] = c[:, :m]
         return self.with_harmonics(harmonics).pack(out, float(u[-1]))
+
+
+def _sandwich(E: np.ndarray, slopes: np.ndarray, Phi: np.ndarray) -> np.ndarray:
+    """G[r, i, m, j] = sum_t E[r, t] slopes[i, j, t] Phi[t, m] (as einsum 'rt,ijt,tm->rimj'),
+    by one matrix product per factor (einsum's loop over all five indices costs 10x)."""
+    n, N = slopes.shape[0], slopes.shape[2]
+    left = E @ (slopes.transpose(2, 0, 1).reshape(N, n * n)[:, :, None] * Phi[:, None, :]
+                ).reshape(N, -1)                                   # (r, (i j m))
+    M = E.shape[0]
+    return left.reshape(M, n, n, Phi.shape[1]).transpose(0, 1, 3, 2)
 
 
 def initial_guess(problem: HarmonicBalance, equilibrium: np.ndarray, jacobian: np.ndarray,

@@ -87,6 +87,7 @@ class VehicleSystem:
         self.limits = (getattr(p, 'max_fin_deflection', math.inf),
                        getattr(p, 'max_cavitator_deflection', math.inf))
         self._cache: dict[float, tuple[ModelParameters, Coefficients]] = {}
+        self._equilibria: dict[float | None, Any] = {}
 
     # -- parameters ------------------------------------------------------------------------
     def at(self, p: float) -> tuple[ModelParameters, Coefficients]:
@@ -191,7 +192,10 @@ class VehicleSystem:
     # -- equilibria ------------------------------------------------------------------------
     def equilibrium(self, p: float):
         """The closed-loop equilibrium nearest the cavity centre (as the Matignon curve of
-        ``fohssv stability`` takes it), or None."""
-        mp, _ = self.at(p)
-        eqs = find_equilibria(mp, self.controller)
-        return min(eqs, key=lambda e: abs(e.state[W])) if eqs else None
+        ``fohssv stability`` takes it), or None. The equilibrium does not depend on the
+        order alpha (the derivative of a constant is zero): over alpha it is found once."""
+        key = None if self.parameter == 'fractional_order' else float(p)
+        if key not in self._equilibria:
+            eqs = find_equilibria(self.at(p)[0], self.controller)
+            self._equilibria[key] = min(eqs, key=lambda e: abs(e.state[W])) if eqs else None
+        return self._equilibria[key]

@@ -8,7 +8,8 @@ API beside :func:`fohssv_sim.simulate.simulate`; ``fohssv continue`` calls it).
   start of the range; stability from the Floquet multipliers.
 * ``model='delayed'``: harmonic balance of the delay-differential equation (the delayed
   states' coefficients rotated by k omega tau, tau = L/V moving with V) from an orbit found by
-  simulating at the start of the range; stability not given (``stable: null``).
+  simulating at the start of the range; stability from the Floquet multipliers of a
+  discretised monodromy operator (:mod:`.monodromy`, 256 RK4 steps per period).
 """
 
 from __future__ import annotations
@@ -33,7 +34,8 @@ __all__ = ['follow_orbits', 'start_orbit', 'MODELS']
 MODELS = {'fractional': 'harmonic balance (AFT), Hopf point by amplitude extrapolation',
           'delay-free': 'single shooting, Floquet multipliers from the monodromy matrix',
           'delayed': 'harmonic balance of the delay-differential equation (AFT), from a '
-                     'simulated orbit'}
+                     'simulated orbit; Floquet multipliers from the monodromy operator '
+                     'discretised by RK4 on 256 steps per period'}
 
 Progress = Callable[[str], None]
 
@@ -305,7 +307,9 @@ def _delayed(system: VehicleSystem, branch: Branch, start: float, end: float, sp
     def measure(pt: BranchPoint) -> dict[str, Any]:
         _, c = system.at(pt.p)
         f = prob.frequency_hz(pt.u)
-        return {'value': pt.p, 'frequency_hz': f, 'period_s': 1.0 / f, 'stable': None,
+        stable, mu = prob.stability(pt.u, pt.p)
+        return {'value': pt.p, 'frequency_hz': f, 'period_s': 1.0 / f, 'stable': stable,
+                'multipliers': [[float(m.real), float(m.imag)] for m in mu[:6]],
                 **orbit_measures(prob.signal(pt.u, 1024), c)}
 
     continue_branch(prob, begin, end, scale=scale, direction=direction, limit=start,

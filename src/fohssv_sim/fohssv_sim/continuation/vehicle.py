@@ -136,7 +136,17 @@ class VehicleSystem:
         """The delayed model by harmonic balance of its delay-differential equation, with
         tau = L/V (or as set) moving with the parameter; phase fixed on w."""
         return HarmonicBalance(self.delayed_rhs, 4, harmonics, lambda p: 1.0, phase_state=W,
-                               delay=lambda p: self.at(p)[1].tau)
+                               delay=lambda p: self.at(p)[1].tau, switch=self.delayed_contact)
+
+    def delayed_contact(self, X: np.ndarray, p: float, Xd: np.ndarray) -> np.ndarray:
+        """|h*| - R' of the delayed model (eq. 25 in the model's immersion form) at the states
+        X and delayed states Xd: positive in contact with the cavity wall."""
+        mp, c = self.at(p)
+        if mp.immersion_form == 'paper':
+            hs = (X[0] - Xd[0] + c.L * (X[2] - Xd[2]) + c.L * Xd[1] / c.V) / c.R
+        else:
+            hs = (X[0] - Xd[0] + c.L * X[2]) / c.R
+        return np.abs(hs) - c.R_prime
 
     def harmonic_balance(self, harmonics: int) -> HarmonicBalance:
         """The FOM with its smooth planing force (eqs. 28-29), phase fixed on w."""

@@ -2,8 +2,8 @@
 API beside :func:`fohssv_sim.simulate.simulate`; ``fohssv continue`` calls it).
 
 * ``model='fractional'``: harmonic balance (:mod:`.harmonic`) from the Hopf point, which is
-  found in the range as the point where the orbit's amplitude goes to zero; stability is not
-  given by the method (``stable: null``).
+  found in the range as the point where the orbit's amplitude goes to zero; stability by one
+  simulation per segment between bifurcations (:mod:`.attract`).
 * ``model='delay-free'``: shooting (:mod:`.shooting`) from an orbit found by simulating at the
   start of the range; stability from the Floquet multipliers.
 * ``model='delayed'``: harmonic balance of the delay-differential equation (the delayed
@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from ..params import ModelParameters
+from .attract import segment_verdicts, simulated_verdict
 from .branch import Branch
 from .driver import BranchPoint, ContinuationError, Settings, continue_branch
 from .harmonic import HarmonicBalance, converge_harmonics, hopf_point, initial_guess
@@ -31,7 +32,8 @@ from .vehicle import VehicleSystem, W, orbit_measures
 __all__ = ['follow_orbits', 'start_orbit', 'MODELS']
 
 #: The models ``follow_orbits`` continues, with their method.
-MODELS = {'fractional': 'harmonic balance (AFT), Hopf point by amplitude extrapolation',
+MODELS = {'fractional': 'harmonic balance (AFT), Hopf point by amplitude extrapolation; '
+                        'stability by simulation from the orbit, one run per segment',
           'delay-free': 'single shooting, Floquet multipliers from the monodromy matrix',
           'delayed': 'harmonic balance of the delay-differential equation (AFT), from a '
                      'simulated orbit; Floquet multipliers from the monodromy operator '
@@ -170,10 +172,11 @@ def _fractional(system: VehicleSystem, branch: Branch, start: float, end: float,
 
     low, high = min(start, end), max(start, end)
     target = high if direction[-1] >= 0 else low
-    pts, _ = continue_branch(prob, begin, target, scale=scale, direction=direction,
-                             limit=low if target == high else high,
-                             settings=_driver_settings(span, points, scale_p),
-                             on_point=_recorder(branch, measure, say, checkpoint))
+    pts, bifs = continue_branch(prob, begin, target, scale=scale, direction=direction,
+                                limit=low if target == high else high,
+                                settings=_driver_settings(span, points, scale_p),
+                                on_point=_recorder(branch, measure, say, checkpoint))
+    _simulated_stability(system, prob, branch, pts, [b.index for b in bifs], say)
     last = pts[-1]
     fine, _, history = converge_harmonics(prob, last.u, last.p, start=harmonics, rtol=1e-4)
     branch.settings['harmonic_check'] = {
@@ -183,6 +186,29 @@ def _fractional(system: VehicleSystem, branch: Branch, start: float, end: float,
         say(f'warning: at {branch.parameter} = {last.p:.6g} the frequency needs '
             f'{fine.harmonics} harmonics (rerun with --harmonics {fine.harmonics})')
         branch.settings['harmonics_needed'] = fine.harmonics
+
+
+def _simulated_stability(system: VehicleSystem, prob: HarmonicBalance, branch: Branch,
+                         pts: list[BranchPoint], cuts: list[int], say: Progress) -> None:
+    """``stable`` of the FOM's points, one simulation per segment between bifurcations
+    (:mod:`.attract`); the runs are listed in the settings (``stability_runs``)."""
+    offset = len(branch.points) - len(pts)
+    runs = segment_verdicts(pts, cuts,
+                            lambda pt: simulated_verdict(system, prob, pt.u, pt.p))
+    for run in runs:
+        for i in range(run['first'], run['last'] + 1):
+            branch.points[offset + i]['stable'] = run['stable']
+        run['value'] = pts[run['tested']].p
+        say(f"stability by simulation at {branch.parameter} = {run['value']:.6g}: w amplitude "
+            f"{run['simulated_amplitude']:.4g} m/s after 2 s against the orbit's "
+            f"{run['orbit_amplitude']:.4g}: {'stable' if run['stable'] else 'unstable'} "
+            f"(points {offset + run['first'] + 1} to {offset + run['last'] + 1})")
+    branch.settings['stability_runs'] = [
+        {k: r[k] for k in ('value', 'stable', 'orbit_amplitude', 'simulated_amplitude')}
+        for r in runs]
+    branch.settings['stability_method'] = (
+        'one simulation per segment between bifurcations, from the orbit kicked 2 %, '
+        'stable when w\'s half range after 2 s is within 10 % of the orbit\'s')
 
 
 def _hopf_guess(system: VehicleSystem, start: float, end: float) -> tuple[float, Any]:

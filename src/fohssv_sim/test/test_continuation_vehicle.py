@@ -209,3 +209,39 @@ def test_fom_orbit_by_harmonic_balance_equals_a_long_caputo_simulation():
     period = np.mean(np.diff(crossings(t, w, w.mean())))
     assert orbit['period_s'] == pytest.approx(period, rel=1e-4)
     assert orbit['w_amplitude'] == pytest.approx(0.5 * (w.max() - w.min()), rel=2e-3)
+
+
+def test_fom_fold_found_by_continuation_is_confirmed_by_simulations_on_either_side():
+    """V = 75 m/s: the branch (16 harmonics) leaves the Hopf point backwards (subcritical) and
+    turns at a fold. Simulations of the Caputo model (SOE solver), independent of harmonic
+    balance: between fold and Hopf, a run started near the large orbit (the state a run at
+    alpha = 0.76 reaches, where it is the only attractor) stays on it, at the branch's stable
+    amplitude there, and one started near the equilibrium decays; 0.002 below the fold the
+    same large-orbit start decays too. (The simulated fold lies 5e-4 to 1e-3 below the
+    harmonic-balance one: at 0.7295 the large orbit persists, at 0.7290 it decays.)"""
+    from fohssv_sim.continuation.run import follow_orbits
+    from fohssv_sim.params import ModelParameters
+
+    params = ModelParameters(model='fractional', speed=75.0)
+    b = follow_orbits(params, StateFeedback(), 'fractional_order', 0.72, 0.74, points=20,
+                      harmonics=16)
+    kinds = {x['kind']: x['value'] for x in b.bifurcations}
+    hopf, fold = kinds['hopf'], kinds['fold']
+    assert fold < hopf                                        # subcritical: the branch turns
+    between = 0.5 * (fold + hopf)
+    after_fold = [q for q in b.points if q['stable']]
+    big = min(after_fold, key=lambda q: abs(q['value'] - between))['w_amplitude']
+
+    def amplitude(alpha, x0, duration=2.0):
+        r = simulate(params.replace(fractional_order=alpha), StateFeedback(), duration,
+                     sample_every=10, initial_state=x0)
+        w = r.state[r.t > duration - 0.5, 1]
+        return 0.5 * (w.max() - w.min())
+
+    x_big = simulate(params.replace(fractional_order=0.76), StateFeedback(), 2.0,
+                     sample_every=10).state[-1].tolist()
+    eq = VehicleSystem(params, StateFeedback(), 'fractional_order').equilibrium(between)
+    x_eq = (np.asarray(eq.state) + [0.0, 0.01, 0.0, 0.0]).tolist()
+    assert amplitude(between, x_big) == pytest.approx(big, rel=0.1)   # stays on the orbit
+    assert amplitude(between, x_eq) < 0.1 * big                        # decays
+    assert amplitude(fold - 0.002, x_big) < 1e-3 * big                 # beyond: decays

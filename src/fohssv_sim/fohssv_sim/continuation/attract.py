@@ -39,7 +39,7 @@ def simulated_verdict(system: Any, prob: Any, u: np.ndarray, p: float, *,
     mean = x.mean(axis=1)
     x0 = mean + (1.0 + kick) * (x[:, 0] - mean)
     amp = 0.5 * float(x[1].max() - x[1].min())
-    r = simulate(mp, system.controller, duration, initial_state=x0.tolist(), sample_every=10)
+    r = simulate(mp, system.law(p)[0], duration, initial_state=x0.tolist(), sample_every=10)
     w = r.state[r.t > duration - window, 1]
     got = 0.5 * float(w.max() - w.min())
     return {'stable': bool(abs(got - amp) <= tolerance * amp), 'orbit_amplitude': amp,

@@ -246,7 +246,7 @@ def start_orbit(system: VehicleSystem, p: float, settle: float = 1.0,
     from ..simulate import simulate
 
     mp, _ = system.at(p)
-    r = simulate(mp, system.controller, settle + window, sample_every=10)
+    r = simulate(mp, system.law(p)[0], settle + window, sample_every=10)
     keep = r.t >= settle
     t, x = r.t[keep], r.state[keep]
     w = x[:, 1]

@@ -276,3 +276,25 @@ def test_delay_free_torus_over_a_gain_is_confirmed_by_simulations_on_either_side
         spread[g] = np.max(np.abs(tops[t[up[:-1]] > 2.5] - u[1]))
     before, after = spread[torus - 0.005], spread[torus + 0.005]
     assert before < 1e-3 and after > 1e-2
+
+
+@pytest.mark.parametrize('form', ['paper', 'geometric'])
+def test_compiled_delayed_planing_equals_the_interpreted_physics(form):
+    """The delayed model's planing force as harmonic balance evaluates it (compiled loop)
+    equals physics.planing_delayed run interpreted, in and out of contact."""
+    from fohssv_sim.physics import planing_delayed
+
+    system = VehicleSystem(ModelParameters(model='delayed', immersion_form=form),
+                           StateFeedback(), 'speed')
+    rng = np.random.default_rng(1)
+    X = rng.normal(0.0, [[0.05], [1.7], [0.03], [0.2]], (4, 400))
+    Xd = X + rng.normal(0.0, 0.02, (4, 400))
+    _, c = system.at(75.0)
+    ref = np.array([planing_delayed(x[0], x[2], xd[0], xd[1], xd[2], c.kernel, form)
+                    for x, xd in zip(X.T, Xd.T)])
+    zero = np.zeros((4, 400))
+    got = system.delayed_rhs(X, 75.0, Xd) - system.delayed_rhs(X, 75.0, X + zero)
+    want = np.outer(c.D, ref - np.array([planing_delayed(x[0], x[2], x[0], x[1], x[2],
+                                                         c.kernel, form) for x in X.T]))
+    assert 0 < np.count_nonzero(ref) < ref.size
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-9)

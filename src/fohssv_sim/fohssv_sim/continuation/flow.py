@@ -26,14 +26,14 @@ from __future__ import annotations
 import numpy as np
 
 from ..coefficients import KernelCoefficients
-from ..physics import eq17, jitable, planing_force_law
+from ..physics import eq17, jitable, planing_delayed, planing_force_law
 
 try:
     import numba
 except ImportError:  # pragma: no cover - numba is pinned in requirements.txt
     numba = None
 
-__all__ = ['flow', 'pack_coefficients']
+__all__ = ['flow', 'pack_coefficients', 'planing_delayed_many']
 
 
 def _njit(fn):
@@ -216,3 +216,15 @@ def flow(x0, T, steps, cv, law, variational, every, record):
     if every > 0 and steps % every == 0:
         record[steps // every] = x
     return x, X
+
+
+@_njit
+def planing_delayed_many(X, Xd, cv, form):
+    """The delayed model's planing force (:func:`fohssv_sim.physics.planing_delayed`) at N
+    states X and delayed states Xd (each (4, N)), compiled: harmonic balance of the delayed
+    model and its monodromy operator evaluate it at thousands of points per branch point."""
+    c = _coefficients(cv)
+    out = np.empty(X.shape[1])
+    for i in range(X.shape[1]):
+        out[i] = planing_delayed(X[0, i], X[2, i], Xd[0, i], Xd[1, i], Xd[2, i], c, form)
+    return out

@@ -24,9 +24,9 @@ from ..coefficients import Coefficients, coefficients
 from ..equilibria import find_equilibria
 from ..kernels import pack_law
 from ..params import PARAMETERS, ModelParameters, ParameterError
-from ..physics import eq17, planing_delayed, planing_exact
+from ..physics import eq17, planing_exact
 from ..planing import planing_exact_array, planing_smooth_array
-from .flow import flow, pack_coefficients
+from .flow import flow, pack_coefficients, planing_delayed_many
 from .harmonic import HarmonicBalance
 from .shooting import Field
 
@@ -159,8 +159,9 @@ class VehicleSystem:
         """The delayed model's closed loop (eqs. 22-25) at the states X and the states Xd a
         delay tau earlier, both (4, N)."""
         mp, c = self.at(p)
-        fp = np.array([planing_delayed(x[0], x[2], xd[0], xd[1], xd[2], c.kernel,
-                                       mp.immersion_form) for x, xd in zip(X.T, Xd.T)])
+        fp = planing_delayed_many(np.ascontiguousarray(X, dtype=float),
+                                  np.ascontiguousarray(Xd, dtype=float),
+                                  pack_coefficients(c), str(mp.immersion_form))
         return self._eq17(X, p, c, fp)
 
     def harmonic_balance_delayed(self, harmonics: int) -> HarmonicBalance:

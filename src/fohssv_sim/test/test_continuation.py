@@ -161,3 +161,24 @@ def test_dde_monodromy_of_a_constant_delay_equation_has_the_lambert_w_multiplier
     assert errors[-1] < 1e-8
     order = np.log2(errors[0] / errors[-1]) / 3
     assert order > 3.5
+
+
+def test_delayed_logistic_orbit_has_the_trivial_multiplier_1():
+    """The Hutchinson orbit at r = 1.75 (past its Hopf point r = pi/2, amplitude 0.9), by
+    harmonic balance with 24 harmonics (smooth: exact to round-off): the discretised
+    monodromy operator's multiplier nearest 1 converges to 1 (observed 5e-5, 6e-7, 2e-7,
+    1e-8 at 32-256 steps), the orbit is stable, and the leading nontrivial multiplier (0.466)
+    agrees between 128 and 256 steps to 1e-6."""
+    prob = hutchinson(24)
+    c = np.zeros((1, 49))
+    c[0, 0], c[0, 1] = 1.0, 0.01
+    p_h, u1, p1, u2, p2 = hopf_point(prob, prob.pack(c, 1.3), 1.8, 1e-3)
+    pts, _ = continue_branch(prob, (u2, p2), 1.75, direction=np.append(u2 - u1, p2 - p1),
+                             settings=Settings(ds=0.05, ds_max=0.2))
+    u = pts[-1].u
+    assert pts[-1].p == 1.75 and prob.amplitude(u) > 0.5
+    coarse, fine = prob.multipliers(u, 1.75, 128), prob.multipliers(u, 1.75, 256)
+    assert abs(fine[0] - 1.0) < 1e-7
+    assert abs(coarse[0] - 1.0) > abs(fine[0] - 1.0)
+    assert np.max(np.abs(fine[1:])) < 1.0
+    assert abs(abs(coarse[1]) - abs(fine[1])) < 1e-6

@@ -72,8 +72,14 @@ def dde_monodromy(coefficients: Coefficients, n: int, T: float, tau: float, step
     # three stage times per step; the ends just inside the step (its side of a break)
     t0, t1 = t[zero:zero + P], t[zero + 1:zero + P + 1]
     h = t1 - t0
-    eps = 1e-3 * h                                   # clear of the differences in A, B
-    A, B = coefficients(np.stack([t0 + eps, t0 + 0.5 * h, t1 - eps], axis=1).ravel())
+    # at a break the end stage is taken 1e-3 h inside the step, clear of the differences
+    # that give A and B (elsewhere exactly at the node: the shift would cost an O(h) error)
+    marks = np.mod(np.asarray(breaks, dtype=float), T)
+    near = np.array([np.any(np.abs(np.mod(v - marks + 0.5 * T, T) - 0.5 * T) < 1e-9 * T)
+                     for v in np.mod(np.append(t0, t1[-1]), T)]) if marks.size else \
+        np.zeros(P + 1, dtype=bool)
+    start, end = 1e-3 * h * near[:-1], 1e-3 * h * near[1:]
+    A, B = coefficients(np.stack([t0 + start, t0 + 0.5 * h, t1 - end], axis=1).ravel())
     A, B = A.reshape(P, 3, n, n), B.reshape(P, 3, n, n)
     # Y[i]: dy(t_i) / d(initial segment) for the node i (extended numbering), n x size
     Y = np.zeros((t.size, n, size))

@@ -217,8 +217,9 @@ def test_fom_fold_found_by_continuation_is_confirmed_by_simulations_on_either_si
     balance: between fold and Hopf, a run started near the large orbit (the state a run at
     alpha = 0.76 reaches, where it is the only attractor) stays on it, at the branch's stable
     amplitude there, and one started near the equilibrium decays; 0.002 below the fold the
-    same large-orbit start decays too. (The simulated fold lies 5e-4 to 1e-3 below the
-    harmonic-balance one: at 0.7295 the large orbit persists, at 0.7290 it decays.)"""
+    same large-orbit start decays too. (At the solver's default step the simulated fold lies
+    5e-4 to 1e-3 below the harmonic-balance one, at half the step within 4e-4 of it: the
+    solver's step error.)"""
     from fohssv_sim.continuation.run import follow_orbits
     from fohssv_sim.params import ModelParameters
 

@@ -155,6 +155,9 @@ def test_an_interrupted_branch_resumes_from_its_checkpoint(tmp_path):
     assert done.points[-1]['value'] == whole.points[-1]['value'] == 0.77
     assert done.points[-1]['frequency_hz'] == pytest.approx(whole.points[-1]['frequency_hz'],
                                                             rel=1e-8)
+    # stability by simulation reaches the points computed before the interruption too
+    assert all(q['stable'] is not None for q in done.points)
+    assert done.points[-1]['stable'] == whole.points[-1]['stable']
 
 
 def test_delayed_orbit_by_harmonic_balance_equals_a_long_simulation():

@@ -116,6 +116,8 @@ def _recorder(branch: Branch, measure: Callable[[BranchPoint], dict[str, Any]],
             near = min(branch.points, key=lambda q: abs(q['value'] - b.value))
             branch.bifurcations.append({'kind': b.kind.split(':')[0], 'value': b.value,
                                         'w': near['w_max']})
+        # the stretch of branch between bifurcations the point lies on
+        branch.points[-1].setdefault('segment', len(branch.bifurcations))
         branch.resume = {'u': pt.u.tolist(), 'p': pt.p, 'tangent': pt.tangent.tolist()}
         q = branch.points[-1]
         stable = {True: 'stable', False: 'unstable', None: 'stability unknown'}[q['stable']]
@@ -191,13 +193,17 @@ def _fractional(system: VehicleSystem, branch: Branch, start: float, end: float,
 def _simulated_stability(system: VehicleSystem, prob: HarmonicBalance, branch: Branch,
                          pts: list[BranchPoint], cuts: list[int], say: Progress) -> None:
     """``stable`` of the FOM's points, one simulation per segment between bifurcations
-    (:mod:`.attract`); the runs are listed in the settings (``stability_runs``)."""
+    (:mod:`.attract`), given to every point of that segment (``segment``: the count of
+    bifurcations before the point); the runs are listed in the settings
+    (``stability_runs``)."""
     offset = len(branch.points) - len(pts)
     runs = segment_verdicts(pts, cuts,
                             lambda pt: simulated_verdict(system, prob, pt.u, pt.p))
     for run in runs:
-        for i in range(run['first'], run['last'] + 1):
-            branch.points[offset + i]['stable'] = run['stable']
+        segment = branch.points[offset + run['tested']].get('segment')
+        for q in branch.points:            # a resumed branch's earlier points too
+            if q.get('segment') == segment:
+                q['stable'] = run['stable']
         run['value'] = pts[run['tested']].p
         say(f"stability by simulation at {branch.parameter} = {run['value']:.6g}: w amplitude "
             f"{run['simulated_amplitude']:.4g} m/s after 2 s against the orbit's "

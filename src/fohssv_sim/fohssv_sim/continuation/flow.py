@@ -200,8 +200,11 @@ def flow(x0, T, steps, cv, law, variational, every, record):
             new = _region(xo[1], wc)
             if new == region:
                 break
-            # crossed from `region` into `new`: the surface between them
-            surface = wc if max(region, new) == 1 else -wc
+            # crossed out of `region` towards `new`: the first surface on the way
+            if new > region:
+                surface = -wc if region == -1 else wc
+            else:
+                surface = wc if region == 1 else -wc
             m = _crossing(cv, law, x, left, region, surface)
             _step(cv, law, x, X, m, region, variational, xo, Xo)
             x[:] = xo

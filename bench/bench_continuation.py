@@ -2,14 +2,20 @@
 """Benchmark: a branch of periodic orbits by continuation beside the brute-force orbit
 diagram (``run_sweep``) over the same grid.
 
-    python bench/bench_continuation.py [--quick] [--workers 2] [--out FILE.json]
+    python bench/bench_continuation.py [--quick] [--branch-only] [--workers 2] [--out FILE.json]
 
-Two cases, each timed both ways (wall-clock seconds):
-  delay-free over V  ``follow_orbits`` (shooting) over V = 60 .. 120 m/s, about 50 points,
-                     against ``run_sweep`` of the delay-free model on a 50-value V grid.
-  FOM over alpha     ``follow_orbits`` (harmonic balance, 32 harmonics) over alpha = 0.7 .. 1
-                     at V = 75 m/s, against ``run_sweep`` of the FOM on a 50-value alpha
-                     grid.
+Three cases, each timed both ways (wall-clock seconds; the branch's CPU seconds too):
+  delay-free over V  ``follow_orbits`` (compiled shooting) over V = 60 .. 120 m/s, about 50
+                     points, against ``run_sweep`` of the delay-free model on a 50-value V
+                     grid (target: the branch in at most 30 s).
+  FOM over alpha     ``follow_orbits`` (harmonic balance, 32 harmonics, with its stability
+                     simulations) over alpha = 0.7 .. 1 at V = 75 m/s, against ``run_sweep``
+                     of the FOM on a 50-value alpha grid (target: at most 60 s).
+  delayed over V     ``follow_orbits`` (harmonic balance of the DDE, 16 harmonics, the
+                     monodromy operator's multipliers at every point) over V = 60 .. 120 m/s,
+                     against ``run_sweep`` of the delayed model.
+
+``--branch-only`` skips the sweeps (the branch times alone, a cheap check).
 
 The sweeps use their defaults (transient 1.5 s, window 0.5 s). ``--quick`` runs 10 points
 and a 10-value grid (a smoke run, not a figure). The ratio sweep / branch is the figure; a
@@ -27,6 +33,7 @@ for _var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
 
 import argparse  # noqa: E402
 import json  # noqa: E402
+import math  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
@@ -49,15 +56,17 @@ CASES = (
     ('delay-free over V', {'model': 'delay-free'}, 'speed', 60.0, 120.0, 16),
     ('FOM over alpha', {'model': 'fractional', 'speed': 75.0}, 'fractional_order', 0.7, 1.0,
      32),
+    ('delayed over V', {'model': 'delayed'}, 'speed', 60.0, 120.0, 16),
 )
 
 
 def time_branch(params: ModelParameters, name: str, start: float, end: float, points: int,
-                harmonics: int) -> tuple[float, int, list]:
-    t0 = time.perf_counter()
+                harmonics: int) -> tuple[float, float, int, list]:
+    t0, c0 = time.perf_counter(), time.process_time()
     b = follow_orbits(params, make('state_feedback'), name, start, end, points=points,
                       harmonics=harmonics)
-    return time.perf_counter() - t0, len(b.points), b.bifurcations
+    return (time.perf_counter() - t0, time.process_time() - c0, len(b.points),
+            b.bifurcations)
 
 
 def time_sweep(params: ModelParameters, name: str, start: float, end: float, n: int,
@@ -79,6 +88,7 @@ def time_sweep(params: ModelParameters, name: str, start: float, end: float, n: 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--quick', action='store_true', help='10 points (smoke run)')
+    ap.add_argument('--branch-only', action='store_true', help='time the branches only')
     ap.add_argument('--workers', type=int, default=2, help='Dask workers of the sweep')
     ap.add_argument('--out', type=Path, help='write the table as JSON here')
     args = ap.parse_args(argv)
@@ -87,15 +97,18 @@ def main(argv: list[str] | None = None) -> int:
     for label, values, name, start, end, harmonics in CASES:
         params = ModelParameters(**values)
         print(f'{label}: branch ({n} points) ...', flush=True)
-        tb, count, bifs = time_branch(params, name, start, end, n, harmonics)
-        print(f'  {tb:.1f} s, {count} points, bifurcations: '
+        tb, cpu, count, bifs = time_branch(params, name, start, end, n, harmonics)
+        print(f'  {tb:.1f} s ({cpu:.1f} CPU s), {count} points, bifurcations: '
               + (', '.join(f"{b['kind']} {b['value']:.5g}" for b in bifs) or 'none'),
               flush=True)
-        print(f'{label}: sweep ({n} values, {args.workers} workers) ...', flush=True)
-        ts = time_sweep(params, name, start, end, n, args.workers)
-        print(f'  {ts:.1f} s', flush=True)
-        rows.append({'case': label, 'branch_s': tb, 'branch_points': count, 'sweep_s': ts,
-                     'sweep_values': n, 'ratio_sweep_over_branch': ts / tb})
+        ts = math.nan
+        if not args.branch_only:
+            print(f'{label}: sweep ({n} values, {args.workers} workers) ...', flush=True)
+            ts = time_sweep(params, name, start, end, n, args.workers)
+            print(f'  {ts:.1f} s', flush=True)
+        rows.append({'case': label, 'branch_s': tb, 'branch_cpu_s': cpu,
+                     'branch_points': count, 'sweep_s': ts, 'sweep_values': n,
+                     'ratio_sweep_over_branch': ts / tb})
     load = os.getloadavg()[0]
     print(f"\n{'case':<20}{'branch (s)':>12}{'points':>8}{'sweep (s)':>12}{'ratio':>8}")
     for r in rows:
@@ -103,7 +116,9 @@ def main(argv: list[str] | None = None) -> int:
               f"{r['sweep_s']:>12.1f}{r['ratio_sweep_over_branch']:>8.2f}")
     print(f'load average (1 min): {load:.2f}')
     if args.out:
-        args.out.write_text(json.dumps({'rows': rows, 'load1': load}, indent=1) + '\n')
+        clean = [{k: (None if isinstance(v, float) and math.isnan(v) else v)
+                  for k, v in r.items()} for r in rows]
+        args.out.write_text(json.dumps({'rows': clean, 'load1': load}, indent=1) + '\n')
     return 0
 
 

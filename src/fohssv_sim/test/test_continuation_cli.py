@@ -30,7 +30,8 @@ def test_fom_branch_writes_branch_json_and_the_diagram(tmp_path):
     assert 'harmonic balance' in data['method']
     for p in data['points']:
         assert {'value', 'frequency_hz', 'w_amplitude', 'stable'} <= set(p)
-        assert p['stable'] is None
+        assert p['stable'] in (True, False)             # by simulation, one per segment
+    assert data['settings']['stability_runs']
     (hopf,) = [b for b in data['bifurcations'] if b['kind'] == 'hopf']
     eq = min(find_equilibria(ModelParameters(speed=84.5), StateFeedback()),
              key=lambda e: abs(e.state[1]))
@@ -39,6 +40,31 @@ def test_fom_branch_writes_branch_json_and_the_diagram(tmp_path):
     again = run('--vary', 'fractional_order=0.74:0.77', '--set', 'speed=84.5', '--points',
                 '4', '--harmonics', '8', '--out', str(tmp_path))
     assert again.returncode == 0 and 'is complete' in again.stdout
+
+
+def test_a_controller_gain_as_the_varied_parameter(tmp_path):
+    """--vary pitch_rate_gain: the delay-free branch over the gain, its last point against a
+    long simulation with the controller built at that gain (period to 1e-4)."""
+    import numpy as np
+
+    from fohssv_sim.simulate import simulate
+
+    out = run('--vary', 'pitch_rate_gain=-0.3:-0.22', '--set', 'model=delay-free', '--set',
+              'speed=75', '--points', '5', '--out', str(tmp_path))
+    assert out.returncode == 0, out.stderr
+    data = json.loads((tmp_path / 'branch.json').read_text())
+    assert data['parameter'] == 'pitch_rate_gain'
+    last = data['points'][-1]
+    assert last['value'] == -0.22 and last['stable'] is True
+    r = simulate(ModelParameters(model='delay-free', speed=75.0),
+                 StateFeedback(pitch_rate_gain=-0.22), 2.5, sample_every=4)
+    t, w = r.t[r.t > 1.5], r.state[r.t > 1.5, 1]
+    up = np.where((w[:-1] < w.mean()) & (w[1:] >= w.mean()))[0]
+    cross = t[up] + (w.mean() - w[up]) / (w[up + 1] - w[up]) * (t[up + 1] - t[up])
+    assert last['period_s'] == pytest.approx(np.mean(np.diff(cross)), rel=1e-4)
+    bad = run('--vary', 'pitch_rate_gain=-0.3:-0.2', '--gain', 'pitch_rate_gain=-0.1',
+              '--set', 'model=delay-free', '--out', str(tmp_path / 'b'))
+    assert bad.returncode == 2 and 'both given' in bad.stderr
 
 
 @pytest.mark.parametrize('args, text', [

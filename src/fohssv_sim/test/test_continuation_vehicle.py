@@ -34,7 +34,7 @@ def crossings(t, w, level):
 
 
 def test_delay_free_orbit_by_shooting_equals_a_long_simulation():
-    """Shooting (DOP853 with restarts at contact) against RK4 at the model's step over 3 s:
+    """Shooting (compiled RK4 split at contact) against RK4 at the model's step over 1.5 s:
     period to 1e-4, amplitude to 1e-3; the trivial multiplier 1 to 1e-6."""
     params = ModelParameters(model='delay-free', speed=75.0)
     system = VehicleSystem(params, StateFeedback(), 'speed')
@@ -47,6 +47,12 @@ def test_delay_free_orbit_by_shooting_equals_a_long_simulation():
     mu = prob.multipliers(u, 75.0)
     assert abs(mu[0] - 1.0) < 1e-6
     assert np.all(np.abs(mu[1:]) < 1.0)                       # a stable orbit
+    # the compiled RK4 (1000 steps, split at contact) against DOP853 (rtol 1e-11) restarted
+    # at contact: the same orbit and multipliers
+    dop = ShootingProblem(system.field(compiled=False), rtol=1e-11)
+    assert np.max(np.abs(dop.residual(u, 75.0))) < 1e-7
+    assert np.max(np.abs(np.sort(np.abs(dop.multipliers(u, 75.0))) - np.sort(np.abs(mu)))) \
+        < 1e-6
     orbit = prob.samples(u, 75.0, 2000)
     amp = 0.5 * (orbit[:, 1].max() - orbit[:, 1].min())
 
@@ -149,6 +155,9 @@ def test_an_interrupted_branch_resumes_from_its_checkpoint(tmp_path):
     assert done.points[-1]['value'] == whole.points[-1]['value'] == 0.77
     assert done.points[-1]['frequency_hz'] == pytest.approx(whole.points[-1]['frequency_hz'],
                                                             rel=1e-8)
+    # stability by simulation reaches the points computed before the interruption too
+    assert all(q['stable'] is not None for q in done.points)
+    assert done.points[-1]['stable'] == whole.points[-1]['stable']
 
 
 def test_delayed_orbit_by_harmonic_balance_equals_a_long_simulation():
@@ -173,6 +182,15 @@ def test_delayed_orbit_by_harmonic_balance_equals_a_long_simulation():
     assert 1.0 / prob.frequency_hz(u) == pytest.approx(period, rel=1e-4)
     assert 0.5 * (x[1].max() - x[1].min()) == pytest.approx(0.5 * (w.max() - w.min()),
                                                              rel=1e-3)
+    # stability from the discretised monodromy operator: the orbit the simulation settles on
+    # is stable; the trivial multiplier 1 is met to ~1e-3 (observed 1e-4 to 8e-3 over 200
+    # to 2048 steps: the Fourier orbit's error at the contact kinks, not the grid's) and the
+    # leading nontrivial one (0.43) agrees between 256 and 1024 steps to 1e-2
+    mu = prob.multipliers(u, 75.0, 256)
+    fine = prob.multipliers(u, 75.0, 1024)
+    assert abs(mu[0] - 1.0) < 1e-2 and abs(fine[0] - 1.0) < 1e-2
+    assert np.max(np.abs(mu[1:])) < 0.6
+    assert abs(abs(mu[1]) - abs(fine[1])) < 1e-2
 
 
 def test_fom_orbit_by_harmonic_balance_equals_a_long_caputo_simulation():
@@ -194,3 +212,109 @@ def test_fom_orbit_by_harmonic_balance_equals_a_long_caputo_simulation():
     period = np.mean(np.diff(crossings(t, w, w.mean())))
     assert orbit['period_s'] == pytest.approx(period, rel=1e-4)
     assert orbit['w_amplitude'] == pytest.approx(0.5 * (w.max() - w.min()), rel=2e-3)
+
+
+def test_fom_fold_found_by_continuation_is_confirmed_by_simulations_on_either_side():
+    """V = 75 m/s: the branch (16 harmonics) leaves the Hopf point backwards (subcritical) and
+    turns at a fold. Simulations of the Caputo model (SOE solver), independent of harmonic
+    balance: between fold and Hopf, a run started near the large orbit (the state a run at
+    alpha = 0.76 reaches, where it is the only attractor) stays on it, at the branch's stable
+    amplitude there, and one started near the equilibrium decays; 0.002 below the fold the
+    same large-orbit start decays too. (At the solver's default step the simulated fold lies
+    5e-4 to 1e-3 below the harmonic-balance one, at half the step within 4e-4 of it: the
+    solver's step error.)"""
+    from fohssv_sim.continuation.run import follow_orbits
+    from fohssv_sim.params import ModelParameters
+
+    params = ModelParameters(model='fractional', speed=75.0)
+    b = follow_orbits(params, StateFeedback(), 'fractional_order', 0.72, 0.74, points=20,
+                      harmonics=16)
+    kinds = {x['kind']: x['value'] for x in b.bifurcations}
+    hopf, fold = kinds['hopf'], kinds['fold']
+    assert fold < hopf                                        # subcritical: the branch turns
+    between = 0.5 * (fold + hopf)
+    after_fold = [q for q in b.points if q['stable']]
+    big = min(after_fold, key=lambda q: abs(q['value'] - between))['w_amplitude']
+
+    def amplitude(alpha, x0, duration=2.0):
+        r = simulate(params.replace(fractional_order=alpha), StateFeedback(), duration,
+                     sample_every=10, initial_state=x0)
+        w = r.state[r.t > duration - 0.5, 1]
+        return 0.5 * (w.max() - w.min())
+
+    x_big = simulate(params.replace(fractional_order=0.76), StateFeedback(), 2.0,
+                     sample_every=10).state[-1].tolist()
+    eq = VehicleSystem(params, StateFeedback(), 'fractional_order').equilibrium(between)
+    x_eq = (np.asarray(eq.state) + [0.0, 0.01, 0.0, 0.0]).tolist()
+    assert amplitude(between, x_big) == pytest.approx(big, rel=0.1)   # stays on the orbit
+    assert amplitude(between, x_eq) < 0.1 * big                        # decays
+    assert amplitude(fold - 0.002, x_big) < 1e-3 * big                 # beyond: decays
+
+
+def test_delay_free_torus_over_a_gain_is_confirmed_by_simulations_on_either_side():
+    """Delay-free, V = 75 m/s, over the pitch-rate gain: a complex pair of Floquet multipliers
+    leaves the unit circle (torus, near -0.2001). Simulations (the model's RK4) from the orbit
+    with w kicked by 0.1 %: 0.005 before the torus point the kick decays (per-cycle maximum
+    of w back within 1e-3 of the orbit's, observed 1e-4 after 2.5 s); 0.005 after it grows
+    into a modulation of w's maxima over 1e-2 (observed 0.14)."""
+    from fohssv_sim.continuation.driver import newton
+    from fohssv_sim.continuation.run import follow_orbits
+
+    params = ModelParameters(model='delay-free', speed=75.0)
+    b = follow_orbits(params, StateFeedback(), 'pitch_rate_gain', -0.25, -0.15, points=20)
+    (torus,) = [x['value'] for x in b.bifurcations if x['kind'] == 'torus']
+    assert -0.21 < torus < -0.19
+    system = VehicleSystem(params, StateFeedback(), 'pitch_rate_gain')
+    prob = ShootingProblem(system.field(), extremum_of=1)
+    u = start_orbit(system, -0.22)
+    spread = {}
+    for g in (torus - 0.005, torus + 0.005):
+        u, _ = newton(lambda v, g=g: prob.residual(v, g),
+                      lambda v, g=g: prob.jacobian(v, g)[:, :-1], u, 1e-10, 12)
+        x0 = u[:4] * np.array([1.0, 1.001, 1.0, 1.0])
+        r = simulate(params, StateFeedback(pitch_rate_gain=g), 3.0, initial_state=x0.tolist())
+        w, t = r.state[:, 1], r.t
+        level = prob.samples(u, g, 200)[:, 1].mean()
+        up = np.where((w[:-1] < level) & (w[1:] >= level))[0]
+        tops = np.array([w[i:j].max() for i, j in zip(up, up[1:])])
+        spread[g] = np.max(np.abs(tops[t[up[:-1]] > 2.5] - u[1]))
+    before, after = spread[torus - 0.005], spread[torus + 0.005]
+    assert before < 1e-3 and after > 1e-2
+
+
+@pytest.mark.parametrize('form', ['paper', 'geometric'])
+def test_compiled_delayed_planing_equals_the_interpreted_physics(form):
+    """The delayed model's planing force as harmonic balance evaluates it (compiled loop)
+    equals physics.planing_delayed run interpreted, in and out of contact."""
+    from fohssv_sim.physics import planing_delayed
+
+    system = VehicleSystem(ModelParameters(model='delayed', immersion_form=form),
+                           StateFeedback(), 'speed')
+    rng = np.random.default_rng(1)
+    X = rng.normal(0.0, [[0.05], [1.7], [0.03], [0.2]], (4, 400))
+    Xd = X + rng.normal(0.0, 0.02, (4, 400))
+    _, c = system.at(75.0)
+    ref = np.array([planing_delayed(x[0], x[2], xd[0], xd[1], xd[2], c.kernel, form)
+                    for x, xd in zip(X.T, Xd.T)])
+    zero = np.zeros((4, 400))
+    got = system.delayed_rhs(X, 75.0, Xd) - system.delayed_rhs(X, 75.0, X + zero)
+    want = np.outer(c.D, ref - np.array([planing_delayed(x[0], x[2], x[0], x[1], x[2],
+                                                         c.kernel, form) for x in X.T]))
+    assert 0 < np.count_nonzero(ref) < ref.size
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-9)
+
+
+def test_delayed_branch_carries_multipliers_and_stability():
+    """follow_orbits on the delayed model: every point gets its monodromy multipliers (the
+    trivial one first, within 5e-2 of 1 with 16 harmonics: the Fourier orbit's error at the
+    contact kinks, observed up to 3.2e-2) and stable = all others inside the unit circle;
+    the simulated orbit it starts from is stable, so the first point must be."""
+    from fohssv_sim.continuation.run import follow_orbits
+
+    b = follow_orbits(ModelParameters(model='delayed'), StateFeedback(), 'speed', 75.0, 80.0,
+                      points=3, harmonics=16)
+    assert b.points[0]['stable'] is True
+    for q in b.points:
+        mu = np.array([complex(*m) for m in q['multipliers']])
+        assert abs(mu[0] - 1.0) < 5e-2
+        assert q['stable'] == bool(np.max(np.abs(mu[1:])) < 1.0)

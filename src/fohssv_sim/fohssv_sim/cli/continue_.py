@@ -34,8 +34,8 @@ def register(sub) -> None:
                        'after every point and OUT/branch.png/.svg at the end; rerunning the '
                        'same command resumes an unfinished branch.')
     p.add_argument('--vary', required=True, metavar='NAME=START:END',
-                   help='the varied model parameter and its range, e.g. '
-                   'fractional_order=0.7:1 or speed=60:120')
+                   help='the varied model parameter or controller gain and its range, e.g. '
+                   'fractional_order=0.7:1, speed=60:120 or pitch_rate_gain=-0.3:-0.1')
     add_common_options(p)
     p.add_argument('--points', type=bounded('--points', low=3, high=2000, integer=True,
                                             unit='points'), default=50,
@@ -50,8 +50,9 @@ def register(sub) -> None:
     p.set_defaults(func=cmd_continue)
 
 
-def parse_vary(text: str) -> tuple[str, float, float]:
-    """``NAME=START:END`` checked against the parameter table (numeric, in range).
+def parse_vary(text: str, gains: list[str] = ()) -> tuple[str, float, float]:
+    """``NAME=START:END`` checked against the parameter table (numeric, in range), or NAME
+    one of the controller's ``gains`` (its range is checked by building the controller).
 
     Raises:
         CliError: malformed, an unknown or non-numeric name, a bound out of range, or
@@ -62,10 +63,11 @@ def parse_vary(text: str) -> tuple[str, float, float]:
                        'fractional_order=0.7:1')
     name, rng = (s.strip() for s in text.split('=', 1))
     spec = PARAMETER_BY_NAME.get(name)
-    if spec is None or not spec.numeric:
-        numeric = ', '.join(n for n, s in PARAMETER_BY_NAME.items() if s.numeric)
-        raise CliError(f'--vary {name!r} is not a numeric model parameter; choose one of '
-                       f'{numeric}')
+    if name not in gains and (spec is None or not spec.numeric):
+        numeric = ', '.join([n for n, s in PARAMETER_BY_NAME.items() if s.numeric] +
+                            list(gains))
+        raise CliError(f'--vary {name!r} is not a numeric model parameter nor a gain of the '
+                       f'controller; choose one of {numeric}')
     try:
         start, end = (float(v) for v in rng.split(':'))
     except ValueError:
@@ -74,7 +76,8 @@ def parse_vary(text: str) -> tuple[str, float, float]:
         if not math.isfinite(v):
             raise CliError(f'--vary {name}={v!r} must be finite')
         try:
-            spec.validate(v)
+            if spec is not None and name not in gains:
+                spec.validate(v)
         except ParameterError as e:
             raise CliError(f'--vary: {e}') from None
     if start == end:
@@ -86,14 +89,21 @@ def cmd_continue(args: argparse.Namespace) -> int:
     from ..continuation.branch import load_branch, plot_branch
     from ..continuation.driver import ContinuationError
     from ..continuation.run import follow_orbits
+    from ..continuation.vehicle import controller_gains
 
-    name, start, end = parse_vary(args.vary)
-    if name in assignments(args.set or [], '--set'):
-        raise CliError(f'--set {name}=... and --vary {name}=... both given; give it once')
-    params = model_params(args, **{name: start})
-    model_params(args, **{name: end})                   # valid at both ends
     gains = assignments(args.gain or [], '--gain')
     ctl = load_controller(args.controller, gains)
+    name, start, end = parse_vary(args.vary, controller_gains(ctl))
+    if name in assignments(args.set or [], '--set') or name in gains:
+        raise CliError(f'--set/--gain {name}=... and --vary {name}=... both given; give it '
+                       'once')
+    if name in controller_gains(ctl):
+        params = model_params(args)
+        for v in (end, start):                          # valid at both ends
+            ctl = load_controller(args.controller, {**gains, name: v})
+    else:
+        params = model_params(args, **{name: start})
+        model_params(args, **{name: end})               # valid at both ends
     sweep = None
     if args.sweep is not None:
         from ..analysis.sweep import load_sweep
@@ -124,6 +134,7 @@ def cmd_continue(args: argparse.Namespace) -> int:
         f"{b['kind']} at {b['value']:.6g}" for b in branch.bifurcations) or 'none'))
     plot_branch(branch, figure_paths(out / 'branch'), sweep=sweep,
                 axis_label='fractional order α' if name == 'fractional_order' else
-                f"{name} ({PARAMETER_BY_NAME[name].unit})")
+                f"{name} ({PARAMETER_BY_NAME[name].unit})" if name in PARAMETER_BY_NAME else
+                name)
     print(f'{path}; diagram {out}/branch.png/.svg')
     return 0

@@ -8,8 +8,10 @@ corrected point, as a failed correction: e.g. a jump onto a trivial solution),
 two consecutive points marks a bifurcation of that name (e.g. ``period_doubling`` for a
 Floquet multiplier crossing -1).
 
-Each step predicts along the unit tangent t of the branch in y = (u, p) and corrects by Newton
-on the extended system (Keller's pseudo-arclength condition)::
+Each step predicts along the unit tangent t of the branch in y = (u, p) and corrects on the
+extended system (Keller's pseudo-arclength condition), by the chord method with the previous
+point's Jacobian (one Jacobian per point, the one its tangent needs anyway; full Newton when
+the chord stalls)::
 
     F(u, p) = 0,      t . (y - y_prev) - ds = 0,
 
@@ -28,6 +30,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import scipy.linalg
 
 __all__ = ['BranchPoint', 'Bifurcation', 'ContinuationError', 'Settings', 'continue_branch',
            'newton', 'jacobian', 'fd_jacobian']
@@ -96,22 +99,40 @@ def jacobian(problem: Any, u: np.ndarray, p: float) -> np.ndarray:
 
 
 def newton(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray], np.ndarray],
-           y: np.ndarray, tol: float, max_iter: int, xtol: float = 1e-10
-           ) -> tuple[np.ndarray, int] | None:
+           y: np.ndarray, tol: float, max_iter: int, xtol: float = 1e-10,
+           frozen: np.ndarray | None = None) -> tuple[np.ndarray, int] | None:
     """Newton's method on a square system: ``(root, iterations)`` once the max-norm of the
     residual is below ``tol`` or of the last step below ``xtol`` (1 + max |y|) (round-off
-    bounds a residual of large terms above zero); None when neither within ``max_iter``."""
+    bounds a residual of large terms above zero); None when neither within ``max_iter``.
+
+    ``frozen``: a matrix used in place of the Jacobian at every iteration (the chord method:
+    factored once, ``jac`` not called); it gives up as soon as a step fails to shrink the
+    residual by half, so the caller can fall back to full Newton. Its convergence is linear,
+    so it stops at ``tol`` / 100: as close as Newton's last, quadratic, step lands."""
     y = np.array(y, dtype=float)
+    solve = None
+    if frozen is not None:
+        tol = 1e-2 * tol
+        try:
+            lu = scipy.linalg.lu_factor(frozen, check_finite=True)
+        except (ValueError, np.linalg.LinAlgError):
+            return None
+
+        def solve(r):
+            return scipy.linalg.lu_solve(lu, r)
+    previous = math.inf
     for it in range(max_iter + 1):
         r = fun(y)
         if not np.all(np.isfinite(r)):
             return None
-        if np.max(np.abs(r)) < tol:
+        norm = float(np.max(np.abs(r)))
+        if norm < tol:
             return y, it
-        if it == max_iter:
+        if it == max_iter or (solve is not None and norm > 0.5 * previous):
             return None
+        previous = norm
         try:
-            dy = np.linalg.solve(jac(y), -r)
+            dy = solve(-r) if solve is not None else np.linalg.solve(jac(y), -r)
         except np.linalg.LinAlgError:
             return None
         y = y + dy
@@ -244,7 +265,8 @@ def _follow(problem: _Scaled, start: tuple[np.ndarray, float], end: float,
     if direction is None:
         direction = np.zeros(n + 1)
         direction[-1] = sign
-    t = _tangent(jacobian(problem, u0, p0), np.asarray(direction, dtype=float))
+    J = jacobian(problem, u0, p0)
+    t = _tangent(J, np.asarray(direction, dtype=float))
     points = [BranchPoint(u0, p0, t, _monitors(problem, u0, p0))]
     bifs: list[Bifurcation] = []
     if on_point:
@@ -252,17 +274,19 @@ def _follow(problem: _Scaled, start: tuple[np.ndarray, float], end: float,
     ds = s.ds
     while len(points) < s.max_points:
         prev = points[-1]
-        got = _step(problem, prev, ds, end, limit, sign, s)
+        got = _step(problem, prev, J, ds, end, limit, sign, s)
         if got is None:      # a failed correction: a smaller step
             ds *= 0.5
             if ds < s.ds_min:
                 break
             continue
-        y, iters = got
-        tangent = _tangent(jacobian(problem, y[:-1], y[-1]), prev.tangent)
+        y, easy = got
+        J_new = jacobian(problem, y[:-1], y[-1])
+        tangent = _tangent(J_new, prev.tangent)
         if tangent @ prev.tangent < s.min_cos and ds > s.ds_min:
             ds *= 0.5        # the branch turned too sharply: it may have jumped to another
             continue
+        J = J_new
         point = BranchPoint(y[:-1], float(y[-1]), tangent, _monitors(problem, y[:-1], y[-1]))
         points.append(point)
         bifs.extend(_detected(points))
@@ -270,15 +294,17 @@ def _follow(problem: _Scaled, start: tuple[np.ndarray, float], end: float,
             on_point(point, bifs)
         if point.p == end or point.p == limit:
             break
-        ds = min(ds * (1.5 if iters <= 3 else 1.0), s.ds_max)
+        ds = min(ds * (1.5 if easy else 1.0), s.ds_max)
     return points, bifs
 
 
-def _step(problem: _Scaled, prev: BranchPoint, ds: float, end: float, limit: float | None,
-          sign: float, s: Settings) -> tuple[np.ndarray, int] | None:
-    """The next point ``(y, Newton iterations)`` at arclength ``ds`` from ``prev``, landed on
-    p = ``end`` or ``limit`` if it passed one; None when the correction fails or the problem
-    refuses it."""
+def _step(problem: _Scaled, prev: BranchPoint, J_prev: np.ndarray, ds: float, end: float,
+          limit: float | None, sign: float, s: Settings) -> tuple[np.ndarray, bool] | None:
+    """The next point ``(y, easy)`` at arclength ``ds`` from ``prev``, landed on p = ``end``
+    or ``limit`` if it passed one; None when the correction fails or the problem refuses it.
+    The corrector is the chord method on ``prev``'s Jacobian ``J_prev`` (no new Jacobian per
+    iteration), full Newton if that stalls; ``easy``: the chord converged within 5
+    iterations."""
     y_prev = np.append(prev.u, prev.p)
     tp = prev.tangent
 
@@ -288,10 +314,14 @@ def _step(problem: _Scaled, prev: BranchPoint, ds: float, end: float, limit: flo
     def jac(y):
         return np.vstack([jacobian(problem, y[:-1], y[-1]), tp])
 
-    got = newton(fun, jac, y_prev + ds * tp, s.tol, s.max_iter)
+    y0 = y_prev + ds * tp
+    got = newton(fun, jac, y0, s.tol, s.max_iter, frozen=np.vstack([J_prev, tp]))
+    easy = got is not None and got[1] <= 5
+    if got is None:
+        got = newton(fun, jac, y0, s.tol, s.max_iter)
     if got is None:
         return None
-    y, iters = got
+    y = got[0]
     valid = getattr(problem.problem, 'valid', None)
     if valid is not None and not valid(prev.u * problem.su, y[:-1] * problem.su):
         return None          # e.g. a jump onto a trivial solution
@@ -300,13 +330,13 @@ def _step(problem: _Scaled, prev: BranchPoint, ds: float, end: float, limit: flo
     elif limit is not None and (y[-1] - limit) * sign < 0.0:
         bound = limit
     else:
-        return y, iters
+        return y, easy
     n = prev.u.size
     landed = newton(lambda u: problem.residual(u, bound),
                     lambda u: jacobian(problem, u, bound)[:, :n],
                     prev.u + (bound - prev.p) / (y[-1] - prev.p) * (y[:-1] - prev.u),
                     s.tol, s.max_iter)
-    return None if landed is None else (np.append(landed[0], bound), iters)
+    return None if landed is None else (np.append(landed[0], bound), easy)
 
 
 def _detected(points: list[BranchPoint]) -> list[Bifurcation]:

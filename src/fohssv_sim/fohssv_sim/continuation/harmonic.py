@@ -35,6 +35,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .driver import ContinuationError, newton
+from .monodromy import dde_multipliers, stage_slopes
+from .shooting import floquet_tests
 
 __all__ = ['HarmonicBalance', 'hopf_point', 'converge_harmonics', 'initial_guess']
 
@@ -55,6 +57,8 @@ class HarmonicBalance:
     #: the delay tau(p) of a delay-differential system: ``rhs(X, p, X_delayed)`` then gets
     #: the states at t - tau too (their coefficients rotated by k omega tau)
     delay: Callable[[float], float] | None = None
+    #: ``switch(x, p, xd)``: values whose sign changes where rhs's formula changes (a kink)
+    switch: Callable[[np.ndarray, float, np.ndarray], np.ndarray] | None = None
 
     def __post_init__(self) -> None:
         self.samples = max(self.samples, 4 * self.harmonics + 4)
@@ -146,14 +150,14 @@ class HarmonicBalance:
         Phi[:, 2::2] = np.sin(np.outer(theta, k))
         E = Phi.T * (2.0 / N)
         E[0] /= 2.0
-        G = np.einsum('rt,ijt,tm->rimj', E, self._slopes(u, p, x, None), Phi)
+        G = _sandwich(E, self._slopes(u, p, x, None), Phi)
         if self.delay is not None:     # the delayed states: the basis at t - tau
             lagged = theta - float(u[-1]) * self.delay(p)
             Phi_d = np.ones((N, M))
             Phi_d[:, 1::2] = np.cos(np.outer(lagged, k))
             Phi_d[:, 2::2] = np.sin(np.outer(lagged, k))
             xd = self.signal(u, N, self.delay(p))
-            G += np.einsum('rt,ijt,tm->rimj', E, self._slopes(u, p, x, xd), Phi_d)
+            G += _sandwich(E, self._slopes(u, p, x, xd), Phi_d)
         sign = np.full(M, -0.5)
         sign[0] = -1.0
         sign[2::2] = 0.5
@@ -196,12 +200,63 @@ class HarmonicBalance:
             out[:, j] = (f1 - f2) / (2.0 * d)
         return out
 
+    def monitors(self, u: np.ndarray, p: float) -> dict[str, float]:
+        """A delayed system's Floquet test functions (:func:`.shooting.floquet_tests` of
+        :meth:`multipliers`, kept for :meth:`stability`); none for an ODE or FOM."""
+        if self.delay is None:
+            return {}
+        mu = self.multipliers(u, p)
+        self._multipliers = (np.asarray(u, dtype=float).tobytes(), float(p), mu)
+        return floquet_tests(mu[1:])
+
+    def stability(self, u: np.ndarray, p: float) -> tuple[bool | None, np.ndarray | None]:
+        """(stable, multipliers) of a delayed system's orbit (the last monitored ones when at
+        the same point); (None, None) for a system without delay (harmonic balance gives no
+        multipliers)."""
+        if self.delay is None:
+            return None, None
+        got = getattr(self, '_multipliers', None)
+        if got is not None and got[0] == np.asarray(u, dtype=float).tobytes() and \
+                got[1] == float(p):
+            mu = got[2]
+        else:
+            mu = self.multipliers(u, p)
+        return bool(np.max(np.abs(mu[1:])) < 1.0), mu
+
+    def values(self, u: np.ndarray, times: np.ndarray) -> np.ndarray:
+        """x at the given times (s), shape (n, len(times)), from the Fourier series."""
+        c = self.coefficients(u)
+        phase = np.outer(np.arange(1, self.harmonics + 1), float(u[-1]) * np.asarray(times))
+        return c[:, :1] + c[:, 1::2] @ np.cos(phase) + c[:, 2::2] @ np.sin(phase)
+
+    def multipliers(self, u: np.ndarray, p: float, steps: int = 256) -> np.ndarray:
+        """Floquet multipliers of a delayed system's orbit u (the one nearest 1 first), from
+        the monodromy operator discretised on ``steps`` RK4 steps per period
+        (:mod:`.monodromy`), linearised about the orbit's Fourier series; with ``switch``,
+        grid nodes on its sign changes (found on 4096 samples, linearly interpolated)."""
+        if self.delay is None:
+            raise ValueError('multipliers: only for a delay-differential system')
+        tau = self.delay(p)
+        T = 2.0 * np.pi / float(u[-1])
+
+        def coefficients(times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            x, xd = self.values(u, times), self.values(u, times - tau)
+            return stage_slopes(lambda a, b: self.rhs(a, p, b), x, xd)
+
+        breaks: np.ndarray = np.zeros(0)
+        if self.switch is not None:
+            t = T * np.arange(4097) / 4096
+            g = self.switch(self.values(u, t), p, self.values(u, t - tau))
+            i = np.where(np.sign(g[:-1]) != np.sign(g[1:]))[0]
+            breaks = t[i] + g[i] / (g[i] - g[i + 1]) * (t[i + 1] - t[i])
+        return dde_multipliers(coefficients, self.dim, T, tau, steps, breaks)
+
     def frequency_hz(self, u: np.ndarray) -> float:
         return float(u[-1]) / (2.0 * np.pi)
 
     def with_harmonics(self, harmonics: int) -> HarmonicBalance:
         return HarmonicBalance(self.rhs, self.dim, harmonics, self.order, self.phase_state,
-                               delay=self.delay)
+                               delay=self.delay, switch=self.switch)
 
     def resized(self, u: np.ndarray, harmonics: int) -> np.ndarray:
         """u of this problem as the unknowns of ``with_harmonics(harmonics)`` (zero-padded or
@@ -211,6 +266,16 @@ class HarmonicBalance:
         m = min(c.shape[1], out.shape[1])
         out[:, :m] = c[:, :m]
         return self.with_harmonics(harmonics).pack(out, float(u[-1]))
+
+
+def _sandwich(E: np.ndarray, slopes: np.ndarray, Phi: np.ndarray) -> np.ndarray:
+    """G[r, i, m, j] = sum_t E[r, t] slopes[i, j, t] Phi[t, m] (as einsum 'rt,ijt,tm->rimj'),
+    by one matrix product per factor (einsum's loop over all five indices costs 10x)."""
+    n, N = slopes.shape[0], slopes.shape[2]
+    left = E @ (slopes.transpose(2, 0, 1).reshape(N, n * n)[:, :, None] * Phi[:, None, :]
+                ).reshape(N, -1)                                   # (r, (i j m))
+    M = E.shape[0]
+    return left.reshape(M, n, n, Phi.shape[1]).transpose(0, 1, 3, 2)
 
 
 def initial_guess(problem: HarmonicBalance, equilibrium: np.ndarray, jacobian: np.ndarray,

@@ -2,13 +2,14 @@
 API beside :func:`fohssv_sim.simulate.simulate`; ``fohssv continue`` calls it).
 
 * ``model='fractional'``: harmonic balance (:mod:`.harmonic`) from the Hopf point, which is
-  found in the range as the point where the orbit's amplitude goes to zero; stability is not
-  given by the method (``stable: null``).
+  found in the range as the point where the orbit's amplitude goes to zero; stability by one
+  simulation per segment between bifurcations (:mod:`.attract`).
 * ``model='delay-free'``: shooting (:mod:`.shooting`) from an orbit found by simulating at the
   start of the range; stability from the Floquet multipliers.
 * ``model='delayed'``: harmonic balance of the delay-differential equation (the delayed
   states' coefficients rotated by k omega tau, tau = L/V moving with V) from an orbit found by
-  simulating at the start of the range; stability not given (``stable: null``).
+  simulating at the start of the range; stability from the Floquet multipliers of a
+  discretised monodromy operator (:mod:`.monodromy`, 256 RK4 steps per period).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from ..params import ModelParameters
+from .attract import segment_verdicts, simulated_verdict
 from .branch import Branch
 from .driver import BranchPoint, ContinuationError, Settings, continue_branch
 from .harmonic import HarmonicBalance, converge_harmonics, hopf_point, initial_guess
@@ -30,10 +32,12 @@ from .vehicle import VehicleSystem, W, orbit_measures
 __all__ = ['follow_orbits', 'start_orbit', 'MODELS']
 
 #: The models ``follow_orbits`` continues, with their method.
-MODELS = {'fractional': 'harmonic balance (AFT), Hopf point by amplitude extrapolation',
+MODELS = {'fractional': 'harmonic balance (AFT), Hopf point by amplitude extrapolation; '
+                        'stability by simulation from the orbit, one run per segment',
           'delay-free': 'single shooting, Floquet multipliers from the monodromy matrix',
           'delayed': 'harmonic balance of the delay-differential equation (AFT), from a '
-                     'simulated orbit'}
+                     'simulated orbit; Floquet multipliers from the monodromy operator '
+                     'discretised by RK4 on 256 steps per period'}
 
 Progress = Callable[[str], None]
 
@@ -112,6 +116,8 @@ def _recorder(branch: Branch, measure: Callable[[BranchPoint], dict[str, Any]],
             near = min(branch.points, key=lambda q: abs(q['value'] - b.value))
             branch.bifurcations.append({'kind': b.kind.split(':')[0], 'value': b.value,
                                         'w': near['w_max']})
+        # the stretch of branch between bifurcations the point lies on
+        branch.points[-1].setdefault('segment', len(branch.bifurcations))
         branch.resume = {'u': pt.u.tolist(), 'p': pt.p, 'tangent': pt.tangent.tolist()}
         q = branch.points[-1]
         stable = {True: 'stable', False: 'unstable', None: 'stability unknown'}[q['stable']]
@@ -168,10 +174,11 @@ def _fractional(system: VehicleSystem, branch: Branch, start: float, end: float,
 
     low, high = min(start, end), max(start, end)
     target = high if direction[-1] >= 0 else low
-    pts, _ = continue_branch(prob, begin, target, scale=scale, direction=direction,
-                             limit=low if target == high else high,
-                             settings=_driver_settings(span, points, scale_p),
-                             on_point=_recorder(branch, measure, say, checkpoint))
+    pts, bifs = continue_branch(prob, begin, target, scale=scale, direction=direction,
+                                limit=low if target == high else high,
+                                settings=_driver_settings(span, points, scale_p),
+                                on_point=_recorder(branch, measure, say, checkpoint))
+    _simulated_stability(system, prob, branch, pts, [b.index for b in bifs], say)
     last = pts[-1]
     fine, _, history = converge_harmonics(prob, last.u, last.p, start=harmonics, rtol=1e-4)
     branch.settings['harmonic_check'] = {
@@ -181,6 +188,33 @@ def _fractional(system: VehicleSystem, branch: Branch, start: float, end: float,
         say(f'warning: at {branch.parameter} = {last.p:.6g} the frequency needs '
             f'{fine.harmonics} harmonics (rerun with --harmonics {fine.harmonics})')
         branch.settings['harmonics_needed'] = fine.harmonics
+
+
+def _simulated_stability(system: VehicleSystem, prob: HarmonicBalance, branch: Branch,
+                         pts: list[BranchPoint], cuts: list[int], say: Progress) -> None:
+    """``stable`` of the FOM's points, one simulation per segment between bifurcations
+    (:mod:`.attract`), given to every point of that segment (``segment``: the count of
+    bifurcations before the point); the runs are listed in the settings
+    (``stability_runs``)."""
+    offset = len(branch.points) - len(pts)
+    runs = segment_verdicts(pts, cuts,
+                            lambda pt: simulated_verdict(system, prob, pt.u, pt.p))
+    for run in runs:
+        segment = branch.points[offset + run['tested']].get('segment')
+        for q in branch.points:            # a resumed branch's earlier points too
+            if q.get('segment') == segment:
+                q['stable'] = run['stable']
+        run['value'] = pts[run['tested']].p
+        say(f"stability by simulation at {branch.parameter} = {run['value']:.6g}: w amplitude "
+            f"{run['simulated_amplitude']:.4g} m/s after 2 s against the orbit's "
+            f"{run['orbit_amplitude']:.4g}: {'stable' if run['stable'] else 'unstable'} "
+            f"(points {offset + run['first'] + 1} to {offset + run['last'] + 1})")
+    branch.settings['stability_runs'] = [
+        {k: r[k] for k in ('value', 'stable', 'orbit_amplitude', 'simulated_amplitude')}
+        for r in runs]
+    branch.settings['stability_method'] = (
+        'one simulation per segment between bifurcations, from the orbit kicked 2 %, '
+        'stable when w\'s half range after 2 s is within 10 % of the orbit\'s')
 
 
 def _hopf_guess(system: VehicleSystem, start: float, end: float) -> tuple[float, Any]:
@@ -218,7 +252,7 @@ def start_orbit(system: VehicleSystem, p: float, settle: float = 1.0,
     from ..simulate import simulate
 
     mp, _ = system.at(p)
-    r = simulate(mp, system.controller, settle + window, sample_every=10)
+    r = simulate(mp, system.law(p)[0], settle + window, sample_every=10)
     keep = r.t >= settle
     t, x = r.t[keep], r.state[keep]
     w = x[:, 1]
@@ -305,7 +339,9 @@ def _delayed(system: VehicleSystem, branch: Branch, start: float, end: float, sp
     def measure(pt: BranchPoint) -> dict[str, Any]:
         _, c = system.at(pt.p)
         f = prob.frequency_hz(pt.u)
-        return {'value': pt.p, 'frequency_hz': f, 'period_s': 1.0 / f, 'stable': None,
+        stable, mu = prob.stability(pt.u, pt.p)
+        return {'value': pt.p, 'frequency_hz': f, 'period_s': 1.0 / f, 'stable': stable,
+                'multipliers': [[float(m.real), float(m.imag)] for m in mu[:6]],
                 **orbit_measures(prob.signal(pt.u, 1024), c)}
 
     continue_branch(prob, begin, end, scale=scale, direction=direction, limit=start,

@@ -17,6 +17,9 @@ the field is continuous across the surface (as the planing force is: it is zero 
 only its slope jumps), the saltation matrix at a crossing is the identity and the monodromy
 matrix is the plain product of the smooth pieces' variational flows: no correction is needed.
 A field that jumps across a surface would need the saltation matrix and is not supported.
+
+A field may bring its own compiled integrator (``Field(..., integrate=...)``, e.g. the
+vehicle's, :mod:`.flow`): shooting then calls it instead of DOP853.
 """
 
 from __future__ import annotations
@@ -32,15 +35,19 @@ __all__ = ['Field', 'ShootingProblem', 'floquet_tests']
 
 class Field:
     """An autonomous vector field ``f(x, p)`` with an optional ``switches(x, p)`` (a tuple of
-    surface functions) and Jacobian ``dfdx(x, p)`` (default: central differences)."""
+    surface functions) and Jacobian ``dfdx(x, p)`` (default: central differences), and
+    optionally its own integrator ``integrate(x0, T, p, variational, count)`` returning x(T),
+    X(T) (or None) and ``count`` equally spaced samples over [0, T) (or None)."""
 
     def __init__(self, f: Callable[[np.ndarray, float], np.ndarray], dim: int,
                  switches: Callable[[np.ndarray, float], tuple] | None = None,
-                 dfdx: Callable[[np.ndarray, float], np.ndarray] | None = None) -> None:
+                 dfdx: Callable[[np.ndarray, float], np.ndarray] | None = None,
+                 integrate: Callable[..., tuple] | None = None) -> None:
         self.f = f
         self.dim = dim
         self.switches = switches
         self._dfdx = dfdx
+        self.integrate = integrate
 
     def dfdx(self, x: np.ndarray, p: float) -> np.ndarray:
         if self._dfdx is not None:
@@ -56,10 +63,12 @@ class Field:
 
 
 def _integrate(field: Field, x0: np.ndarray, T: float, p: float, variational: bool,
-               rtol: float, t_eval: np.ndarray | None = None
-               ) -> tuple[np.ndarray, np.ndarray | None, list[np.ndarray]]:
-    """x(T), the monodromy X(T) (or None) and the samples at ``t_eval``, restarting at each
-    switching surface crossing."""
+               rtol: float, count: int = 0) -> tuple[np.ndarray, np.ndarray | None, Any]:
+    """x(T), the monodromy X(T) (or None) and ``count`` samples equally spaced over [0, T),
+    by the field's own integrator or DOP853 restarted at each switching surface crossing."""
+    if field.integrate is not None:
+        return field.integrate(np.asarray(x0, dtype=float), T, p, variational, count)
+    t_eval = np.linspace(0.0, T, count, endpoint=False) if count else None
     n = field.dim
     if variational:
         def rhs(t, y):
@@ -181,9 +190,8 @@ class ShootingProblem:
 
     def samples(self, u: np.ndarray, p: float, count: int = 400) -> np.ndarray:
         """The orbit at ``count`` equally spaced times over one period, shape (count, n)."""
-        T = float(u[-1])
-        t = np.linspace(0.0, T, count, endpoint=False)
-        return np.array(_integrate(self.field, u[:-1], T, p, False, self.rtol, t)[2])
+        return np.array(_integrate(self.field, u[:-1], float(u[-1]), p, False, self.rtol,
+                                   count)[2])
 
     def monitors(self, u: np.ndarray, p: float) -> dict[str, float]:
         """:func:`floquet_tests`, and for each switching surface k the largest and smallest

@@ -19,7 +19,12 @@ ROS typing of the rows:
   (:class:`~fohssv_sim.ros.options.NamesSpec`) -> ``string_array``.
 
 An integer given for a ``double`` row (``-p speed:=80``, or ``speed: 80`` in YAML) is
-converted to a double instead of failing with rclpy's type error, at start and on set.
+converted to a double instead of failing with rclpy's type error, at start and on set. A value
+of the wrong type is refused in the table's words (:func:`.startup.typed`: the parameter, the
+value, what it is, what the row allows), at start and on set, not with rclpy's "Wrong
+parameter type, expected '3' got '4'" (its enum numbers): every row is declared with
+``dynamic_typing`` so that rclpy leaves the type to the row's own check, and its descriptor
+keeps the row's type (a refused change puts back the type rclpy's dynamic typing took from it).
 
 Validation (``on_set``) only validates: it rebuilds the pure dataclasses from the current
 values plus the change, and refuses with the :class:`~fohssv_sim.params.ParameterError` text.
@@ -30,6 +35,7 @@ from __future__ import annotations
 
 import array
 import math
+import weakref
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
@@ -45,7 +51,7 @@ from rclpy.parameter import Parameter
 
 from ..params import ParameterSpec
 from .options import NamesSpec, StateSpec, ros_type_name
-from .startup import precheck
+from .startup import precheck, typed
 
 __all__ = ['ros_type', 'descriptor', 'declare', 'values_of', 'install_validation',
            'python_value']
@@ -78,9 +84,9 @@ def descriptor(spec: ParameterSpec) -> ParameterDescriptor:
         read_only=spec.needs_reset,
     )
     kind = ros_type(spec)
-    if kind == ParameterType.PARAMETER_NOT_SET:
-        d.dynamic_typing = True
-    else:
+    # the type is checked by the row (declare's on_set, :func:`.startup.typed`), in its words
+    d.dynamic_typing = True
+    if kind != ParameterType.PARAMETER_NOT_SET:
         d.type = kind
     bounded = (spec.numeric and spec.low is not None and spec.high is not None
                and math.isfinite(spec.low) and math.isfinite(spec.high))
@@ -144,7 +150,44 @@ def declare(node: Node, specs: Iterable[ParameterSpec]) -> dict[str, Any]:
         return out
 
     node.add_pre_set_parameters_callback(pre_set)
+    if node not in _ROWS:
+
+        def of_its_type(params: list[Parameter]) -> SetParametersResult:
+            why = _wrong_type(node, params)
+            return (SetParametersResult(successful=True) if why is None
+                    else _refused(node, params, why))
+
+        node.add_on_set_parameters_callback(of_its_type)
+    _ROWS.setdefault(node, {}).update((s.name, (s, kinds[s.name])) for s in specs)
     return values_of(node, specs)
+
+
+#: Each node's declared rows and their ROS types, for the type check of a change.
+_ROWS: weakref.WeakKeyDictionary[Node, dict[str, tuple[ParameterSpec, int]]] = \
+    weakref.WeakKeyDictionary()
+
+
+def _wrong_type(node: Node, params: Sequence[Parameter]) -> str | None:
+    """The refusal of the first of ``params`` whose value is of the wrong type for its row
+    (:func:`.startup.typed`), or None."""
+    rows = _ROWS.get(node, {})
+    for p in params:
+        if p.name in rows:
+            spec, kind = rows[p.name]
+            try:
+                typed(spec, kind, python_value(p.value))
+            except ValueError as exc:
+                return str(exc)
+    return None
+
+
+def _refused(node: Node, params: Sequence[Parameter], reason: str) -> SetParametersResult:
+    """Refuse a change of ``params`` with ``reason``; their descriptors keep the types of
+    the values they keep (rclpy's dynamic typing set them to the refused values' types)."""
+    for p in params:
+        if node.has_parameter(p.name):
+            node.describe_parameter(p.name).type = node.get_parameter(p.name).type_.value
+    return SetParametersResult(successful=False, reason=reason)
 
 
 def python_value(value: Any) -> Any:
@@ -173,6 +216,9 @@ def install_validation(node: Node, names: Sequence[str],
     pending: list[Any] = []
 
     def on_set(params: list[Parameter]) -> SetParametersResult:
+        why = _wrong_type(node, params)      # this callback runs before declare's
+        if why is not None:
+            return _refused(node, params, why)
         values = {n: python_value(node.get_parameter(n).value) for n in names}
         for p in params:
             if p.name in values:
@@ -181,7 +227,7 @@ def install_validation(node: Node, names: Sequence[str],
             config = check(values)
         except ValueError as exc:
             pending.clear()
-            return SetParametersResult(successful=False, reason=str(exc))
+            return _refused(node, params, str(exc))
         pending[:] = [config]
         return SetParametersResult(successful=True)
 

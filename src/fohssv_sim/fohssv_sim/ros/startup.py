@@ -26,7 +26,8 @@ Shared by the plant, the controller node, the recorder and the player (one imple
 * :func:`precheck`: checks the overrides of a node's table rows (``--ros-args -p`` and params
   files) against the table *before* rclpy declares them, so a wrong type or a value out of
   range is reported by the table's own text (name, value, allowed range, unit, meaning)
-  instead of rclpy's exception.
+  instead of rclpy's exception; its type check, :func:`typed`, also judges every change of a
+  row at run time (:mod:`.ros_params` declares the rows dynamically typed for it).
 * :func:`declare_rows`: declares plain rows ``(name, default, descriptor)`` (the controller
   node's plugin name; every other parameter is a table row, :mod:`.ros_params`)
   and turns rclpy's type errors into one line with the descriptor's allowed values.
@@ -62,7 +63,7 @@ from typing import Any, NoReturn
 
 import rclpy
 import rclpy.logging
-from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 
@@ -71,7 +72,7 @@ from ..params import ParameterSpec
 __all__ = ['EXIT_BAD_PARAMETERS', 'DEFAULT_DISCOVERY_RANGE', 'default_discovery',
            'default_transport', 'localhost_profile', 'NETWORK_VAR',
            'MAX_PARAMS_BYTES', 'MAX_PARAMS_KEYS', 'read_params_file', 'params_file_args',
-           'BadParameters', 'init', 'precheck', 'declare_rows',
+           'BadParameters', 'init', 'precheck', 'typed', 'declare_rows',
            'refuse_unknown', 'explain', 'one_line', 'report', 'destroy_on_error',
            'end_process_on_build_error', 'exit_now']
 
@@ -388,7 +389,6 @@ def precheck(node: Node, specs: Iterable[ParameterSpec], kinds: Mapping[str, int
         ParameterError: a value of the wrong type or outside the row's range (one line naming
             the parameter, the value, the allowed range, the unit and the meaning).
     """
-    from rcl_interfaces.msg import ParameterType
     from rclpy.parameter import Parameter
 
     overrides = _overrides(node)
@@ -396,27 +396,55 @@ def precheck(node: Node, specs: Iterable[ParameterSpec], kinds: Mapping[str, int
         p = overrides.get(spec.name)
         if p is None:
             continue
-        value = p.value
-        kind = kinds.get(spec.name)
-        got = _kind_name(value)
-        if kind == ParameterType.PARAMETER_DOUBLE:
-            if got not in ('double', 'integer'):
-                raise spec.refuse(value, _not_a_number(value, got))
-        elif kind == ParameterType.PARAMETER_INTEGER:
-            if got == 'double' and math.isfinite(value) and value == int(value):
-                overrides[spec.name] = Parameter(spec.name, value=int(value))
-                value = int(value)
-            elif got != 'integer':
-                raise spec.refuse(value, 'is not a whole number' if got == 'double'
-                                  else _not_a_number(value, got))
-        elif kind == ParameterType.PARAMETER_STRING:
-            if got != 'string':
-                raise spec.refuse(value, f'is {_a(got)}, not a name')
-        elif kind == ParameterType.PARAMETER_NOT_SET:
-            if got not in ('double', 'integer', 'string') and not (
-                    got == 'array' and getattr(spec, 'accepts_array', False)):
-                raise spec.refuse(value, f'is {_a(got)}')
+        value = typed(spec, kinds.get(spec.name), p.value)
+        if value is not p.value:
+            overrides[spec.name] = Parameter(spec.name, value=value)
         spec.validate(value)   # ParameterError: out of range, not a choice, not 4 numbers
+
+
+def typed(spec: ParameterSpec, kind: int | None, value: Any) -> Any:
+    """``value`` for the row ``spec`` declared with the ROS type ``kind`` (``ParameterType``):
+    as it is, or a whole double given for an integer row as an integer.
+
+    Raises:
+        ParameterError: a value of the wrong type, in one line naming the parameter, the
+            value, what it is and what the row allows (not rclpy's "expected '3' got '4'").
+    """
+    got = _kind_name(value)
+    if kind == ParameterType.PARAMETER_DOUBLE:
+        if got not in ('double', 'integer'):
+            raise spec.refuse(value, _not_a_number(value, got))
+    elif kind == ParameterType.PARAMETER_INTEGER:
+        if got == 'double' and math.isfinite(value) and value == int(value):
+            return int(value)
+        if got != 'integer':
+            raise spec.refuse(value, 'is not a whole number' if got == 'double'
+                              else _not_a_number(value, got))
+    elif kind == ParameterType.PARAMETER_STRING:
+        if got != 'string':
+            raise spec.refuse(value, f'is {_a(got)}, not a name')
+    elif kind == ParameterType.PARAMETER_NOT_SET:
+        if got not in ('double', 'integer', 'string') and not (
+                got == 'array' and getattr(spec, 'accepts_array', False)):
+            raise spec.refuse(value, f'is {_a(got)}')
+    elif kind == ParameterType.PARAMETER_BOOL:
+        if got != 'bool':
+            raise spec.refuse(value, f'is {_a(got)}, not true or false')
+    elif kind in _ARRAYS:
+        item, what = _ARRAYS[kind]
+        if got != 'array' or not all(item(v) for v in value):
+            raise spec.refuse(value, f'is {_a(got)}, not {what}')
+    return value
+
+
+def _number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+#: Array parameter types: what each item must be, and the words for the whole.
+_ARRAYS = {ParameterType.PARAMETER_DOUBLE_ARRAY: (_number, 'a list of numbers'),
+           ParameterType.PARAMETER_STRING_ARRAY: (lambda v: isinstance(v, str),
+                                                  'a list of names')}
 
 
 def declare_rows(node: Node, rows: Sequence[tuple[str, Any, ParameterDescriptor]]) -> None:

@@ -12,12 +12,13 @@ or an ``.mcap`` file.
 
 from __future__ import annotations
 
-import io
 import json
+import os
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 from mcap.exceptions import McapError
 from mcap.records import Channel, Footer, Header, Message, Metadata, Schema
@@ -67,8 +68,11 @@ class Scan:
 
     files: BagFiles
     channels: dict[int, ChannelInfo] = field(default_factory=dict)
-    #: (channel id, log time ns, serialized data) in file (= receive) order.
+    #: (channel id, log time ns, serialized data) in file (= receive) order (empty when
+    #: :func:`scan` handed them to ``on_message``).
     messages: list[tuple[int, int, bytes]] = field(default_factory=list)
+    #: Messages read.
+    message_count: int = 0
     #: (name, key-value map) of every MCAP metadata record.
     metadata_records: list[tuple[str, dict[str, str]]] = field(default_factory=list)
     header_library: str = ''
@@ -266,19 +270,25 @@ def locate(path: str | Path) -> BagFiles:
     return BagFiles(p, meta if info is not None else None, files, info)
 
 
-def scan(path: str | Path) -> Scan:
-    """Read every record of the bag that can be read.
+def scan(path: str | Path,
+         on_message: Callable[[int, int, bytes], None] | None = None) -> Scan:
+    """Read every record of the bag that can be read, file by file and record by record
+    (memory: one chunk at a time, and the messages kept).
 
     A truncated or corrupt MCAP file does not raise: reading stops at the first incomplete or
-    corrupt record, ``complete`` is False and ``problem`` says where.
+    corrupt record, ``complete`` is False and ``problem`` says where. With ``on_message``,
+    each message ``(channel id, log time ns, data)`` is handed to it as it is read instead
+    of kept in ``messages``: a bag of any length in bounded memory (``fohssv repair``).
 
     Raises:
         BagError: see :func:`locate`; also an MCAP file with no readable record at all.
     """
     files = locate(path)
     result = Scan(files=files)
+    keep = result.messages.append
     for mcap_path in files.mcap_files:
-        _scan_file(mcap_path, result)
+        _scan_file(mcap_path, result,
+                   on_message or (lambda cid, log, data: keep((cid, log, data))))
     if not result.channels and not result.complete:
         raise BagError(f'{result.problem}; no channel could be read, nothing to recover')
     return result
@@ -304,13 +314,19 @@ def _add_channel(record: Channel, schemas: dict[int, Schema], result: Scan) -> i
     return cid
 
 
-def _scan_file(mcap_path: Path, result: Scan) -> None:
-    """Add every readable record of one MCAP file to ``result``; a truncated or corrupt file
-    sets ``complete`` False and ``problem``."""
+def _scan_file(mcap_path: Path, result: Scan,
+               on_message: Callable[[int, int, bytes], None]) -> None:
+    """Add every readable record of one MCAP file to ``result`` (its messages to
+    ``on_message``); a truncated or corrupt file sets ``complete`` False and ``problem``."""
+    with mcap_path.open('rb') as stream:
+        _scan_stream(mcap_path, stream, result, on_message)
+
+
+def _scan_stream(mcap_path: Path, stream: BinaryIO, result: Scan,
+                 on_message: Callable[[int, int, bytes], None]) -> None:
     schemas: dict[int, Schema] = {}
-    data = mcap_path.read_bytes()
-    result.bytes_total += len(data)
-    stream = io.BytesIO(data)
+    size = os.fstat(stream.fileno()).st_size
+    result.bytes_total += size
     reader = StreamReader(stream, validate_crcs=True)
     saw_footer = False
     good = 0  # offset after the last complete top-level record
@@ -326,8 +342,8 @@ def _scan_file(mcap_path: Path, result: Scan) -> None:
             elif isinstance(record, Message):
                 if record.channel_id not in ids:
                     raise _Corrupt(f'message on unknown channel {record.channel_id}')
-                result.messages.append((ids[record.channel_id], record.log_time,
-                                        bytes(record.data)))
+                on_message(ids[record.channel_id], record.log_time, bytes(record.data))
+                result.message_count += 1
             elif isinstance(record, Metadata):
                 result.metadata_records.append((record.name, dict(record.metadata)))
             elif isinstance(record, Footer):
@@ -338,12 +354,12 @@ def _scan_file(mcap_path: Path, result: Scan) -> None:
     except (McapError, struct.error, EOFError, ValueError, UnicodeDecodeError) as exc:
         kind = type(exc).__name__
         result.problem = (f'{mcap_path}: truncated or corrupt after byte {good} of '
-                          f'{len(data)} ({kind}{": " + str(exc) if str(exc) else ""})')
-    result.bytes_read += good if not saw_footer else len(data)
+                          f'{size} ({kind}{": " + str(exc) if str(exc) else ""})')
+    result.bytes_read += good if not saw_footer else size
     if not saw_footer:
         result.complete = False
         if not result.problem:
-            result.problem = f'{mcap_path}: no footer after byte {good} of {len(data)}'
+            result.problem = f'{mcap_path}: no footer after byte {good} of {size}'
 
 
 def basename(topic: str) -> str:

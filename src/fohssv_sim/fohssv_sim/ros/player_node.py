@@ -84,6 +84,7 @@ from .nodekit import (
     run_node,
     spin_until,
 )
+from .ros_params import refuse_early
 
 __all__ = ['Player', 'PlayerError', 'Track', 'select_tracks', 'command_table', 'main',
            'compare_plant', 'COMPARED',
@@ -529,6 +530,7 @@ def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run fohssv_sim player``; returns the exit code. SIGINT and SIGTERM
     only set STOP (spin.StopSignal): the replay stops between callbacks with a final line and
     the code so far (0); no run_end is announced for an interrupted replay."""
+    refuse_early('player', args, PLAYER_PARAMETERS)        # exit 2 before any DDS entity
     return run_node('player', args, Player, _run, specs=PLAYER_PARAMETERS,
                     on_interrupt=_on_interrupt,
                     on_error=error_line('player', (BagError, PlayerError, OSError)))

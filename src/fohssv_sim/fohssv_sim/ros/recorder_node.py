@@ -106,6 +106,7 @@ from .nodekit import (
     run_node,
     spin_until,
 )
+from .ros_params import refuse_early
 
 __all__ = ['Recorder', 'main', 'default_bag_path', 'source_info', 'EXIT_LOST', 'EMPTY_KEY',
            'RECORDED']
@@ -649,6 +650,7 @@ def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run fohssv_sim recorder``; returns the exit code. SIGINT and
     SIGTERM only set STOP (spin.StopSignal): the loop ends between callbacks, the readers are
     drained and the bag is closed, in order."""
+    refuse_early('recorder', args, RECORDER_PARAMETERS)    # exit 2 before any DDS entity
     return run_node('recorder', args, Recorder, _run, specs=RECORDER_PARAMETERS,
                     on_error=error_line('recorder'), on_exit=_close)
 

@@ -287,8 +287,10 @@ def test_a_writer_whose_compiled_path_cannot_load_writes_interpreted(tmp_path):
 
 
 @pytest.mark.parametrize(('compiled', 'chunk_size', 'limit'), [
-    (True, 1 << 20, 1500 * 1024), (True, 16 * 1024, 700 * 1024), (False, 16 * 1024, 300 * 1024)],
-    ids=['compiled-1MiB-chunks', 'compiled-16KiB-chunks', 'interpreted-16KiB-chunks'])
+    (True, 1 << 20, 1500 * 1024), (True, 16 * 1024, 700 * 1024), (False, 16 * 1024, 300 * 1024),
+    (True, 16 * 1024, None)],
+    ids=['compiled-1MiB-chunks', 'compiled-16KiB-chunks', 'interpreted-16KiB-chunks',
+         'compiled-killed'])
 def test_a_writer_stopped_by_a_full_disk_leaves_a_shortfall_the_ring_counts_exactly(
         tmp_path, compiled, chunk_size, limit):
     """Issue 51.5: the writer's bag file may not grow past ``limit`` bytes (RLIMIT_FSIZE, the
@@ -297,7 +299,8 @@ def test_a_writer_stopped_by_a_full_disk_leaves_a_shortfall_the_ring_counts_exac
     exits 1; the records the producer offered that the bag lacks, counted as the plant counts
     them (the puts that failed once the writer was dead, plus :func:`unrecorded` from the
     ring's header and the cut file), equal the offered records less the messages ``fohssv
-    repair`` recovers from the bag: exact, not a bound."""
+    repair`` recovers from the bag: exact, not a bound. ``limit`` None: no limit, the writer
+    SIGKILLed in the middle of the stream instead (wherever it was), the same count."""
     import resource
     import signal
 
@@ -305,8 +308,9 @@ def test_a_writer_stopped_by_a_full_disk_leaves_a_shortfall_the_ring_counts_exac
     from fohssv_sim.bag.repair import repair
 
     def full_disk():
-        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)    # a failed write, not a signal
-        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+        if limit is not None:
+            signal.signal(signal.SIGXFSZ, signal.SIG_IGN)    # a failed write, not a signal
+            resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
 
     ring = Ring.create(256 * 1024)
     topics = (TopicSpec('/state', contract.FLOAT64_ARRAY, (QOS,), 'array'),
@@ -321,6 +325,8 @@ def test_a_writer_stopped_by_a_full_disk_leaves_a_shortfall_the_ring_counts_exac
     assert read_reply(proc.stdout)['compiled'] is compiled
     offered = failed = 0
     for k in range(40000):                # about 4 MB of records: the file stops at limit
+        if k == 15000 and limit is None:
+            proc.kill()
         for index, raw in ((0, _array([k * 1e-4, 0.0, float(k), 0.0, 0.0])),
                            (1, _clock(round(k * 1e-4 * 1e9)))):
             offered += 1
@@ -329,8 +335,11 @@ def test_a_writer_stopped_by_a_full_disk_leaves_a_shortfall_the_ring_counts_exac
                     failed += 1
                     break
     reply = read_reply(proc.stdout)
-    assert proc.wait(timeout=60) == 1
-    assert reply['error'] == f'{bag}: File too large', reply
+    if limit is None:
+        assert proc.wait(timeout=60) == -signal.SIGKILL and reply is None
+    else:
+        assert proc.wait(timeout=60) == 1
+        assert reply['error'] == f'{bag}: File too large', reply
     lacked = failed + unrecorded(ring, bag / 'full.mcap')
     ring.close()
     report = repair(bag)

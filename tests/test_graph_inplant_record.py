@@ -322,3 +322,46 @@ def test_a_dead_writer_costs_the_lockstep_loop_a_count_per_lost_message(tmp_path
     assert recorded['record_lost'] == 0
     assert summary['samples_per_second'] > 0.25 * unrecorded['samples_per_second'], text
     assert summary['cpu_per_sample_us'] < 1.5 * recorded['cpu_per_sample_us'], text
+
+
+def _realtime_recorded(tmp_path, name: str, ring: int) -> tuple[int, str]:
+    """A hosted real-time run of 2 s at 10 kHz recorded in-plant with a ring of ``ring``
+    bytes: its exit code and log."""
+    log = tmp_path / f'{name}.log'
+    plant = rosproc.start('fohssv_sim', 'plant', plant_args(
+        model='delay-free', mode='realtime', duration=2.0, control_period=1e-4,
+        controller='state_feedback', min_state_subscribers=0, end_linger=0.0,
+        record=str(tmp_path / name), record_buffer=ring), env=rosproc.ros_env(), log=log)
+    try:
+        code = rosproc.wait_exit(plant, 300)
+    finally:
+        stop_all(plant)
+    return code, log.read_text()
+
+
+def test_a_too_small_ring_costs_the_realtime_loop_no_more_than_its_puts(tmp_path):
+    """Issue 51.3: a real-time run whose ring (4 KiB, about 16 samples) is too small for the
+    writer's batches loses records, and each lost record costs the loop a failed put and a
+    count (a wake of the writer once per batch it took, a look at the clock), not a log call
+    or a process check (170-270 us a record before: RTF 0.45). The same run with the default
+    ring beside it: the small ring's run keeps its real-time factor and deadline-miss rate
+    and its CPU per sample, and counts its loss exactly (the bag's shortfall)."""
+    code, normal = _realtime_recorded(tmp_path, 'normal', 32 * 1024 * 1024)
+    assert code == 0, normal
+    code, small = _realtime_recorded(tmp_path, 'small', 4096)
+    assert code == 8, small
+    a, b = rosproc.summary(normal), rosproc.summary(small)
+    assert a['record_lost'] == 0 and b['record_lost'] > 0, (a, b)
+    assert b['achieved_real_time_factor'] > 0.9 * a['achieved_real_time_factor'], (a, b)
+    assert b['deadline_miss_rate'] <= a['deadline_miss_rate'] + 0.02, (a, b)
+    assert b['cpu_per_sample_us'] < 1.5 * a['cpu_per_sample_us'] + 20, (a, b)
+    run = load_run(tmp_path / 'small')
+    published = run.metadata['fohssv.run_end']['published']
+    shortfall = sum(published.values()) - sum(v for k, v in run.topics.items()
+                                              if k in published)
+    # the /clock messages are not listed in run_end: one per state
+    assert shortfall + published['/state'] - run.topics['/clock'] == b['record_lost']
+    print(f"RTF {a['achieved_real_time_factor']:.3f} / {b['achieved_real_time_factor']:.3f}, "
+          f"misses {a['deadline_miss_rate']:.4f} / {b['deadline_miss_rate']:.4f}, CPU per "
+          f"sample {a['cpu_per_sample_us']:.0f} / {b['cpu_per_sample_us']:.0f} us, lost "
+          f"{b['record_lost']} (default ring / 4 KiB)")

@@ -284,3 +284,65 @@ def test_a_writer_whose_compiled_path_cannot_load_writes_interpreted(tmp_path):
     assert result['compiled'] is False and result['counts']['/state'] == 100
     ring.close()
     assert np.array_equal(load_run(tmp_path / 'run').t, np.arange(100) * 1e-4)
+
+
+@pytest.mark.parametrize(('compiled', 'chunk_size', 'limit'), [
+    (True, 1 << 20, 1500 * 1024), (True, 16 * 1024, 700 * 1024), (False, 16 * 1024, 300 * 1024),
+    (True, 16 * 1024, None)],
+    ids=['compiled-1MiB-chunks', 'compiled-16KiB-chunks', 'interpreted-16KiB-chunks',
+         'compiled-killed'])
+def test_a_writer_stopped_by_a_full_disk_leaves_a_shortfall_the_ring_counts_exactly(
+        tmp_path, compiled, chunk_size, limit):
+    """Issue 51.5: the writer's bag file may not grow past ``limit`` bytes (RLIMIT_FSIZE, the
+    disk full: its write fails with EFBIG, as with ENOSPC, wherever it is: in a chunk's
+    bytes, between a chunk and its indexes, at a flush). The writer answers one line and
+    exits 1; the records the producer offered that the bag lacks, counted as the plant counts
+    them (the puts that failed once the writer was dead, plus :func:`unrecorded` from the
+    ring's header and the cut file), equal the offered records less the messages ``fohssv
+    repair`` recovers from the bag: exact, not a bound. ``limit`` None: no limit, the writer
+    SIGKILLed in the middle of the stream instead (wherever it was), the same count."""
+    import resource
+    import signal
+
+    from fohssv_sim.bag.inplant import unrecorded
+    from fohssv_sim.bag.repair import repair
+
+    def full_disk():
+        if limit is not None:
+            signal.signal(signal.SIGXFSZ, signal.SIG_IGN)    # a failed write, not a signal
+            resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    ring = Ring.create(256 * 1024)
+    topics = (TopicSpec('/state', contract.FLOAT64_ARRAY, (QOS,), 'array'),
+              TopicSpec('/clock', contract.CLOCK.type, (QOS,), 'clock'))
+    bag = tmp_path / 'full'
+    proc = subprocess.Popen([sys.executable, '-m', 'fohssv_sim.bag.inplant', str(ring.fd),
+                             str(ring.size)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            pass_fds=(ring.fd,), preexec_fn=full_disk)
+    send(proc.stdin, ('open', WriterConfig(str(bag), topics, {}, flush_period=0.02,
+                                           chunk_size=chunk_size, compiled=compiled)))
+    assert 'opened' in read_reply(proc.stdout)
+    assert read_reply(proc.stdout)['compiled'] is compiled
+    offered = failed = 0
+    for k in range(40000):                # about 4 MB of records: the file stops at limit
+        if k == 15000 and limit is None:
+            proc.kill()
+        for index, raw in ((0, _array([k * 1e-4, 0.0, float(k), 0.0, 0.0])),
+                           (1, _clock(round(k * 1e-4 * 1e9)))):
+            offered += 1
+            while not ring.put(index, raw):
+                if proc.poll() is not None:    # the writer is gone: counted, as the plant does
+                    failed += 1
+                    break
+    reply = read_reply(proc.stdout)
+    if limit is None:
+        assert proc.wait(timeout=60) == -signal.SIGKILL and reply is None
+    else:
+        assert proc.wait(timeout=60) == 1
+        assert reply['error'] == f'{bag}: File too large', reply
+    lacked = failed + unrecorded(ring, bag / 'full.mcap')
+    ring.close()
+    report = repair(bag)
+    held = sum(load_run(bag).topics.values())
+    assert report.repaired and 0 < held == report.messages < offered
+    assert lacked == offered - held, (lacked, offered, held, failed)

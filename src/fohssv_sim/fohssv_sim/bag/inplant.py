@@ -34,9 +34,12 @@ writer paces the loop; counted as ``record_waits``), in real time it counts the 
 writer names each topic's shortfall and the plant exits 8).
 
 A writer that cannot write (a full disk, an I/O error) answers one line, the error in words
-("No space left on device") and the messages it took since its last flush (``unsaved``: the
-plant counts them as lost, with what it leaves in the ring; some may have reached the disk in a
-chunk), and exits 1 without a traceback; the plant goes on unrecorded and exits 8. A bag
+("No space left on device"), and exits 1 without a traceback; the plant goes on unrecorded and
+exits 8. Whatever ends a writer, its ring's header keeps the records it released and its last
+flush mark (the file's size and the messages up to there): the plant counts what the bag
+lacks exactly (:func:`unrecorded`: released records plus those left in the ring, less the
+bag's messages: the mark's count plus the complete chunks the file holds after it, as a
+reader of the cut file finds them). A bag
 directory none of whose files holds a byte (a disk full from the start) is removed: nothing
 blocks the path. At open the writer flushes the bag's first bytes, so a disk full from the
 start refuses ``record`` at once (exit 2).
@@ -62,13 +65,17 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, BinaryIO
 
+from mcap.exceptions import McapError
+from mcap.records import Message
+from mcap.stream_reader import CRCValidationError, StreamReader
+
 from .. import contract
 from .ring import DEFAULT_RING_BYTES, MIN_RING_BYTES, Ring
 from .writer import LogTimes, RunWriter, source_info
 
 __all__ = ['Ring', 'TopicSpec', 'WriterConfig', 'send', 'read_reply',
            'main', 'DEFAULT_RING_BYTES', 'MIN_RING_BYTES', 'CHUNK_SIZE', 'EXIT_LOST',
-           'EXIT_INTERRUPTED', 'EMPTY_KEY']
+           'EXIT_INTERRUPTED', 'EMPTY_KEY', 'unrecorded']
 
 #: The writer's chunk size (bytes): 1 MiB, not the recorder node's 64 KiB. Each flush (every
 #: ``flush_period``) ends the chunk in progress anyway, so a chunk here is what a lockstep or
@@ -209,9 +216,7 @@ class _Session:
             else:
                 self._log.append(lambda raw, _type=t.type: times.stamped(raw, _type))
         # the bag's first bytes to the disk now: a full disk refuses the bag at its start
-        self.writer.flush()
-        self.taken = 0             # records taken from the ring (and released)
-        self.saved = 0             # of which handed to the OS by the last flush that succeeded
+        self.flush()
         ids = self.writer.channel_ids()
         self._channel = [ids[t.name] for t in self.topics]
         self.expected: dict[str, int] | None = None
@@ -259,12 +264,12 @@ class _Session:
             self._write(records)
             self.ring.release()
             n = len(records)
-        self.taken += n
         return n
 
     def flush(self) -> None:
-        self.writer.flush()
-        self.saved = self.taken
+        """Hand the bag to the OS and mark in the ring's header how far it got (the plant
+        counts a dead writer's shortfall from there)."""
+        self.ring.mark_flushed(*self.writer.flush())
 
     def _write(self, records: list[tuple[int, memoryview]]) -> None:
         """The interpreted path: ``(index, bytes)`` records into the bag."""
@@ -300,6 +305,43 @@ class _Session:
                 'interrupted': run_end is None,
                 'cpu_time': time.process_time() - self._cpu0,
                 'compiled': self.packer is not None, 'load_cpu_time': self.load_cpu}
+
+
+def unrecorded(ring: Ring, mcap_path: str | Path) -> int:
+    """The records put into ``ring`` that the bag of its writer, now dead, lacks, exactly,
+    wherever the writer stopped (a full disk in the middle of a chunk, SIGKILL): those it
+    released (the ring's header) and those it left in the ring, less the messages a reader
+    finds in its MCAP file ``mcap_path`` (its last flush mark, then the complete chunks after
+    it). Read through a second view of the mapping (``ring`` may be the producer's)."""
+    view = Ring(os.dup(ring.fd), ring.size)
+    try:
+        left = len(view.take())
+        released = view.released
+        size, messages = view.flushed
+    finally:
+        view.close()
+    return released + left - _messages_in(mcap_path, size, messages)
+
+
+def _messages_in(mcap_path: str | Path, size: int, messages: int) -> int:
+    """The messages a reader of the MCAP file ``mcap_path`` (its writer stopped, maybe cut in
+    the middle of a record) finds, given a flush mark: ``messages`` up to byte ``size`` (a
+    record boundary), plus those of every complete chunk after it (CRCs checked; reading
+    stops at the first incomplete or corrupt record, as :func:`.loader.scan` does). 0 when
+    the file is gone."""
+    try:
+        f = open(mcap_path, 'rb')  # noqa: SIM115 - closed below
+    except FileNotFoundError:
+        return 0
+    with f:
+        f.seek(size)
+        try:
+            for record in StreamReader(f, skip_magic=size > 0, validate_crcs=True).records:
+                if isinstance(record, Message):
+                    messages += 1
+        except (McapError, CRCValidationError, struct.error, EOFError, ValueError):
+            pass
+    return messages
 
 
 def _reply(out: BinaryIO, values: Mapping[str, Any]) -> None:
@@ -407,7 +449,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         result = session.end(run_end)
     except OSError as exc:   # a full disk, an I/O error: one line for the plant, no traceback
         _reply(out, {'error': f'{config.path}: {_os_text(exc)}',
-                     'unsaved': session.taken - session.saved,
                      'removed': _remove_if_empty(config.path)})
         return 1
     _reply(out, result)

@@ -12,12 +12,13 @@ or an ``.mcap`` file.
 
 from __future__ import annotations
 
-import io
 import json
+import os
 import struct
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 from mcap.exceptions import McapError
 from mcap.records import Channel, Footer, Header, Message, Metadata, Schema
@@ -28,8 +29,8 @@ from ruamel.yaml.events import AliasEvent
 
 from .writer import is_run_metadata
 
-__all__ = ['BagError', 'BagFiles', 'ChannelInfo', 'Scan', 'locate', 'scan', 'decode_metadata',
-           'run_metadata', 'basename']
+__all__ = ['BagError', 'BagFiles', 'ChannelInfo', 'Scan', 'locate', 'scan', 'stream',
+           'decode_metadata', 'run_metadata', 'basename']
 
 MCAP_MAGIC = b'\x89MCAP0\r\n'
 
@@ -67,8 +68,14 @@ class Scan:
 
     files: BagFiles
     channels: dict[int, ChannelInfo] = field(default_factory=dict)
-    #: (channel id, log time ns, serialized data) in file (= receive) order.
+    #: (channel id, log time ns, serialized data) in file (= receive) order (empty when
+    #: :func:`scan` handed them to ``on_message``).
     messages: list[tuple[int, int, bytes]] = field(default_factory=list)
+    #: Messages read.
+    message_count: int = 0
+    #: Per channel id: messages read, and the log times (ns) of its first and last.
+    channel_counts: dict[int, int] = field(default_factory=dict)
+    channel_times: dict[int, tuple[int, int]] = field(default_factory=dict)
     #: (name, key-value map) of every MCAP metadata record.
     metadata_records: list[tuple[str, dict[str, str]]] = field(default_factory=list)
     header_library: str = ''
@@ -82,8 +89,8 @@ class Scan:
     def counts(self) -> dict[str, int]:
         """Messages per topic (channels with no message included, as 0)."""
         out = {c.topic: 0 for c in self.channels.values()}
-        for cid, _, _ in self.messages:
-            out[self.channels[cid].topic] += 1
+        for cid, n in self.channel_counts.items():
+            out[self.channels[cid].topic] += n
         return out
 
     def run_metadata(self) -> dict[str, Any]:
@@ -266,22 +273,58 @@ def locate(path: str | Path) -> BagFiles:
     return BagFiles(p, meta if info is not None else None, files, info)
 
 
-def scan(path: str | Path) -> Scan:
-    """Read every record of the bag that can be read.
+def scan(path: str | Path,
+         on_message: Callable[[int, int, bytes], None] | None = None,
+         keep: Callable[[ChannelInfo], bool] | None = None) -> Scan:
+    """Read every record of the bag that can be read, file by file and record by record
+    (memory: one chunk at a time, and the messages kept).
 
     A truncated or corrupt MCAP file does not raise: reading stops at the first incomplete or
-    corrupt record, ``complete`` is False and ``problem`` says where.
+    corrupt record, ``complete`` is False and ``problem`` says where. With ``on_message``,
+    each message ``(channel id, log time ns, data)`` is handed to it as it is read instead
+    of kept in ``messages``: a bag of any length in bounded memory (``fohssv repair``). With
+    ``keep``, only the messages of the channels it accepts are kept (the others counted).
 
     Raises:
         BagError: see :func:`locate`; also an MCAP file with no readable record at all.
     """
-    files = locate(path)
-    result = Scan(files=files)
-    for mcap_path in files.mcap_files:
-        _scan_file(mcap_path, result)
+    result, messages = stream(path)
+    if on_message is None:
+        kept: dict[int, bool] = {}
+        append = result.messages.append
+
+        def on_message(cid: int, log_time: int, data: bytes) -> None:
+            wanted = kept.get(cid)
+            if wanted is None:
+                wanted = kept[cid] = keep is None or keep(result.channels[cid])
+            if wanted:
+                append((cid, log_time, data))
+
+    for cid, log_time, data in messages:
+        on_message(cid, log_time, data)
+    return result
+
+
+def stream(path: str | Path) -> tuple[Scan, Iterator[tuple[int, int, bytes]]]:
+    """The bag as :func:`scan` reads it, for a reader that pulls its messages: a :class:`Scan`
+    (no messages kept) and an iterator of the messages ``(channel id, log time ns, data)`` in
+    file order, read from the files as it is advanced; the scan fills as it goes (a channel
+    before its messages; ``complete`` and ``problem`` once the iterator is exhausted, which
+    raises BagError then when no channel could be read at all).
+
+    Raises:
+        BagError: see :func:`locate`.
+    """
+    result = Scan(files=locate(path))
+    return result, _walk_files(result)
+
+
+def _walk_files(result: Scan) -> Iterator[tuple[int, int, bytes]]:
+    for mcap_path in result.files.mcap_files:
+        with mcap_path.open('rb') as f:
+            yield from _walk(mcap_path, f, result)
     if not result.channels and not result.complete:
         raise BagError(f'{result.problem}; no channel could be read, nothing to recover')
-    return result
 
 
 class _Corrupt(Exception):
@@ -304,13 +347,12 @@ def _add_channel(record: Channel, schemas: dict[int, Schema], result: Scan) -> i
     return cid
 
 
-def _scan_file(mcap_path: Path, result: Scan) -> None:
-    """Add every readable record of one MCAP file to ``result``; a truncated or corrupt file
-    sets ``complete`` False and ``problem``."""
+def _walk(mcap_path: Path, stream: BinaryIO, result: Scan) -> Iterator[tuple[int, int, bytes]]:
+    """The messages of one MCAP file, every other readable record added to ``result``; a
+    truncated or corrupt file sets ``complete`` False and ``problem``."""
     schemas: dict[int, Schema] = {}
-    data = mcap_path.read_bytes()
-    result.bytes_total += len(data)
-    stream = io.BytesIO(data)
+    size = os.fstat(stream.fileno()).st_size
+    result.bytes_total += size
     reader = StreamReader(stream, validate_crcs=True)
     saw_footer = False
     good = 0  # offset after the last complete top-level record
@@ -326,8 +368,13 @@ def _scan_file(mcap_path: Path, result: Scan) -> None:
             elif isinstance(record, Message):
                 if record.channel_id not in ids:
                     raise _Corrupt(f'message on unknown channel {record.channel_id}')
-                result.messages.append((ids[record.channel_id], record.log_time,
-                                        bytes(record.data)))
+                cid, log_time = ids[record.channel_id], record.log_time
+                result.message_count += 1
+                counts = result.channel_counts
+                counts[cid] = counts.get(cid, 0) + 1
+                first = result.channel_times.get(cid)
+                result.channel_times[cid] = (log_time if first is None else first[0], log_time)
+                yield cid, log_time, bytes(record.data)
             elif isinstance(record, Metadata):
                 result.metadata_records.append((record.name, dict(record.metadata)))
             elif isinstance(record, Footer):
@@ -338,12 +385,12 @@ def _scan_file(mcap_path: Path, result: Scan) -> None:
     except (McapError, struct.error, EOFError, ValueError, UnicodeDecodeError) as exc:
         kind = type(exc).__name__
         result.problem = (f'{mcap_path}: truncated or corrupt after byte {good} of '
-                          f'{len(data)} ({kind}{": " + str(exc) if str(exc) else ""})')
-    result.bytes_read += good if not saw_footer else len(data)
+                          f'{size} ({kind}{": " + str(exc) if str(exc) else ""})')
+    result.bytes_read += good if not saw_footer else size
     if not saw_footer:
         result.complete = False
         if not result.problem:
-            result.problem = f'{mcap_path}: no footer after byte {good} of {len(data)}'
+            result.problem = f'{mcap_path}: no footer after byte {good} of {size}'
 
 
 def basename(topic: str) -> str:

@@ -1,7 +1,9 @@
 """Rebuild what a killed recorder could not write: the MCAP summary and indexes, and
 ``metadata.yaml``.
 
-:func:`repair` reads every complete chunk of the bag (:func:`.loader.scan`), writes a new,
+:func:`repair` reads every complete chunk of the bag (:func:`.loader.scan`) twice, as a
+stream (memory: a chunk at a time, whatever the bag's length): once to learn its channels,
+metadata and where it is cut, once to copy its messages into a new,
 fully indexed MCAP with the same channels, schemas, messages, log times and run metadata
 (plus ``fohssv.repaired``, saying what was recovered), and a version 9 ``metadata.yaml``
 (custom_data from the run metadata). The original MCAP file is kept as ``<name>.orig``
@@ -59,18 +61,18 @@ def repair(path: str | Path, *, backup: bool = True, force: bool = False) -> Rep
     Raises:
         BagError: not a bag, several MCAP files, or nothing readable.
     """
-    sc = scan(path)
+    sc = scan(path, on_message=lambda cid, log_time, data: None)    # counted, not kept
     files = sc.files
     if len(files.mcap_files) != 1:
         raise BagError(f'{files.directory}: repair handles a bag with one MCAP file, found '
                        f'{len(files.mcap_files)}')
     mcap_path = files.mcap_files[0]
     if sc.complete and files.metadata_yaml is not None and not force:
-        return RepairReport(files.directory, False, len(sc.messages),
+        return RepairReport(files.directory, False, sc.message_count,
                             f'{files.directory}: complete (summary, index and metadata.yaml '
                             'present); nothing to repair')
     what = ('complete MCAP, missing metadata.yaml' if sc.complete else
-            f'recovered {len(sc.messages)} messages from the first {sc.bytes_read} of '
+            f'recovered {sc.message_count} messages from the first {sc.bytes_read} of '
             f'{sc.bytes_total} bytes ({sc.problem})')
     tmp_parent = Path(tempfile.mkdtemp(prefix=f'.{files.directory.name}.repair-',
                                        dir=files.directory.parent))
@@ -96,8 +98,12 @@ def repair(path: str | Path, *, backup: bool = True, force: bool = False) -> Rep
                 meta.setdefault(str(key), str(value))
         meta['fohssv.repaired'] = what
         writer.add_metadata(meta)
-        for cid, log_time, data in sc.messages:
-            writer.write(topic_of[cid], log_time, data)
+        copied = scan(path, on_message=lambda cid, log_time, data: writer.write(
+            topic_of[cid], log_time, data))
+        if copied.message_count != sc.message_count:      # the bag changed between the reads
+            raise BagError(f'{files.directory}: changed while it was repaired (read '
+                           f'{sc.message_count}, then {copied.message_count} messages); the '
+                           'bag is unchanged')
         writer.close()
         new_mcap = writer.mcap_path
         new_yaml = new_bag / 'metadata.yaml'
@@ -119,7 +125,7 @@ def repair(path: str | Path, *, backup: bool = True, force: bool = False) -> Rep
                        ) from None
     finally:
         shutil.rmtree(tmp_parent, ignore_errors=True)
-    return RepairReport(files.directory, True, len(sc.messages),
+    return RepairReport(files.directory, True, sc.message_count,
                         f'{files.directory}: rebuilt index, summary and metadata.yaml; {what}',
                         saved)
 

@@ -16,6 +16,7 @@ The ROS side (publishers, the plant's parameter services, timers) is
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -23,7 +24,8 @@ from .. import contract
 from ..params import PARAMETERS, ModelParameters, ParameterError
 from .writer import typestore
 
-__all__ = ['PlayerError', 'Track', 'select_tracks', 'pacing_schedule', 'replay_timeline',
+__all__ = ['PlayerError', 'Track', 'select_tracks', 'choose_tracks', 'pacing_schedule',
+           'replay_timeline', 'timeline',
            'command_table',
            'compare_plant', 'COMPARED']
 
@@ -46,13 +48,31 @@ def _basename(name: str) -> str:
 
 
 def select_tracks(sc: Any, wanted: list[str]) -> tuple[list[Track], list[tuple[str, int, bytes]]]:
-    """The bag's channels to play and its messages in recorded order.
-
-    ``wanted``: recorded names (``/state``) or contract names (``state``, matching the topic
-    in any namespace); empty = every contract topic in the bag.
+    """The bag's channels to play (:func:`choose_tracks`) and its messages kept by ``sc`` in
+    recorded order.
 
     Returns:
         (tracks, [(track name, log ns, cdr)] in file order).
+
+    Raises:
+        PlayerError: a wanted topic is not in the bag or not a contract topic.
+    """
+    by_name = {tr.name: tr for tr in choose_tracks(sc, wanted)}
+    names = {c.id: c.topic for c in sc.channels.values() if c.topic in by_name}
+    order: list[tuple[str, int, bytes]] = []
+    for cid, log, raw in sc.messages:
+        name = names.get(cid)
+        if name is not None:
+            by_name[name].messages.append((log, raw))
+            order.append((name, log, raw))
+    return list(by_name.values()), order
+
+
+def choose_tracks(sc: Any, wanted: list[str]) -> list[Track]:
+    """The bag's channels to play (no messages: those are the player's to read).
+
+    ``wanted``: recorded names (``/state``) or contract names (``state``, matching the topic
+    in any namespace); empty = every contract topic in the bag.
 
     Raises:
         PlayerError: a wanted topic is not in the bag or not a contract topic.
@@ -75,14 +95,7 @@ def select_tracks(sc: Any, wanted: list[str]) -> tuple[list[Track], list[tuple[s
             for n in hits:
                 chosen[n] = by_name[n]
         by_name = chosen
-    names = {c.id: c.topic for c in sc.channels.values() if c.topic in by_name}
-    order: list[tuple[str, int, bytes]] = []
-    for cid, log, raw in sc.messages:
-        name = names.get(cid)
-        if name is not None:
-            by_name[name].messages.append((log, raw))
-            order.append((name, log, raw))
-    return list(by_name.values()), order
+    return list(by_name.values())
 
 
 def command_table(sc: Any, wanted: list[str]) -> tuple[str, dict[float, list[bytes]], int]:
@@ -168,8 +181,19 @@ def pacing_schedule(logs: list[int], rate: float) -> list[float]:
 
 def replay_timeline(order: list[tuple[str, int, bytes]] | list[tuple[str, int]], rate: float
                     ) -> tuple[list[float], list[int | None]]:
-    """When each message of ``order`` ((topic, log ns, ...) in recorded order) is due at
-    ``rate``, and the ``/clock`` (ns) to publish before it (None: no new clock).
+    """:func:`timeline` of a list, as two lists (dues, clocks)."""
+    dues: list[float] = []
+    clocks: list[int | None] = []
+    for _, due, clock in timeline(order, rate):
+        dues.append(due)
+        clocks.append(clock)
+    return dues, clocks
+
+
+def timeline(order: Iterable[tuple], rate: float) -> Iterator[tuple[tuple, float, int | None]]:
+    """For each message of ``order`` ((topic, log ns, ...) in recorded order, read as it
+    comes: a bag of any length): the message, when it is due at ``rate`` (wall seconds after
+    the first), and the ``/clock`` (ns) to publish before it (None: no new clock).
 
     A recorder writes in arrival order: the command answering t_n often arrives after the
     state t_(n+1), so the log times of the whole file step back thousands of times a second
@@ -186,8 +210,6 @@ def replay_timeline(order: list[tuple[str, int, bytes]] | list[tuple[str, int]],
     current = 0                    # the newest epoch
     mark: int | None = None        # high-water mark of the log times in the newest epoch
     due = 0.0
-    dues: list[float] = []
-    clocks: list[int | None] = []
     for item in order:
         name, log = item[0], item[1]
         prev = last.get(name)
@@ -206,6 +228,4 @@ def replay_timeline(order: list[tuple[str, int, bytes]] | list[tuple[str, int]],
                 due += (log - mark) * 1e-9 / rate
             mark = log
             clock = log
-        dues.append(due)
-        clocks.append(clock)
-    return dues, clocks
+        yield item, due, clock

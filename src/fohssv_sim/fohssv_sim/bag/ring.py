@@ -3,10 +3,14 @@ records in a shared mapping. This module is the ring's one definition: its layou
 marker, :class:`Ring` (put, take, sizes) and :func:`place`, the producer's put as plain array
 code that the plant's compiled fast path compiles (``fohssv_sim.ros.plant.fastpath``).
 
-Layout: a 64-byte header of four native 64-bit counters, each written by one side only:
-``head`` (bytes produced; stored after the record's bytes, so a reader that sees it sees the
-record), ``tail`` (bytes consumed), ``lost`` (records the producer could not put) and
-``waits`` (times a lockstep producer waited for room); then ``capacity`` bytes of records.
+Layout: a 64-byte header of native 64-bit counters, each written by one side only: the
+producer's ``head`` (bytes produced; stored after the record's bytes, so a reader that sees it
+sees the record), ``lost`` (records it could not put) and ``waits`` (times a lockstep producer
+waited for room); the consumer's ``tail`` (bytes consumed), ``released`` (records consumed)
+and its last flush mark, ``flushed_at`` and ``flushed`` (the bag file's size after its last
+flush that succeeded, and the messages it holds up to there); then ``capacity`` bytes of
+records. The consumer's counters outlive it: a producer whose consumer died counts exactly
+what its bag lacks from them (``fohssv_sim.ros.inplant_record``).
 A record is an 8-byte header (``<IHH``: payload length, topic index, spare) and the payload,
 padded to 8 bytes. A record never straddles the end: the producer skips the rest of the
 area, writing the length :data:`WRAP` there when at least a header fits. Aligned 8-byte
@@ -30,7 +34,7 @@ __all__ = ['Ring', 'place', 'DEFAULT_RING_BYTES', 'MIN_RING_BYTES', 'HEADER_BYTE
 DEFAULT_RING_BYTES = 32 * 1024 * 1024
 #: The smallest ring (bytes): a few records.
 MIN_RING_BYTES = 4096
-#: The mapping's header: head, tail, lost, waits (u64), the rest spare.
+#: The mapping's header: head, tail, lost, waits, released, flushed_at, flushed (u64), a spare.
 HEADER_BYTES = 64
 #: A record length meaning "continue at the ring's start".
 WRAP = 0xFFFFFFFF
@@ -92,6 +96,7 @@ class Ring:
         self._limit = self._counters[1] + self.capacity   # head may grow to this (producer)
         self._tail = self._counters[1]      # consumer's copy
         self._taken = self._tail            # consumer: the end of the last take()
+        self._taken_n = 0                   # consumer: the records of the last take()
 
     @classmethod
     def create(cls, size: int = DEFAULT_RING_BYTES) -> Ring:
@@ -171,6 +176,17 @@ class Ring:
         return self._counters[3]
 
     @property
+    def released(self) -> int:
+        """Records the consumer took and released so far."""
+        return self._counters[4]
+
+    @property
+    def flushed(self) -> tuple[int, int]:
+        """The consumer's last flush mark (:meth:`mark_flushed`): (its file's size in bytes,
+        the messages in the file up to there); (0, 0) before the first."""
+        return self._counters[5], self._counters[6]
+
+    @property
     def consumed(self) -> int:
         """Bytes the consumer took so far (its tail)."""
         return self._counters[1]
@@ -205,12 +221,27 @@ class Ring:
             append((index, data[off + 8:off + 8 + n]))
             tail += 8 + ((n + 7) & ~7)
         self._taken = tail
+        self._taken_n = len(out)
         return out
 
     def release(self) -> None:
         """Move the tail past the records of the last :meth:`take` (room for the plant)."""
         self._tail = self._taken
         self._counters[1] = self._taken
+        self._counters[4] += self._taken_n
+        self._taken_n = 0
+
+    def advance(self, tail: int, records: int) -> None:
+        """Move the tail to ``tail``, past ``records`` records the consumer wrote (compiled
+        consumers, which walk the records themselves)."""
+        self._tail = self._taken = tail
+        self._counters[1] = tail
+        self._counters[4] += records
+
+    def mark_flushed(self, size: int, messages: int) -> None:
+        """The consumer's file was flushed: ``size`` bytes holding ``messages`` messages."""
+        self._counters[6] = messages
+        self._counters[5] = size
 
     def close(self) -> None:
         self._c = None                        # the export, before the mapping closes

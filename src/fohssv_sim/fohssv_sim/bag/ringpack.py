@@ -213,8 +213,7 @@ class Packer:
                                          {int(ch): int(s) for ch, s in zip(self.chans,
                                                                            self.seqs)})
                 written += int(count)
-            ring._tail = ring._taken = int(tail)                     # noqa: SLF001
-            counters[1] = int(tail)
+            ring.advance(int(tail), int(count))
             if status == SLOW or (status == OUT_FULL and count == 0):
                 records = ring.take(1)
                 self.interpreted(records)

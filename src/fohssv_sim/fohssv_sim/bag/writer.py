@@ -366,8 +366,9 @@ class _McapStorage:
         self._mcap.add_metadata(name, dict(values))
         self._file.flush()
 
-    def flush(self) -> None:
+    def flush(self) -> tuple[int, int]:
         self._mcap.flush()
+        return self._file.tell(), self.messages.count
 
     def close(self, version: int, metadata: str) -> None:
         _ = version
@@ -552,9 +553,11 @@ class RunWriter:
         name = METADATA_NAME if self._records == 1 else f'{METADATA_NAME}.{self._records}'
         self._storage().add_metadata(name, encoded)
 
-    def flush(self) -> None:
-        """End the chunk in progress (if any) and hand everything written to the OS."""
-        self._storage().flush()
+    def flush(self) -> tuple[int, int]:
+        """End the chunk in progress (if any) and hand everything written to the OS; the
+        file's size then and the messages it holds (a reader of the file cut there finds
+        them all)."""
+        return self._storage().flush()
 
     def close(self) -> None:
         """Write the summary, the index and ``metadata.yaml``. Idempotent."""

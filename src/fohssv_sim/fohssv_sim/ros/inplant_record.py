@@ -29,15 +29,13 @@ import time
 from pathlib import Path
 from typing import Any
 
-from rcl_interfaces.srv import GetParameters
-from rclpy.clock import Clock, ClockType
-from rclpy.parameter import parameter_value_to_python
 from rclpy.serialization import serialize_message
 
 from .. import contract
-from ..bag.inplant import Ring, TopicSpec, WriterConfig, kind_of, read_reply, send
+from ..bag.inplant import Ring, TopicSpec, WriterConfig, kind_of, read_reply, send, unrecorded
+from . import controller_name
+from .controller_name import command_topic
 from .loop import time_text
-from .matching import UNKNOWN_NODE, node_path
 from .options import NODE_PARAMETER_BY_NAME, PlantOptions
 from .qos import offered_qos
 
@@ -100,8 +98,8 @@ class InPlantRecording:
         self.wait_seconds = 0.0
         self.lost = 0
         self._woken_at = -1
-        self._unsaved = 0         # records a failed writer had taken but not saved
-        self._left: int | None = None   # records a dead writer left in the ring (finish)
+        #: records put into the ring that a dead writer's bag lacks (:meth:`_unrecorded`)
+        self._unrecorded_n: int | None = None
         self._say_at = 0.0        # monotonic time of the next "fell behind" line (_fell_behind)
         self.failed = ''
         self.result: dict | None = None
@@ -304,7 +302,6 @@ class InPlantRecording:
         code = self.proc.returncode
         if reply is not None:
             cause = f'failed: {reply["error"]}'
-            self._unsaved = int(reply.get('unsaved', 0))
             if reply.get('removed'):
                 held = f'nothing was written: {self.path} removed'
         elif not cause:
@@ -334,45 +331,10 @@ class InPlantRecording:
             self.metadata({'fohssv.controller_node': node.get_fully_qualified_name(),
                            'fohssv.controller': hosted})
             return
-        topic = _command_name(node)
-        if not node.get_publishers_info_by_topic(topic):
-            return
-        deadline = time.monotonic() + 10.0
-        self._naming = True
-        asking: dict[str, Any] = {}
-
-        def on_reply(future: Any) -> None:
-            result = future.result()
-            values = ([parameter_value_to_python(v) for v in result.values]
-                      if result is not None else [])
-            self._named({'fohssv.controller_node': asking['node'], **(
-                {'fohssv.controller': values[0]} if values and isinstance(values[0], str)
-                else {})})
-
-        def ask() -> None:
-            if 'client' not in asking:
-                # DDS discovers an endpoint before its node's name (_NODE_NAME_UNKNOWN_,
-                # seen under load): the name is looked up again until it is known
-                named = [i for i in node.get_publishers_info_by_topic(topic)
-                         if i.node_name != UNKNOWN_NODE]
-                if not named:
-                    if time.monotonic() > deadline:
-                        timer.cancel()
-                        self._named({})
-                    return
-                asking['node'] = node_path(named[0])
-                asking['client'] = node.create_client(GetParameters,
-                                                      f"{asking['node']}/get_parameters")
-            client = asking['client']
-            if client.service_is_ready():
-                timer.cancel()
-                client.call_async(GetParameters.Request(names=['controller'])
-                                  ).add_done_callback(on_reply)
-            elif time.monotonic() > deadline:
-                timer.cancel()
-                self._named({'fohssv.controller_node': asking['node']})
-
-        timer = node.create_timer(0.1, ask, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        topic = command_topic(node)
+        if node.get_publishers_info_by_topic(topic):
+            self._naming = True
+            controller_name.ask(node, topic, self._named, timeout=10.0)
 
     def _named(self, values: dict[str, Any]) -> None:
         """The controller's name came (or its lookup gave up): into the metadata, and the
@@ -429,7 +391,7 @@ class InPlantRecording:
             if not self._ended:          # no run_end (an error): the writer takes EOF as such
                 self._close_control()
             self.result = self._wait_closed()
-            self._left = self._unwritten() if self.failed else 0
+            self._unrecorded_n = self._unrecorded() if self.failed else 0
             self._close_control()
             self.ring.close()
         r = self.result or {}
@@ -486,39 +448,31 @@ class InPlantRecording:
                 self._writer_failed(f'made no progress for {_CLOSE_STALL:g} s')
                 return None
 
-    def _unwritten(self) -> int:
-        """Records in the ring that a dead writer never took (read through a second view of
-        the mapping: the plant's own ring is the producer's)."""
-        view = Ring(os.dup(self.ring.fd), self.ring.size)
-        try:
-            return len(view.take())
-        finally:
-            view.close()
+    def _unrecorded(self) -> int:
+        """With the writer dead: the records put into the ring that its bag lacks, exactly
+        (:func:`~fohssv_sim.bag.inplant.unrecorded`), counted once."""
+        if self._unrecorded_n is None:
+            try:              # its last bytes are written before it can be reaped
+                self.proc.wait(timeout=_CLOSE_STALL)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+            self._unrecorded_n = unrecorded(self.ring, self.path / f'{self.path.name}.mcap')
+        return self._unrecorded_n
 
     def summary(self) -> dict[str, Any]:
         """The recording's figures for the plant's summary; with the writer dead, its lost
-        records include those it left in the ring."""
-        if self._left is None and not self.failed and self.proc.poll() is not None:
+        records include those it was handed that its bag lacks."""
+        if self._unrecorded_n is None and not self.failed and self.proc.poll() is not None:
             self._writer_failed()
-        left = self._left if self._left is not None else (
-            self._unwritten() if self.failed else 0)
-        return {'record': str(self.path), 'record_lost': self.lost + left + self._unsaved,
+        lacked = self._unrecorded() if self.failed else 0
+        return {'record': str(self.path), 'record_lost': self.lost + lacked,
                 'record_waits': self.waits, 'record_wait_time': self.wait_seconds}
 
 
 def _failure(reply: dict) -> bool:
     """Whether a writer's reply is its last line before it gave up (a full disk)."""
     return 'error' in reply and 'ready' not in reply
-
-
-def _command_name(node: Any) -> str:
-    """The plant's command topic: the one it subscribes to (an external controller) or, with
-    a hosted controller, the one it publishes on."""
-    for attr in ('command_sub', 'command_pub'):
-        endpoint = getattr(node, attr, None)
-        if endpoint is not None:
-            return endpoint.topic_name
-    return node.resolve_topic_name(contract.COMMAND.name)
 
 
 def start(node: Any) -> InPlantRecording | None:
@@ -534,7 +488,7 @@ def start(node: Any) -> InPlantRecording | None:
     path = check_record(node.options)
     if path is None:
         return None
-    command = _command_name(node)
+    command = command_topic(node)
     made = [(node.state_pub.topic_name, contract.STATE, '_send_state', ''),
             (node.force_pub.topic_name, contract.PLANING_FORCE, '_send_force', ''),
             (command, contract.COMMAND,

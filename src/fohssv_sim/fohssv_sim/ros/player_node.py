@@ -26,8 +26,10 @@ Two modes (parameter ``mode``):
   difference) unless ``force`` is true (a warning). A bag without recorded parameters is
   replayed with a warning.
 
-Bags are read with the pure loader (:func:`fohssv_sim.bag.scan`): a cut bag (killed recorder)
-plays everything recoverable, with a warning.
+Bags are read with the pure loader (:func:`fohssv_sim.bag.scan`), a chunk at a time: once to
+learn the channels and counts, then as they are played (republish; the commands mode keeps
+the recorded commands only), so a bag of any length is played in bounded memory. A cut bag
+(killed recorder) plays everything recoverable, with a warning.
 
 Exit codes: 0 played to the end (republish), or the plant's run ended / the bag's commands
 were used up (commands); 1 bad bag (missing, empty, truncated before any message, not a bag:
@@ -44,6 +46,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+from collections.abc import Iterator
 from typing import Any
 
 import rclpy
@@ -59,14 +62,16 @@ from std_msgs.msg import Float64MultiArray, String
 
 from .. import contract
 from ..bag import BagError, scan
+from ..bag.loader import stream
 from ..bag.replay import (
     COMPARED,
     PlayerError,
     Track,
+    choose_tracks,
     command_table,
     compare_plant,
-    replay_timeline,
     select_tracks,
+    timeline,
 )
 from .bag_options import PLAYER_MODES, PLAYER_PARAMETERS, PlayerOptions
 from .nodekit import (
@@ -85,6 +90,7 @@ from .nodekit import (
     run_node,
     spin_until,
 )
+from .ros_params import refuse_early
 
 __all__ = ['Player', 'PlayerError', 'Track', 'select_tracks', 'command_table', 'main',
            'compare_plant', 'COMPARED',
@@ -120,10 +126,14 @@ class Player(Node):
         super().__init__('player', **NODE_OPTIONS, **kwargs)
         self.options = PlayerOptions(**declare(self, PLAYER_PARAMETERS))
         refuse_unknown(self)
-        self.scan = scan(self.options.bag_path)          # BagError: one line from main
+        # BagError: one line from main. Republish reads the messages again as it plays them;
+        # the commands mode keeps the recorded commands (its table)
+        self.scan = scan(self.options.bag_path, keep=lambda ch: (
+            self.options.mode != 'republish'
+            and contract.find_topic(ch.topic) is contract.COMMAND))
         if not self.scan.complete:
             self.get_logger().warning(
-                f'bag is truncated; playing the {len(self.scan.messages)} messages that could '
+                f'bag is truncated; playing the {self.scan.message_count} messages that could '
                 f'be recovered ({self.scan.problem}); python -m fohssv_sim.bag repair '
                 f'{self.options.bag_path} rebuilds it')
         self.finished = Future()
@@ -137,15 +147,20 @@ class Player(Node):
     # -- republish -------------------------------------------------------------------------
     def _setup_republish(self) -> None:
         wanted = self.options.topics
-        tracks, order = select_tracks(self.scan, wanted)
+        tracks = choose_tracks(self.scan, wanted)
         if self.options.clock and not any(w.lstrip('/') == 'clock' for w in wanted):
             # /clock is generated from the log times (every step, never keep-last-dropped)
-            order = [m for m in order if m[0] != contract.CLOCK.name]
             tracks = [t for t in tracks if t.name != contract.CLOCK.name]
-        if not order:
+        sc = self.scan
+        self._names = {c.id: c.topic for c in sc.channels.values()
+                       if c.topic in {t.name for t in tracks} and c.id in sc.channel_counts}
+        counts = dict.fromkeys((t.name for t in tracks), 0)
+        for cid, name in self._names.items():
+            counts[name] += sc.channel_counts[cid]
+        self.total = sum(counts.values())
+        if not self.total:
             raise PlayerError(f'{self.scan.files.directory}: no message to play on '
                               f'{[t.name for t in tracks] or "any contract topic"}')
-        self.order = order
         self.pubs = {}
         for tr in tracks:
             qos = _deep_qos() if self.options.rate == 0 else _paced_qos(tr.topic)
@@ -156,11 +171,11 @@ class Player(Node):
             self.clock_pub = self.create_publisher(
                 Clock, contract.CLOCK.name, _deep_qos() if self.options.rate == 0 else
                 _paced_qos(contract.CLOCK))
-        counts = {tr.name: len(tr.messages) for tr in tracks}
         self.sent = dict.fromkeys(self.pubs, 0)
         self.end_pub = self.create_publisher(String, contract.RUN_END.name,
                                              profile(contract.RUN_END))
-        span = (order[-1][1] - order[0][1]) * 1e-9
+        times = [sc.channel_times[cid] for cid in self._names]
+        span = (max(last for _, last in times) - min(first for first, _ in times)) * 1e-9
         rate = self.options.rate
         self.get_logger().info(
             f'republishing {self.options.bag_path}: {counts}, {span:.6g} s simulated, rate '
@@ -174,8 +189,10 @@ class Player(Node):
     def _start_republish(self) -> None:
         # /clock: the high-water mark of the log times (monotonic; back only at a recorded
         # reset), published before the message that moves it (bag/replay.py)
-        self._due, self._clocks = replay_timeline(self.order, self.options.rate)
-        self._next = 0
+        self._queue = timeline(self._playlist(), self.options.rate)
+        self._head = next(self._queue, None)   # ((name, log, raw), due, clock) played next
+        self._first_log: int | None = None   # log times of the first and last played
+        self._last_log = 0
         self._wall0: float | None = None     # wall time the first message was due
         self.wall = 0.0                      # wall seconds from the first to the last message
         self.clock_sent = 0
@@ -235,19 +252,27 @@ class Player(Node):
         """Seconds until the next message is due; None before the start and after the end."""
         if self._wall0 is None or self.finished.done():
             return None
-        return self._wall0 + self._due[self._next] - time.monotonic()
+        return self._wall0 + self._head[1] - time.monotonic()
+
+    def _playlist(self) -> Iterator[tuple[str, int, bytes]]:
+        """(track name, log ns, CDR) of the played tracks in recorded order, read from the
+        bag as the replay goes (a chunk at a time)."""
+        names = self._names
+        _, messages = stream(self.options.bag_path)
+        for cid, log, raw in messages:
+            name = names.get(cid)
+            if name is not None:
+                yield name, log, raw
 
     def publish_due(self) -> None:
         """Publish the messages due by now (at most :data:`_BATCH`, then back to the
         executor); after the last one the run is complete."""
-        order, due = self.order, self._due
         now = time.monotonic() - self._wall0
         for _ in range(_BATCH):
-            if (self._next >= len(order) or due[self._next] > now or not rclpy.ok()
-                    or STOP.received is not None):
+            head = self._head
+            if head is None or head[1] > now or not rclpy.ok() or STOP.received is not None:
                 break
-            name, _, raw = order[self._next]
-            clock = self._clocks[self._next]
+            (name, log, raw), _, clock = head
             if self.clock_pub is not None and clock is not None and self._clock_due != clock:
                 if not self._publish_blocking(self.clock_pub, Clock(
                         clock=Time(nanoseconds=clock).to_msg())):
@@ -256,10 +281,13 @@ class Player(Node):
                 self._clock_due = clock     # published: not again if the message is retried
             if not self._publish_blocking(self.pubs[name], raw):
                 break
-            self._next += 1
+            self._head = next(self._queue, None)
+            if self._first_log is None:
+                self._first_log = log
+            self._last_log = log
             self.published += 1
             self.sent[name] += 1
-        if self._next >= len(order):
+        if self._head is None:
             self.wall = time.monotonic() - self._wall0
             self._end(EXIT_OK)
 
@@ -283,7 +311,7 @@ class Player(Node):
         self._announce_end()
         pubs = list(self.pubs.values()) + [p for p in (self.clock_pub,) if p] + [self.end_pub]
         unacked = self._flush_all(pubs, executor)
-        span = (self.order[-1][1] - self.order[0][1]) * 1e-9
+        span = (self._last_log - (self._first_log or 0)) * 1e-9
         wall = self.wall
         self.get_logger().info(
             f'played {self.published} messages, {span:.6g} s simulated in {wall:.3f} s wall '
@@ -307,8 +335,8 @@ class Player(Node):
         if self.clock_pub is not None and self.options.rate == 0:
             published[self.clock_pub.topic_name] = self.clock_sent
         self.end_pub.publish(String(data=contract.run_end_text(
-            'player', f'played {self.published} of {len(self.order)} messages', EXIT_OK,
-            self.order[-1][1] * 1e-9, published)))
+            'player', f'played {self.published} of {self.total} messages', EXIT_OK,
+            self._last_log * 1e-9, published)))
 
     def _flush_all(self, pubs: list, executor: Any) -> list[str]:
         """Wait for the acknowledgements of the last messages, then keep the publishers for
@@ -530,6 +558,7 @@ def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run fohssv_sim player``; returns the exit code. SIGINT and SIGTERM
     only set STOP (spin.StopSignal): the replay stops between callbacks with a final line and
     the code so far (0); no run_end is announced for an interrupted replay."""
+    refuse_early('player', args, PLAYER_PARAMETERS)        # exit 2 before any DDS entity
     return run_node('player', args, Player, _run, specs=PLAYER_PARAMETERS,
                     on_interrupt=_on_interrupt,
                     on_error=error_line('player', (BagError, PlayerError, OSError)))

@@ -83,6 +83,7 @@ from std_msgs.msg import String
 
 from .. import contract
 from ..bag.writer import LogTimes, RunWriter, source_info
+from . import controller_name
 from .bag_options import (
     RECORDED,
     RECORDER_PARAMETERS,
@@ -91,7 +92,6 @@ from .bag_options import (
     default_bag_path,
     new_bag_path,
 )
-from .matching import UNKNOWN_NODE, node_path
 from .nodekit import (
     NODE_OPTIONS,
     STOP,
@@ -107,6 +107,7 @@ from .nodekit import (
     run_node,
     spin_until,
 )
+from .ros_params import refuse_early
 
 __all__ = ['Recorder', 'main', 'default_bag_path', 'source_info', 'EXIT_LOST', 'EMPTY_KEY',
            'RECORDED']
@@ -290,37 +291,14 @@ class Recorder(Node):
             self._plant_timer = self.create_timer(0.05, self._poll_plant, clock=steady)
         # the law answering the plant: the 'controller' parameter of the command's publisher
         # (stored as fohssv.controller, e.g. for plot titles)
-        self._command_topic = self.resolve_topic_name(contract.COMMAND.name)
-        self._ctl_client = None
-        self._ctl_timer = (self.create_timer(0.1, self._poll_controller, clock=steady)
-                           if self._command_topic in self.topic_names else None)
+        command = self.resolve_topic_name(contract.COMMAND.name)
+        if command in self.topic_names:
+            controller_name.ask(self, command, self._on_controller,
+                                timeout=o.plant_timeout + 60.0)
 
-    def _poll_controller(self) -> None:
-        if self.closed or time.monotonic() > self._plant_deadline + 60.0:
-            self._ctl_timer.cancel()
-            return
-        if self._ctl_client is None:
-            # an endpoint is discovered before its node's name (_NODE_NAME_UNKNOWN_ under
-            # load): asked only once the name is known
-            infos = [i for i in self.get_publishers_info_by_topic(self._command_topic)
-                     if i.node_name != UNKNOWN_NODE]
-            if not infos:
-                return
-            self._ctl_node = node_path(infos[0])
-            self._ctl_client = self.create_client(GetParameters,
-                                                  f'{self._ctl_node}/get_parameters')
-        if self._ctl_client.service_is_ready():
-            self._ctl_timer.cancel()
-            self._ctl_client.call_async(GetParameters.Request(names=['controller'])
-                                        ).add_done_callback(self._on_controller)
-
-    def _on_controller(self, future) -> None:
-        result = future.result()
-        values = [parameter_value_to_python(v) for v in result.values] if result else []
-        if self.closed:
-            return
-        self.writer.add_metadata({'fohssv.controller_node': self._ctl_node, **(
-            {'fohssv.controller': values[0]} if values and isinstance(values[0], str) else {})})
+    def _on_controller(self, values: dict[str, Any]) -> None:
+        if values and not self.closed:
+            self.writer.add_metadata(values)
 
     def _maybe_subscribe_state(self) -> None:
         command, wanted = self._wait_commands
@@ -673,6 +651,7 @@ def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run fohssv_sim recorder``; returns the exit code. SIGINT and
     SIGTERM only set STOP (spin.StopSignal): the loop ends between callbacks, the readers are
     drained and the bag is closed, in order."""
+    refuse_early('recorder', args, RECORDER_PARAMETERS)    # exit 2 before any DDS entity
     return run_node('recorder', args, Recorder, _run, specs=RECORDER_PARAMETERS,
                     on_error=error_line('recorder'), on_exit=_close)
 

@@ -54,15 +54,20 @@ class CommandIntake:
                 self._stale(t, now)
                 return
             lags = self._lag
-            if lags.add(now, t):       # over the limit for max_command_lag periods
+            over = lags.add(now, t)
+            # the longest silence since the lag went over the limit, the one before its first
+            # command included (a stall that began it; the backlog answered after a stall
+            # comes in quick succession)
+            silence = wall - prev if prev is not None else 0.0
+            self._lag_gap = 0.0 if lags.over_since is None else max(self._lag_gap, silence)
+            if over:                   # over the limit for max_command_lag periods
                 if self._lag_wall is None:
                     self._lag_wall, self._lag_from = wall, (now, lags.last)
                 elif self._lag_lost(now, wall):
                     self._lag_stop()
                     return
-            else:     # within the limit, or the first command over it: how long was silence
+            else:
                 self._lag_wall = None
-                self._lag_gap = wall - prev if prev is not None else 0.0
             if self._take(data) and lag > self._max_lag:
                 self._max_lag = lag
         else:

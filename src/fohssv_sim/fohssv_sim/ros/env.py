@@ -35,7 +35,6 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 import rclpy
 from rcl_interfaces.srv import SetParameters
@@ -46,7 +45,7 @@ from std_srvs.srv import Trigger
 
 from ..closed_loop import NodeSpec, ros_args
 from ..contract import COMMAND, PLANING_FORCE, STATE
-from ..envs.single import HSSVEnv, spaces_of
+from ..envs.single import EpisodeEnv, HSSVEnv, spaces_of
 from ..envs.task import make_task
 from ..params import ParameterError
 from ..solvers import soe_options
@@ -60,7 +59,7 @@ __all__ = ['HSSVRosEnv']
 START_TIMEOUT = 120.0
 
 
-class HSSVRosEnv(gym.Env):
+class HSSVRosEnv(EpisodeEnv):
     """See the module docstring. Keyword arguments: those of ``HSSV-v0`` plus
     ``namespace`` (the plant's, '' = root), ``start_plant`` (bool), ``domain_id`` (the ROS
     domain of the env and the plant it starts; None = ``ROS_DOMAIN_ID``) and ``timeout``
@@ -72,8 +71,6 @@ class HSSVRosEnv(gym.Env):
         RuntimeError (from ``step``): the plant the env started ended with the vehicle
             within its bounds (killed, or stopped for another reason), naming its exit.
     """
-
-    metadata = {'render_modes': []}
 
     def __init__(self, namespace: str = '', start_plant: bool = True,
                  domain_id: int | None = None, timeout: float = 30.0, **kwargs: Any) -> None:
@@ -110,8 +107,6 @@ class HSSVRosEnv(gym.Env):
         self._reset_client = node.create_client(Trigger, 'reset')
         self._param_client = node.create_client(SetParameters, 'plant/set_parameters')
         self._t = 0.0
-        self._done = True
-        self._u = np.zeros(2)
         self._heard = False       # a sample of the plant was taken (it answers us only)
 
     # -- the plant ------------------------------------------------------------------------
@@ -241,33 +236,19 @@ class HSSVRosEnv(gym.Env):
         self._heard = True
         self._x0, self._actions = x0, []
         self._t = 0.0
-        self._steps = 0
-        self._u = np.zeros(2)
-        self._done = False
-        return self.task.observe(x, fp), self._info(fp)
+        return self._begin_episode(x, fp, 0.0)
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
-        if self._done:
-            raise RuntimeError('the episode has ended (or never started): call reset() before '
-                               'step()')
-        task = self.task
-        u = task.action(action)
+        u = self._begin_step(action)
         self._actions.append(np.array(action, dtype=float))
         self._command.data = [self._t, float(u[0]), float(u[1])]
         self._pub.publish(self._command)
-        t_next = (self._steps + 1) * task.hold * task.params.step
+        t_next = (self._steps + 1) * self.task.hold * self.task.params.step
         got = self._wait(t_next)
         if isinstance(got, str):
             return self._lost(got)
-        x, fp = got
         self._t = t_next
-        ua = np.array(u)
-        reward = task.score(np.array(x), ua, self._u, fp, False)
-        self._u = ua
-        self._steps += 1
-        truncated = self._steps >= task.episode_steps
-        self._done = truncated
-        return task.observe(x, fp), reward, False, truncated, self._info(fp)
+        return self._end_step(u, *got, t_next, '')
 
     def _lost(self, why: str) -> tuple[np.ndarray, float, bool, bool, dict]:
         """The step on which the plant ended (``why``): ``HSSV-v0``'s, from the episode's
@@ -284,10 +265,6 @@ class HSSVRosEnv(gym.Env):
         self._t = info['t']
         info['lost'] = f"{info['lost']}; {why}"
         return obs, reward, terminated, truncated, info
-
-    def _info(self, fp: float) -> dict[str, Any]:
-        return {'t': self._t, 'planing_force': fp, 'delta_f': float(self._u[0]),
-                'delta_c': float(self._u[1])}
 
     def close(self) -> None:
         """Stop the plant the env started (SIGINT, then SIGKILL after 10 s) and leave the

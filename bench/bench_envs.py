@@ -132,7 +132,7 @@ def main() -> int:
           '(beyond its compiled call)', flush=True)
     res['vector'] = {}
     for n in (1, 8, 64):
-        periods = max(50, steps // (5 * n))
+        periods = max(200, steps // (5 * n))
         got, limit, ratio, population = vector_env(n, periods)
         res['vector'][n] = {'steps_per_s': got, 'kernel_steps_per_s': limit,
                             'population_steps_per_s': population, 'ratio': ratio}

@@ -76,8 +76,13 @@ def test_vector_env_loses_one_vehicle_and_keeps_the_others():
     obs, r, te, tr, info = venv.step(np.zeros((2, 1)))
     assert te.tolist() == [True, False] and 'physical bounds' in info['lost'][0]
     assert r[0] < -100.0 and info['_lost'].tolist() == [True, False]
+    x1 = venv.X[1].copy()
+    with pytest.raises(ValueError, match='delta_c=0.7 rad is outside the actuator range'):
+        venv.step(np.array([[0.0], [0.7]]))              # refused: nothing changes
+    assert np.array_equal(venv.X[1], x1) and venv._ended.tolist() == [True, False]
     obs, r, te, tr, info = venv.step(np.zeros((2, 1)))     # vehicle 0 autoresets
     assert obs[0].tolist() == [0.0, 80.0, 0.0, 0.0] and r[0] == 0.0 and not te.any()
+    assert info['t'].tolist() == [0.0, 2e-4]
 
 
 @pytest.mark.parametrize('kwargs, words', [

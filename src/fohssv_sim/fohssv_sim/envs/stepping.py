@@ -150,11 +150,13 @@ def score_step(active, task, state, model, out):
     t, Fp, delta_f, delta_c] and ``B[:, p]`` = [lost, truncated]; an active vehicle's reward
     is the default one (less the penalty when its status says it was lost), its t = n h (n
     the steps taken, as the plant counts them); its step count and ``ended`` flag. A vehicle
-    not active (just reset: Gymnasium's next-step autoreset) gets reward 0, no flags, t = 0."""
+    not active (just reset: Gymnasium's next-step autoreset) gets reward 0, no flags, t = 0.
+    Returns (vehicles lost, vehicles whose episode ended)."""
     RW, episode_steps, _, with_fp, with_error = task
     X, FP, U, previous, steps, status, ended = state
     hold, h = model[1], model[5]
     obs, F, B = out
+    n_lost = n_ended = 0
     for p in range(X.shape[0]):
         obs[p, :4] = X[p]
         j = 4
@@ -183,16 +185,19 @@ def score_step(active, task, state, model, out):
         B[0, p] = lost
         B[1, p] = truncated
         ended[p] = lost or truncated
+        n_lost += lost
+        n_ended += ended[p]
+    return n_lost, n_ended
 
 
 @kernels._njit
 def step(A, active, task, state, model, out):
     """The env step of every vehicle in one call: :func:`take_actions`, :func:`periods`,
-    :func:`score_step`. Returns -1, or the first active vehicle whose action is bad (nothing
-    is stepped then)."""
+    :func:`score_step`. Returns (-1, vehicles lost, vehicles whose episode ended), or
+    (the first active vehicle whose action is bad, 0, 0) and nothing is stepped."""
     bad = take_actions(A, active, task, state)
     if bad >= 0:
-        return bad
+        return bad, 0, 0
     periods(active, state, model)
-    score_step(active, task, state, model, out)
-    return -1
+    n_lost, n_ended = score_step(active, task, state, model, out)
+    return -1, n_lost, n_ended

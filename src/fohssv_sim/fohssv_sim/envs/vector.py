@@ -121,6 +121,8 @@ class HSSVVectorEnv(VectorEnv):
                       t0.observe_planing_force, t0.observe_depth_error)
         self.X, self.FP, self.U = np.zeros((n, 4)), np.zeros(n), np.zeros((n, 2))
         self._ended = np.ones(n, dtype=bool)
+        self._all = np.ones(n, dtype=bool)     # every vehicle active (read-only)
+        self._n_ended = n               # vehicles whose episode ended at the last step
         self._state = (self.X, self.FP, self.U, np.zeros((n, 2)), np.zeros(n, dtype=np.int64),
                        np.zeros(n, dtype=np.int64), self._ended)
         self._plants = [None] * n
@@ -219,6 +221,7 @@ class HSSVVectorEnv(VectorEnv):
         x0 = (options or {}).get('initial_state')
         for i in range(n):
             self._reset_one(i, x0)
+        self._n_ended = 0
         self._started = True
         infos = {'t': np.zeros(n), 'planing_force': self.FP.copy(),
                  'delta_f': self.U[:, 0].copy(), 'delta_c': self.U[:, 1].copy(),
@@ -275,18 +278,22 @@ class HSSVVectorEnv(VectorEnv):
             raise ValueError(f'actions of shape {a.shape} must have the shape '
                              f'{self._action_shape} (num_envs, action size)')
         n = self.num_envs
-        active = ~self._ended
-        if not active.all():                # Gymnasium's next-step autoreset
+        if self._n_ended:                   # Gymnasium's next-step autoreset
+            active = ~self._ended
             self._autoreset(a, active)
+        else:
+            active = self._all
         obs, F, B = out = (np.empty(self._obs_shape), np.empty((5, n)),
                            np.empty((2, n), dtype=bool))
         if self._model[0] != _PLANTS:
-            bad = stepping.step(a, active, self._task, self._state, self._model, out)
+            bad, n_lost, self._n_ended = stepping.step(a, active, self._task, self._state,
+                                                       self._model, out)
         else:
             bad = stepping.take_actions(a, active, self._task, self._state)
             if bad < 0:
                 self._plant_periods(active)
-                stepping.score_step(active, self._task, self._state, self._model, out)
+                n_lost, self._n_ended = stepping.score_step(active, self._task, self._state,
+                                                            self._model, out)
         if bad >= 0:
             self.tasks[bad].action(a[bad])               # raises, naming value and range
         rewards, lost = F[0], B[0]
@@ -298,7 +305,7 @@ class HSSVVectorEnv(VectorEnv):
                                                  bool(lost[i]))
         infos = {'t': F[1], 'planing_force': F[2], 'delta_f': F[3], 'delta_c': F[4],
                  **self._masks}
-        if lost.any():
+        if n_lost:
             infos['lost'] = np.array([self._lost_text(i) if lost[i] else ''
                                       for i in range(n)], dtype=object)
             infos['_lost'] = lost
@@ -312,6 +319,7 @@ class HSSVVectorEnv(VectorEnv):
             self.tasks[bad].action(actions[bad])         # raises, naming value and range
         for i in np.flatnonzero(~active).tolist():
             self._reset_one(i)
+        self._n_ended = 0
 
     def _plant_periods(self, active: np.ndarray) -> None:
         """One control period of each ``active`` vehicle's own plant, in turn (the models

@@ -6,15 +6,18 @@ vehicle its own model parameters, e.g. ``vehicles=[{'speed': 70}, {'speed': 80}]
 seeded with ``seed + i``, as :class:`gymnasium.vector.SyncVectorEnv` seeds its copies: its
 observations equal those of that single environment (tested to 1e-12).
 
-One compiled call per control period advances every vehicle by its integration steps
-(:mod:`.stepping`): for the fractional model with its compiled 'soe' solver (the default)
-the plant's own kernel on each vehicle's slice of one SOE history with a group per vehicle,
-the layout of :mod:`fohssv_sim.analysis.population` (the vehicles then share the step, the
-planing form and the 'soe' settings; an alpha drawn from ``order_range`` gets its group's
-weights anew, padded to the modes the range's ends need); for the delay-free and delayed
-models their RK4 kernels, each vehicle with its own history rings (the vehicles share the
-model and its planing and immersion forms). The vehicles share ``control_period / step``.
-Anything else (an interpreted solver, mixed models) steps each vehicle's plant in turn.
+One compiled call per control period is the whole step of every vehicle (:mod:`.stepping`:
+the action check, the integration steps, the bounds, the default reward, the observations
+and the arrays of ``infos``); the Python around it draws the autoresets, calls a user's
+reward function and builds the ``infos`` dict. It runs, for the fractional model with its
+compiled 'soe' solver (the default), the plant's own kernel on each vehicle's slice of one
+SOE history with a group per vehicle, the layout of :mod:`fohssv_sim.analysis.population`
+(the vehicles then share the step, the planing form and the 'soe' settings; an alpha drawn
+from ``order_range`` gets its group's weights anew, padded to the modes the range's ends
+need); for the delay-free and delayed models their RK4 kernels, each vehicle with its own
+history rings (the vehicles share the model and its planing and immersion forms). The
+vehicles share ``control_period / step``. Anything else (an interpreted solver, mixed
+models) steps each vehicle's plant in turn.
 
 Autoreset: Gymnasium's next-step mode (``AutoresetMode.NEXT_STEP``): the step after a
 vehicle's episode ended resets it (its action is ignored) and returns its first observation

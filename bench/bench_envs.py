@@ -8,15 +8,20 @@ env step), under the eq. 31 law (the actions computed between steps, untimed, so
 vehicles stay on the closed loop's orbit, not in subnormal arithmetic):
 
   1. ``HSSV-v0``: env steps per second of one env, and its Python overhead per step (the env
-     step's time less the compiled held-input call's own, ``Plant.advance``);
+     step's time less that of the compiled held-input call ``Plant.advance`` doing the same
+     work);
   2. the vectorised env at N = 1, 8, 64: env steps (vehicle periods) per second, beside the
-     compiled kernel's own rate for the same work (the limit: the env's one compiled call
-     per period, called back to back without the env's checks, rewards and observations),
-     and their ratio (goal: at least 0.8 at N = 64); and, for reference, ``run_population``
-     (the same per-vehicle kernel, all the periods in one call, the history's weights laid
-     out by step rather than by vehicle).
+     compiled kernel's own rate for the same work (the limit: the env's compiled advance,
+     ``stepping.periods``, called without the env's checks, rewards and observations), and
+     their ratio (goal: at least 0.8 at N = 64); and, for reference, ``run_population`` (the
+     same per-vehicle kernel, all the periods in one call, the history's weights laid out by
+     step rather than by vehicle).
 
-The machine may be shared: the load average is printed and stored with the results.
+Side by side: the env and a twin of it (the same vehicles, seed and actions, so the same
+states and work) are timed call by call in turn, the env's step on one and the kernel alone
+on the other, so a neighbour's load falls on both alike. Times are the CPU time of this
+thread (``time.thread_time``: what the calls cost, not the time other processes held the
+core); on an idle machine that is wall time. The load average is printed and stored.
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ from benchutil import finish, target
 from fohssv_sim import control
 from fohssv_sim.analysis.population import run_population
 from fohssv_sim.envs import HSSVEnv, HSSVVectorEnv
+from fohssv_sim.envs.stepping import periods as periods_alone
 from fohssv_sim.models import AffineLaw
 from fohssv_sim.params import ModelParameters
 
@@ -50,54 +56,57 @@ def _law():
 
 
 def single_env(steps: int) -> tuple[float, float]:
-    """(env steps per second, Python overhead per step in us) of one HSSV-v0."""
+    """(env steps per CPU second of one HSSV-v0, its Python overhead per step in us): each
+    env step beside its twin plant's compiled call with the same input."""
     law, *_ = _law()
-    env = HSSVEnv(**ENV)
+    env, twin = HSSVEnv(**ENV), HSSVEnv(**ENV)
     obs, info = env.reset(seed=0)
-    env.step(law.command(0.0, obs))                 # compile / load from the cache
-    spent = 0.0
-    clock = time.perf_counter
-    for _ in range(steps):
+    twin.reset(seed=0)
+    hold, plant = env.task.hold, twin.plant
+    clock = time.thread_time
+    spent = kernel = 0.0
+    for k in range(steps + 1):
         a = law.command(info['t'], obs)
         t0 = clock()
         obs, _, _, _, info = env.step(a)
-        spent += clock() - t0
-    plant = env.plant                                # the compiled call alone, same work
-    t0 = clock()
-    for _ in range(steps):
-        plant.advance((0.01, -0.01), env.task.hold)
-    kernel = clock() - t0
+        t1 = clock()
+        plant.advance((a[0], a[1]), hold)
+        t2 = clock()
+        if k:                                        # the first compiles / loads the cache
+            spent += t1 - t0
+            kernel += t2 - t1
     return steps / spent, (spent - kernel) / steps * 1e6
 
 
 def vector_env(n: int, periods: int, rounds: int = 5) -> tuple[float, float, float, float]:
-    """Env steps per second at N = ``n``: of the vectorised env, of its compiled call alone
-    (the limit; the same law's inputs set untimed between calls), their ratio, and of
-    ``run_population`` (all the periods in one call, for reference). Env and kernel rounds
-    of ``periods`` periods alternate; the medians of ``rounds`` rounds."""
+    """Env steps per CPU second at N = ``n``: of the vectorised env, of its compiled advance
+    alone on a twin (the limit), the ratio (the median of ``rounds`` rounds of ``periods``
+    periods), and of ``run_population`` (all the periods in one call, for reference)."""
     _, K, u0, lim = _law()
-    venv = HSSVVectorEnv(n, **ENV)
+    venv, twin = HSSVVectorEnv(n, **ENV), HSSVVectorEnv(n, **ENV)
     obs, _ = venv.reset(seed=0)
-    venv.step(np.clip(obs @ K.T + u0, -lim, lim))   # compile / load from the cache
-    clock = time.perf_counter
+    twin.reset(seed=0)
+    clock = time.thread_time
     active = np.ones(n, dtype=bool)
-    env_rates, kernel_rates = [], []
-    for _ in range(rounds):
-        spent = 0.0
+    state, model = twin._state, twin._model
+    env_rates, kernel_rates, ratios = [], [], []
+    for r in range(rounds + 1):
+        spent = kernel = 0.0
         for _ in range(periods):
             act = np.clip(obs[:, :4] @ K.T + u0, -lim, lim)
+            twin.U[:] = act
             t0 = clock()
             obs, *_ = venv.step(act)
-            spent += clock() - t0
-        env_rates.append(n * periods / spent)
-        spent = 0.0
-        for _ in range(periods):
-            venv.U[:] = np.clip(venv.X @ K.T + u0, -lim, lim)
-            t0 = clock()
-            venv._advance(active)                    # the env's one compiled call alone
-            spent += clock() - t0
-        kernel_rates.append(n * periods / spent)
-        obs = venv._observe()
+            t1 = clock()
+            periods_alone(active, state, model)
+            t2 = clock()
+            spent += t1 - t0
+            kernel += t2 - t1
+        if r:                                        # the first round warms up
+            env_rates.append(n * periods / spent)
+            kernel_rates.append(n * periods / kernel)
+            ratios.append(kernel / spent)
+    assert np.array_equal(obs, twin.X), 'the twin did other work'
     params = [ModelParameters()] * n                 # the population kernel, for reference
     packed = AffineLaw(K, u0, lim).packed
     duration = venv.tasks[0].duration
@@ -105,9 +114,8 @@ def vector_env(n: int, periods: int, rounds: int = 5) -> tuple[float, float, flo
     t0 = clock()
     run_population(params, periods, 5, law=packed, initial_state=X_START, duration=duration)
     population = n * periods / (clock() - t0)
-    ratio = statistics.median(e / k for e, k in zip(env_rates, kernel_rates))
-    return (statistics.median(env_rates), statistics.median(kernel_rates), ratio,
-            population)
+    return (statistics.median(env_rates), statistics.median(kernel_rates),
+            statistics.median(ratios), population)
 
 
 def main() -> int:
@@ -120,11 +128,11 @@ def main() -> int:
     print(f'load avg at start {os.getloadavg()[0]:.2f}', flush=True)
     rate, overhead = single_env(steps)
     res['single'] = {'steps_per_s': rate, 'python_overhead_us': overhead}
-    print(f'HSSV-v0, one env: {rate:,.0f} env steps/s; Python overhead {overhead:.1f} us/step',
-          flush=True)
+    print(f'HSSV-v0, one env: {rate:,.0f} env steps/s; Python overhead {overhead:.1f} us/step '
+          '(beyond its compiled call)', flush=True)
     res['vector'] = {}
     for n in (1, 8, 64):
-        periods = max(50, steps // (5 * n))
+        periods = max(200, steps // (5 * n))
         got, limit, ratio, population = vector_env(n, periods)
         res['vector'][n] = {'steps_per_s': got, 'kernel_steps_per_s': limit,
                             'population_steps_per_s': population, 'ratio': ratio}

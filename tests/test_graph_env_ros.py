@@ -79,15 +79,29 @@ def test_ros_env_drives_a_plant_already_running(ros_env):
         rosproc.stop(plant)
 
 
-def test_ros_env_terminates_when_the_plant_loses_the_vehicle(ros_env):
-    env = ros_env(initial_state=[0.0, 80.0, 0.0, 0.0], initial_spread=(0, 0, 0, 0))
-    obs, _ = env.reset(seed=0)
-    assert obs.tolist() == [0.0, 80.0, 0.0, 0.0]
-    obs, r, term, trunc, info = env.step([0.0])
-    assert term and not trunc and 'the plant exited with code 1' in info['lost']
-    assert r <= -100.0
-    with pytest.raises(RuntimeError, match='call reset'):
-        env.step([0.0])
+def test_ros_env_loses_the_vehicle_at_the_step_and_with_the_observation_of_the_in_process_env(
+        ros_env):
+    """A pitch beyond pi/2 at the 50th step: the plant ends there without publishing it; the
+    ROS env's steps up to it and that step itself are HSSV-v0's, then a reset restarts it."""
+    kwargs = {'initial_state': [0.0, 0.0, 1.5, 5.0], 'initial_spread': (0, 0, 0, 0),
+              'observe_planing_force': True}
+    env, ref = ros_env(**kwargs), HSSVEnv(**kwargs)
+    for seed in (0, 1):                       # the second through a plant started anew
+        obs, _ = env.reset(seed=seed)
+        want, _ = ref.reset(seed=seed)
+        assert np.array_equal(obs, want)
+        steps, term = 0, False
+        while not term and steps < 100:
+            obs, r, term, trunc, info = env.step([0.3])
+            want, r_want, term_want, trunc_want, info_want = ref.step([0.3])
+            assert np.array_equal(obs, want) and r == r_want and info['t'] == info_want['t']
+            assert (term, trunc) == (term_want, trunc_want)
+            steps += 1
+        assert term and steps == 50 and abs(obs[2]) > np.pi / 2 and r < -100.0
+        assert info['lost'].startswith(info_want['lost'])
+        assert 'the plant exited with code 1' in info['lost']
+        with pytest.raises(RuntimeError, match='call reset'):
+            env.step([0.0])
 
 
 def test_ros_env_refuses_domain_randomisation():

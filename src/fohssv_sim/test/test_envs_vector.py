@@ -1,11 +1,11 @@
-"""The vectorised HSSV-v0 against N single envs; Gymnasium's autoreset; recording to a bag."""
+"""The vectorised HSSV-v0 against N single envs; Gymnasium's autoreset; recording to bags."""
 
 import gymnasium as gym
 import numpy as np
 import pytest
 
 from fohssv_sim.bag import load_run
-from fohssv_sim.envs import ENV_ID, HSSVEnv, HSSVVectorEnv, RecordEpisodes
+from fohssv_sim.envs import ENV_ID, HSSVEnv, HSSVVectorEnv, RecordEpisodes, RecordVectorEpisodes
 from fohssv_sim.params import ParameterError
 
 VEHICLES = [{'speed': 70.0}, {'speed': 75.0, 'fractional_order': 0.9}, {'speed': 82.0}]
@@ -76,8 +76,13 @@ def test_vector_env_loses_one_vehicle_and_keeps_the_others():
     obs, r, te, tr, info = venv.step(np.zeros((2, 1)))
     assert te.tolist() == [True, False] and 'physical bounds' in info['lost'][0]
     assert r[0] < -100.0 and info['_lost'].tolist() == [True, False]
+    x1 = venv.X[1].copy()
+    with pytest.raises(ValueError, match='delta_c=0.7 rad is outside the actuator range'):
+        venv.step(np.array([[0.0], [0.7]]))              # refused: nothing changes
+    assert np.array_equal(venv.X[1], x1) and venv._ended.tolist() == [True, False]
     obs, r, te, tr, info = venv.step(np.zeros((2, 1)))     # vehicle 0 autoresets
     assert obs[0].tolist() == [0.0, 80.0, 0.0, 0.0] and r[0] == 0.0 and not te.any()
+    assert info['t'].tolist() == [0.0, 2e-4]
 
 
 @pytest.mark.parametrize('kwargs, words', [
@@ -121,3 +126,43 @@ def test_recorded_episode_loads_with_load_run_and_equals_the_observations(tmp_pa
         assert np.array_equal(np.column_stack([run.delta_f, run.delta_c]), acts)
         assert run.parameters['model'] == 'fractional' and run.parameters['speed'] == 75.0
         assert run.metadata['fohssv.controller'] == 'random'
+
+
+def test_vector_recording_writes_each_vehicles_episodes_through_autoresets(tmp_path):
+    """Vehicle 0 is lost at each episode's first step, vehicle 1 truncated at 6: each episode
+    of each vehicle is its own bag, its states the observations of that episode bit for bit
+    (autoreset steps start a new bag with their first observation)."""
+    venv = RecordVectorEpisodes(
+        HSSVVectorEnv(2, vehicles=[{'initial_state': [0, 80.0, 0, 0], 'initial_spread':
+                                    (0, 0, 0, 0)}, {'speed': 70.0}], episode_steps=6, fin=True),
+        tmp_path / 'runs', 'random')
+    rng = np.random.default_rng(4)
+    obs, info = venv.reset(seed=3)
+    episodes = [[[(obs[i], info['planing_force'][i], None)]] for i in range(2)]
+    ended = np.zeros(2, bool)
+    for _ in range(14):
+        a = rng.uniform(-0.05, 0.05, (2, 2))
+        obs, _, te, tr, info = venv.step(a)
+        for i in range(2):
+            if ended[i]:
+                episodes[i].append([(obs[i], info['planing_force'][i], None)])
+            else:
+                episodes[i][-1].append((obs[i], info['planing_force'][i], a[i]))
+        ended = te | tr
+    venv.close()
+    names = sorted(p.relative_to(tmp_path / 'runs').as_posix() for p in venv.paths)
+    assert names == [f'vehicle_000/episode_{k:06d}' for k in range(8)] + \
+        [f'vehicle_001/episode_{k:06d}' for k in range(3)]
+    for i in range(2):
+        paths = sorted(p for p in venv.paths if p.parent.name == f'vehicle_{i:03d}')
+        for path, ep in zip(paths, episodes[i], strict=True):
+            run = load_run(path)
+            assert np.array_equal(run.state, np.array([o[:4] for o, _, _ in ep]))
+            assert np.array_equal(run.planing_force, np.array([f for _, f, _ in ep]))
+            acts = np.array([a for _, _, a in ep[1:]]).reshape(-1, 2)
+            assert np.array_equal(np.column_stack([run.delta_f, run.delta_c]), acts)
+            assert np.array_equal(run.t, np.arange(len(ep)) * 5 * 2e-5)
+            assert run.parameters['speed'] == (75.0, 70.0)[i]
+            assert run.metadata['fohssv.controller'] == 'random'
+    # vehicle 1: two full episodes of 7 samples, and the first sample of the third
+    assert [len(load_run(p).t) for p in paths] == [7, 7, 1]

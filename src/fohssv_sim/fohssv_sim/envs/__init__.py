@@ -8,8 +8,8 @@ Importing this package registers:
 * ``fohssv/HSSVRos-v0``: the agent as the controller of a real plant node over DDS
   (:class:`fohssv_sim.ros.env.HSSVRosEnv`; needs rclpy, imported only when made).
 
-:class:`RecordEpisodes` writes any of them's episodes to bags that ``load_run`` and
-``fohssv plot`` read.
+:class:`RecordEpisodes` (a single env) and :class:`RecordVectorEpisodes` (the vectorised one)
+write their episodes to bags that ``load_run`` and ``fohssv plot`` read.
 
 Pure: importing it imports no rclpy.
 """
@@ -18,12 +18,13 @@ from __future__ import annotations
 
 import gymnasium as gym
 
-from .record import RecordEpisodes
+from .record import RecordEpisodes, RecordVectorEpisodes
 from .single import HSSVEnv
 from .task import ENV_PARAMETERS, Task, default_reward, make_task
 from .vector import HSSVVectorEnv
 
-__all__ = ['HSSVEnv', 'HSSVVectorEnv', 'RecordEpisodes', 'ENV_PARAMETERS', 'Task',
+__all__ = ['HSSVEnv', 'HSSVVectorEnv', 'RecordEpisodes', 'RecordVectorEpisodes',
+           'ENV_PARAMETERS', 'Task',
            'default_reward', 'make_task', 'ENV_ID', 'ROS_ENV_ID']
 
 ENV_ID = 'fohssv/HSSV-v0'

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -42,9 +43,11 @@ class Score:
     mean_depth_error: float
 
 
-def evaluate(policy: str, episodes: int = 5, seed: int = 0, **kwargs: Any) -> Score:
-    """Run ``policy`` (a controller plugin name, or 'zero') for ``episodes`` episodes of
-    ``HSSV-v0(fin=True, **kwargs)`` seeded ``seed, seed + 1, ...``.
+def evaluate(policy: str | Callable[[np.ndarray], Any], episodes: int = 5, seed: int = 0,
+             name: str | None = None, **kwargs: Any) -> Score:
+    """Run ``policy`` (a controller plugin name, 'zero', or a function of the observation
+    returning the action, e.g. a trained agent's, scored as ``name``) for ``episodes``
+    episodes of ``HSSV-v0(fin=True, **kwargs)`` seeded ``seed, seed + 1, ...``.
 
     Raises:
         fohssv_sim.control.UnknownController: no such plugin.
@@ -55,13 +58,16 @@ def evaluate(policy: str, episodes: int = 5, seed: int = 0, **kwargs: Any) -> Sc
     for k in range(episodes):
         obs, info = env.reset(seed=seed + k)
         law = None
-        if policy != 'zero':
+        if isinstance(policy, str) and policy != 'zero':
             cls = control.load(policy)
-            law = cls(**{name: env.plant.params.to_dict()[model_name]
-                         for name, model_name in cls.scheduling.items()})
+            law = cls(**{k: env.plant.params.to_dict()[model_name]
+                         for k, model_name in cls.scheduling.items()})
         total, err, done = 0.0, [], False
         while not done:
-            a = (0.0, 0.0) if law is None else law.command(info['t'], obs[:4])
+            if callable(policy):
+                a = policy(obs)
+            else:
+                a = (0.0, 0.0) if law is None else law.command(info['t'], obs[:4])
             obs, r, term, trunc, info = env.step(a)
             total += r
             err.append(abs(obs[0] - env.task.target_depth))
@@ -69,8 +75,8 @@ def evaluate(policy: str, episodes: int = 5, seed: int = 0, **kwargs: Any) -> Sc
         lost += bool(term)
         returns.append(total)
         errors.append(float(np.mean(err)))
-    return Score(policy, episodes, float(np.mean(returns)), float(np.std(returns)), lost,
-                 float(np.mean(errors)))
+    return Score(name or str(policy), episodes, float(np.mean(returns)),
+                 float(np.std(returns)), lost, float(np.mean(errors)))
 
 
 def baseline_table(scores: list[Score]) -> str:

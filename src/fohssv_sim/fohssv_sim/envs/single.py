@@ -18,7 +18,7 @@ import numpy as np
 from ..models import Plant, make_plant
 from .task import Task, make_task
 
-__all__ = ['HSSVEnv', 'spaces_of']
+__all__ = ['HSSVEnv', 'EpisodeEnv', 'spaces_of']
 
 
 def spaces_of(task: Task) -> tuple[gym.spaces.Box, gym.spaces.Box]:
@@ -31,7 +31,51 @@ def spaces_of(task: Task) -> tuple[gym.spaces.Box, gym.spaces.Box]:
     return obs, act
 
 
-class HSSVEnv(gym.Env):
+class EpisodeEnv(gym.Env):
+    """What ``HSSV-v0`` and ``HSSVRos-v0`` share: an episode's bookkeeping (its step count,
+    the action before, the end flags), the reward and ``info`` by the ``task``'s rules. A
+    subclass sets ``task`` and runs each control period between :meth:`_begin_step` and
+    :meth:`_end_step`."""
+
+    metadata = {'render_modes': []}
+    task: Task
+    _done = True
+
+    def _begin_episode(self, x: Any, fp: float, t: float) -> tuple[np.ndarray, dict]:
+        self._done = False
+        self._steps = 0
+        self._u = np.zeros(2)
+        return self.task.observe(x, fp), self._info(t, fp, '')
+
+    def _begin_step(self, action: Any) -> tuple[float, float]:
+        """The action's (delta_f, delta_c), checked, in an episode that has not ended."""
+        if self._done:
+            raise RuntimeError('the episode has ended (or never started): call reset() before '
+                               'step()')
+        return self.task.action(action)
+
+    def _end_step(self, u: tuple[float, float], x: Any, fp: float, t: float, why: str
+                  ) -> tuple[np.ndarray, float, bool, bool, dict]:
+        """The step's result after input ``u`` led to state ``x`` and Fp ``fp`` at time
+        ``t``; ``why`` the vehicle was lost ('' when it was not)."""
+        task = self.task
+        ua = np.array(u)
+        reward = task.score(np.array(x), ua, self._u, fp, bool(why))
+        self._u = ua
+        self._steps += 1
+        truncated = self._steps >= task.episode_steps and not why
+        self._done = bool(why) or truncated
+        return task.observe(x, fp), reward, bool(why), truncated, self._info(t, fp, why)
+
+    def _info(self, t: float, fp: float, why: str) -> dict[str, Any]:
+        info = {'t': t, 'planing_force': fp, 'delta_f': float(self._u[0]),
+                'delta_c': float(self._u[1])}
+        if why:
+            info['lost'] = why
+        return info
+
+
+class HSSVEnv(EpisodeEnv):
     """The supercavitating vehicle's dive plane as a Gymnasium environment.
 
     Keyword arguments: see :mod:`fohssv_sim.envs.task` (model parameters, ``control_period``,
@@ -46,16 +90,12 @@ class HSSVEnv(gym.Env):
     ``reset`` or after the episode ended.
     """
 
-    metadata = {'render_modes': []}
-
     def __init__(self, **kwargs: Any) -> None:
         self.task = make_task(kwargs)
         self.observation_space, self.action_space = spaces_of(self.task)
         self.plant: Plant | None = None
         #: The model parameters of the current episode (after the draw), as a dict.
         self.episode_parameters: dict[str, Any] = {}
-        self._done = True
-        self._u = np.zeros(2)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None
               ) -> tuple[np.ndarray, dict]:
@@ -67,40 +107,18 @@ class HSSVEnv(gym.Env):
         else:
             plant = self.plant = make_plant(params, x0, duration=self.task.duration)
         self.episode_parameters = params.to_dict()
-        self._done = False
-        self._steps = 0
-        self._u = np.zeros(2)
-        fp = plant.planing_force
-        return self.task.observe(plant.x, fp), self._info(fp, '')
+        return self._begin_episode(plant.x, plant.planing_force, plant.t)
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
-        if self._done:
-            raise RuntimeError('the episode has ended (or never started): call reset() before '
-                               'step()')
-        task = self.task
-        u = task.action(action)
+        u = self._begin_step(action)
         plant = self.plant
         why = ''
         try:
-            plant.advance(u, task.hold)
+            plant.advance(u, self.task.hold)
         except FloatingPointError as exc:
             why = str(exc)
         x = plant.x
-        if not why and not task.in_bounds(x, plant.params.speed):
+        if not why and not self.task.in_bounds(x, plant.params.speed):
             why = (f'state beyond physical bounds at t={plant.t:.9g} s: [z, w, theta, q] = '
                    f'{list(x)} (|w| <= V = {plant.params.speed:g} m/s, |theta| <= pi/2 rad)')
-        fp = plant.planing_force
-        ua = np.array(u)
-        reward = task.score(np.array(x), ua, self._u, fp, bool(why))
-        self._u = ua
-        self._steps += 1
-        truncated = self._steps >= task.episode_steps
-        self._done = bool(why) or truncated
-        return task.observe(x, fp), reward, bool(why), truncated and not why, self._info(fp, why)
-
-    def _info(self, fp: float, why: str) -> dict[str, Any]:
-        info = {'t': self.plant.t, 'planing_force': fp, 'delta_f': float(self._u[0]),
-                'delta_c': float(self._u[1])}
-        if why:
-            info['lost'] = why
-        return info
+        return self._end_step(u, x, plant.planing_force, plant.t, why)

@@ -15,8 +15,10 @@ plant`` in lockstep with the env's model parameters, control period and start st
 so ``speed_range`` and ``order_range`` are refused here.
 
 A lost vehicle: the plant node ends (exit 1, "simulation failed") without publishing the
-state beyond the bounds, so the last step is terminated with the last state it published as
-the observation and ``info['lost']`` naming the plant's exit; a plant the env started is
+state beyond the bounds. The env then computes that step as ``HSSV-v0`` does, replaying the
+episode (its start and actions) in-process: the same numbers the plant computed, so the
+observation, reward and terminated flag are ``HSSV-v0``'s at the same step (tested through a
+loss), and ``info['lost']`` says why and names the plant's exit. A plant the env started is
 started again at the next reset.
 
 Needs rclpy (the ROS layer); everything else comes from :mod:`fohssv_sim.envs`.
@@ -33,7 +35,6 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 import rclpy
 from rcl_interfaces.srv import SetParameters
@@ -44,7 +45,7 @@ from std_srvs.srv import Trigger
 
 from ..closed_loop import NodeSpec, ros_args
 from ..contract import COMMAND, PLANING_FORCE, STATE
-from ..envs.single import spaces_of
+from ..envs.single import EpisodeEnv, HSSVEnv, spaces_of
 from ..envs.task import make_task
 from ..params import ParameterError
 from ..solvers import soe_options
@@ -58,7 +59,7 @@ __all__ = ['HSSVRosEnv']
 START_TIMEOUT = 120.0
 
 
-class HSSVRosEnv(gym.Env):
+class HSSVRosEnv(EpisodeEnv):
     """See the module docstring. Keyword arguments: those of ``HSSV-v0`` plus
     ``namespace`` (the plant's, '' = root), ``start_plant`` (bool), ``domain_id`` (the ROS
     domain of the env and the plant it starts; None = ``ROS_DOMAIN_ID``) and ``timeout``
@@ -67,18 +68,19 @@ class HSSVRosEnv(gym.Env):
     Raises:
         ParameterError: a bad keyword argument, or ``speed_range`` / ``order_range``.
         TimeoutError: no sample within ``timeout`` from a plant the env did not start.
+        RuntimeError (from ``step``): the plant the env started ended with the vehicle
+            within its bounds (killed, or stopped for another reason), naming its exit.
     """
-
-    metadata = {'render_modes': []}
 
     def __init__(self, namespace: str = '', start_plant: bool = True,
                  domain_id: int | None = None, timeout: float = 30.0, **kwargs: Any) -> None:
         self.task = make_task(kwargs)
+        self._kwargs = kwargs
         for name in ('speed_range', 'order_range'):
             if getattr(self.task, name) is not None:
                 raise ParameterError(f'{name}={getattr(self.task, name)!r} is not supported by '
                                      'HSSVRos-v0: the model parameters of a running plant are '
-                                     'read-only; allowed: none')
+                                     'read-only (domain randomisation: HSSV-v0); allowed: none')
         if not (isinstance(timeout, (int, float)) and timeout > 0):
             raise ParameterError(f'timeout={timeout!r} is not valid; allowed: (0, inf) s')
         self.observation_space, self.action_space = spaces_of(self.task)
@@ -105,8 +107,6 @@ class HSSVRosEnv(gym.Env):
         self._reset_client = node.create_client(Trigger, 'reset')
         self._param_client = node.create_client(SetParameters, 'plant/set_parameters')
         self._t = 0.0
-        self._done = True
-        self._u = np.zeros(2)
         self._heard = False       # a sample of the plant was taken (it answers us only)
 
     # -- the plant ------------------------------------------------------------------------
@@ -234,43 +234,37 @@ class HSSVRosEnv(gym.Env):
             raise RuntimeError(got)
         x, fp = got
         self._heard = True
-        self._last, self._last_fp = x, fp
+        self._x0, self._actions = x0, []
         self._t = 0.0
-        self._steps = 0
-        self._u = np.zeros(2)
-        self._done = False
-        return self.task.observe(x, fp), self._info(fp, '')
+        return self._begin_episode(x, fp, 0.0)
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
-        if self._done:
-            raise RuntimeError('the episode has ended (or never started): call reset() before '
-                               'step()')
-        task = self.task
-        u = task.action(action)
+        u = self._begin_step(action)
+        self._actions.append(np.array(action, dtype=float))
         self._command.data = [self._t, float(u[0]), float(u[1])]
         self._pub.publish(self._command)
-        t_next = (self._steps + 1) * task.hold * task.params.step
+        t_next = (self._steps + 1) * self.task.hold * self.task.params.step
         got = self._wait(t_next)
-        ua = np.array(u)
         if isinstance(got, str):
-            x, fp, why = self._last, self._last_fp, got
-        else:
-            (x, fp), why = got, ''
-            self._t = t_next
-        self._last, self._last_fp = x, fp
-        reward = task.score(np.array(x), ua, self._u, fp, bool(why))
-        self._u = ua
-        self._steps += 1
-        truncated = self._steps >= task.episode_steps and not why
-        self._done = bool(why) or truncated
-        return task.observe(x, fp), reward, bool(why), truncated, self._info(fp, why)
+            return self._lost(got)
+        self._t = t_next
+        return self._end_step(u, *got, t_next, '')
 
-    def _info(self, fp: float, why: str) -> dict[str, Any]:
-        info = {'t': self._t, 'planing_force': fp, 'delta_f': float(self._u[0]),
-                'delta_c': float(self._u[1])}
-        if why:
-            info['lost'] = why
-        return info
+    def _lost(self, why: str) -> tuple[np.ndarray, float, bool, bool, dict]:
+        """The step on which the plant ended (``why``): ``HSSV-v0``'s, from the episode's
+        start and actions replayed in-process (the plant does not publish a state beyond its
+        bounds). Raises RuntimeError when the replay keeps the vehicle (the plant ended for
+        another reason)."""
+        self._done = True
+        env = HSSVEnv(**self._kwargs)
+        env.reset(options={'initial_state': self._x0})
+        for a in self._actions:
+            obs, reward, terminated, truncated, info = env.step(a)
+        if not terminated:
+            raise RuntimeError(f'{why} (at t={self._t!r} s, the vehicle within its bounds)')
+        self._t = info['t']
+        info['lost'] = f"{info['lost']}; {why}"
+        return obs, reward, terminated, truncated, info
 
     def close(self) -> None:
         """Stop the plant the env started (SIGINT, then SIGKILL after 10 s) and leave the

@@ -25,8 +25,8 @@ import rosproc
 pytestmark = pytest.mark.graph
 
 TOL = 1e-12
-#: Simulated time per run: short, so the file stays well under a minute.
-DURATION = {'delay-free': 0.1, 'delayed': 0.1, 'fractional': 0.1}
+#: Simulated time of the lockstep run compared with the batch runner.
+DURATION = 0.1
 
 
 def _run(model: str, controller_exe: str, duration: float, controller_args=(),
@@ -55,24 +55,31 @@ def _run(model: str, controller_exe: str, duration: float, controller_args=(),
         probe.close()
 
 
-@pytest.mark.parametrize('model', ['delay-free', 'delayed', 'fractional'])
-def test_lockstep_reproduces_batch_runner(model):
-    duration = DURATION[model]
-    states, forces, out = _run(model, 'state_feedback', duration)
-    ref, fref = batch_samples(model, StateFeedback(), duration)
+def test_lockstep_over_dds_reproduces_the_batch_runner():
+    """The FOM plant (its params file, as ``ros2 run`` with ``--params-file`` gives it) and
+    the PI^lambda D^mu node (its own executable, fractional integral and derivative terms
+    active), each a process: every sample, in order, at the batch runner's times and equal to
+    it. The FOM's samples but the first take the compiled sample (compiled_sample.py) and its
+    commands are taken by rcl in compiled code (PlantNode.spin_taking), here from another
+    process. (Every model under every built-in law, external and hosted, against the batch
+    runner: tests/node/test_plant_hosted.py.)"""
+    gains = {'integral_order': 0.85, 'derivative_order': 0.7, 'depth_ki': 2.0,
+             'pitch_ki': -1.0, 'pitch_kd': -0.2}
+    args = ['--ros-args'] + [a for k, v in gains.items() for a in ('-p', f'{k}:={v}')]
+    duration = DURATION
+    states, forces, out = _run('fractional', 'fractional_pid', duration, args)
+    ref, fref = batch_samples('fractional', FractionalPID(**gains), duration)
     assert states.shape == ref.shape, out
-    # every sample, in order, at exactly the batch runner's times
     assert np.array_equal(states[:, 0], ref[:, 0])
     assert np.max(np.abs(states - ref)) <= TOL
     assert np.array_equal(forces[:, 0], fref[:, 0])
     assert np.max(np.abs(forces - fref)) <= TOL
     assert f'"samples": {len(ref) - 1}' in out
-    # the FOM's samples but the first take the compiled sample (compiled_sample.py), the
-    # integer models' none
-    compiled = len(ref) - 2 if model == 'fractional' else 0
-    assert f'"compiled_samples": {compiled}' in out, out
-    # ... the FOM's commands taken by rcl in compiled code (PlantNode.spin_taking)
-    assert f'"compiled_take": {"true" if model == "fractional" else "false"}' in out, out
+    assert f'"compiled_samples": {len(ref) - 2}' in out, out
+    assert '"compiled_take": true' in out, out
+    # the law's response differs from eq. 31's (the gains reached the node)
+    eq31, _ = batch_samples('fractional', StateFeedback(), duration)
+    assert np.max(np.abs(states[:, 1:] - eq31[:, 1:])) > 1e-6
 
 
 #: The reset test's run length: long enough that the reset comes first (0: open-ended). The
@@ -125,19 +132,6 @@ def test_reset_service_returns_to_t0_and_replays_the_run(model):
     ref = ref[ref[:, 0] <= 0.1 + 1e-9]
     assert after.shape == ref.shape
     assert np.max(np.abs(after - ref)) <= TOL
-
-
-def test_fractional_pid_node_equals_the_batch_run():
-    """The PI^lambda D^mu plugin through its own node over DDS, with fractional integral and
-    derivative terms active, equals the in-process run sample for sample."""
-    gains = {'integral_order': 0.85, 'derivative_order': 0.7, 'depth_ki': 2.0,
-             'pitch_ki': -1.0, 'pitch_kd': -0.2}
-    args = ['--ros-args'] + [a for k, v in gains.items() for a in ('-p', f'{k}:={v}')]
-    duration = 0.1
-    states, _, _ = _run('fractional', 'fractional_pid', duration, args)
-    ref, _ = batch_samples('fractional', FractionalPID(**gains), duration)
-    assert states.shape == ref.shape
-    assert np.max(np.abs(states - ref)) <= TOL
 
 
 def test_sigint_during_a_lockstep_run_stops_cleanly(tmp_path):

@@ -24,16 +24,19 @@ DURATION = 0.05
 N = round(DURATION / 1e-4) + 1                 # the samples at t = 0 .. DURATION
 CONTROLLERS = {'state_feedback': StateFeedback, 'lqr': LQR, 'fractional_pid': FractionalPID}
 #: (model, controller) whose external-node lockstep run is compared with the batch runner
-#: already: over DDS by tests/test_graph_lockstep.py (eq. 31), or by the swap test here (LQR)
-EXTERNAL_ELSEWHERE = {('delay-free', 'state_feedback'), ('delayed', 'state_feedback'),
-                      ('fractional', 'state_feedback'), ('delay-free', 'lqr')}
+#: already, by the swap test here (LQR)
+EXTERNAL_ELSEWHERE = {('delay-free', 'lqr')}
+#: The PI^lambda D^mu law with its fractional integral and derivative terms active (the
+#: defaults leave them off); over DDS from its own executable: tests/test_graph_lockstep.py
+FRACTIONAL_GAINS = {'integral_order': 0.85, 'derivative_order': 0.7, 'depth_ki': 2.0,
+                    'pitch_ki': -1.0, 'pitch_kd': -0.2}
 
 
-def _batch(model: str, name: str, duration: float) -> tuple[np.ndarray, np.ndarray]:
+def _batch(model: str, name: str, duration: float, **gains) -> tuple[np.ndarray, np.ndarray]:
     """The batch runner's samples [t, z, w, theta, q] and the inputs it applied from each
     sample on [delta_f, delta_c], every 1e-4 s."""
     p = ModelParameters(model=model)
-    r = simulate(p, CONTROLLERS[name](), duration, control_period=1e-4,
+    r = simulate(p, CONTROLLERS[name](**gains), duration, control_period=1e-4,
                  sample_every=round(1e-4 / p.step))
     return np.column_stack([r.t, r.state]), r.inputs
 
@@ -65,19 +68,20 @@ def test_hosted_lockstep_equals_the_batch_runner(graph, capfd, model, name):
     assert f'controller {name}(' in out and 'hosted in the loop' in out
 
 
-@pytest.mark.parametrize(('model', 'name'), [
-    (m, c) for m in ('delay-free', 'delayed', 'fractional') for c in CONTROLLERS
-    if (m, c) not in EXTERNAL_ELSEWHERE])
-def test_the_external_controller_node_equals_the_batch_runner(graph, model, name):
+@pytest.mark.parametrize(('model', 'name', 'gains'), [
+    *(pytest.param(m, c, {}, id=f'{m}-{c}') for m in ('delay-free', 'delayed', 'fractional')
+      for c in CONTROLLERS if (m, c) not in EXTERNAL_ELSEWHERE),
+    pytest.param('fractional', 'fractional_pid', FRACTIONAL_GAINS, id='fractional_terms')])
+def test_the_external_controller_node_equals_the_batch_runner(graph, model, name, gains):
     """The same law in the controller node, answering the plant on the same executor: the
     batch runner's samples and inputs, so hosted = external = batch."""
     probe = graph.probe()
-    graph.controller(name, min_command_subscribers=2)     # the plant and the probe
+    graph.controller(name, min_command_subscribers=2, **gains)     # the plant and the probe
     plant = graph.plant(model=model, duration=DURATION, min_state_subscribers=2)
     assert graph.run(plant) == 0
     graph.wait(lambda: len(probe.states) >= N and len(probe.commands) >= N - 1, 30,
                'every sample and command at the probe')
-    ref, inputs = _batch(model, name, DURATION)
+    ref, inputs = _batch(model, name, DURATION, **gains)
     # the node answers the last sample too
     _check(probe.state_array(), probe.command_array()[:N - 1], ref, inputs)
 

@@ -4,7 +4,9 @@ Plant and controller are the installed executables, each a process, on a domain 
 the test process records ``state`` and ``planing_force`` with a probe node. Lockstep with the
 same zero-order-hold control period as ``simulate(..., control_period=...)`` must give the same
 trajectory to 1e-12 (it is in fact bit-identical: the same doubles go through the same
-operations in the same order).
+operations in the same order). What needs the processes is here: the run over DDS between
+two executables, SIGINT in the middle of a run, each process's threads pinned, the PM QoS
+request held. (The reset service and every model under every law: tests/node.)
 """
 
 from __future__ import annotations
@@ -80,58 +82,6 @@ def test_lockstep_over_dds_reproduces_the_batch_runner():
     # the law's response differs from eq. 31's (the gains reached the node)
     eq31, _ = batch_samples('fractional', StateFeedback(), duration)
     assert np.max(np.abs(states[:, 1:] - eq31[:, 1:])) > 1e-6
-
-
-#: The reset test's run length: long enough that the reset comes first (0: open-ended). The
-#: FOM's is finite because its 'soe' history is sized by the duration as the batch runner's is.
-RESET_DURATION = {'delay-free': 0.0, 'fractional': 5.0}
-
-
-@pytest.mark.parametrize('model', ['delay-free', 'fractional'])
-def test_reset_service_returns_to_t0_and_replays_the_run(model):
-    """(The FOM's lockstep samples take the plant's short path, models.HeldPeriod, which
-    declines after the reset until the general path has bound the kernel to the new
-    history.)"""
-    domain = rosproc.unique_domain_id()
-    env = rosproc.ros_env(domain)
-    probe = Probe(domain)
-    ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
-    plant = rosproc.start('fohssv_sim', 'plant', plant_args(
-        model=model, duration=RESET_DURATION[model], min_state_subscribers=2,
-        pace_to_subscribers=512),
-        env=env)
-    try:
-        probe.wait(lambda: len(probe.states) > 100, 30, 'the run to pass t = 0.01 s')
-        response = probe.reset_plant()
-        assert response.success, (response.message, stop_all(plant, ctl))
-        assert response.message.startswith('t = 0.0 s')
-
-        def restarted_past_0_1_s():
-            t = [s[0] for s in probe.states]
-            back = [i for i in range(1, len(t)) if t[i] < t[i - 1]]
-            return back and t[-1] >= 0.1 + 1e-9
-        probe.wait(restarted_past_0_1_s, 60, 'the restarted run to pass t = 0.1 s')
-        out = stop_all(plant)
-        assert plant.returncode == 0, out
-    finally:
-        stop_all(plant, ctl)
-        probe.close()
-    t = probe.state_array()[:, 0]
-    back = np.flatnonzero(np.diff(t) < 0)
-    assert len(back) == 1 and t[back[0] + 1] == 0.0, (back, t[back], t[back + 1], out[-3000:])
-    # issue 21.2 / 22.8: the rates divide the whole run's samples by the whole run's time
-    # (the probe saw back[0] advances before the reset: t = 0 and back[0] steps)
-    s = rosproc.summary(out)
-    assert s['resets'] == 1 and s['samples_total'] == s['samples'] + back[0], s
-    assert s['samples_per_second'] * s['wall_time'] == pytest.approx(s['samples_total'])
-    assert s['cpu_per_sample_us'] * s['samples_total'] == pytest.approx(s['cpu_time'] * 1e6)
-    # after the reset the run starts over and is again the batch run
-    after = probe.state_array()[back[0] + 1:]
-    after = after[after[:, 0] <= 0.1 + 1e-9]
-    ref, _ = batch_samples(model, StateFeedback(), RESET_DURATION[model] or 0.1)
-    ref = ref[ref[:, 0] <= 0.1 + 1e-9]
-    assert after.shape == ref.shape
-    assert np.max(np.abs(after - ref)) <= TOL
 
 
 def test_sigint_during_a_lockstep_run_stops_cleanly(tmp_path):

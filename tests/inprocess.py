@@ -51,9 +51,13 @@ Answer = Callable[[float, tuple], Sequence[float] | None]
 
 
 def overrides(params: dict[str, Any]) -> list[Parameter]:
-    """``parameter_overrides`` for ``params`` (lists as float lists, as ``-p k:=[...]``)."""
-    return [Parameter(k, value=[float(x) for x in v] if isinstance(v, (list, tuple)) else v)
-            for k, v in params.items()]
+    """``parameter_overrides`` for ``params``, typed as ``-p k:=v`` types them: a list of
+    whole numbers an integer array, any other list a double array."""
+    def typed(v: Any) -> Any:
+        if not isinstance(v, (list, tuple)):
+            return v
+        return list(v) if all(type(x) is int for x in v) else [float(x) for x in v]
+    return [Parameter(k, value=typed(v)) for k, v in params.items()]
 
 
 class Probe:

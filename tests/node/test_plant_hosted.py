@@ -1,8 +1,9 @@
 """The plant hosting the law (``controller:=NAME``), in the test process: the lockstep run is
 the batch runner's, for every model and built-in controller, and equal to the external node's;
-the controller swapped. (A second command publisher, a late external controller, a law with
-no command and the law's parameters changed during a real-time run, whose hosted loop serves
-its executor once per chunk of samples, are the process tests'.)"""
+the controller swapped; a law with no command for any sample counted and its lines
+rate-limited. (A second command publisher, a late external controller and the law's
+parameters changed during a real-time run, whose hosted loop serves its executor once per
+chunk of samples, are the process tests'.)"""
 
 from __future__ import annotations
 
@@ -100,3 +101,23 @@ def test_swapping_the_controller_changes_only_the_response(graph):
     assert states.shape == ref_lqr.shape
     assert np.max(np.abs(states - ref_lqr)) <= TOL
     assert np.max(np.abs(states[:, 1:] - ref_sf[:, 1:])) > 1e-3
+
+
+def test_a_hosted_law_that_fails_every_sample_is_counted_and_rate_limited(graph, capfd):
+    """Issue 21, class 1, hosted: a law with no command for a sample (here a depth gain of
+    1e308 overflows at z = 10 m for every sample of the run) is counted and logged as the
+    controller node logs it, the first 20 lines one by one and then at most one a second, the
+    last good command held (none yet: zero), and the run ends as configured (exit 0)."""
+    plant = graph.plant(model='delay-free', controller='state_feedback', duration=DURATION,
+                        initial_state=[10.0, 0.0, 0.0, 0.0], min_state_subscribers=0,
+                        **{'controller.depth_gain': 1e308})
+    assert graph.run(plant) == 0
+    out = capfd.readouterr().err
+    assert 'Traceback' not in out, out
+    s = rosproc.summary(out)
+    assert s['law_failures'] == N - 1 and s['hosted_commands'] == 0, s
+    lines = [ln for ln in out.splitlines() if 'no command for this sample' in ln]
+    # 20 one by one, then at most one a second of a run far shorter than the 20 s allowed
+    assert 20 <= len(lines) <= 40, out
+    assert 'holding delta_f=0.0, delta_c=0.0 rad (1 without a command)' in lines[0], lines[0]
+    assert '[logged one by one up to here' in lines[19], lines[19]

@@ -41,12 +41,10 @@ def _run(tmp_path, refuse: str, hosted: bool, duration: float = DURATION,
     plant's and the recorder's exits."""
     env = rosproc.ros_env()
     bag, rlog, plog = tmp_path / 'run', tmp_path / 'recorder.log', tmp_path / 'plant.log'
-    rec = rosproc.start('fohssv_sim', 'recorder', [
-        '--ros-args', '-p', f'bag_path:={bag}', '-p', 'plant_timeout:=30.0',
-        '-p', 'command_publishers:=1'], env=env, log=rlog)
+    rec = rosproc.start_recorder(env, rlog, f'bag_path:={bag}', 'plant_timeout:=30.0',
+                                 'command_publishers:=1')
     procs = [rec]
     try:
-        rosproc.wait_for(lambda: 'recording to' in rlog.read_text(), 90, what='the recorder')
         extra = {'controller': 'state_feedback'} if hosted else {}
         if not hosted:
             procs.append(rosproc.start('fohssv_controller', 'state_feedback', [

@@ -123,12 +123,9 @@ def test_recorded_closed_loop_equals_batch_run_and_plots(tmp_path, capfd):
     env = rosproc.ros_env()
     bag = tmp_path / 'run'
     log = tmp_path / 'recorder.log'
-    rec = rosproc.start('fohssv_sim', 'recorder', ['--ros-args', '-p', f'bag_path:={bag}',
-                                                   '-p', 'command_publishers:=1'],
-                        env=env, log=log)
+    rec = rosproc.start_recorder(env, log, f'bag_path:={bag}', 'command_publishers:=1')
     ctl = plant = None
     try:
-        rosproc.wait_for(lambda: 'recording to' in log.read_text(), 60, what='the recorder')
         ctl = rosproc.start('fohssv_controller', 'state_feedback',
                             ['--ros-args', '-p', 'min_command_subscribers:=2'], env=env)
         plant = rosproc.start('fohssv_sim', 'plant', plant_args(

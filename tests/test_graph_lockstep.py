@@ -88,13 +88,14 @@ def test_sigint_during_a_lockstep_run_stops_cleanly(tmp_path):
     """Issue 12, defect 12: SIGINT used to reach the plant while a command callback was
     publishing the next sample: rclpy shut the context down under it and the executor logged
     ``[FATAL] Exception in 'subscriptions' callback`` with a stack (in every run here, with the
-    interpreted ABM solver keeping the plant in its callback most of the time). Three runs at
-    once, each interrupted while it steps: exit 0, the summary, no FATAL and no traceback."""
+    interpreted ABM solver keeping the plant in its callback most of the time). Two runs at
+    once, each interrupted while it steps (half a second in: the ABM plant is in its callback
+    nearly all the time from the start): exit 0, the summary, no FATAL and no traceback."""
     import signal
     import time
 
     runs = []
-    for i in range(3):
+    for i in range(2):
         env = rosproc.ros_env()
         logs = (tmp_path / f'plant{i}.log', tmp_path / f'ctl{i}.log')
         ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env, log=logs[1])
@@ -105,7 +106,7 @@ def test_sigint_during_a_lockstep_run_stops_cleanly(tmp_path):
         for _, _, logs in runs:
             rosproc.wait_for(lambda logs=logs: 'peers matched' in logs[0].read_text(), 60,
                              what='the run to start')
-        time.sleep(1.0)
+        time.sleep(0.5)
         for plant, _, _ in runs:
             plant.send_signal(signal.SIGINT)
         codes = [rosproc.wait_exit(plant, 30) for plant, _, _ in runs]
@@ -114,7 +115,7 @@ def test_sigint_during_a_lockstep_run_stops_cleanly(tmp_path):
     finally:
         stop_all(*[p for run in runs for p in run[:2]])
     texts = [log.read_text() for _, _, logs in runs for log in logs]
-    assert codes == [0] * 6, texts
+    assert codes == [0] * 4, texts
     for text in texts:
         assert 'FATAL' not in text and 'Traceback' not in text, text
     for _, _, logs in runs:

@@ -14,13 +14,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from test_graph_support import Probe, finish, plant_args, stop_all
+from test_graph_support import Probe, finish, late_controller, plant_args, stop_all
 
 import rosproc
 
 pytestmark = pytest.mark.graph
-
-EXAMPLES = Path(__file__).parent / 'examples'
 
 
 def _realtime_hosted(env: dict, log: Path, **params) -> object:
@@ -57,16 +55,8 @@ def test_a_late_external_controller_stops_the_realtime_plant_with_exit_6(tmp_pat
     max_command_lag (20) and stays there; the plant stops with exit 6 and one line naming
     the lag, the plant's cost per sample and the remedies, long before the vehicle could
     leave its bounds."""
-    dist = tmp_path / 'late_law_example-0.1.dist-info'
-    dist.mkdir()
-    (dist / 'METADATA').write_text('Metadata-Version: 2.1\nName: late-law-example\n'
-                                   'Version: 0.1\n')
-    (dist / 'entry_points.txt').write_text('[fohssv.controllers]\nlate_law = late_law:LateLaw\n')
-    domain = rosproc.unique_domain_id()
-    env = rosproc.ros_env(domain)
-    ctl_env = dict(env, PYTHONPATH=f"{tmp_path}:{EXAMPLES}:{env.get('PYTHONPATH', '')}")
-    ctl = rosproc.start('fohssv_controller', 'controller', [
-        '--ros-args', '-p', 'controller:=late_law', '-p', 'answer_delay:=0.005'], env=ctl_env)
+    env = rosproc.ros_env()
+    ctl = late_controller(env, tmp_path, 0.005)
     plant = rosproc.start('fohssv_sim', 'plant', plant_args(
         model='delay-free', mode='realtime', control_period=1e-3, duration=5.0,
         end_linger=0.0), env=env)

@@ -31,7 +31,14 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, String
-from test_graph_support import Probe, batch_samples, finish, plant_args, stop_all
+from test_graph_support import (
+    Probe,
+    batch_samples,
+    finish,
+    late_controller,
+    plant_args,
+    stop_all,
+)
 
 from fohssv_controller.state_feedback import StateFeedback
 from fohssv_sim import contract
@@ -77,18 +84,22 @@ def _controller(env, subscribers=2):
 
 
 @contextlib.contextmanager
-def _recorded_loop(tmp_path, recorder_params, command_subscribers=2, **plant_params):
+def _recorded_loop(tmp_path, recorder_params, command_subscribers=2, late=0.0,
+                   **plant_params):
     """A recorder (``-p`` settings ``recorder_params``), eq. 31's node (answering once
-    ``command_subscribers`` subscribe to its commands) and a plant (delay-free unless
-    ``plant_params`` name a model; logging to ``plant.log``); every process is stopped at the
-    end."""
+    ``command_subscribers`` subscribe to its commands; with ``late``, each answer that many
+    seconds late: a run that lasts in wall time with few samples) and a plant (delay-free
+    unless ``plant_params`` name a model; logging to ``plant.log``); every process is stopped
+    at the end."""
     env = rosproc.ros_env()
     loop = SimpleNamespace(env=env, bag=tmp_path / 'run', log=tmp_path / 'recorder.log',
                            plog=tmp_path / 'plant.log')
     loop.rec = _recorder(env, loop.bag, loop.log, *recorder_params)
     procs = [loop.rec]
     try:
-        procs.append(_controller(env, command_subscribers))
+        procs.append(late_controller(env, tmp_path, late,
+                                     f'min_command_subscribers:={command_subscribers}')
+                     if late else _controller(env, command_subscribers))
         loop.plant = rosproc.start('fohssv_sim', 'plant', plant_args(
             **{'model': 'delay-free', 'min_state_subscribers': 2, **plant_params}), env=env,
             log=loop.plog)
@@ -285,7 +296,8 @@ def test_a_recorder_stopped_early_does_not_stall_the_loop(tmp_path):
     """Found by the fault suite: the controller required two command subscribers (plant and
     recorder) during its start-up grace, so a recorder stopped in the first 2 s held the
     commands and the lockstep plant timed out (exit 3). The minimum is a start condition."""
-    with _recorded_loop(tmp_path, ['command_publishers:=1'], duration=2.0,
+    # answers 1 ms late: the run's 2000 samples outlast the controller's start-up grace (2 s)
+    with _recorded_loop(tmp_path, ['command_publishers:=1'], late=0.001, duration=0.2,
                         command_timeout=5.0, pace_to_subscribers=512) as loop:
         _started(loop.plog)
         loop.rec.send_signal(signal.SIGINT)
@@ -310,8 +322,9 @@ def test_after_sigint_a_lockstep_plant_steps_and_publishes_nothing(tmp_path, mod
     # had matched the recorder's reader, and the first commands (all of them, or 73 of 931)
     # never reached the bag: the recorder said so with exit 6 (in CI under load, and in 10 of
     # 13 runs beside two busy loops)
+    # (eq. 31 answering 1 ms late: hundreds of samples before the signal, not thousands)
     with _recorded_loop(tmp_path, ['command_publishers:=1'], command_subscribers=3,
-                        model=model, duration=0.0, min_state_subscribers=3,
+                        late=0.001, model=model, duration=0.0, min_state_subscribers=3,
                         pace_to_subscribers=512) as loop:
         probe = Probe(int(loop.env['ROS_DOMAIN_ID']), command_publisher=False)
         try:

@@ -4,6 +4,8 @@ test_plant_start)."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
@@ -171,3 +173,21 @@ def test_reset_service_returns_to_t0_and_replays_the_run(graph, model):
     ref = ref[ref[:, 0] <= 0.1 + 1e-9]
     assert after.shape == ref.shape
     assert np.max(np.abs(after - ref)) <= TOL
+
+
+def test_a_control_period_stalled_outside_the_plant_is_not_an_overrun(graph, capfd,
+                                                                      monkeypatch):
+    """The publish of sample 100 waits 1.5 s, three times command_timeout, asleep
+    (``FOHSSV_FAULT_STALL_STATE``: a write DDS blocked, as Fast DDS does for up to 1 s when a
+    subscriber's process is stopped; a CI run under load ended this way with exit 3 and "the
+    plant is overrunning"). The plant names the slow period in one warning and runs on."""
+    from fohssv_sim.ros.faults import STALL_STATE_VAR
+
+    monkeypatch.setenv(STALL_STATE_VAR, '100:1.5')
+    graph.controller()
+    plant = graph.plant(model='delay-free', duration=0.05, command_timeout=0.5)
+    assert graph.run(plant, 90) == 0
+    text = capfd.readouterr().err
+    assert re.search(r'one control period \(10 steps\) took 1\.[5-9][0-9]* s > '
+                     r'command_timeout=0\.5 s of wall time at t=0\.01', text), text
+    assert 'stopping cleanly at t=0.05 s' in text, text

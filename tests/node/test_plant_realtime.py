@@ -1,9 +1,10 @@
 """The real-time plant node in the test process: the watchdog, commands from the future and
 stale ones, a state that turns non-finite or leaves its bounds (exit 1), an integer for a
 double parameter, the run's summary and profile, /clock decimated in real time and at every
-lockstep sample, and none while nobody subscribes. The plant is paced as its process paces it (its spin loop); the probe that
-answers it spins in its own thread, as a controller process would. (A late controller
-process, stopped processes and the scheduler are the process tests'.)"""
+lockstep sample, and none while nobody subscribes. The plant is paced as its process paces
+it (its spin loop); the probe that answers it spins in its own thread, as a controller
+process would. (A late controller process, stopped processes and the scheduler are the
+process tests'.)"""
 
 from __future__ import annotations
 

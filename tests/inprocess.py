@@ -51,9 +51,13 @@ Answer = Callable[[float, tuple], Sequence[float] | None]
 
 
 def overrides(params: dict[str, Any]) -> list[Parameter]:
-    """``parameter_overrides`` for ``params`` (lists as float lists, as ``-p k:=[...]``)."""
-    return [Parameter(k, value=[float(x) for x in v] if isinstance(v, (list, tuple)) else v)
-            for k, v in params.items()]
+    """``parameter_overrides`` for ``params``, typed as ``-p k:=v`` types them: a list of
+    whole numbers an integer array, any other list a double array."""
+    def typed(v: Any) -> Any:
+        if not isinstance(v, (list, tuple)):
+            return v
+        return list(v) if all(type(x) is int for x in v) else [float(x) for x in v]
+    return [Parameter(k, value=typed(v)) for k, v in params.items()]
 
 
 class Probe:
@@ -173,6 +177,23 @@ class Graph:
         if not plant.finished.done():
             raise AssertionError(f'the plant run did not end within {timeout} s')
         return plant.exit_code
+
+    def run_until(self, plant: PlantNode, predicate: Callable[[], Any], timeout: float,
+                  what: str) -> None:
+        """Spin every node as :meth:`run` does (a real-time plant paced as its process paces
+        it), the run going on, until ``predicate()`` is truthy (checked every 10 ms); fail
+        after ``timeout`` s naming ``what``."""
+        done = Future()
+        check = plant.create_timer(0.01, lambda: done.done() or (
+            predicate() and done.set_result(True)))
+        limit = plant.create_timer(timeout, lambda: done.done() or done.set_result(False))
+        try:
+            spin_until(self.executor, done, paced=plant)
+        finally:
+            plant.destroy_timer(check)
+            plant.destroy_timer(limit)
+        if not (done.done() and done.result()):
+            raise AssertionError(f'timed out after {timeout} s waiting for {what}')
 
     def wait(self, predicate: Callable[[], Any], timeout: float, what: str) -> Any:
         """Spin every node until ``predicate()`` is truthy (e.g. a probe has taken the last

@@ -524,7 +524,7 @@ class _Loop:
         rclpy.shutdown(context=self.context)
 
 
-@pytest.mark.graph
+@pytest.mark.node
 @pytest.mark.parametrize('refuse', ['', '150:3', '150'],
                          ids=['clean', 'refused-3-times', 'refused-for-good'])
 def test_the_plant_node_sends_the_same_samples_and_counts_compiled_or_interpreted(

@@ -118,6 +118,7 @@ def test_the_package_built_with_colcon_is_listed_run_by_name_and_hosted(tmp_path
         assert np.max(np.abs(states - ref)) <= 1e-12, bag
 
 
+@pytest.mark.graph
 def test_the_pip_way_registers_the_controller_for_the_nodes(tmp_path):
     """The same package installed by pip (into a folder here, not into the shared venv): the
     registry the nodes read lists the law."""

@@ -1,5 +1,6 @@
 """Controller nodes over DDS: the write-your-own-controller example (docs/ros.md) run for real,
-both as a package-less node script and as a plugin found by the generic node, with the node's
+both as a package-less node script and as a plugin found by the generic node (each a
+process, closing the loop with the plant node built in the test process), with the node's
 last line; an unknown name; the first answer held for the state publisher's own command
 subscription; many bad states, withheld commands and a raising plugin (the cases
 bench/bench_faults.py runs; the node's other handling of bad input: tests/node)."""
@@ -12,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_graph_support import Probe, batch_samples, finish, plant_args, stop_all
+from inprocess import Graph
+from test_graph_support import Probe, batch_samples, finish, stop_all
 
 from fohssv_controller.state_feedback import StateFeedback
 
@@ -29,22 +31,20 @@ DURATION = 0.05
 
 
 def _closed_loop(start_controller) -> np.ndarray:
-    domain = rosproc.unique_domain_id()
-    env = rosproc.ros_env(domain)
-    probe = Probe(domain)
-    ctl = start_controller(env)
-    # the plant lingers (its publishers up) until the probe has every sample: a reader loses
-    # what it has not taken when the writer goes away, and a loaded in-process probe can be
-    # seconds behind an unpaced lockstep run (seen in make test); then SIGINT ends the linger
-    plant = rosproc.start('fohssv_sim', 'plant', plant_args(
-        model='delay-free', duration=DURATION, min_state_subscribers=2, end_linger=120.0),
-        env=env)
+    """The controller process ``start_controller(env)`` starts, closing the loop with the plant
+    node built in the test process (what is tested is the controller's process; the plant's
+    own is tests/test_graph_lockstep.py's): the states of the run and the node's last line."""
+    graph = Graph()
+    ctl = None
     try:
-        probe.wait(lambda: len(probe.states) >= 501 or plant.poll() is not None, 120,
-                   'all samples')
-        out = stop_all(plant)
-        assert plant.returncode == 0 and 'stopping cleanly at t=' in out, out
-        assert len(probe.states) == 501, out
+        probe = graph.probe()              # a listener: every state and every command
+        ctl = start_controller(rosproc.ros_env(graph.domain))
+        plant = graph.plant(model='delay-free', duration=DURATION, min_state_subscribers=2)
+        assert graph.run(plant, 120) == 0
+        # every state, and the node's answer to the last one (t = DURATION)
+        graph.wait(lambda: len(probe.states) == 501 and any(
+            c[0] == probe.states[-1][0] for c in probe.commands[-3:]), 60,
+            'every sample and the answer to the last')
         # the node's last line, on the signal that ends it: its counts (the in-process tests
         # check the counts of drops, withheld and raised answers themselves)
         out = stop_all(ctl)
@@ -52,8 +52,9 @@ def _closed_loop(start_controller) -> np.ndarray:
                 '0 raised by the law') in out, out
         return probe.state_array()
     finally:
-        stop_all(plant, ctl)
-        probe.close()
+        if ctl is not None:
+            stop_all(ctl)
+        graph.close()
 
 
 def _check_pitch_damper(states: np.ndarray) -> None:

@@ -31,7 +31,14 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, String
-from test_graph_support import Probe, batch_samples, finish, plant_args, stop_all
+from test_graph_support import (
+    Probe,
+    batch_samples,
+    finish,
+    late_controller,
+    plant_args,
+    stop_all,
+)
 
 from fohssv_controller.state_feedback import StateFeedback
 from fohssv_sim import contract
@@ -44,14 +51,23 @@ pytestmark = pytest.mark.graph
 DURATION = 0.3
 
 
-@pytest.fixture
-def busy():
-    """Two CPU-bound processes for the test's duration (this machine has two cores)."""
+@contextlib.contextmanager
+def _busy():
+    """Two CPU-bound processes (this machine has two cores) while the block runs: around a
+    run and its recording, not the nodes' start-up (imports), which is not what is tested."""
     procs = [subprocess.Popen(['yes'], stdout=subprocess.DEVNULL) for _ in range(2)]
-    yield
-    for p in procs:
-        p.kill()
-        p.wait()
+    try:
+        yield
+    finally:
+        for p in procs:
+            p.kill()
+            p.wait()
+
+
+def _started(log: Path) -> None:
+    """Wait until the plant logging to ``log`` has matched its peers (its run starts)."""
+    rosproc.wait_for(lambda: 'peers matched' in log.read_text(), 180, interval=0.005,
+                     what='the start of the run')
 
 
 def _recorder(env, bag, log, *params: str):
@@ -68,18 +84,22 @@ def _controller(env, subscribers=2):
 
 
 @contextlib.contextmanager
-def _recorded_loop(tmp_path, recorder_params, command_subscribers=2, **plant_params):
+def _recorded_loop(tmp_path, recorder_params, command_subscribers=2, late=0.0,
+                   **plant_params):
     """A recorder (``-p`` settings ``recorder_params``), eq. 31's node (answering once
-    ``command_subscribers`` subscribe to its commands) and a plant (delay-free unless
-    ``plant_params`` name a model; logging to ``plant.log``); every process is stopped at the
-    end."""
+    ``command_subscribers`` subscribe to its commands; with ``late``, each answer that many
+    seconds late: a run that lasts in wall time with few samples) and a plant (delay-free
+    unless ``plant_params`` name a model; logging to ``plant.log``); every process is stopped
+    at the end."""
     env = rosproc.ros_env()
     loop = SimpleNamespace(env=env, bag=tmp_path / 'run', log=tmp_path / 'recorder.log',
                            plog=tmp_path / 'plant.log')
     loop.rec = _recorder(env, loop.bag, loop.log, *recorder_params)
     procs = [loop.rec]
     try:
-        procs.append(_controller(env, command_subscribers))
+        procs.append(late_controller(env, tmp_path, late,
+                                     f'min_command_subscribers:={command_subscribers}')
+                     if late else _controller(env, command_subscribers))
         loop.plant = rosproc.start('fohssv_sim', 'plant', plant_args(
             **{'model': 'delay-free', 'min_state_subscribers': 2, **plant_params}), env=env,
             log=loop.plog)
@@ -97,15 +117,17 @@ def _messages(bag) -> dict[str, list[bytes]]:
     return out
 
 
-def test_recorded_run_and_its_replay_lose_nothing_under_load(tmp_path, busy):
+def test_recorded_run_and_its_replay_lose_nothing_under_load(tmp_path):
     ref, _ = batch_samples('delay-free', StateFeedback(), DURATION)
     n = len(ref)                                  # 3001 samples: t = 0 .. 0.3 s
     views = len(ref[::100])                       # view_period 0.01 s
     with _recorded_loop(tmp_path, ['command_publishers:=1'], duration=DURATION,
                         pace_to_subscribers=512) as loop:
-        assert rosproc.wait_exit(loop.plant, 180) == 0, loop.plog.read_text()
-        # no signal: the recorder ends by itself once the bag holds the run
-        assert rosproc.wait_exit(loop.rec, 60) == 0, loop.log.read_text()
+        _started(loop.plog)
+        with _busy():
+            assert rosproc.wait_exit(loop.plant, 180) == 0, loop.plog.read_text()
+            # no signal: the recorder ends by itself once the bag holds the run
+            assert rosproc.wait_exit(loop.rec, 60) == 0, loop.log.read_text()
     env, bag, text = loop.env, loop.bag, loop.log.read_text()
     assert 'run_end from the plant' in text and 'every message of the run is in the bag' in text
     run = load_run(bag)
@@ -127,9 +149,10 @@ def test_recorded_run_and_its_replay_lose_nothing_under_load(tmp_path, busy):
         player = rosproc.start('fohssv_sim', 'player', [
             '--ros-args', '-p', f'bag_path:={bag}', '-p', 'rate:=0.0',
             '-p', 'start_timeout:=60.0'], env=env)
-        code, out = finish(player, 180)
-        assert code == 0, out
-        assert rosproc.wait_exit(rec2, 60) == 0, log2.read_text()
+        with _busy():
+            code, out = finish(player, 180)
+            assert code == 0, out
+            assert rosproc.wait_exit(rec2, 60) == 0, log2.read_text()
     finally:
         stop_all(*(p for p in (player, rec2) if p is not None))
     assert 'run_end from the player' in log2.read_text()
@@ -138,7 +161,7 @@ def test_recorded_run_and_its_replay_lose_nothing_under_load(tmp_path, busy):
         assert replayed[topic] == original[topic], topic          # every message, in order
 
 
-def test_sigint_at_the_end_of_the_run_drains_what_was_delivered(tmp_path, busy):
+def test_sigint_at_the_end_of_the_run_drains_what_was_delivered(tmp_path):
     """The recorder is told to stop (SIGINT) the moment the plant logs the end of its run,
     with run_end ignored: what the plant published is in the bag all the same."""
     ref, _ = batch_samples('delay-free', StateFeedback(), DURATION)
@@ -148,10 +171,12 @@ def test_sigint_at_the_end_of_the_run_drains_what_was_delivered(tmp_path, busy):
     # command queue, whose writer then dropped 37 commands it had not acknowledged)
     with _recorded_loop(tmp_path, ['command_publishers:=1', 'stop_at_run_end:=false'],
                         duration=DURATION, pace_to_subscribers=512) as loop:
-        rosproc.wait_for(lambda: 'stopping cleanly' in loop.plog.read_text(), 180,
-                         interval=0.005, what='the end of the run')
-        loop.rec.send_signal(signal.SIGINT)
-        assert rosproc.wait_exit(loop.rec, 60) == 0, loop.log.read_text()
+        _started(loop.plog)
+        with _busy():
+            rosproc.wait_for(lambda: 'stopping cleanly' in loop.plog.read_text(), 180,
+                             interval=0.005, what='the end of the run')
+            loop.rec.send_signal(signal.SIGINT)
+            assert rosproc.wait_exit(loop.rec, 60) == 0, loop.log.read_text()
         assert rosproc.wait_exit(loop.plant, 60) == 0, loop.plog.read_text()
     assert 'draining' in loop.log.read_text()
     run = load_run(loop.bag)
@@ -271,10 +296,10 @@ def test_a_recorder_stopped_early_does_not_stall_the_loop(tmp_path):
     """Found by the fault suite: the controller required two command subscribers (plant and
     recorder) during its start-up grace, so a recorder stopped in the first 2 s held the
     commands and the lockstep plant timed out (exit 3). The minimum is a start condition."""
-    with _recorded_loop(tmp_path, ['command_publishers:=1'], duration=2.0,
+    # answers 1 ms late: the run's 2000 samples outlast the controller's start-up grace (2 s)
+    with _recorded_loop(tmp_path, ['command_publishers:=1'], late=0.001, duration=0.2,
                         command_timeout=5.0, pace_to_subscribers=512) as loop:
-        rosproc.wait_for(lambda: 'peers matched' in loop.plog.read_text(), 90,
-                         interval=0.005, what='the start of the run')
+        _started(loop.plog)
         loop.rec.send_signal(signal.SIGINT)
         assert rosproc.wait_exit(loop.rec, 60) == 0, loop.log.read_text()
         assert rosproc.wait_exit(loop.plant, 120) == 0, loop.plog.read_text()
@@ -297,14 +322,14 @@ def test_after_sigint_a_lockstep_plant_steps_and_publishes_nothing(tmp_path, mod
     # had matched the recorder's reader, and the first commands (all of them, or 73 of 931)
     # never reached the bag: the recorder said so with exit 6 (in CI under load, and in 10 of
     # 13 runs beside two busy loops)
+    # (eq. 31 answering 1 ms late: hundreds of samples before the signal, not thousands)
     with _recorded_loop(tmp_path, ['command_publishers:=1'], command_subscribers=3,
-                        model=model, duration=0.0, min_state_subscribers=3,
+                        late=0.001, model=model, duration=0.0, min_state_subscribers=3,
                         pace_to_subscribers=512) as loop:
         probe = Probe(int(loop.env['ROS_DOMAIN_ID']), command_publisher=False)
         try:
-            rosproc.wait_for(lambda: 'peers matched' in loop.plog.read_text(), 90,
-                             what='the start of the run')
-            time.sleep(1.0)
+            _started(loop.plog)
+            time.sleep(0.3)                  # a run under way: thousands of samples
             loop.plant.send_signal(signal.SIGINT)
             assert rosproc.wait_exit(loop.plant, 60) == 0, loop.plog.read_text()
             assert rosproc.wait_exit(loop.rec, 60) == 0, loop.log.read_text()

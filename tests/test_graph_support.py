@@ -11,6 +11,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -32,6 +33,9 @@ from fohssv_sim.simulate import simulate
 import rosproc
 
 __test__ = False  # nothing to collect
+
+#: The tests' example controllers (the README's, a late one)
+EXAMPLES = Path(__file__).parent / 'examples'
 
 Answer = Callable[[float, tuple], Sequence[float] | None]
 
@@ -190,6 +194,24 @@ def plant_args(**params: Any) -> list[str]:
             v = '[' + ','.join(repr(float(x)) for x in v) + ']'
         out += ['-p', f'{k}:={v}']
     return out
+
+
+def late_controller(env: dict[str, str], where: Any, answer_delay: float, *settings: str,
+                    log: Any = None) -> Any:
+    """The generic controller node hosting the test plugin ``late_law`` (tests/examples:
+    eq. 31, each answer ``answer_delay`` s of wall time late), registered under ``where`` as
+    ``pip install`` would register it, with the ``-p`` ``settings``. At a lockstep plant it
+    makes a run last in wall time (a process stopped in its middle, a signal during it) with
+    few samples: the controller sleeps, where eq. 31's node at full speed would make the two
+    processes spend a quarter of a millisecond of CPU on each sample."""
+    dist = Path(where) / 'late_law_example-0.1.dist-info'
+    dist.mkdir(exist_ok=True)
+    (dist / 'METADATA').write_text('Metadata-Version: 2.1\nName: late-law-example\n'
+                                   'Version: 0.1\n')
+    (dist / 'entry_points.txt').write_text('[fohssv.controllers]\nlate_law = late_law:LateLaw\n')
+    env = dict(env, PYTHONPATH=f"{where}:{EXAMPLES}:{env.get('PYTHONPATH', '')}")
+    return rosproc.start('fohssv_controller', 'controller', rosproc.param_args(
+        'controller:=late_law', f'answer_delay:={answer_delay}', *settings), env=env, log=log)
 
 
 def finish(proc: Any, timeout: float) -> tuple[int, str]:

@@ -52,10 +52,8 @@ def _run(tmp_path: Path) -> tuple[FoxgloveClient, str]:
         client = FoxgloveClient(f'ws://127.0.0.1:{found.group(1)}')
         client.wait(lambda: len(client.channels) == len(TOPICS), 10, 'the channels')
         client.subscribe(client.by_topic())
-        rec = rosproc.start('fohssv_sim', 'recorder', [
-            '--ros-args', '-p', f'bag_path:={tmp_path / "run"}', '-p', 'command_publishers:=1'],
-            env=env, log=rlog)
-        rosproc.wait_for(lambda: 'recording to' in rlog.read_text(), 60, what='the recorder')
+        rec = rosproc.start_recorder(env, rlog, f'bag_path:={tmp_path / "run"}',
+                                     'command_publishers:=1')
         ctl = rosproc.start('fohssv_controller', 'state_feedback',
                             ['--ros-args', '-p', 'min_command_subscribers:=2'], env=env)
         plant = rosproc.start('fohssv_sim', 'plant', plant_args(

@@ -1,9 +1,9 @@
-"""A run recorded by the real recorder from the real plant and controller (three processes over
-DDS): the bag holds the batch runner's trajectory sample for sample, and `fohssv plot` on it
-summarises what an independent in-process run gives. The same bag holds the typed views
-(pose, twist, planing_wrench, vehicle_marker) every view_period, equal to the state and Fp
-samples at the same t to rounding, and every topic and field the Foxglove layout
-(docs/foxglove/fohssv_layout.json) names."""
+"""A run recorded by the real recorder (a process) from the plant and controller nodes (built in
+the test process), over DDS: the bag holds the batch runner's trajectory sample for sample,
+and `fohssv plot` on it summarises what an independent in-process run gives. The same bag
+holds the typed views (pose, twist, planing_wrench, vehicle_marker) every view_period, equal
+to the state and Fp samples at the same t to rounding, and every topic and field the
+Foxglove layout (docs/foxglove/fohssv_layout.json) names."""
 
 from __future__ import annotations
 
@@ -16,14 +16,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_graph_support import (
-    bag_messages,
-    batch_samples,
-    finish,
-    plant_args,
-    stamp_ns,
-    stop_all,
-)
+from inprocess import Graph
+from test_graph_support import bag_messages, batch_samples, stamp_ns, stop_all
 
 from fohssv_controller.state_feedback import StateFeedback
 from fohssv_sim import contract
@@ -120,27 +114,25 @@ def _assert_layout_names_what_the_bag_has(msgs: dict[str, list]) -> None:
 
 
 def test_recorded_closed_loop_equals_batch_run_and_plots(tmp_path, capfd):
-    env = rosproc.ros_env()
+    """The recorder is the process under test; the plant and eq. 31's node, whose runs over
+    DDS between processes are other tests' (test_graph_lockstep, test_launch), are built in
+    the test process."""
+    graph = Graph()
     bag = tmp_path / 'run'
     log = tmp_path / 'recorder.log'
-    rec = rosproc.start('fohssv_sim', 'recorder', ['--ros-args', '-p', f'bag_path:={bag}',
-                                                   '-p', 'command_publishers:=1'],
-                        env=env, log=log)
-    ctl = plant = None
+    rec = rosproc.start_recorder(rosproc.ros_env(graph.domain), log, f'bag_path:={bag}',
+                                 'command_publishers:=1')
     try:
-        rosproc.wait_for(lambda: 'recording to' in log.read_text(), 60, what='the recorder')
-        ctl = rosproc.start('fohssv_controller', 'state_feedback',
-                            ['--ros-args', '-p', 'min_command_subscribers:=2'], env=env)
-        plant = rosproc.start('fohssv_sim', 'plant', plant_args(
-            model='delay-free', mode='lockstep', duration=DURATION,
-            min_state_subscribers=2, pace_to_subscribers=512), env=env)
-        code, out = finish(plant, 120)
-        assert code == 0, out
+        graph.controller(min_command_subscribers=2)
+        plant = graph.plant(model='delay-free', mode='lockstep', duration=DURATION,
+                            min_state_subscribers=2, pace_to_subscribers=512)
+        assert graph.run(plant, 120) == 0
         time.sleep(0.5)   # the recorder's last flush period
         rec.send_signal(signal.SIGINT)
         assert rec.wait(timeout=30) == 0, log.read_text()
     finally:
-        stop_all(*(p for p in (plant, ctl, rec) if p is not None))
+        stop_all(rec)
+        graph.close()
 
     ref, fref = batch_samples('delay-free', StateFeedback(), DURATION)
     run = load_run(bag)

@@ -512,3 +512,29 @@ def test_log_lines_give_simulated_time_as_a_person_writes_it():
     assert 0.1 + 0.2 != 0.3 and time_text(0.1 + 0.2) == '0.3'    # not 0.30000000000000004
     assert time_text(3 * 0.1) == '0.3' and time_text(1.0) == '1.0' and time_text(2e-5) == '2e-05'
     assert time_text(1234.5678) == '1234.5678'
+
+
+@pytest.mark.parametrize(('var', 'value', 'expected'), [
+    *(('FOHSSV_FAULT_REFUSE_STATE', v, 'expected N or N:M') for v in
+      ['x', '-1', '5:0', '1:2:3', '1e3']),
+    *(('FOHSSV_FAULT_STALL_STATE', v, 'expected N:S, a whole number 0 <= N <= 1e12 and '
+       '0 < S <= 3600 s') for v in ['100', '100:0', '-1:1.5']),
+])
+def test_a_bad_fault_injection_value_is_refused_naming_it(var, value, expected):
+    """The plant's testing aids (ros/faults.py) read from its environment; a bad value is a
+    ParameterError (the plant's exit 2, tests/test_graph_publish_failure.py) naming the
+    variable, its value and what is allowed."""
+    from fohssv_sim.ros.faults import StateFault
+
+    with pytest.raises(ParameterError) as refused:
+        StateFault.from_environment({var: value})
+    assert f'{var}={value!r}: {expected}' in str(refused.value)
+
+
+def test_fault_injection_values_that_are_taken():
+    from fohssv_sim.ros.faults import refused_publishes, stalled_publish
+
+    assert refused_publishes({}) is None and stalled_publish({'x': '1'}) is None
+    assert refused_publishes({'FOHSSV_FAULT_REFUSE_STATE': ' 600 '}) == (600, None)
+    assert refused_publishes({'FOHSSV_FAULT_REFUSE_STATE': '300:50'}) == (300, 50)
+    assert stalled_publish({'FOHSSV_FAULT_STALL_STATE': '100:1.5'}) == (100, 1.5)

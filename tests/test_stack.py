@@ -48,6 +48,7 @@ def test_package_manifests_are_format_3_with_real_dependencies():
         assert (ROOT / 'src' / package / 'resource' / package).is_file()
 
 
+@pytest.mark.graph     # a new shell and interpreter: a process
 def test_env_script_gives_a_clean_shell_rclpy_and_the_overlay():
     clean = {'PATH': '/usr/local/bin:/usr/bin:/bin', 'HOME': os.environ.get('HOME', '/root')}
     script = ('cd / && set -u && source "$0/env.sh" && '
@@ -92,6 +93,7 @@ def test_colcon_defaults_point_at_the_sources():
     assert 'base-paths: ["../src"]' in text
 
 
+@pytest.mark.graph     # the installed script: a process
 def test_fohssv_console_script_is_on_the_venv_path_and_works_in_a_clean_shell():
     clean = {'PATH': '/usr/bin:/bin', 'HOME': os.environ.get('HOME', '/root')}
     out = subprocess.run([str(ROOT / '.venv' / 'bin' / 'fohssv'), '--help'], env=clean,

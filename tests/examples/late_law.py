@@ -1,6 +1,7 @@
-"""A deliberately late controller for the tests (tests/test_graph_hosted.py): eq. 31 that
-takes ``answer_delay`` seconds of wall time to answer each state, so at a short control period
-its commands fall further and further behind the plant. Registered for the tests as the
+"""A deliberately late controller for the tests: eq. 31 that takes ``answer_delay`` seconds of
+wall time to answer each state, so at a short control period its commands fall further and
+further behind a real-time plant (tests/test_graph_hosted.py), and a lockstep run lasts in
+wall time with few samples (test_graph_support.late_controller). Registered for the tests as the
 plugin ``late_law`` (a dist-info with an entry point, as ``pip install`` would make)."""
 
 import time

@@ -4,6 +4,8 @@ test_plant_start)."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
@@ -127,3 +129,69 @@ def test_invalid_parameters_at_start_are_refused_naming_them(graph, params, mess
     with pytest.raises(ValueError) as refused:
         graph.plant(**params)
     assert message in str(refused.value)
+
+
+#: The reset test's run length: long enough that the reset comes first (0: open-ended). The
+#: FOM's is finite because its 'soe' history is sized by the duration as the batch runner's is.
+RESET_DURATION = {'delay-free': 0.0, 'fractional': 5.0}
+
+
+@pytest.mark.parametrize('model', ['delay-free', 'fractional'])
+def test_reset_service_returns_to_t0_and_replays_the_run(graph, model):
+    """``/reset`` during a lockstep run of eq. 31's node: t goes back to 0 once, and the run
+    after it is again the batch run. The summary's rates divide the whole run's samples by
+    the whole run's time (issue 21.2 / 22.8). (The FOM's lockstep samples take the plant's
+    short path, models.HeldPeriod, which declines after the reset until the general path has
+    bound the kernel to the new history.)"""
+    from std_srvs.srv import Trigger
+
+    probe = graph.probe()
+    graph.controller()
+    plant = graph.plant(model=model, duration=RESET_DURATION[model], min_state_subscribers=2)
+    client = probe.node.create_client(Trigger, 'reset')
+    graph.wait(lambda: len(probe.states) > 100 and client.service_is_ready(), 30,
+               'the run to pass t = 0.01 s')
+    future = client.call_async(Trigger.Request())
+    response = graph.wait(lambda: future.done() and future.result(), 10, 'the reset answer')
+    assert response.success, response.message
+    assert response.message.startswith('t = 0.0 s')
+
+    def restarted_past_0_1_s():
+        t = [s[0] for s in probe.states]
+        back = [i for i in range(1, len(t)) if t[i] < t[i - 1]]
+        return back and t[-1] >= 0.1 + 1e-9
+    graph.wait(restarted_past_0_1_s, 60, 'the restarted run to pass t = 0.1 s')
+    s = plant.summary()
+    t = probe.state_array()[:, 0]
+    back = np.flatnonzero(np.diff(t) < 0)
+    assert len(back) == 1 and t[back[0] + 1] == 0.0, (back, t[back], t[back + 1])
+    # the probe saw back[0] advances before the reset: t = 0 and back[0] steps; the summary
+    # counts the samples made up to now, which the probe may not all have yet
+    assert s['resets'] == 1 and s['samples_total'] == s['samples'] + back[0], s
+    assert s['samples_per_second'] * s['wall_time'] == pytest.approx(s['samples_total'])
+    assert s['cpu_per_sample_us'] * s['samples_total'] == pytest.approx(s['cpu_time'] * 1e6)
+    # after the reset the run starts over and is again the batch run
+    after = probe.state_array()[back[0] + 1:]
+    after = after[after[:, 0] <= 0.1 + 1e-9]
+    ref, _ = batch_samples(model, StateFeedback(), RESET_DURATION[model] or 0.1)
+    ref = ref[ref[:, 0] <= 0.1 + 1e-9]
+    assert after.shape == ref.shape
+    assert np.max(np.abs(after - ref)) <= TOL
+
+
+def test_a_control_period_stalled_outside_the_plant_is_not_an_overrun(graph, capfd,
+                                                                      monkeypatch):
+    """The publish of sample 100 waits 1.5 s, three times command_timeout, asleep
+    (``FOHSSV_FAULT_STALL_STATE``: a write DDS blocked, as Fast DDS does for up to 1 s when a
+    subscriber's process is stopped; a CI run under load ended this way with exit 3 and "the
+    plant is overrunning"). The plant names the slow period in one warning and runs on."""
+    from fohssv_sim.ros.faults import STALL_STATE_VAR
+
+    monkeypatch.setenv(STALL_STATE_VAR, '100:1.5')
+    graph.controller()
+    plant = graph.plant(model='delay-free', duration=0.05, command_timeout=0.5)
+    assert graph.run(plant, 90) == 0
+    text = capfd.readouterr().err
+    assert re.search(r'one control period \(10 steps\) took 1\.[5-9][0-9]* s > '
+                     r'command_timeout=0\.5 s of wall time at t=0\.01', text), text
+    assert 'stopping cleanly at t=0.05 s' in text, text

@@ -1,8 +1,10 @@
 """The real-time plant node in the test process: the watchdog, commands from the future and
 stale ones, a state that turns non-finite or leaves its bounds (exit 1), an integer for a
-double parameter. The plant is paced as its process paces it (its spin loop); the probe that
-answers it spins in its own thread, as a controller process would. (A late controller
-process, stopped processes and the scheduler are the process tests'.)"""
+double parameter, the run's summary and profile, /clock decimated in real time and at every
+lockstep sample, and none while nobody subscribes. The plant is paced as its process paces
+it (its spin loop); the probe that answers it spins in its own thread, as a controller
+process would. (A late controller process, stopped processes and the scheduler are the
+process tests'.)"""
 
 from __future__ import annotations
 
@@ -91,3 +93,107 @@ def test_integer_for_a_double_parameter_is_accepted(graph, capfd):
                         duration=0.05, **ALONE)
     assert graph.run(plant) == 0
     assert 'V=80 m/s' in capfd.readouterr().err
+
+
+PARTS = ('advance', 'write_sample', 'publish_state', 'publish_planing_force', 'publish_clock',
+         'command_callback', 'publish_views')
+#: Realtime closed-loop runs here last 0.1 s of simulated time: the vehicle cannot leave its
+#: physical bounds within it even with no command at all (open loop it does at t = 0.26 s),
+#: so a loaded machine that delays the answers cannot end the run early. They run slower
+#: than real time to last long enough in wall time for what they check.
+SHORT = 0.1
+
+
+def _closed_loop(graph, capfd, duration: float, clock: bool = True, **params):
+    """eq. 31 answering the plant (in its own thread, as a controller process; on the
+    graph's executor in lockstep) and recording its states and, with ``clock``, /clock; the
+    run's summary and the probe once it has every state."""
+    law = StateFeedback()
+    realtime = params.get('mode') == 'realtime'
+    probe = graph.probe(lambda t, x: [t, *law.command(t, x)], thread=realtime, clock=clock)
+    plant = graph.plant(model='delay-free', duration=duration, **params)
+    assert graph.run(plant) == 0
+    n = round(duration / params.get('control_period', 1e-4)) + 1
+    graph.wait(lambda: len(probe.states) >= n, 10, f'{n} states at the probe')
+    return rosproc.summary(capfd.readouterr().err), probe
+
+
+def test_realtime_summary_profile_and_clock_decimation(graph, capfd):
+    """clock_period = 10 control periods: /clock only at t = k * 0.01 s; every state still
+    published; the summary's schedule and cost figures are consistent with the run (at a
+    fiftieth of real time)."""
+    s, probe = _closed_loop(graph, capfd, SHORT, mode='realtime', control_period=1e-3,
+                            step=1e-4, clock_period=0.01, profile=1, real_time_factor=0.02)
+    graph.wait(lambda: len(probe.clocks) >= 3, 10, '3 /clock messages at the probe')
+    assert s['mode'] == 'realtime' and s['samples'] == 100 and s['samples_paced'] == 101
+    assert s['clock_samples'] == 10
+    assert s['deadline_tolerance'] == pytest.approx(0.05)   # max(pacing_period, wall period)
+    assert 0 <= s['deadline_misses'] <= s['samples_paced']
+    assert 0 <= s['late_samples'] <= s['samples_paced']
+    assert s['deadline_miss_rate'] == pytest.approx(s['deadline_misses'] / 101)
+    assert s['mean_lateness'] <= s['worst_lateness']
+    assert 0.0 < s['achieved_real_time_factor'] <= 0.02 * 1.05
+    assert s['cpu_time'] > 0.0
+    assert s['cpu_per_sample_us'] == pytest.approx(s['cpu_time'] / 100 * 1e6)
+    # the host's steal is the benchmark's reading, not the plant's
+    assert 'host_steal_share' not in s and 'kernel_preemption' not in s
+    prof = s['profile']
+    assert tuple(prof) == PARTS
+    assert prof['advance']['calls'] == 100
+    assert prof['publish_state']['calls'] == prof['publish_planing_force']['calls'] == 101
+    # t = 0, 0.01, ..., 0.1, from when the probe's reader matched (the plant waits for the
+    # /clock readers the graph lists at its start, so usually all 11)
+    assert 3 <= prof['publish_clock']['calls'] <= 11
+    # the typed views at the default view_period 0.01 s: decimated the same way
+    assert s['view_samples'] == 10 and s['views'] == prof['publish_views']['calls'] == 11
+    assert 0 < prof['command_callback']['calls'] <= 101
+    for part in PARTS:
+        assert 0.0 < prof[part]['mean_us'] <= prof[part]['worst_us']
+    # every state reached the probe, /clock only at multiples of clock_period
+    assert [round(x[0] * 1e3) for x in probe.states] == list(range(101))
+    clocks = list(probe.clocks)
+    assert 3 <= len(clocks) <= prof['publish_clock']['calls'], clocks
+    assert all(ns % 10_000_000 == 0 for ns in clocks), clocks
+    assert clocks == sorted(set(clocks)) and clocks[-1] <= 100_000_000
+
+
+def test_lockstep_publishes_clock_at_every_sample_whatever_clock_period(graph, capfd):
+    """Counted by the plant's profile: from when its writer matched the probe's reader (at
+    the start, where the plant waits for the /clock readers the graph lists, or at a check
+    50 ms later) a /clock at every sample, more than clock_period's 11 over the run; what
+    arrives lies on the samples' grid, not only at multiples of clock_period."""
+    s, probe = _closed_loop(graph, capfd, 0.1, clock_period=0.01, profile=1)
+    graph.wait(lambda: probe.clocks, 10, 'a /clock message at the probe')
+    assert s['mode'] == 'lockstep' and s['clock_samples'] == 1 and s['samples'] == 1000
+    assert 11 < s['profile']['publish_clock']['calls'] <= 1001
+    clocks = list(probe.clocks)
+    assert 1 <= len(clocks) <= s['profile']['publish_clock']['calls']
+    assert all(ns % 100_000 == 0 for ns in clocks), clocks[:5]
+    assert clocks == sorted(set(clocks)) and clocks[-1] <= 100_000_000
+    # views every 100 samples (view_period 0.01 s): t = 0, 0.01, ..., 0.1
+    assert s['view_samples'] == 100 and s['profile']['publish_views']['calls'] == 11
+    # the command that ends the run is still in its callback when the summary is written
+    assert s['profile']['command_callback']['calls'] == 999
+
+
+@pytest.mark.parametrize('mode', ['lockstep', 'realtime'])
+def test_clock_is_not_published_while_nobody_subscribes(graph, capfd, mode):
+    """/clock is volatile: with no reader on the graph the plant does not publish it at all
+    (its profile counts no /clock publish), while every state still goes out."""
+    extra = {} if mode == 'lockstep' else {'control_period': 1e-3, 'step': 1e-4,
+                                           'real_time_factor': 0.1}
+    duration = 0.02 if mode == 'lockstep' else SHORT
+    s, probe = _closed_loop(graph, capfd, duration, clock=False, mode=mode, profile=1,
+                            **extra)
+    assert s['mode'] == mode and 'publish_clock' not in s['profile']   # no call: not listed
+    period = extra.get('control_period', 1e-4)
+    assert s['profile']['publish_state']['calls'] == round(duration / period) + 1
+    assert len(probe.states) == round(duration / period) + 1
+
+
+def test_profile_off_by_default_and_realtime_summary_without_it(graph, capfd):
+    s, _ = _closed_loop(graph, capfd, SHORT, mode='realtime', control_period=1e-3,
+                        real_time_factor=0.1)
+    assert 'profile' not in s and s['clock_samples'] == 1
+    assert s['views'] == 11            # t = 0, 0.01, ..., 0.1
+    assert s['samples_paced'] == 101 and 'deadline_tolerance' in s

@@ -59,11 +59,13 @@ test: setup
 	@# byte-compile the sources once: hundreds of node and CLI processes start in the tests, and
 	@# where PYTHONDONTWRITEBYTECODE is set each would compile every module it imports again
 	@$(IN_ENV) python -m compileall -q -j 0 src > /dev/null
-	@# and fill numba's on-disk cache once (about 17 CPU s in a clean clone, under 3 s when it is
-	@# there): otherwise every plant and test process that starts before the first one wrote
-	@# the cache compiles the kernels (the in-plant writer and the lockstep plant their compiled
-	@# paths) again
-	@$(IN_ENV) python -c 'from fohssv_sim import models; models.warm_up(); from fohssv_sim.bag import ringpack; ringpack.warm_up(); from fohssv_sim.ros.plant.fastpath import sample; sample.warm_up()'
+	@# and fill numba's on-disk cache once (about 30 CPU s in a clean clone, in two processes,
+	@# one per core: the plants' kernels and the recording ring; the plant's compiled sample
+	@# path. Under 3 s when it is there): otherwise every plant and test process that starts
+	@# before the first one wrote the cache compiles the kernels (the in-plant writer and the
+	@# lockstep plant their compiled paths) again
+	@$(IN_ENV) python -c 'from fohssv_sim import models; models.warm_up(); from fohssv_sim.bag import ringpack; ringpack.warm_up()' & warm=$$!; \
+	  $(IN_ENV) python -c 'from fohssv_sim.ros.plant.fastpath import sample; sample.warm_up()'; wait $$warm
 	$(IN_ENV) python -m pytest -n $(TEST_WORKERS) --dist worksteal -m 'not bench_smoke' $(TEST_PATHS) $(PYTEST_ARGS)
 
 # e.g. make demo DEMO_ARGS=--hosted (the law hosted in the plant: no controller node)

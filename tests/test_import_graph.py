@@ -18,6 +18,7 @@ Read from the source with ``ast`` (every import statement, function-local ones i
 from __future__ import annotations
 
 import ast
+import functools
 import os
 import subprocess
 import sys
@@ -36,8 +37,10 @@ def _module_name(path: Path, package_dir: Path) -> str:
     return '.'.join(parts)
 
 
-def _imports(path: Path, package_dir: Path) -> set[str]:
-    """Absolute names of every module ``path`` imports (relative imports resolved)."""
+@functools.cache
+def _imports(path: Path, package_dir: Path) -> frozenset[str]:
+    """Absolute names of every module ``path`` imports (relative imports resolved); each file
+    is parsed once per test process (the tests here read the same tree)."""
     name = _module_name(path, package_dir)
     package = name if path.name == '__init__.py' else name.rpartition('.')[0]
     found: set[str] = set()
@@ -53,7 +56,7 @@ def _imports(path: Path, package_dir: Path) -> set[str]:
                 mod = node.module or ''
             found.add(mod)
             found.update(f'{mod}.{a.name}' for a in node.names)
-    return found
+    return frozenset(found)
 
 
 def _modules(package_dir: Path) -> list[Path]:

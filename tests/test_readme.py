@@ -243,17 +243,41 @@ def record_small_bag(path):
     w.close()
 
 
-def test_docs_analysis_block_runs_in_order_as_written(tmp_path, monkeypatch, capfd):
+def on_cluster(argv: list[str], address: str) -> list[str]:
+    """``argv`` with its ``--workers N`` (a local cluster of N worker processes) replaced by
+    ``--scheduler address``."""
+    if '--workers' not in argv:
+        return argv
+    k = argv.index('--workers')
+    return [*argv[:k], '--scheduler', address, *argv[k + 2:]]
+
+
+@pytest.fixture
+def dask_cluster():
+    """A Dask cluster of one worker thread in this process, reachable as ``--scheduler``
+    takes it (tcp://HOST:PORT)."""
+    from dask.distributed import LocalCluster
+
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, protocol='tcp://',
+                      host='127.0.0.1', dashboard_address=':0',
+                      scheduler_kwargs={'dashboard': False}) as cluster:
+        yield cluster
+
+
+def test_docs_analysis_block_runs_in_order_as_written(tmp_path, monkeypatch, capfd,
+                                                      dask_cluster):
     """Issue 22 item 3: the marked block's fohssv commands (docs/cli.md), run one after the
     other in a fresh folder, all succeed; each command's outputs are in a folder of its own
     under reports/, the repeated sweep reuses its folder (no chunk computed), no folder holds
     two jobs.
 
     The commands run in this process through the CLI's ``main`` (the parser and commands
-    the console script calls, with the block's argv): seven interpreters importing numpy,
+    the console script calls, with the block's argv), their ``--workers 1`` on a Dask cluster
+    of one thread: seven interpreters and two worker processes importing numpy,
     numba, scipy and matplotlib cost more than the commands themselves. The installed
     ``fohssv`` script is run as a user runs it by tests/test_stack.py and
-    src/fohssv_sim/test/test_cli_bad_input.py."""
+    src/fohssv_sim/test/test_cli_bad_input.py, a sweep on its own local cluster by
+    src/fohssv_sim/test/test_sweep.py."""
     import json
 
     from fohssv_sim.cli import main
@@ -266,7 +290,7 @@ def test_docs_analysis_block_runs_in_order_as_written(tmp_path, monkeypatch, cap
     folders = []
     for k, command in enumerate(commands):
         argv = shlex.split(command)
-        code = main(argv[1:])
+        code = main(on_cluster(argv[1:], dask_cluster.scheduler_address))
         out = capfd.readouterr()
         assert code == 0, (command, out.out[-2000:], out.err[-2000:])
         if argv[1] in ('stability', 'sweep', 'plot'):

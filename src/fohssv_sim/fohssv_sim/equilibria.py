@@ -54,7 +54,7 @@ def closed_loop_rhs(params: ModelParameters, controller: Any = None
                     ) -> Callable[[np.ndarray], np.ndarray]:
     """f(x) = A x + B u(x) + G + D Fp(w) with u from ``controller`` (``command(t, x)``, a
     callable ``(t, x)``, or ``None`` for open loop); the planing form of ``params``."""
-    c = coefficients(params)
+    c = coefficients(params).kernel     # the scalars eq. 17 reads, as plain attributes
     fp = planing_smooth if params.planing_form == 'smooth' else planing_exact
     law = as_law(controller)[0]
 

@@ -1,9 +1,9 @@
 """`fohssv plot` on a real bag holding a simulated run (rosbag2 + MCAP written and read back).
 
-The overlay test and one bad bag run the installed ``fohssv`` script, as a user runs it; the
-other commands run in-process through :func:`fohssv_sim.cli.main` (the same parser and
-commands: a new interpreter importing numpy, numba, scipy and matplotlib for each would cost
-more than the command itself)."""
+One bad bag runs the installed ``fohssv`` script, as a user runs it; the other commands run
+in-process through :func:`fohssv_sim.cli.main` (the same parser and commands: a new
+interpreter importing numpy, numba, scipy and matplotlib for each would cost more than the
+command itself)."""
 
 import json
 import subprocess
@@ -50,17 +50,16 @@ def record(path, run, params):
     w.close()
 
 
-def test_plot_overlays_bags_and_summarises_them(tmp_path):
+def test_plot_overlays_bags_and_summarises_them(tmp_path, capfd):
     p = ModelParameters(model='delay-free')
     run = simulate(p, StateFeedback(), 1.0, sample_every=10)
     record(tmp_path / 'a', run, p)
     q = ModelParameters(model='delayed')
     run2 = simulate(q, StateFeedback(), 1.0, sample_every=10)
     record(tmp_path / 'b', run2, q)
-    out = subprocess.run([str(FOHSSV), 'plot', str(tmp_path / 'a'), str(tmp_path / 'b'),
-                          '--out', str(tmp_path / 'fig'), '--skip', '0.5'],
-                         capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0, out.stderr
+    code, err = fohssv(['plot', tmp_path / 'a', tmp_path / 'b', '--out', tmp_path / 'fig',
+                        '--skip', '0.5'], capfd)
+    assert code == 0, err
     for name in ('run_time.png', 'run_time.svg', 'run_phase.png', 'run_phase.svg'):
         assert (tmp_path / 'fig' / name).stat().st_size > 10_000
     s = json.loads((tmp_path / 'fig' / 'run_summary.json').read_text())[str(tmp_path / 'a')]

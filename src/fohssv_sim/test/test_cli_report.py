@@ -1,24 +1,29 @@
-"""`fohssv report --quick`: the whole pipeline on a tiny grid (not converged results)."""
+"""`fohssv report --quick`: the whole pipeline on a tiny grid (not converged results).
+
+Run in-process through :func:`fohssv_sim.cli.main` on the session's Dask cluster of threads
+(``--scheduler``): the installed script and its own local cluster are run by
+test_cli_bad_input, test_cli_plot and test_sweep; a new interpreter and a worker process
+would cost more than the tiny report itself."""
 
 import json
 import math
-import subprocess
-from pathlib import Path
 
 import numpy as np
-from ament_index_python.packages import get_package_prefix
 from PIL import Image
+
+from fohssv_sim.cli import main
 
 from test_equilibria import analytic_jacobian, reduced_equilibrium
 
-FOHSSV = Path(get_package_prefix('fohssv_sim')) / 'lib' / 'fohssv_sim' / 'fohssv'
 QUICK = 'quick (not converged)'
 
 
-def test_quick_report_has_every_claim_with_independent_numbers(tmp_path):
-    out = subprocess.run([str(FOHSSV), 'report', '--quick', '--out', str(tmp_path),
-                          '--workers', '1'], capture_output=True, text=True, timeout=600)
-    assert out.returncode == 0, out.stderr
+def test_quick_report_has_every_claim_with_independent_numbers(tmp_path, dask_cluster, capfd):
+    capfd.readouterr()
+    code = main(['report', '--quick', '--out', str(tmp_path), '--scheduler',
+                 dask_cluster.scheduler_address])
+    out = capfd.readouterr()
+    assert code == 0, out.err
     rows = json.loads((tmp_path / 'claims.json').read_text())
     claims = [r['claim'] for r in rows]
     for fig in ('Fig. 3/4', 'Fig. 5', 'Fig. 6', 'Fig. 7', 'Fig. 8', 'Fig. 9', 'Fig. 10'):
@@ -53,4 +58,4 @@ def test_quick_report_has_every_claim_with_independent_numbers(tmp_path):
         with Image.open(png) as im:
             assert im.text.get('Title', '').startswith(QUICK + '\n'), png.name
     # sweep progress per point on a pipe: lines, no carriage returns
-    assert '\r' not in out.stderr and 'fig6_alpha_V84.5: points 2/2' in out.stderr
+    assert '\r' not in out.err and 'fig6_alpha_V84.5: points 2/2' in out.err

@@ -1,24 +1,36 @@
-"""`fohssv stability` as a user runs it: the installed console script, real files."""
+"""`fohssv stability` through :func:`fohssv_sim.cli.main` in the test process (the parser and
+command the console script calls; the installed script itself refuses a stability row of
+test_cli_bad_input's catalogue as a user runs it), real files."""
 
 import json
 import math
-import subprocess
-from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
-from ament_index_python.packages import get_package_prefix
+import pytest
 from PIL import Image
+
+from fohssv_sim.cli import main
 
 from test_equilibria import analytic_jacobian, reduced_equilibrium
 
-FOHSSV = Path(get_package_prefix('fohssv_sim')) / 'lib' / 'fohssv_sim' / 'fohssv'
+
+@pytest.fixture
+def run(capfd):
+    """``fohssv ARGS`` in this process: an object with returncode, stdout and stderr."""
+    def run(*args):
+        capfd.readouterr()
+        try:
+            code = main([str(a) for a in args])
+        except SystemExit as e:      # argparse's own exits (usage errors)
+            code = e.code
+        out = capfd.readouterr()
+        return SimpleNamespace(returncode=code, stdout=out.out, stderr=out.err)
+    return run
 
 
-def run(*args):
-    return subprocess.run([str(FOHSSV), *args], capture_output=True, text=True, timeout=120)
-
-
-def test_stability_reports_alpha_c_of_the_eigenvalue_formula_and_draws_the_wedge(tmp_path):
+def test_stability_reports_alpha_c_of_the_eigenvalue_formula_and_draws_the_wedge(tmp_path,
+                                                                                  run):
     out = run('stability', '--set', 'speed=84.5', '--set', 'planing_form=exact',
               '--alpha', '0.7', '--speeds', '75,84.5', '--out', str(tmp_path))
     assert out.returncode == 0, out.stderr
@@ -44,7 +56,7 @@ def test_stability_reports_alpha_c_of_the_eigenvalue_formula_and_draws_the_wedge
         assert im.text['Title'].startswith('Critical order α_c(V)')
 
 
-def test_bad_input_is_one_line_and_exit_2(tmp_path):
+def test_bad_input_is_one_line_and_exit_2(tmp_path, run):
     for args, text in [(('--set', 'speed=-1'), 'speed=-1.0 is outside'),
                        (('--controller', 'pid'), 'lqr, scheduled, state_feedback'),
                        (('--gain', 'depth_gain'), 'name=value'),
@@ -56,7 +68,7 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
         assert len(out.stderr.strip().splitlines()) == 1
 
 
-def test_out_an_existing_file_is_one_line_and_exit_2(tmp_path):
+def test_out_an_existing_file_is_one_line_and_exit_2(tmp_path, run):
     (tmp_path / 'taken').write_text('mine\n')
     for args, text in [(('--out', str(tmp_path / 'taken')), 'exists and is not a folder'),
                        (('--out', str(tmp_path / 'taken' / 'sub')), 'cannot create the folder')]:

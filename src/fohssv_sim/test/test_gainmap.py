@@ -1,23 +1,18 @@
 """Gain maps (issue 15): the Matignon boundary of the linearisation against the simulated
-classes, batched against per-point runs, resume, and ``fohssv gainmap`` as a user runs it."""
+classes, batched against per-point runs, resume, and ``fohssv gainmap`` through the CLI."""
 
 import json
 import math
 import shutil
-import subprocess
-from pathlib import Path
 
 import numpy as np
 import pytest
-from ament_index_python.packages import get_package_prefix
 from PIL import Image
 
 from fohssv_controller.state_feedback import StateFeedback
 from fohssv_sim.analysis.gainmap import GainMapError, GainMapSpec, run_gain_map, run_points
 from fohssv_sim.equilibria import find_equilibria
 from fohssv_sim.params import ModelParameters
-
-FOHSSV = Path(get_package_prefix('fohssv_sim')) / 'lib' / 'fohssv_sim' / 'fohssv'
 
 # pitch_rate_gain moves alpha_c of the eq. 31 loop across 0.85 (about -0.45 at w-gain 0),
 # the w gain tilts the boundary
@@ -110,14 +105,11 @@ def test_interrupted_map_resumes_to_the_same_rows(tmp_path, dask_client):
         run_gain_map(GainMapSpec(**{**SMALL, 'duration': 0.2}), part, client=dask_client)
 
 
-def run(*args):
-    return subprocess.run([str(FOHSSV), 'gainmap', *args], capture_output=True, text=True,
-                          timeout=600)   # a hang guard: 180 s ran out at load 36
-
-
-def run_in_process(capfd, *args) -> tuple[int, str]:
-    """``fohssv gainmap ARGS`` through the CLI's ``main`` in this process (the bad inputs
-    refuse before any work: a new interpreter each would cost more than the check)."""
+def run_in_process(capfd, *args) -> tuple[int, str, str]:
+    """``fohssv gainmap ARGS`` through the CLI's ``main`` in this process: (exit code, stdout,
+    stderr). The parser and commands the console script calls; a new interpreter importing
+    numpy, numba, scipy and matplotlib would cost more than the tiny map (the installed
+    script and its own local cluster are run by test_sweep and test_cli_bad_input)."""
     from fohssv_sim.cli import main
 
     capfd.readouterr()
@@ -125,19 +117,22 @@ def run_in_process(capfd, *args) -> tuple[int, str]:
         code = main(['gainmap', *args])
     except SystemExit as e:      # argparse's own exits (usage errors)
         code = e.code
-    return code, capfd.readouterr().err
+    out = capfd.readouterr()
+    return code, out.out, out.err
 
 
-def test_cli_draws_valid_figures_and_rejects_bad_input(tmp_path, capfd):
+def test_cli_draws_valid_figures_and_rejects_bad_input(tmp_path, capfd, dask_cluster):
     out = tmp_path / 'map'
-    r = run('--x', 'pitch_rate_gain=-0.6,-0.1', '--y', 'vertical_velocity_gain=0:0.2:0.2',
-            '--duration', '0.1', '--transient', '0.05', '--envelope-speeds', '75,90',
-            '--envelope-alphas', '0.85', '--workers', '1', '--check-step', '3', '--out', str(out))
-    assert r.returncode == 0, r.stderr
-    assert 'step check: 3 points re-run at half step' in r.stdout
+    code, stdout, err = run_in_process(
+        capfd, '--x', 'pitch_rate_gain=-0.6,-0.1', '--y', 'vertical_velocity_gain=0:0.2:0.2',
+        '--duration', '0.1', '--transient', '0.05', '--envelope-speeds', '75,90',
+        '--envelope-alphas', '0.85', '--scheduler', dask_cluster.scheduler_address,
+        '--check-step', '3', '--out', str(out))
+    assert code == 0, err
+    assert 'step check: 3 points re-run at half step' in stdout
     checks = json.loads((out / 'step_check.json').read_text())
     assert sorted(checks) == ['0', '3', '6']           # every 3rd of the 8 points
-    assert 'worst case over 2 scenarios' in r.stdout and 'alpha = 0.85, V = 75 m/s' in r.stdout
+    assert 'worst case over 2 scenarios' in stdout and 'alpha = 0.85, V = 75 m/s' in stdout
     side = json.loads((out / 'gainmap.json').read_text())
     assert side['step'] == 2e-5 and side['spec']['control_period'] == 1e-4
     for stem in ('gainmap', 'envelope'):
@@ -158,11 +153,11 @@ def test_cli_draws_valid_figures_and_rejects_bad_input(tmp_path, capfd):
             (('--x', 'pitch_rate_gain=-1,0', '--y', 'depth_gain=1,2', '--alpha', '1.2'),
              '(0, 1]'),
             (('--controller', 'pid', '--x', 'a=1', '--y', 'b=1'), 'state_feedback')]:
-        code, err = run_in_process(capfd, *args, '--out', str(tmp_path / 'bad'))
+        code, _, err = run_in_process(capfd, *args, '--out', str(tmp_path / 'bad'))
         assert code == 2, (args, err)
         assert text in err and 'Traceback' not in err, err
         assert len(err.strip().splitlines()) == 1
-    code, err = run_in_process(capfd, '--x', 'pitch_gainz=1,2', '--y', 'depth_gain=1,2',
+    code, _, err = run_in_process(capfd, '--x', 'pitch_gainz=1,2', '--y', 'depth_gain=1,2',
                                '--out', str(tmp_path / 'bad'))
     assert 'depth_gain, max_cavitator_deflection' in err      # lists the parameters
     assert np.isfinite(side['n_points'])

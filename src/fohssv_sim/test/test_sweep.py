@@ -143,13 +143,30 @@ def read_chunks(out):
 
 
 SWEEP = ['sweep', 'V', '--set', 'model=delay-free', '--speed', '75:90:5', '--transient',
-         '0.05', '--window', '0.05', '--chunk-size', '1', '--workers', '2']
+         '0.05', '--window', '0.05', '--chunk-size', '1']
 
 
-def test_interrupted_sweep_resumes_without_recomputing_finished_chunks(tmp_path, dask_cluster):
+def fohssv(argv, capfd) -> tuple[int, str, str]:
+    """``fohssv ARGV`` through the CLI's ``main`` in this process: (exit code, stdout,
+    stderr). The installed script is run where it is the subject (a killed client, its own
+    local cluster of worker processes)."""
+    from fohssv_sim.cli import main
+
+    capfd.readouterr()
+    try:
+        code = main([str(a) for a in argv])
+    except SystemExit as e:      # argparse's own exits (usage errors)
+        code = e.code
+    out = capfd.readouterr()
+    return code, out.out, out.err
+
+
+def test_interrupted_sweep_resumes_without_recomputing_finished_chunks(tmp_path, dask_cluster,
+                                                                       capfd):
     out = tmp_path / 'sweep'
-    proc = subprocess.Popen([str(FOHSSV), *SWEEP, '--out', str(out)], stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    proc = subprocess.Popen([str(FOHSSV), *SWEEP, '--workers', '1', '--out', str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline:
         done = list((out / 'chunks').glob('chunk_*.csv')) if out.exists() else []
@@ -162,66 +179,61 @@ def test_interrupted_sweep_resumes_without_recomputing_finished_chunks(tmp_path,
     assert finished, 'no chunk finished before the kill'
     side = json.loads((out / 'sweep.json').read_text())
     assert side['step'] == 1e-5 and side['solver'] == 'rk4' and len(side['chunks']) == 4
-    # the resumed run on the session's cluster of threads: what it resumes from is the
-    # folder, not the killed cluster (no worker processes to start a second time)
-    res = subprocess.run([str(FOHSSV), *SWEEP, '--out', str(out), '--scheduler',
-                          dask_cluster.scheduler_address], capture_output=True, text=True,
-                         timeout=300)
-    assert res.returncode == 0, res.stderr
-    assert f'{len(finished)} reused' in res.stdout or f'{4 - len(finished)} chunks computed' \
-        in res.stdout
+    # the resumed run on the session's cluster of threads, in this process: what it resumes
+    # from is the folder, not the killed cluster (no worker processes to start a second time)
+    code, stdout, err = fohssv([*SWEEP, '--out', out, '--scheduler',
+                                dask_cluster.scheduler_address], capfd)
+    assert code == 0, err
+    assert f'{len(finished)} reused' in stdout or f'{4 - len(finished)} chunks computed' \
+        in stdout
     for name, mtime in finished.items():
         assert (out / 'chunks' / name).stat().st_mtime_ns == mtime   # not recomputed
     assert len(read_chunks(out)) == 4
     assert (out / 'orbit_V.png').stat().st_size > 5000
 
 
-def test_same_results_with_the_local_default_and_an_explicit_cluster(tmp_path, dask_cluster):
-    """The sweep's own local cluster (``--workers 2``: worker processes) and an explicit
-    one (``--scheduler``: the session's cluster of threads in this process) give the same
-    rows."""
+def test_same_results_with_the_local_default_and_an_explicit_cluster(tmp_path, dask_cluster,
+                                                                     capfd):
+    """The installed script with the sweep's own local cluster (``--workers 1``: a worker
+    process) and an explicit one (``--scheduler``: the session's cluster of threads, the
+    command run in this process) give the same rows."""
     a, b = tmp_path / 'local', tmp_path / 'cluster'
-    r = subprocess.run([str(FOHSSV), *SWEEP, '--out', str(a)], capture_output=True, text=True,
-                       timeout=300)
+    r = subprocess.run([str(FOHSSV), *SWEEP, '--workers', '1', '--out', str(a)],
+                       capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
-    r = subprocess.run([str(FOHSSV), *SWEEP, '--out', str(b), '--scheduler',
-                        dask_cluster.scheduler_address], capture_output=True, text=True,
-                       timeout=300)
-    assert r.returncode == 0, r.stderr
+    code, _, err = fohssv([*SWEEP, '--out', b, '--scheduler', dask_cluster.scheduler_address],
+                          capfd)
+    assert code == 0, err
     assert read_chunks(a) == read_chunks(b)
 
 
 def test_sweep_rejects_bad_input_in_one_line(tmp_path, capfd):
     """In-process through the CLI's ``main`` (the installed script is run by the other
     tests here and by test_cli_bad_input's sample)."""
-    from fohssv_sim.cli import main
-
     for args, text in [(['--alpha', '0.5:1.2:0.1'],
                         'fractional_order=1.1 is outside the allowed range (0, 1]'),
                        (['--set', 'length=-1'], 'length=-1.0'),
                        (['--window', '0'], '--window')]:
-        capfd.readouterr()
-        try:
-            code = main(['sweep', 'alpha', *args, '--out', str(tmp_path)])
-        except SystemExit as e:      # argparse's own exits (usage errors)
-            code = e.code
-        err = capfd.readouterr().err
+        code, _, err = fohssv(['sweep', 'alpha', *args, '--out', tmp_path], capfd)
         assert code == 2 and text in err and 'Traceback' not in err, err
 
 
-def test_progress_counts_points_inside_a_chunk_and_writes_lines_to_a_pipe(tmp_path):
-    # three FOM points batch into one chunk (one Dask task on one worker process, so one
-    # worker is all it can use): progress still advances point by point, from the worker;
-    # stderr is a pipe, so no carriage returns
-    r = subprocess.run([str(FOHSSV), 'sweep', 'alpha', '--set', 'solver=soe', '--alpha',
-                        '0.8,0.9,1.0', '--speed', '84.5', '--transient', '0.05', '--window',
-                        '0.05', '--workers', '1', '--check-step', '1', '--out',
-                        str(tmp_path / 's')], capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
-    assert '1 chunks computed' in r.stdout
-    assert '\r' not in r.stderr
-    done = [int(m) for m in re.findall(r'^  points (\d)/3 ', r.stderr, re.M)]
-    assert done == sorted(set(done)) and done[-1] == 3 and done[0] < 3, r.stderr
+def test_progress_counts_points_inside_a_chunk_and_writes_lines_to_a_pipe(tmp_path, capfd,
+                                                                            dask_cluster):
+    # three FOM points batch into one chunk (one Dask task on one worker, so one worker is all
+    # it can use): progress still advances point by point, from the worker (its events reach
+    # this client through the scheduler, over TCP); stderr is not a terminal, so no carriage
+    # returns
+    code, stdout, err = fohssv(['sweep', 'alpha', '--set', 'solver=soe', '--alpha',
+                                '0.8,0.9,1.0', '--speed', '84.5', '--transient', '0.05',
+                                '--window', '0.05', '--scheduler',
+                                dask_cluster.scheduler_address, '--check-step', '1', '--out',
+                                tmp_path / 's'], capfd)
+    assert code == 0, err
+    assert '1 chunks computed' in stdout
+    assert '\r' not in err
+    done = [int(m) for m in re.findall(r'^  points (\d)/3 ', err, re.M)]
+    assert done == sorted(set(done)) and done[-1] == 3 and done[0] < 3, err
     checked = [int(m) for m in re.findall(r'^  step check: points at half step (\d)/3 ',
-                                          r.stderr, re.M)]
-    assert checked and checked[-1] == 3, r.stderr
+                                          err, re.M)]
+    assert checked and checked[-1] == 3, err

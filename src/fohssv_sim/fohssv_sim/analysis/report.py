@@ -270,21 +270,10 @@ def make_report(out: Path, settings: ReportSettings | None = None,
     rows = []
     rows += _time_responses(s, out, log)
     rows += _stability(s, out, log)
-    from dask.distributed import Client
+    from .cluster import dask_client
 
-    from .cluster import local_cluster
-
-    if s.scheduler:
-        client, cluster = Client(s.scheduler, timeout='20s'), None
-    else:
-        cluster = local_cluster(s.workers or None)
-        client = Client(cluster)
-    try:
+    with dask_client(s.scheduler, s.workers or None) as client:
         rows += _sweeps(s, out, log, client)
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
     elapsed = time.monotonic() - start
     run = s.label or 'full'
     for r in rows:

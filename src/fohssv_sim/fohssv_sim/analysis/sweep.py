@@ -27,6 +27,7 @@ the same way, in-process.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import functools
@@ -406,50 +407,48 @@ def run_chunks(out: Path, sidecar_name: str, sidecar: dict[str, Any],
     points = _PointProgress([len(chunks[k]) for k in todo], n_points - sum(
         len(chunks[k]) for k in todo), n_points, progress, start)
     if todo:
-        from dask.distributed import Client, wait
+        from .cluster import dask_client
 
-        from .cluster import local_cluster
-
-        cluster = None
-        own = client is None
-        if not own:
-            pass
-        elif scheduler:
-            client = Client(scheduler, timeout='20s')
-        else:
-            n = workers or os.cpu_count() or 1
-            cluster = local_cluster(n)
-            client = Client(cluster)
-        topic = f'fohssv-chunks-{uuid.uuid4().hex}'
-        slot = {k: i for i, k in enumerate(todo)}
-        if progress is not None:
-            client.subscribe_topic(
-                topic, lambda event: points.update(slot[event[1]['chunk']],
-                                                   event[1]['fraction']))
-        try:
-            futures = {client.submit(_run_task_reporting, task, args, chunks[k], topic, k,
-                                     pure=False): k for k in todo}
-            watch = _WorkerWatch(client, out, len(chunks), lost_after)
-            pending = set(futures)
-            while pending:
-                try:    # Dask's public wait, half a second at a time: the watchdog between
-                    finished, pending = wait(pending, timeout=0.5,
-                                             return_when='FIRST_COMPLETED')
-                except TimeoutError:
-                    watch.check(len(pending))
-                    continue
-                for fut in finished:
-                    k = futures[fut]
-                    write_rows(chunk_path(out, k), watch.result(fut, k), fields)
-                    points.update(slot[k], 1.0)
-        finally:
-            if progress is not None:
-                client.unsubscribe_topic(topic)
-            if own:
-                client.close()
-            if cluster is not None:
-                cluster.close()
+        with contextlib.ExitStack() as stack:
+            if client is None:
+                client = stack.enter_context(dask_client(scheduler,
+                                                         workers or os.cpu_count() or 1))
+            _run_todo(client, out, chunks, todo, task, args, fields, points, progress,
+                      lost_after)
     return len(todo), reused
+
+
+def _run_todo(client: Any, out: Path, chunks: list[list[int]], todo: list[int],
+              task: Callable[..., list[dict[str, Any]]], args: tuple, fields: Sequence[str],
+              points: _PointProgress, progress: Callable[[int, int, float], None] | None,
+              lost_after: float) -> None:
+    """Run the chunks ``todo`` of :func:`run_chunks` on ``client``, writing each as it ends."""
+    from dask.distributed import wait
+
+    topic = f'fohssv-chunks-{uuid.uuid4().hex}'
+    slot = {k: i for i, k in enumerate(todo)}
+    if progress is not None:
+        client.subscribe_topic(
+            topic, lambda event: points.update(slot[event[1]['chunk']],
+                                               event[1]['fraction']))
+    try:
+        futures = {client.submit(_run_task_reporting, task, args, chunks[k], topic, k,
+                                 pure=False): k for k in todo}
+        watch = _WorkerWatch(client, out, len(chunks), lost_after)
+        pending = set(futures)
+        while pending:
+            try:    # Dask's public wait, half a second at a time: the watchdog between
+                finished, pending = wait(pending, timeout=0.5, return_when='FIRST_COMPLETED')
+            except TimeoutError:
+                watch.check(len(pending))
+                continue
+            for fut in finished:
+                k = futures[fut]
+                write_rows(chunk_path(out, k), watch.result(fut, k), fields)
+                points.update(slot[k], 1.0)
+    finally:
+        if progress is not None:
+            client.unsubscribe_topic(topic)
 
 
 class ProgressPrinter:

@@ -1,11 +1,13 @@
 """simulate() keeps samples without changing the run: every k-th step of a run that keeps
 every step is, bit for bit, what the run keeping every k-th step gives; both end where one
-kernel call over all the steps ends; the interpreted plant records the same rows."""
+kernel call over all the steps ends; the interpreted plant records the same rows;
+simulate_batch gives each point its own run."""
 
 import numpy as np
 import pytest
 
 from fohssv_controller.state_feedback import StateFeedback
+from fohssv_sim.batch import simulate_batch
 from fohssv_sim.models import AffineLaw, StateOutOfBounds, make_plant
 from fohssv_sim.params import ModelParameters
 from fohssv_sim.simulate import simulate
@@ -109,3 +111,24 @@ def test_progress_is_reported_per_chunk_up_to_the_end():
     seen = []
     simulate(_params('delay-free'), StateFeedback(), 0.01, progress=seen.append)
     assert 50 <= len(seen) <= 101 and seen == sorted(seen) and seen[-1] == 1.0
+
+
+@pytest.mark.parametrize('model', MODELS)
+@pytest.mark.parametrize('hold', [None, 5])
+def test_simulate_batch_gives_each_points_own_run_sample_by_sample(model, hold):
+    # points differing in speed, gains and initial state, kept from t = 4 ms on; the last
+    # point starts beyond |w| <= V: it fails alone, its samples NaN
+    ps = [ModelParameters(model=model, speed=v, **MODELS[model]) for v in (70.0, 75.0, 80.0)]
+    ctls = [StateFeedback(pitch_gain=g) for g in (-30.0, -25.0, -20.0)]
+    x0 = [X_START, (0.0, -2.0, 0.01, 0.0), (0.0, 90.0, 0.0, 0.0)]
+    cp = hold and hold * ps[0].step
+    b = simulate_batch(ps, ctls, 0.01, control_period=cp, initial_states=x0, sample_every=5,
+                       record_from=0.004)
+    assert list(b.failed) == [False, False, True] and np.isnan(b.states[2]).all()
+    for i in (0, 1):
+        r = simulate(ps[i], ctls[i], 0.01, control_period=cp, initial_state=x0[i],
+                     sample_every=5)
+        keep = r.t >= 0.004
+        assert keep.sum() < r.t.size - 10
+        np.testing.assert_array_equal(b.t, r.t[keep])
+        np.testing.assert_array_equal(b.states[i], r.state[keep])

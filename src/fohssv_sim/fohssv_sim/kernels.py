@@ -586,10 +586,10 @@ def _fom_prepare_entry(t, f, m0, steps, P, M):   # pragma: no cover - compiled b
 
 
 if numba is not None:
-    _held_arrays = numba.njit(error_model='numpy')(_held_arrays)
-    _fom_held_jit = numba.njit(error_model='numpy')(_fom_held_entry)
-    _fom_prepared_jit = numba.njit(error_model='numpy')(_fom_prepared_entry)
-    _fom_prepare_jit = numba.njit(error_model='numpy')(_fom_prepare_entry)
+    _held_arrays = numba.njit(error_model='numpy', cache=True)(_held_arrays)
+    _fom_held_jit = numba.njit(error_model='numpy', cache=True)(_fom_held_entry)
+    _fom_prepared_jit = numba.njit(error_model='numpy', cache=True)(_fom_prepared_entry)
+    _fom_prepare_jit = numba.njit(error_model='numpy', cache=True)(_fom_prepare_entry)
 
 
 @functools.cache

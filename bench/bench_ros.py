@@ -120,14 +120,26 @@ def fom_lockstep_args(duration: float) -> list[str]:
 
 
 class Domains:
-    """A fresh ROS_DOMAIN_ID per run (a run's late packets never reach the next one)."""
+    """A fresh ROS_DOMAIN_ID per run (a run's late packets never reach the next one), from
+    ``FOHSSV_DOMAIN_RANGE`` (``LO-HI``, as ``make demo`` reads it: on a shared host, the range
+    other users leave free) or 1-200."""
 
     def __init__(self) -> None:
-        self.next = 1 + (os.getpid() * 11) % 200
+        text = os.environ.get('FOHSSV_DOMAIN_RANGE', '').strip() or '1-200'
+        try:
+            lo, hi = (int(v) for v in text.split('-'))
+        except ValueError:
+            raise SystemExit(f'FOHSSV_DOMAIN_RANGE={text!r} is not a range LO-HI of ROS '
+                             'domains (0-232)') from None
+        if not 0 <= lo <= hi <= 232:
+            raise SystemExit(f'FOHSSV_DOMAIN_RANGE={text!r} is not a range LO-HI of ROS '
+                             'domains (0-232)')
+        self.lo, self.size = lo, hi - lo + 1
+        self.next = (os.getpid() * 11) % self.size
 
     def env(self) -> dict[str, str]:
-        self.next = 1 + (self.next + 37) % 200
-        return dict(os.environ, ROS_DOMAIN_ID=str(self.next),
+        self.next = (self.next + 37) % self.size
+        return dict(os.environ, ROS_DOMAIN_ID=str(self.lo + self.next),
                     ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
 
 

@@ -12,10 +12,11 @@ Rows of the table (wall-clock seconds for the whole sweep):
               in full (100 x 2 s of model time): a subset of points spread over the alpha
               range is timed and the mean time per point is multiplied by the number of
               points (marked "extrapolated").
-  batch-1p    ``fohssv_sim.batch.simulate_batch`` on all points in one array, one process
-              (the same core count as the serial loop).
-  sweep-dask  ``fohssv_sim.analysis.sweep.run_sweep`` (the production path: per-point orders
-              in one BatchSOE per chunk, chunks on a local Dask cluster of single-threaded
+  batch-1p    ``fohssv_sim.batch.simulate_batch`` on all points in one call, one process
+              (the same core count as the serial loop; each point through its compiled
+              kernel, keeping the window only).
+  sweep-dask  ``fohssv_sim.analysis.sweep.run_sweep`` (the production path: a
+              ``simulate_batch`` per chunk, chunks on a local Dask cluster of single-threaded
               worker processes, orbit classification, CSV chunks), once per worker count in
               ``--workers`` with one chunk per worker. Includes the cluster start-up.
 

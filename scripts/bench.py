@@ -9,7 +9,7 @@ rows), the machine and the bare DDS echo to one Markdown file
 (``make bench``: bench/RESULTS.md, overwritten by each run; its history is in git).
 
 ``--quick`` is a smoke check: every benchmark starts and runs a tiny case (its figures mean
-nothing); ``make test`` runs it (tests/test_bench.py).
+nothing); ``make bench-smoke`` runs it (tests/test_bench.py; CI after ``make test``).
 
     python scripts/bench.py [--out-dir bench/results] [--results bench/RESULTS.md]
                             [--quick] [--only simulate,ros]

@@ -1,18 +1,20 @@
-"""Batched simulation: many parameter points advanced together in one vectorised array.
+"""Batched simulation: many parameter points of one model under affine laws, one call.
 
 Points may differ in anything that only changes coefficients (speed, geometry, gains,
 initial state); they must share the model, the step, the solver, the planing form and, for the
 FOM with the 'abm' / 'abm-fft' solvers, the fractional order; with 'soe' the order may differ
-per point (use :func:`group_points` to split a sweep into such groups). The FOM uses the
-batched steppers of :mod:`fohssv_sim.fractional` (one BLAS product for all points' history
-sums, a stacked product with per-point orders); the delay-free model a vectorised RK4. The
-delayed model is not batched (its history ring buffer is per point): :func:`simulate_batch`
-runs it point by point.
+per point (use :func:`group_points` to split a sweep into such groups).
+
+With a compiled solver ('rk4', 'soe') each point runs on its own through the compiled kernel
+in long chunks (:func:`fohssv_sim.simulate.simulate`: the law inside the kernel, or sampled
+in compiled code at each control instant when the kept rows fall on them), which is faster
+per point than stepping all points together in numpy (a Python round per step) and gives each
+point's run bit for bit. The exact references 'abm' and 'abm-fft' have no compiled kernel:
+their points step together through the batched steppers of :mod:`fohssv_sim.fractional`
+(one BLAS product for all points' history sums), equal to the per-point runs to rounding.
 
 Controllers must be affine state feedback, ``u = K x + u0`` clamped to deflection limits
 (:meth:`fohssv_sim.control.Controller.affine`); the eq. 31 law and the LQR are.
-Every point's trajectory equals the per-point :func:`fohssv_sim.simulate.simulate` run to
-rounding (tested).
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from .params import ModelParameters
 from .physics import eq17
 from .planing import planing_exact_array, planing_smooth_array
 from .simulate import simulate, steps_per_period
-from .solvers import SOLVERS, soe_options
+from .solvers import SOLVERS
 
 __all__ = ['BatchResult', 'BatchRHS', 'simulate_batch', 'group_points', 'shared_fields',
            'SHARED_FIELDS', 'PER_POINT_FIELDS']
@@ -133,50 +135,6 @@ def _check_shared(params: Sequence[ModelParameters]) -> None:
                              ' (split them with group_points)')
 
 
-def _stepper(params: Sequence[ModelParameters], rhs: BatchRHS, X0: np.ndarray,
-             duration: float):
-    p = params[0]
-    solver = SOLVERS[p.solver]
-    if solver.batch is None:
-        return _BatchRK4(rhs, p.step, X0)
-    if p.solver == 'soe':       # per-point orders (all equal: the one-order path)
-        alphas = np.array([q.fractional_order for q in params])
-        return solver.batch(rhs, alphas, p.step, X0, on_nonfinite='mask',
-                            **soe_options(p, duration))
-    return solver.batch(rhs, p.fractional_order, p.step, X0, on_nonfinite='mask')
-
-
-class _BatchRK4:
-    """Classical RK4 over (P, 4) states; a non-finite point is set to NaN and frozen."""
-
-    def __init__(self, rhs: BatchRHS, step: float, X0: np.ndarray) -> None:
-        self.rhs, self.h, self.n = rhs, step, 0
-        self.x = X0.copy()
-        self.failed_points = np.zeros(X0.shape[0], dtype=bool)
-
-    def step(self, u: Any) -> np.ndarray:
-        h, t, x, f = self.h, self.n * self.h, self.x, self.rhs
-
-        def U(tt: float, xx: np.ndarray) -> np.ndarray:
-            return u(tt, xx) if callable(u) else u
-
-        k1 = f(t, x, U(t, x))
-        x2 = x + 0.5 * h * k1
-        k2 = f(t + 0.5 * h, x2, U(t + 0.5 * h, x2))
-        x3 = x + 0.5 * h * k2
-        k3 = f(t + 0.5 * h, x3, U(t + 0.5 * h, x3))
-        x4 = x + h * k3
-        k4 = f(t + h, x4, U(t + h, x4))
-        new = x + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-        bad = ~np.isfinite(new).all(axis=1)
-        if bad.any():
-            new[bad] = np.nan
-            self.failed_points |= bad
-        self.x = new
-        self.n += 1
-        return new
-
-
 def simulate_batch(params: Sequence[ModelParameters], controllers: Sequence[Any],
                    duration: float, *, control_period: float | None = None,
                    initial_states: np.ndarray | None = None, sample_every: int = 1,
@@ -190,8 +148,13 @@ def simulate_batch(params: Sequence[ModelParameters], controllers: Sequence[Any]
             the step), as in :func:`fohssv_sim.simulate.simulate`.
         initial_states: (P, 4), default zeros.
         sample_every: keep every k-th step; record_from: keep only samples with t >= this.
-        serial_below: integer-model batches smaller than this run point by point (the scalar
-            RK4 is about 10x faster per step than numpy on a handful of points).
+        serial_below: no effect (kept for callers): every point of a compiled solver runs on
+            its own.
+        progress: called with the fraction done (of the points, and within a point).
+
+    A point whose run fails (a non-finite state; with a compiled solver also a state beyond
+    the physical bounds, :class:`fohssv_sim.models.StateOutOfBounds`) is marked in
+    ``failed``: its samples are NaN (with 'abm' / 'abm-fft' from the failing step on).
 
     Raises:
         ValueError: points that do not share :func:`shared_fields`, a non-affine controller,
@@ -214,28 +177,56 @@ def simulate_batch(params: Sequence[ModelParameters], controllers: Sequence[Any]
         raise ValueError(f'duration={duration!r} s must be a positive number of seconds')
     if int(sample_every) != sample_every or sample_every < 1:
         raise ValueError(f'sample_every={sample_every!r} must be a whole number >= 1')
+    law = _AffineLaw(controllers)          # refuses a controller that is not affine
     n_steps = int(math.ceil(duration / h - 1e-9))
+    first = -(-int(math.ceil(record_from / h - 1e-9)) // sample_every)   # the first kept row
+    t_out = np.arange(first * sample_every, n_steps + 1, sample_every, dtype=float) * h
+    states = np.full((P, t_out.size, 4), np.nan)
+    if SOLVERS[params[0].solver].compiled:
+        failed = _each_point(params, controllers, duration, control_period, X0, sample_every,
+                             first, states, progress)
+    else:
+        failed = _together(params, law, duration, control_period, X0, sample_every, first,
+                           states, progress)
+    return BatchResult(t=t_out, states=states, failed=failed, params=params)
 
-    if params[0].model == 'delayed' or (params[0].model == 'delay-free' and P < serial_below):
-        return _serial(params, controllers, duration, control_period, X0, sample_every,
-                       record_from)
 
-    law = _AffineLaw(controllers)
+def _each_point(params, controllers, duration, control_period, X0, every, first, states,
+                progress) -> np.ndarray:
+    """Each point through :func:`fohssv_sim.simulate.simulate` (its compiled kernel); rows
+    ``first``.. of its samples into ``states``; the points that failed."""
+    failed = np.zeros(len(params), dtype=bool)
+    for i, (p, ctl) in enumerate(zip(params, controllers)):
+        within = None if progress is None else (
+            lambda f, i=i: progress((i + f) / len(params)))
+        try:
+            r = simulate(p, ctl, duration, control_period=control_period,
+                         initial_state=X0[i], sample_every=every, progress=within)
+        except FloatingPointError:
+            failed[i] = True
+            continue
+        states[i] = r.state[first:]
+    return failed
+
+
+def _together(params, law, duration, control_period, X0, every, first, states,
+              progress) -> np.ndarray:
+    """All points stepped together by the batched stepper of an interpreted solver ('abm',
+    'abm-fft'), rows ``first``.. of every ``every``-th step into ``states``; the points whose
+    state turned non-finite (NaN from there on)."""
+    p = params[0]
+    h = p.step
+    solver = SOLVERS[p.solver]
     rhs = BatchRHS(params)
-    stepper = _stepper(params, rhs, X0, duration)
+    stepper = solver.batch(rhs, p.fractional_order, h, X0, on_nonfinite='mask')
     hold = 0 if control_period is None else steps_per_period(control_period, h)
-    first = int(math.ceil(record_from / h - 1e-9))
-    rows = [n for n in range(first, n_steps + 1) if n % sample_every == 0]
-    t_out = np.array(rows, dtype=float) * h
-    out = np.empty((P, len(rows), 4))
-    row = 0
+    n_steps = int(math.ceil(duration / h - 1e-9))
+    report = max(1, n_steps // 100)
     X = X0
     U = law(0.0, X)
-    report = max(1, n_steps // 100)
     for n in range(n_steps + 1):
-        if n >= first and n % sample_every == 0:
-            out[:, row] = X
-            row += 1
+        if n % every == 0 and n // every >= first:
+            states[:, n // every - first] = X
         if n == n_steps:
             break
         if hold:
@@ -246,28 +237,4 @@ def simulate_batch(params: Sequence[ModelParameters], controllers: Sequence[Any]
             X = stepper.step(law)
         if progress is not None and n % report == 0:
             progress(n / n_steps)
-    failed = np.asarray(stepper.failed_points, dtype=bool)
-    return BatchResult(t=t_out, states=out, failed=failed, params=params)
-
-
-def _serial(params, controllers, duration, control_period, X0, sample_every, record_from):
-    results = []
-    failed = np.zeros(len(params), dtype=bool)
-    for i, (p, ctl) in enumerate(zip(params, controllers)):
-        try:
-            r = simulate(p, ctl, duration, control_period=control_period,
-                         initial_state=X0[i], sample_every=sample_every)
-            results.append(r)
-        except FloatingPointError:
-            failed[i] = True
-            results.append(None)
-    ref = next((r for r in results if r is not None), None)
-    if ref is None:
-        return BatchResult(np.empty(0), np.empty((len(params), 0, 4)), failed, list(params))
-    keep = ref.t >= record_from - 1e-12
-    t = ref.t[keep]
-    states = np.full((len(params), t.size, 4), np.nan)
-    for i, r in enumerate(results):
-        if r is not None:
-            states[i] = r.state[keep]
-    return BatchResult(t, states, failed, list(params))
+    return np.asarray(stepper.failed_points, dtype=bool)

@@ -14,10 +14,11 @@ in Python (``test/test_kernels.py``).
 
 **Recorded drivers.** Each ``*_recorded`` function runs many steps in one call (the input
 held or an affine law at every stage, as ``*_run``) and keeps the state before every
-``every``-th step of them: the state, the planing force there and the input applied from it
-on, written into preallocated arrays from compiled code, so that keeping every step costs
-little more than keeping none. It stops early at a non-finite state (status 1) or at a kept
-state outside the physical bounds (status 2). :meth:`fohssv_sim.models.Plant.record` calls it;
+``every``-th step of them: the state, the planing force there (the one the step's first stage
+computed) and the input applied from it on, written into preallocated arrays from compiled
+code in the same pass, so that keeping every step costs little more than keeping none. It
+stops early at a non-finite state (status 1) or at a kept state outside the physical bounds
+(status 2). :meth:`fohssv_sim.models.Plant.record` calls it;
 :func:`fohssv_sim.simulate.simulate` records a whole run through it.
 
 Compiled on first use and cached on disk, as the kernels (:func:`fohssv_sim.models.warm_up`).
@@ -28,7 +29,8 @@ from __future__ import annotations
 import math
 
 from .kernels import (
-    _abm_step,
+    _abm_f,
+    _abm_step_from,
     _clamp,
     _coefficients,
     _delayed_step,
@@ -37,15 +39,13 @@ from .kernels import (
     _free_step,
     _input,
     _njit,
+    _planing,
+    _planing_at_delay,
     delay_free_run,
     delayed_run,
     fom_soe_run,
-    hermite_delayed,
-    jitable,
-    planing_delayed,
-    planing_exact,
-    planing_smooth,
 )
+from .physics import jitable
 
 __all__ = ['delay_free_sampled', 'delayed_sampled', 'fom_soe_sampled', 'delay_free_recorded',
            'delayed_recorded', 'fom_soe_recorded']
@@ -100,8 +100,7 @@ def delay_free_sampled(x, hold, periods, h, cv, smooth, law, held, limits, bad, 
         taken = delay_free_run(x, hold, h, cv, smooth, held, False, bad)
         if taken < hold:
             return p, 1, taken
-        fp = planing_smooth(x[1], c) if smooth else planing_exact(x[1], c)
-        status = _take_sample(out, p, x, fp, law, held, limits)
+        status = _take_sample(out, p, x, _planing(c, smooth, x[1]), law, held, limits)
         if status:
             return p + 1, status, hold
     return periods, 0, hold
@@ -119,11 +118,7 @@ def delayed_sampled(x, n, hold, periods, h, cv, hx, hf, lag, tau, x_init, paper,
                             bad)
         if taken < hold:
             return p, 1, taken
-        if tau == 0.0:
-            zd, wd, thd = x[0], x[1], x[2]
-        else:
-            zd, wd, thd, _ = hermite_delayed(hx, hf, m + hold, 0.0, lag, h, x_init)
-        fp = planing_delayed(x[0], x[2], zd, wd, thd, c, 'paper' if paper else 'geometric')
+        fp = _planing_at_delay(c, paper, hx, hf, m + hold, 0.0, lag, tau, h, x_init, x)
         status = _take_sample(out, p, x, fp, law, held, limits)
         if status:
             return p + 1, status, hold
@@ -141,8 +136,7 @@ def fom_soe_sampled(x, x0, n, hold, periods, cv, smooth, law, held, limits, H, W
                             eps_k, ET, a0_coef, a0_small, alpha, cp, cc, last_f, bad)
         if taken < hold:
             return p, 1, taken
-        fp = planing_smooth(x[1], c) if smooth else planing_exact(x[1], c)
-        status = _take_sample(out, p, x, fp, law, held, limits)
+        status = _take_sample(out, p, x, _planing(c, smooth, x[1]), law, held, limits)
         if status:
             return p + 1, status, hold
     return periods, 0, hold
@@ -151,15 +145,19 @@ def fom_soe_sampled(x, x0, n, hold, periods, cv, smooth, law, held, limits, H, W
 # -- recorded drivers: many steps in one call, every kept sample written from compiled code ----
 
 @jitable
-def _keep(xs_out, fp_out, u_out, r, x, fp, law, continuous, wmax, pmax):
-    """Row ``r`` of the kept samples at the state ``x``: the state, Fp and the input applied
-    from ``x`` on (the held u0 or the law's value there); False when ``x`` is beyond
-    |w| <= ``wmax``, |theta| <= ``pmax``."""
+def _kept(done, first, every, row, xs_out, fp_out, u_out, x, fp, law, continuous, wmax, pmax):
+    """Step ``done`` of a recorded call, at the state ``x`` (Fp there ``fp``, from the step's
+    first stage): when it is the kept one (``first``), row ``row`` of the kept samples (the
+    state, Fp and the input applied from ``x`` on: the held u0 or the law's value there).
+    Returns (the next kept step, the next free row, False when ``x`` was kept beyond
+    |w| <= ``wmax``, |theta| <= ``pmax``)."""
+    if done != first:
+        return first, row, True
     uf, uc = _input(law, continuous, x[0], x[1], x[2], x[3])
-    xs_out[r, 0], xs_out[r, 1], xs_out[r, 2], xs_out[r, 3] = x[0], x[1], x[2], x[3]
-    fp_out[r] = fp
-    u_out[r, 0], u_out[r, 1] = uf, uc
-    return _in_bounds(x, wmax, pmax)
+    xs_out[row, 0], xs_out[row, 1], xs_out[row, 2], xs_out[row, 3] = x[0], x[1], x[2], x[3]
+    fp_out[row] = fp
+    u_out[row, 0], u_out[row, 1] = uf, uc
+    return first + every, row + 1, _in_bounds(x, wmax, pmax)
 
 
 @_njit
@@ -167,7 +165,7 @@ def delay_free_recorded(x, nsteps, first, every, h, cv, smooth, law, continuous,
                         fp_out, u_out, row, wmax, pmax):
     """:func:`delay_free_run` that keeps the state before step ``first``, ``first + every``,
     ... of the call as row ``row``, ``row + 1``, ... of ``xs_out`` (states), ``fp_out`` (Fp)
-    and ``u_out`` (inputs) (:func:`_keep`). Returns (the next free row, steps taken,
+    and ``u_out`` (inputs) (:func:`_kept`). Returns (the next free row, steps taken,
     status): status 0, or 1 when a state turned non-finite (``bad``), 2 when a kept state
     is beyond the bounds (the run stops there)."""
     c = _coefficients(cv)
@@ -175,14 +173,12 @@ def delay_free_recorded(x, nsteps, first, every, h, cv, smooth, law, continuous,
     hh = 0.5 * h
     done = status = 0
     while done < nsteps:
-        if done == first:
-            fp = planing_smooth(xs[1], c) if smooth else planing_exact(xs[1], c)
-            first += every
-            row += 1
-            if not _keep(xs_out, fp_out, u_out, row - 1, xs, fp, law, continuous, wmax, pmax):
-                status = 2
-                break
-        xn = _free_step(c, smooth, law, continuous, xs, h, hh)
+        xn, fp = _free_step(c, smooth, law, continuous, xs, h, hh)
+        first, row, ok = _kept(done, first, every, row, xs_out, fp_out, u_out, xs, fp, law,
+                               continuous, wmax, pmax)
+        if not ok:
+            status = 2
+            break
         if not _finite4(xn[0], xn[1], xn[2], xn[3]):
             _fail(bad, xn[0], xn[1], xn[2], xn[3])
             status = 1
@@ -203,19 +199,13 @@ def delayed_recorded(x, n, nsteps, first, every, h, cv, hx, hf, lag, tau, x_init
     hh = 0.5 * h
     done = status = 0
     while done < nsteps:
-        m = n + done
-        if done == first:
-            if tau == 0.0:
-                zd, wd, thd = xs[0], xs[1], xs[2]
-            else:
-                zd, wd, thd, _ = hermite_delayed(hx, hf, m, 0.0, lag, h, x_init)
-            fp = planing_delayed(xs[0], xs[2], zd, wd, thd, c, 'paper' if paper else 'geometric')
-            first += every
-            row += 1
-            if not _keep(xs_out, fp_out, u_out, row - 1, xs, fp, law, continuous, wmax, pmax):
-                status = 2
-                break
-        xn = _delayed_step(c, paper, hx, hf, m, lag, tau, h, hh, x_init, law, continuous, xs)
+        xn, fp = _delayed_step(c, paper, hx, hf, n + done, lag, tau, h, hh, x_init, law,
+                               continuous, xs)
+        first, row, ok = _kept(done, first, every, row, xs_out, fp_out, u_out, xs, fp, law,
+                               continuous, wmax, pmax)
+        if not ok:
+            status = 2
+            break
         if not _finite4(xn[0], xn[1], xn[2], xn[3]):
             _fail(bad, xn[0], xn[1], xn[2], xn[3])
             status = 1
@@ -234,15 +224,14 @@ def fom_soe_recorded(x, x0, n, nsteps, first, every, cv, smooth, law, continuous
     c = _coefficients(cv)
     done = status = 0
     while done < nsteps:
-        if done == first:
-            fp = planing_smooth(x[1], c) if smooth else planing_exact(x[1], c)
-            first += every
-            row += 1
-            if not _keep(xs_out, fp_out, u_out, row - 1, x, fp, law, continuous, wmax, pmax):
-                status = 2
-                break
-        if not _abm_step(x, x0, n + done, c, smooth, law, continuous, H, W, fill, eps_k, ET,
-                         a0_coef, a0_small, alpha, cp, cc, last_f, bad):
+        f, fp = _abm_f(x, c, smooth, law, continuous)
+        first, row, ok = _kept(done, first, every, row, xs_out, fp_out, u_out, x, fp, law,
+                               continuous, wmax, pmax)
+        if not ok:
+            status = 2
+            break
+        if not _abm_step_from(f, x, x0, n + done, c, smooth, law, continuous, H, W, fill,
+                              eps_k, ET, a0_coef, a0_small, alpha, cp, cc, last_f, bad):
             status = 1
             break
         done += 1

@@ -142,16 +142,23 @@ def _njit(fn):
 # -- delay-free model: RK4 ----------------------------------------------------------------------
 
 @jitable
+def _planing(c, smooth, w):
+    """Fp of the integer and fractional models at ``w``: the smooth form or the exact one."""
+    return planing_smooth(w, c) if smooth else planing_exact(w, c)
+
+
+@jitable
 def _rhs_free(c, smooth, w, th, q, uf, uc):
-    fp = planing_smooth(w, c) if smooth else planing_exact(w, c)
-    return eq17(c, w, th, q, uf, uc, fp)
+    return eq17(c, w, th, q, uf, uc, _planing(c, smooth, w))
 
 
 @jitable
 def _free_step(c, smooth, law, continuous, xs, h, hh):
-    """One RK4 step of eq. 17 from the 4-tuple ``xs``: the new state (a 4-tuple)."""
+    """One RK4 step of eq. 17 from the 4-tuple ``xs``: the new state (a 4-tuple) and Fp at
+    ``xs`` (its first stage's, for a caller that keeps it)."""
     uf, uc = _input(law, continuous, xs[0], xs[1], xs[2], xs[3])
-    k1 = _rhs_free(c, smooth, xs[1], xs[2], xs[3], uf, uc)
+    fp = _planing(c, smooth, xs[1])
+    k1 = eq17(c, xs[1], xs[2], xs[3], uf, uc, fp)
     x2 = _shift(xs, k1, hh)
     uf, uc = _input(law, continuous, x2[0], x2[1], x2[2], x2[3])
     k2 = _rhs_free(c, smooth, x2[1], x2[2], x2[3], uf, uc)
@@ -161,7 +168,7 @@ def _free_step(c, smooth, law, continuous, xs, h, hh):
     x4 = _shift(xs, k3, h)
     uf, uc = _input(law, continuous, x4[0], x4[1], x4[2], x4[3])
     k4 = _rhs_free(c, smooth, x4[1], x4[2], x4[3], uf, uc)
-    return _rk4_sum(xs, k1, k2, k3, k4, h)
+    return _rk4_sum(xs, k1, k2, k3, k4, h), fp
 
 
 @_njit
@@ -172,7 +179,7 @@ def delay_free_run(x, nsteps, h, cv, smooth, law, continuous, bad):
     hh = 0.5 * h
     taken = nsteps
     for i in range(nsteps):
-        xn = _free_step(c, smooth, law, continuous, xs, h, hh)
+        xn, _ = _free_step(c, smooth, law, continuous, xs, h, hh)
         if not _finite4(xn[0], xn[1], xn[2], xn[3]):
             _fail(bad, xn[0], xn[1], xn[2], xn[3])
             taken = i
@@ -185,23 +192,31 @@ def delay_free_run(x, nsteps, h, cv, smooth, law, continuous, bad):
 # -- delayed model: RK4 by the method of steps -------------------------------------------------
 
 @jitable
-def _rhs_delayed(c, paper, hx, hf, n, c_stage, lag, tau, h, x_init, xs, uf, uc):
+def _planing_at_delay(c, paper, hx, hf, n, c_stage, lag, tau, h, x_init, xs):
+    """Fp of the delayed model at the stage ``c_stage`` of step ``n``, state ``xs``: the
+    delayed states from the history rings (Hermite), or ``xs``'s own when tau = 0."""
     if tau == 0.0:
         zd, wd, thd = xs[0], xs[1], xs[2]
     else:
         zd, wd, thd, _ = hermite_delayed(hx, hf, n, c_stage, lag, h, x_init)
-    fp = planing_delayed(xs[0], xs[2], zd, wd, thd, c, 'paper' if paper else 'geometric')
+    return planing_delayed(xs[0], xs[2], zd, wd, thd, c, 'paper' if paper else 'geometric')
+
+
+@jitable
+def _rhs_delayed(c, paper, hx, hf, n, c_stage, lag, tau, h, x_init, xs, uf, uc):
+    fp = _planing_at_delay(c, paper, hx, hf, n, c_stage, lag, tau, h, x_init, xs)
     return eq17(c, xs[1], xs[2], xs[3], uf, uc, fp)
 
 
 @jitable
 def _delayed_step(c, paper, hx, hf, m, lag, tau, h, hh, x_init, law, continuous, xs):
     """One RK4 step of eqs. 22-25, step ``m`` from the 4-tuple ``xs``: writes x_m and f_m into
-    the history rings; the new state (a 4-tuple)."""
+    the history rings; the new state (a 4-tuple) and Fp at ``xs`` (its first stage's)."""
     r = m % hx.shape[0]
     hx[r, 0], hx[r, 1], hx[r, 2], hx[r, 3] = xs
     uf, uc = _input(law, continuous, xs[0], xs[1], xs[2], xs[3])
-    k1 = _rhs_delayed(c, paper, hx, hf, m, 0.0, lag, tau, h, x_init, xs, uf, uc)
+    fp = _planing_at_delay(c, paper, hx, hf, m, 0.0, lag, tau, h, x_init, xs)
+    k1 = eq17(c, xs[1], xs[2], xs[3], uf, uc, fp)
     hf[r, 0], hf[r, 1], hf[r, 2], hf[r, 3] = k1     # f_m: the Hermite slope at t_m
     x2 = _shift(xs, k1, hh)
     uf, uc = _input(law, continuous, x2[0], x2[1], x2[2], x2[3])
@@ -212,7 +227,7 @@ def _delayed_step(c, paper, hx, hf, m, lag, tau, h, hh, x_init, law, continuous,
     x4 = _shift(xs, k3, h)
     uf, uc = _input(law, continuous, x4[0], x4[1], x4[2], x4[3])
     k4 = _rhs_delayed(c, paper, hx, hf, m, 1.0, lag, tau, h, x_init, x4, uf, uc)
-    return _rk4_sum(xs, k1, k2, k3, k4, h)
+    return _rk4_sum(xs, k1, k2, k3, k4, h), fp
 
 
 @_njit
@@ -224,8 +239,8 @@ def delayed_run(x, n, nsteps, h, cv, hx, hf, lag, tau, x_init, paper, law, conti
     hh = 0.5 * h
     taken = nsteps
     for i in range(nsteps):
-        xn = _delayed_step(c, paper, hx, hf, n + i, lag, tau, h, hh, x_init, law, continuous,
-                           xs)
+        xn, _ = _delayed_step(c, paper, hx, hf, n + i, lag, tau, h, hh, x_init, law,
+                              continuous, xs)
         if not _finite4(xn[0], xn[1], xn[2], xn[3]):
             _fail(bad, xn[0], xn[1], xn[2], xn[3])
             taken = i
@@ -315,11 +330,18 @@ def _soe_shape(eps_k, ET, W):
 
 
 @jitable
-def _abm_rhs(x, c, smooth, law, continuous, last_f):
-    """f at the step's start ``x`` (the held input, or the law's), also into ``last_f``."""
+def _abm_f(x, c, smooth, law, continuous):
+    """f at a step's start ``x`` (the held input, or the law's) and Fp there."""
     z, w, th, q = x[0], x[1], x[2], x[3]
     uf, uc = _input(law, continuous, z, w, th, q)
-    f = _rhs_free(c, smooth, w, th, q, uf, uc)
+    fp = _planing(c, smooth, w)
+    return eq17(c, w, th, q, uf, uc, fp), fp
+
+
+@jitable
+def _abm_rhs(x, c, smooth, law, continuous, last_f):
+    """f at the step's start ``x`` (:func:`_abm_f`), also into ``last_f``."""
+    f, _ = _abm_f(x, c, smooth, law, continuous)
     last_f[0], last_f[1], last_f[2], last_f[3] = f[0], f[1], f[2], f[3]
     return f
 
@@ -381,17 +403,27 @@ def _abm_correct(x, x0, c, smooth, law, continuous, cc, s, bad):
 
 
 @jitable
-def _abm_step(x, x0, m, c, smooth, law, continuous, H, W, fill, eps_k, ET, a0_coef, a0_small,
-              alpha, cp, cc, last_f, bad):
-    """ABM step ``m`` of :func:`fom_soe_run` (``x`` advanced in place); False when the state
-    turned non-finite (``bad`` holds it, ``x`` unchanged)."""
+def _abm_step_from(f, x, x0, m, c, smooth, law, continuous, H, W, fill, eps_k, ET, a0_coef,
+                  a0_small, alpha, cp, cc, last_f, bad):
+    """ABM step ``m`` of :func:`fom_soe_run` from f at its start (:func:`_abm_f`; into
+    ``last_f``): ``x`` advanced in place; False when the state turned non-finite (``bad``
+    holds it, ``x`` unchanged)."""
     L, K, n0, base = _soe_shape(eps_k, ET, W)
-    f = _abm_rhs(x, c, smooth, law, continuous, last_f)
+    last_f[0], last_f[1], last_f[2], last_f[3] = f[0], f[1], f[2], f[3]
     _soe_push(H, fill, f, m, n0, K, L, eps_k, ET)
     fw = fill[0]
     s = _abm_start(H, m, alpha, a0_coef, a0_small, cp, cc)
     s = _abm_sums(H[0], W, fw, 1, base + fw, 0, s)
     return _abm_correct(x, x0, c, smooth, law, continuous, cc, s, bad)
+
+
+@jitable
+def _abm_step(x, x0, m, c, smooth, law, continuous, H, W, fill, eps_k, ET, a0_coef, a0_small,
+              alpha, cp, cc, last_f, bad):
+    """ABM step ``m`` of :func:`fom_soe_run` (:func:`_abm_step_from` at f of ``x``)."""
+    f, _ = _abm_f(x, c, smooth, law, continuous)
+    return _abm_step_from(f, x, x0, m, c, smooth, law, continuous, H, W, fill, eps_k, ET,
+                         a0_coef, a0_small, alpha, cp, cc, last_f, bad)
 
 
 @_njit
@@ -529,7 +561,7 @@ def _fom_held_entry(t, f, n, nsteps):   # pragma: no cover - compiled by _fom_he
     taken = fom_soe_run(x, x0, n, nsteps, cv, smooth, law, False, H, W, fill, eps_k, ET,
                         a0_coef, a0_small, f[0], f[1], f[2], last_f, bad)
     c = _coefficients(cv)
-    f[3] = planing_smooth(x[1], c) if smooth else planing_exact(x[1], c)
+    f[3] = _planing(c, smooth, x[1])
     return taken
 
 
@@ -541,7 +573,7 @@ def _fom_prepared_entry(t, f, n, nsteps, P, M):   # pragma: no cover - compiled 
     taken = fom_soe_prepared_run(x, x0, n, nsteps, cv, smooth, law, H, W, fill, eps_k, ET,
                                  f[2], last_f, bad, P, M)
     c = _coefficients(cv)
-    f[3] = planing_smooth(x[1], c) if smooth else planing_exact(x[1], c)
+    f[3] = _planing(c, smooth, x[1])
     return taken
 
 
@@ -554,10 +586,10 @@ def _fom_prepare_entry(t, f, m0, steps, P, M):   # pragma: no cover - compiled b
 
 
 if numba is not None:
-    _held_arrays = numba.njit(error_model='numpy')(_held_arrays)
-    _fom_held_jit = numba.njit(error_model='numpy')(_fom_held_entry)
-    _fom_prepared_jit = numba.njit(error_model='numpy')(_fom_prepared_entry)
-    _fom_prepare_jit = numba.njit(error_model='numpy')(_fom_prepare_entry)
+    _held_arrays = numba.njit(error_model='numpy', cache=True)(_held_arrays)
+    _fom_held_jit = numba.njit(error_model='numpy', cache=True)(_fom_held_entry)
+    _fom_prepared_jit = numba.njit(error_model='numpy', cache=True)(_fom_prepared_entry)
+    _fom_prepare_jit = numba.njit(error_model='numpy', cache=True)(_fom_prepare_entry)
 
 
 @functools.cache

@@ -46,8 +46,8 @@ def rel_diff(a, b):
 
 @pytest.mark.parametrize('model', MODELS)
 def test_compiled_equals_interpreted_with_the_command_held(model):
-    fast = run(model, 'compiled', 0.2, 1e-4)
-    ref = run(model, 'python', 0.2, 1e-4)
+    fast = run(model, 'compiled', 0.1, 1e-4)
+    ref = run(model, 'python', 0.1, 1e-4)
     assert np.array_equal(fast.t, ref.t)
     assert np.max(np.abs(ref.planing_force)) > 1.0        # the planing branches were taken
     assert rel_diff(fast, ref) <= 1e-12, rel_diff(fast, ref)

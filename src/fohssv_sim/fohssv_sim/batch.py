@@ -138,7 +138,7 @@ def _check_shared(params: Sequence[ModelParameters]) -> None:
 def simulate_batch(params: Sequence[ModelParameters], controllers: Sequence[Any],
                    duration: float, *, control_period: float | None = None,
                    initial_states: np.ndarray | None = None, sample_every: int = 1,
-                   record_from: float = 0.0, serial_below: int = 8,
+                   record_from: float = 0.0,
                    progress: Callable[[float], None] | None = None) -> BatchResult:
     """Advance every point of ``params`` under its controller for ``duration`` seconds.
 
@@ -148,8 +148,6 @@ def simulate_batch(params: Sequence[ModelParameters], controllers: Sequence[Any]
             the step), as in :func:`fohssv_sim.simulate.simulate`.
         initial_states: (P, 4), default zeros.
         sample_every: keep every k-th step; record_from: keep only samples with t >= this.
-        serial_below: no effect (kept for callers): every point of a compiled solver runs on
-            its own.
         progress: called with the fraction done (of the points, and within a point).
 
     A point whose run fails (a non-finite state; with a compiled solver also a state beyond

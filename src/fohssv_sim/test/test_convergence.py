@@ -25,7 +25,7 @@ STEP = 8e-5       # s: h, h/2, h/4 = 8e-5, 4e-5, 2e-5
 def observed_order(params: ModelParameters, steps=(STEP, STEP / 2, STEP / 4)) -> float:
     """log2 of the ratio of the successive changes max |x(h) - x(h/2)| on a common grid."""
     runs = [simulate_batch([params.replace(step=h)], [StateFeedback()], DURATION,
-                           sample_every=round(SAMPLE / h), serial_below=2) for h in steps]
+                           sample_every=round(SAMPLE / h)) for h in steps]
     assert all(np.array_equal(runs[0].t, r.t) for r in runs)
     d1, d2 = (np.abs(a.states[0] - b.states[0]).max() for a, b in zip(runs, runs[1:]))
     assert d2 > 0.0

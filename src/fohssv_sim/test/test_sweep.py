@@ -28,7 +28,7 @@ FOHSSV = Path(get_package_prefix('fohssv_sim')) / 'lib' / 'fohssv_sim' / 'fohssv
                                          ('fractional', {'solver': 'abm'})])
 def test_batched_points_equal_per_point_runs(model, extra):
     ps = [ModelParameters(model=model, speed=v, **extra) for v in (75.0, 81.0, 88.0)]
-    b = simulate_batch(ps, [StateFeedback()], 0.05, sample_every=5, serial_below=1)
+    b = simulate_batch(ps, [StateFeedback()], 0.05, sample_every=5)
     for i, p in enumerate(ps):
         r = simulate(p, StateFeedback(), 0.05, sample_every=5)
         assert np.allclose(b.states[i], r.state, rtol=1e-12, atol=1e-14)
@@ -56,7 +56,7 @@ def test_soe_batches_points_of_different_order_and_equals_per_point_runs():
 
 def test_batched_zero_order_hold_equals_per_point_runs():
     ps = [ModelParameters(model='delay-free', speed=v) for v in (75.0, 84.5)]
-    b = simulate_batch(ps, [StateFeedback()], 0.05, control_period=1e-4, serial_below=1)
+    b = simulate_batch(ps, [StateFeedback()], 0.05, control_period=1e-4)
     for i, p in enumerate(ps):
         r = simulate(p, StateFeedback(), 0.05, control_period=1e-4)
         assert np.allclose(b.states[i], r.state, rtol=1e-12, atol=1e-14)

@@ -24,8 +24,7 @@ def halving_change(params: ModelParameters, controller: Any, duration: float = 2
     runs = []
     for step in (params.step, params.step / 2):
         p = params.replace(step=step)
-        r = simulate_batch([p], [controller], duration, sample_every=round(sample / step),
-                           serial_below=2)
+        r = simulate_batch([p], [controller], duration, sample_every=round(sample / step))
         runs.append(r)
     a, b = runs
     if not np.array_equal(a.t, b.t):

@@ -102,31 +102,12 @@ class SweepSpec:
 
 def _simulate(params: list[ModelParameters], ctl: Any, spec: SweepSpec, every: int,
               progress: Callable[[float], None] | None):
-    """simulate_batch over ``params``, reporting progress as a fraction of the chunk. The
-    batch runner steps the delayed model (and small delay-free batches) point by point and
-    reports nothing then, so with ``progress`` those run one point per call (same numbers:
-    each point is independent there)."""
-    from ..batch import BatchResult, simulate_batch
+    """simulate_batch over ``params``, reporting progress as a fraction of the chunk."""
+    from ..batch import simulate_batch
 
-    duration = spec.transient + spec.window
-    kwargs = {'control_period': spec.control_period, 'sample_every': every,
-              'record_from': spec.transient}
-    serial = params[0].model == 'delayed' or (params[0].model == 'delay-free'
-                                              and len(params) < 8)
-    if progress is None or not serial or len(params) == 1:
-        return simulate_batch(params, [ctl], duration, progress=progress, **kwargs)
-    parts = []
-    for i, p in enumerate(params):
-        parts.append(simulate_batch([p], [ctl], duration, **kwargs))
-        progress((i + 1) / len(params))
-    ok = [r for r in parts if not r.failed[0]]
-    t = ok[0].t if ok else np.empty(0)
-    states = np.full((len(params), t.size, 4), np.nan)
-    for i, r in enumerate(parts):
-        if not r.failed[0]:
-            states[i] = r.states[0]
-    return BatchResult(t=t, states=states, failed=np.array([r.failed[0] for r in parts]),
-                       params=list(params))
+    return simulate_batch(params, [ctl], spec.transient + spec.window,
+                          control_period=spec.control_period, sample_every=every,
+                          record_from=spec.transient, progress=progress)
 
 
 def state_scale(states: np.ndarray, k: int, length: float) -> float:

@@ -163,7 +163,7 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
             # doubled, or the whole window when less than half a horizon would be left
             upto = m if m - 2 * upto < upto // 2 else 2 * upto
             continue
-        growing = spec.horizon == 'auto' and spec.objective == 'trajectory'
+        growing = problem.mode == 'grow'
         if not growing:
             break
         if best is None:                     # not even the first horizon: halve it
@@ -413,7 +413,8 @@ def _profile(problem: Problem, ev: Evaluator, local: Local, spec: FitSpec,
         g = grid[order][inside]
         interval = [min(float(g[0]), *(interval or [g[0]])),
                     max(float(g[-1]), *(interval or [g[-1]]))]
-    scale = 4 * upto if spec.objective == 'trajectory' else 4     # entries of a residual row
+    # entries of a residual row (a shot's: its samples, then its jumps)
+    scale = 4 * (upto + problem.nodes(upto)) if spec.objective == 'trajectory' else 4
     return {'name': spec.names[j], 'index': j, 'coarse': coarse.tolist(),
             'coarse_residual': np.sqrt(2 * coarse_cost / scale).tolist(),
             'fine': fine.tolist(), 'fine_residual': np.sqrt(2 * fine_cost / scale).tolist(),

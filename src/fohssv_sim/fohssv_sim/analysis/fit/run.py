@@ -290,6 +290,10 @@ def _verdicts(problem: Problem, x: np.ndarray, r: np.ndarray, upto: int,
 def _loop_text(problem: Problem) -> str:
     """How the fitted model is driven (fit.json's settings, the figures' captions)."""
     if problem.spec.controller is None:
+        if problem.segments is not None:
+            n = problem.nodes(problem.index.size)
+            return (f'open (recorded commands, held; multiple shooting: {n + 1} segments of '
+                    f'{problem.segments.periods} control periods, memory from the data)')
         return 'open (recorded commands, held)'
     how = ('compiled' if problem.law is not None
            else 'not affine: point by point through the plant')

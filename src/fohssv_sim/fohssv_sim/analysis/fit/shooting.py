@@ -5,12 +5,12 @@ error, so a single trajectory cannot be fitted to a long record. Here the record
 segments of ``segment`` seconds; each segment starts from its own *node*, the state at its
 first sample, estimated from the data, and runs the FOM on the recorded commands to the next.
 
-**The nodes.** At a segment's start the measured states are reset to the measured sample plus
-a correction, the unmeasured ones continue from the previous segment's end plus a correction;
-the corrections (4 per segment, nuisance unknowns) are fitted for every parameter point by
-Gauss-Newton (``iterations`` steps from zero; each step one batched call of the point and its
-4 perturbed copies, every segment perturbed at once), each segment's correction from its own
-samples. The last step's corrections give the residual, so the residual is a smooth,
+**The nodes.** At a segment's start the point takes the state of its *follower* (below): the
+measured states as sampled, the unmeasured ones as the previous segment left them, plus a
+correction; the corrections (4 per segment, nuisance unknowns) are fitted for every parameter
+point by Gauss-Newton (``iterations`` steps from zero; each step one batched call of the point
+and its 4 perturbed copies, every segment perturbed at once), each segment's correction from
+its own samples. The last step's corrections give the residual, so the residual is a smooth,
 deterministic function of the parameters (the outer least squares differentiates it).
 
 **Continuity, as a soft constraint.** The jump at each node (its state minus the previous
@@ -18,13 +18,19 @@ segment's end there) is a residual row like a sample, in the same units (measure
 only): a model that cannot continue its own segments pays for every jump, and the jumps count
 in the noise test as samples do (a right model's jumps are its node errors, about the noise).
 
-**The fractional memory.** The whole record is one run from t = 0: the FOM's Volterra form
-x(t) = x0 + I^alpha f(x, u)(t), where each node's jump d is added to x0 from its instant on.
-So the memory integral I^alpha f runs, unbroken and untruncated, over the fitted trajectory of
-all the previous segments (each close to the data where the model is right); the jumps
-themselves stay outside the fractional dynamics (D^alpha (x - sum of the jumps) = f(x, u)).
-Nothing is cut at a segment start; what a segment inherits is the model's own pieced
-trajectory, not the data.
+**The fractional memory: the measured trajectory.** Beside each point runs its follower: the
+same model (same parameters, same commands) restarted at every control instant from the
+sample (measured states; the point's own values for the unmeasured ones). The follower's
+history of f is therefore f along the measured trajectory, period by period, from t = 0.
+At a node the point takes the follower's whole history (its SOE arrays) and its Volterra
+constant (x(t) = x0 + I^alpha f(x, u)(t), x0 shifted by each restart), so every segment
+continues a memory that reaches back to t = 0 over the data, untruncated, and no segment's
+error enters a later one through the memory (with the memory of the model's own pieced
+trajectory instead, one segment thrown off by a contact spoils every later one). A restart
+adds the difference to x0 from its instant on: the restarts stay outside the fractional
+dynamics (D^alpha (x - sum of the restarts) = f(x, u)). Checked against an exact solver:
+test/test_fit_shooting.py. Cost: twice a plain replay's (the follower), times
+``5 iterations + 1`` calls.
 
 Pure: numpy, numba; never imports rclpy or the CLI.
 """

@@ -88,9 +88,11 @@ def clean_open():
 
 def test_whole_record_open_loop_fit_with_noise(clean_open, tmp_path):
     """1 % noise on every state: alpha inside its interval, the run reproduced over the whole
-    record (not a horizon of its first tens of milliseconds), at the noise floor."""
+    record (not a horizon of its first tens of milliseconds), at the noise floor. (The
+    half-step check stays on: the fit's step alone moves alpha by about 6e-4 here, more than
+    the noise's share of the interval.)"""
     bag = _bag(tmp_path / 'run', clean_open, 0.01, 7)
-    res = _open_fit(bag, tmp_path, step_check=False)
+    res = _open_fit(bag, tmp_path)
     lo, hi = res.intervals['fractional_order']
     assert res.reproduces, res.message
     assert lo <= TRUTH <= hi, res.message
@@ -106,7 +108,7 @@ def test_whole_record_open_loop_two_parameters_with_default_bounds(tmp_path):
     r = _run(duration=0.15, planing_offset=2.1)
     bag = _bag(tmp_path / 'run', r, 0.01, 8)
     names = ('fractional_order', 'planing_offset')
-    res = _open_fit(bag, tmp_path, names=names, step_check=False)
+    res = _open_fit(bag, tmp_path, names=names)
     assert res.reproduces, res.message
     for n, truth in zip(names, (TRUTH, 2.1)):
         lo, hi = res.intervals[n]

@@ -10,9 +10,9 @@ state feedback with a zero-order hold of 1e-4 s, 2 s from x(0) = 0 (20 000 contr
 1e5 steps), Gaussian noise of 1 % of each state's standard deviation added to the states after
 t = 0 (seed 1), written as the recorder writes a lockstep run
 (:func:`fohssv_sim.bag.synthetic.write_simulation`). The fit: ``fohssv fit BAG --fit
-fractional_order --controller state_feedback`` (closed loop: an open-loop replay of a 2 s
-tail-slap run departs from the data within ~0.1 s, so the open-loop fit stops its horizon
-there; see the README), default population, profile and step check, on a local Dask cluster
+fractional_order --controller state_feedback`` (closed loop: without the controller the fit
+replays the recorded commands by multiple shooting, about 32 replays of the record per
+parameter value, docs/fit.md), default population, profile and step check, on a local Dask cluster
 of ``--workers`` threads (the default; ``--processes-too`` also runs it with ``--processes``,
 side by side), the installed console script timed from start to exit (cluster start-up, imports
 and the numba cache load included), wall and CPU seconds (user + system of the command and its

@@ -319,17 +319,19 @@ def test_tune_step_script_reruns_the_winner_as_the_search_scored_it(tmp_path, cl
     winner in chosen scenarios at chosen steps: at the search's own step and scenarios it gives
     the outcome and metric the search recorded for the winner (scored there in a batched Dask
     chunk among the other candidates), and a step it is given is the step it runs."""
-    import sys
+    import importlib.util
 
     spec = TuneSpec(**RESUME)
     rec = run_tune(spec, tmp_path / 'search', client=client).record
     script = Path(__file__).resolve().parents[3] / 'scripts' / 'tune_step.py'
     out = tmp_path / 'step.json'
-    res = subprocess.run([sys.executable, str(script), str(tmp_path / 'search'),
-                          '--alphas', '0.8,0.9', '--speeds', '75',
-                          '--steps', f'{RESUME_STEP},{RESUME_STEP / 2}', '--json', str(out)],
-                         capture_output=True, text=True, timeout=300)
-    assert res.returncode == 0, res.stdout + res.stderr
+    # the script's own main in this process (a process start would only add its imports)
+    loader = importlib.util.spec_from_file_location('tune_step', script)
+    mod = importlib.util.module_from_spec(loader)
+    loader.loader.exec_module(mod)
+    code = mod.main([str(tmp_path / 'search'), '--alphas', '0.8,0.9', '--speeds', '75',
+                     '--steps', f'{RESUME_STEP},{RESUME_STEP / 2}', '--json', str(out)])
+    assert code == 0
     got = json.loads(out.read_text())
     assert got['metric'] == 'effort_rms' and got['winner'] == rec['winner']['values']
     scored = {r['alpha']: r for r in rec['winner']['scenarios']}
@@ -342,3 +344,27 @@ def test_tune_step_script_reruns_the_winner_as_the_search_scored_it(tmp_path, cl
     assert len(halved) == 2
     # a different step is a different run (not the search's rows read back)
     assert all(r['effort_rms'] != scored[r['alpha']]['effort_rms'] for r in halved)
+
+
+def test_a_documented_winner_reruns_to_its_documented_metric():
+    """docs/tune_winners/eq31/tune.json (the eq. 31 winner of docs/results.md, in the layout
+    scripts/tune_step.py reads) re-run with the tuner's own evaluation in the two scenarios
+    that decide its worst peak (alpha = 0.7 at V = 90 and 120 m/s; the search's step, duration,
+    transient and ZOH from the file): the outcome and peak |Fp| the file keeps, and the figures
+    docs/results.md prints for it (periodic, 119.4 and 161 m^2/s^2)."""
+    from fohssv_sim.analysis.tune import run_candidates
+
+    root = Path(__file__).resolve().parents[3]
+    rec = json.loads((root / 'docs' / 'tune_winners' / 'eq31' / 'tune.json').read_text())
+    spec = {**rec['spec'], 'envelope_alphas': [0.7], 'envelope_speeds': [90.0, 120.0],
+            'check_step': False}
+    TuneSpec.from_dict(spec).validate()
+    rows = run_candidates({'tune': spec, 'candidates': [rec['winner']['values']],
+                           'step_factor': 1.0}, range(2))
+    kept = {(r['alpha'], r['speed']): r for r in rec['winner']['scenarios']}
+    for r, documented in zip(rows, (119.4, 161.0)):
+        k = kept[(r['alpha'], r['speed'])]
+        assert r['outcome'] == k['outcome'] == 'periodic'
+        assert r['peak_fp'] == pytest.approx(k['peak_fp'], rel=1e-9)
+        assert abs(r['peak_fp'] - documented) < 0.5, (r, documented)
+    assert 'docs/tune_winners' in (root / 'docs' / 'results.md').read_text()

@@ -29,16 +29,18 @@ replay (see below: a replay departs from the run from any error, a fitted closed
 misfit). States of weight 0 are not measured: never compared, never read.
 
 **Open-loop replays diverge.** The vehicle is open-loop unstable (eigenvalue +15.5 1/s at
-V = 75, faster with planing contacts): replaying recorded commands through a model whose
-parameters differ by 1e-6 departs from the data within tens of milliseconds of tail-slap.
-A trajectory fit over a long window would have a basin far narrower than any population.
-So (``horizon='auto'``) the fit grows its horizon: stage 0 fits the first 1/2^S of the window
-(halved while even that is not reproduced, down to 20 samples), each later stage doubles it,
+V = 75, far faster through planing contacts): replaying recorded commands through a model
+whose parameters differ by 1e-6 departs from the data within tens of milliseconds. So an
+open-loop replay is fitted over the whole window by multiple shooting (``horizon='auto'`` or
+``'segments'``, :mod:`.shooting`: segments of ``segment`` s, each started from a node
+estimated from the data, the jumps as soft continuity rows, the fractional memory of every
+segment that of the measured trajectory from t = 0). ``horizon='grow'`` (the default of a
+closed loop) instead grows the horizon: stage 0 fits the first 1/2^S of the window (halved
+while even that is not reproduced, down to 20 samples), each later stage doubles it,
 warm-started from the previous stage, and bisects back towards the last reproduced horizon
 where a stage is not reproduced; it reports the last reproduced horizon with its fit
-(``horizon_end``). ``horizon='full'`` fits the whole window in one stage. A closed loop is
-searched the same way (its basin also narrows as the horizon grows) but judged over the whole
-window (``window_residual``).
+(``horizon_end``). ``horizon='full'`` fits the whole window with one trajectory. A closed loop
+is judged over the whole window (``window_residual``).
 
 **Global, then local.** Each stage evaluates a population (until a horizon is reproduced: a
 Latin hypercube over the bounds; later stages: the current estimate and, per parameter the last
@@ -68,9 +70,9 @@ half its bounds. With a model that cannot reproduce the run the intervals are no
 intervals and the result says so (``reproduces`` false).
 
 The package: :mod:`.data` (names, default bounds, the run), :mod:`.noise` (the noise and the
-test), :mod:`.problem` (the objective), :mod:`.search` (populations, the local stage),
-:mod:`.run` (:func:`run_fit`), :mod:`.result` (what it found, the verdict), :mod:`.report`
-(files and figures).
+test), :mod:`.problem` (the objective), :mod:`.shooting` (multiple shooting), :mod:`.search`
+(populations, the local stage), :mod:`.run` (:func:`run_fit`), :mod:`.result` (what it
+found, the verdict), :mod:`.report` (files and figures).
 
 Pure: numpy, scipy, dask, matplotlib (Agg); never imports rclpy or the CLI.
 """

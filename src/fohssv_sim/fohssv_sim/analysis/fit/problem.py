@@ -21,6 +21,10 @@ from .data import CLIP, DEFAULT_THRESHOLD, OBJECTIVES, STATE_NAMES, FitData, Fit
 from .noise import DEFAULT_NOISE_FLOOR
 from .noise import estimate as estimate_noise
 from .noise import judge as judge_noise
+from .shooting import SEGMENT, Segments
+
+#: How the model covers the window (FitSpec.horizon).
+HORIZONS = ('auto', 'segments', 'grow', 'full')
 
 
 # -- the problem ---------------------------------------------------------------------------
@@ -32,8 +36,11 @@ class FitSpec:
     the whole run); ``controller`` None = open loop on the recorded commands; ``weights`` per
     state (z, w, theta, q; a weight of 0: the state is not measured, never compared and may be
     missing from the data); ``noise`` per state in its unit (None: estimated from the data,
-    :mod:`.noise`), never below ``noise_floor`` x the state's standard deviation; ``stages``
-    the horizon doublings of ``horizon='auto'``. ``threshold``: the cycle objective's
+    :mod:`.noise`), never below ``noise_floor`` x the state's standard deviation;
+    ``horizon``: 'segments' (multiple shooting over the whole window, segments of
+    ``segment`` s: :mod:`.shooting`), 'grow' (a growing horizon, ``stages`` doublings),
+    'full' (one trajectory over the whole window) or 'auto' (segments for an open-loop
+    replay, grow for a closed loop). ``threshold``: the cycle objective's
     acceptance (the trajectory objective is judged against the noise).
     """
 
@@ -49,6 +56,7 @@ class FitSpec:
     noise: tuple[float | None, float | None, float | None, float | None] = (None,) * 4
     noise_floor: float = DEFAULT_NOISE_FLOOR
     horizon: str = 'auto'
+    segment: float = SEGMENT
     stages: int = 4
     max_stages: int = 16
     population: int = 64
@@ -74,8 +82,10 @@ class FitSpec:
         if self.objective not in OBJECTIVES:
             raise FitError(f"--objective {self.objective!r}: choose one of "
                            f"{' | '.join(OBJECTIVES)}")
-        if self.horizon not in ('auto', 'full'):
-            raise FitError(f"--horizon {self.horizon!r}: choose 'auto' or 'full'")
+        if self.horizon not in HORIZONS:
+            raise FitError(f"--horizon {self.horizon!r}: choose one of {' | '.join(HORIZONS)}")
+        if not (self.segment > 0 and math.isfinite(self.segment)):
+            raise FitError(f'--segment {self.segment!r}: need a finite number of seconds > 0')
         if not (self.threshold > 0 and math.isfinite(self.threshold)):
             raise FitError(f'--threshold {self.threshold:g} must be a positive number')
         for name, v, low in (('--population', self.population, 2), ('--starts', self.starts, 1),
@@ -151,6 +161,28 @@ class Problem:
                            'to close the loop with a plugin')
         if spec.objective == 'cycle':
             self.features = cycle_features(t[self.index], x[:, 1])
+        self.segments = Segments(self, spec.segment) if self.mode == 'segments' else None
+
+    @property
+    def mode(self) -> str:
+        """How the model covers the window: 'segments', 'grow' or 'full' (FitSpec.horizon,
+        'auto' resolved: segments for an open-loop replay, grow for a closed loop; the cycle
+        objective always 'full')."""
+        h = self.spec.horizon
+        if self.spec.objective == 'cycle':
+            return 'full'
+        if h == 'auto':
+            return 'segments' if self.spec.controller is None else 'grow'
+        if h == 'segments' and self.spec.controller is not None:
+            raise FitError('--horizon segments: multiple shooting is for an open-loop replay; '
+                           'a closed loop (--controller) is judged over the whole window as is')
+        return h
+
+    def nodes(self, upto: int) -> int:
+        """How many segment starts (4 fitted unknowns each) the first ``upto`` samples have."""
+        if self.segments is None:
+            return 0
+        return int(self.segments.starts(int(self.index[upto - 1])).size)
 
     # -- evaluation ------------------------------------------------------------------------
     def params_for(self, values: Sequence[float]) -> ModelParameters | None:
@@ -170,7 +202,7 @@ class Problem:
         """Samples of the first stage: the whole window ('full', or the cycle objective),
         else 1/2^stages of it (at least 20 samples)."""
         m = self.index.size
-        if self.spec.horizon == 'full' or self.spec.objective == 'cycle':
+        if self.mode != 'grow':
             return m
         return min(m, max(20, int(math.ceil(m / 2 ** self.spec.stages))))
 
@@ -184,6 +216,8 @@ class Problem:
         if not ok:
             return None, valid
         d = self.data
+        if self.segments is not None:
+            return self.segments.shoot(ok, upto, threads), valid
         if self.spec.controller is not None and self.law is None:
             # no compiled form (a law with memory, e.g. fractional_pid): each point through
             # the plant contract with a fresh controller, its command held per period
@@ -213,12 +247,14 @@ class Problem:
         sel = self.index[:upto]
         if self.spec.objective == 'trajectory':
             M = sel.size * 4
-            out = np.full((len(values), M), CLIP)
+            out = np.full((len(values), M + 4 * self.nodes(upto)), CLIP)
             if res is None:
                 return out
             data = self.states[sel]
             r = (res.states[:, sel] - data[None]) * (self.w / self.scale)
             r = np.where(np.isfinite(r), np.clip(r, -CLIP, CLIP), CLIP).reshape(len(r), M)
+            if self.segments is not None:        # the jumps at the nodes: soft continuity
+                r = np.concatenate([r, self.segments.rows(res)], axis=1)
             out[valid] = r
             return out
         out = np.full((len(values), 4), CLIP)
@@ -249,7 +285,9 @@ class Problem:
         if self.noise is None:
             return {'residual': res, 'reproduced': bool(res <= self.spec.threshold)}
         T = self.noise_ratio(r)
-        nu = r.size // 4 * int((self.w > 0).sum()) - len(self.spec.names)
+        nodes = self.nodes(self.index.size)     # a shot always covers the whole window
+        # every compared value, less the fitted names and the 4 unknowns of each node
+        nu = r.size // 4 * int((self.w > 0).sum()) - len(self.spec.names) - 4 * nodes
         ok, crit = judge_noise(T, nu, self.noise)
         m = self.w > 0
         per = (self.w[m] * self.noise.sigma[m] / self.scale[m]) ** 2     # noise in r's units

@@ -163,7 +163,7 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
             # doubled, or the whole window when less than half a horizon would be left
             upto = m if m - 2 * upto < upto // 2 else 2 * upto
             continue
-        growing = spec.horizon == 'auto' and spec.objective == 'trajectory'
+        growing = problem.mode == 'grow'
         if not growing:
             break
         if best is None:                     # not even the first horizon: halve it
@@ -290,6 +290,10 @@ def _verdicts(problem: Problem, x: np.ndarray, r: np.ndarray, upto: int,
 def _loop_text(problem: Problem) -> str:
     """How the fitted model is driven (fit.json's settings, the figures' captions)."""
     if problem.spec.controller is None:
+        if problem.segments is not None:
+            n = problem.nodes(problem.index.size)
+            return (f'open (recorded commands, held; multiple shooting: {n + 1} segments of '
+                    f'{problem.segments.periods} control periods, memory from the data)')
         return 'open (recorded commands, held)'
     how = ('compiled' if problem.law is not None
            else 'not affine: point by point through the plant')
@@ -413,7 +417,8 @@ def _profile(problem: Problem, ev: Evaluator, local: Local, spec: FitSpec,
         g = grid[order][inside]
         interval = [min(float(g[0]), *(interval or [g[0]])),
                     max(float(g[-1]), *(interval or [g[-1]]))]
-    scale = 4 * upto if spec.objective == 'trajectory' else 4     # entries of a residual row
+    # entries of a residual row (a shot's: its samples, then its jumps)
+    scale = 4 * (upto + problem.nodes(upto)) if spec.objective == 'trajectory' else 4
     return {'name': spec.names[j], 'index': j, 'coarse': coarse.tolist(),
             'coarse_residual': np.sqrt(2 * coarse_cost / scale).tolist(),
             'fine': fine.tolist(), 'fine_residual': np.sqrt(2 * fine_cost / scale).tolist(),

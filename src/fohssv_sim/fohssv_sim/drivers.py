@@ -32,7 +32,6 @@ from .kernels import (
     _abm_f,
     _abm_step_from,
     _clamp,
-    _coefficients,
     _delayed_step,
     _fail,
     _finite4,
@@ -44,6 +43,7 @@ from .kernels import (
     delay_free_run,
     delayed_run,
     fom_soe_run,
+    unpack_coefficients,
 )
 from .physics import jitable
 
@@ -95,7 +95,7 @@ def delay_free_sampled(x, hold, periods, h, cv, smooth, law, held, limits, bad, 
     """``periods`` periods of :func:`delay_free_run` with ``law`` sampled (module docstring);
     ``held`` is the held-input law array (its u0 = the command in force), ``limits`` =
     [max |delta_f|, max |delta_c|, max |w|, max |theta|]."""
-    c = _coefficients(cv)
+    c = unpack_coefficients(cv)
     for p in range(periods):
         taken = delay_free_run(x, hold, h, cv, smooth, held, False, bad)
         if taken < hold:
@@ -111,7 +111,7 @@ def delayed_sampled(x, n, hold, periods, h, cv, hx, hf, lag, tau, x_init, paper,
                     limits, bad, out):
     """``periods`` periods of :func:`delayed_run` from step ``n`` with ``law`` sampled (see
     :func:`delay_free_sampled`); Fp at a sample from the history, as the model computes it."""
-    c = _coefficients(cv)
+    c = unpack_coefficients(cv)
     for p in range(periods):
         m = n + p * hold
         taken = delayed_run(x, m, hold, h, cv, hx, hf, lag, tau, x_init, paper, held, False,
@@ -130,7 +130,7 @@ def fom_soe_sampled(x, x0, n, hold, periods, cv, smooth, law, held, limits, H, W
                     ET, a0_coef, a0_small, alpha, cp, cc, last_f, bad, out):
     """``periods`` periods of :func:`fom_soe_run` from step ``n`` with ``law`` sampled (see
     :func:`delay_free_sampled`)."""
-    c = _coefficients(cv)
+    c = unpack_coefficients(cv)
     for p in range(periods):
         taken = fom_soe_run(x, x0, n + p * hold, hold, cv, smooth, held, False, H, W, fill,
                             eps_k, ET, a0_coef, a0_small, alpha, cp, cc, last_f, bad)
@@ -168,7 +168,7 @@ def delay_free_recorded(x, nsteps, first, every, h, cv, smooth, law, continuous,
     and ``u_out`` (inputs) (:func:`_kept`). Returns (the next free row, steps taken,
     status): status 0, or 1 when a state turned non-finite (``bad``), 2 when a kept state
     is beyond the bounds (the run stops there)."""
-    c = _coefficients(cv)
+    c = unpack_coefficients(cv)
     xs = (x[0], x[1], x[2], x[3])
     hh = 0.5 * h
     done = status = 0
@@ -194,7 +194,7 @@ def delayed_recorded(x, n, nsteps, first, every, h, cv, hx, hf, lag, tau, x_init
                      continuous, bad, xs_out, fp_out, u_out, row, wmax, pmax):
     """:func:`delay_free_recorded` for :func:`delayed_run` from step ``n`` (Fp at a kept state
     from the history, as the model computes it)."""
-    c = _coefficients(cv)
+    c = unpack_coefficients(cv)
     xs = (x[0], x[1], x[2], x[3])
     hh = 0.5 * h
     done = status = 0
@@ -221,7 +221,7 @@ def fom_soe_recorded(x, x0, n, nsteps, first, every, cv, smooth, law, continuous
                      eps_k, ET, a0_coef, a0_small, alpha, cp, cc, last_f, bad, xs_out, fp_out,
                      u_out, row, wmax, pmax):
     """:func:`delay_free_recorded` for :func:`fom_soe_run` from step ``n``."""
-    c = _coefficients(cv)
+    c = unpack_coefficients(cv)
     done = status = 0
     while done < nsteps:
         f, fp = _abm_f(x, c, smooth, law, continuous)

@@ -66,7 +66,7 @@ except ImportError:  # pragma: no cover - numba is pinned in requirements.txt
     numba = None
 
 __all__ = ['AVAILABLE', 'KernelCoefficients', 'delay_free_run', 'delayed_run', 'fom_soe_run',
-           'FomHeldCall', 'pack_law']
+           'FomHeldCall', 'pack_law', 'unpack_coefficients']
 
 #: True when the kernels run compiled (numba importable).
 AVAILABLE = numba is not None
@@ -85,7 +85,7 @@ def pack_law(K=None, u0=(0.0, 0.0), limit=(math.inf, math.inf)) -> np.ndarray:
 
 
 @jitable
-def _coefficients(cv):
+def unpack_coefficients(cv):
     return KernelCoefficients(cv[0], cv[1], cv[2], cv[3], cv[4], cv[5], cv[6], cv[7], cv[8],
                               cv[9], cv[10], cv[11], cv[12], cv[13], cv[14], cv[15], cv[16],
                               cv[17])
@@ -174,7 +174,7 @@ def _free_step(c, smooth, law, continuous, xs, h, hh):
 @_njit
 def delay_free_run(x, nsteps, h, cv, smooth, law, continuous, bad):
     """``nsteps`` RK4 steps of eq. 17 from ``x`` (4,), in place; returns the steps taken."""
-    c = _coefficients(cv)
+    c = unpack_coefficients(cv)
     xs = (x[0], x[1], x[2], x[3])
     hh = 0.5 * h
     taken = nsteps
@@ -234,7 +234,7 @@ def _delayed_step(c, paper, hx, hf, m, lag, tau, h, hh, x_init, law, continuous,
 def delayed_run(x, n, nsteps, h, cv, hx, hf, lag, tau, x_init, paper, law, continuous, bad):
     """``nsteps`` RK4 steps of eqs. 22-25 from step ``n`` at ``x``, in place (state and history
     rings ``hx``, ``hf``); returns the steps taken."""
-    c = _coefficients(cv)
+    c = unpack_coefficients(cv)
     xs = (x[0], x[1], x[2], x[3])
     hh = 0.5 * h
     taken = nsteps
@@ -433,7 +433,7 @@ def fom_soe_run(x, x0, n, nsteps, cv, smooth, law, continuous, H, W, fill, eps_k
     one-group :class:`~fohssv_sim.fractional.soe.SOEHistory` (``H``, ``W``, ``fill``, ``eps_k``,
     ``ET``, ``a0_coef``, ``a0_small``), in place; ``last_f`` receives f_n of the last step.
     Returns the steps taken. Same arithmetic as ``SOEStepper.step`` (sums in another order)."""
-    c = _coefficients(cv)
+    c = unpack_coefficients(cv)
     for i in range(nsteps):
         if not _abm_step(x, x0, n + i, c, smooth, law, continuous, H, W, fill, eps_k, ET,
                          a0_coef, a0_small, alpha, cp, cc, last_f, bad):
@@ -483,7 +483,7 @@ def fom_soe_prepared_run(x, x0, n, nsteps, cv, smooth, law, H, W, fill, eps_k, E
     at its row of ``P`` and add the period's own values only (the step's last rows), a fold
     takes ``M``'s modes. The same arithmetic in the same order, bit for bit; only what
     depends on the input is left to compute."""
-    c = _coefficients(cv)
+    c = unpack_coefficients(cv)
     L, K, n0, base = _soe_shape(eps_k, ET, W)
     V = H[0]
     for i in range(nsteps):
@@ -560,7 +560,7 @@ def _fom_held_entry(t, f, n, nsteps):   # pragma: no cover - compiled by _fom_he
     smooth = t[_T_SMOOTH] != 0
     taken = fom_soe_run(x, x0, n, nsteps, cv, smooth, law, False, H, W, fill, eps_k, ET,
                         a0_coef, a0_small, f[0], f[1], f[2], last_f, bad)
-    c = _coefficients(cv)
+    c = unpack_coefficients(cv)
     f[3] = _planing(c, smooth, x[1])
     return taken
 
@@ -572,7 +572,7 @@ def _fom_prepared_entry(t, f, n, nsteps, P, M):   # pragma: no cover - compiled 
     smooth = t[_T_SMOOTH] != 0
     taken = fom_soe_prepared_run(x, x0, n, nsteps, cv, smooth, law, H, W, fill, eps_k, ET,
                                  f[2], last_f, bad, P, M)
-    c = _coefficients(cv)
+    c = unpack_coefficients(cv)
     f[3] = _planing(c, smooth, x[1])
     return taken
 

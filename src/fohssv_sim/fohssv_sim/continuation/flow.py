@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..coefficients import KernelCoefficients
+from ..kernels import unpack_coefficients
 from ..physics import eq17, jitable, planing_delayed, planing_force_law
 
 try:
@@ -71,17 +71,10 @@ def _rhs(cv, law, x, region, out):
     free_c = abs(uc) < law[11]
     uf = max(-law[10], min(law[10], uf))
     uc = max(-law[11], min(law[11], uc))
-    c = _coefficients(cv)
+    c = unpack_coefficients(cv)
     f = eq17(c, x[1], x[2], x[3], uf, uc, _planing(x[1], c, region))
     out[0], out[1], out[2], out[3] = f[0], f[1], f[2], f[3]
     return free_f, free_c
-
-
-@jitable
-def _coefficients(cv):
-    return KernelCoefficients(cv[0], cv[1], cv[2], cv[3], cv[4], cv[5], cv[6], cv[7], cv[8],
-                              cv[9], cv[10], cv[11], cv[12], cv[13], cv[14], cv[15], cv[16],
-                              cv[17])
 
 
 @jitable
@@ -89,7 +82,7 @@ def _jac(cv, law, x, region, J):
     """df/dx at x on the branch ``region`` into the 4 x 4 ``J``."""
     tmp = np.empty(4)
     free_f, free_c = _rhs(cv, law, x, region, tmp)
-    c = _coefficients(cv)
+    c = unpack_coefficients(cv)
     w = x[1]
     d = 1e-7 * max(1.0, abs(w))
     slope = (_planing(w + d, c, region) - _planing(w - d, c, region)) / (2.0 * d)
@@ -226,7 +219,7 @@ def planing_delayed_many(X, Xd, cv, form):
     """The delayed model's planing force (:func:`fohssv_sim.physics.planing_delayed`) at N
     states X and delayed states Xd (each (4, N)), compiled: harmonic balance of the delayed
     model and its monodromy operator evaluate it at thousands of points per branch point."""
-    c = _coefficients(cv)
+    c = unpack_coefficients(cv)
     out = np.empty(X.shape[1])
     for i in range(X.shape[1]):
         out[i] = planing_delayed(X[0, i], X[2, i], Xd[0, i], Xd[1, i], Xd[2, i], c, form)

@@ -61,7 +61,7 @@ def planing(p, x, model):
     """Vehicle p's planing force at its state ``x`` after ``N[p]`` steps (the plant's rule for
     its model and form; before t = 0 a delayed vehicle's history is its start state)."""
     kind, _, smooth, paper, _, h, X0, N, CV, _, rk = model
-    c = kernels._coefficients(CV[p])
+    c = kernels.unpack_coefficients(CV[p])
     if kind != DELAYED:
         return physics.planing_smooth(x[1], c) if smooth else physics.planing_exact(x[1], c)
     HX, HF, LAG, TAU = rk

@@ -320,7 +320,6 @@ def test_a_dead_writer_costs_the_lockstep_loop_a_count_per_lost_message(tmp_path
             + 5 * summary['views'])
     assert summary['record_lost'] == made
     assert recorded['record_lost'] == 0
-    assert summary['samples_per_second'] > 0.25 * unrecorded['samples_per_second'], text
     assert summary['cpu_per_sample_us'] < 1.5 * recorded['cpu_per_sample_us'], text
 
 

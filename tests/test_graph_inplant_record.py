@@ -5,7 +5,8 @@ a bag through a writer process fed by shared memory. Real processes over DDS, re
   writer falls behind and paces the loop) and by the recorder node in the same graph: the two
   bags hold the same messages, byte for byte and in order, with the same log times, channels,
   schemas, QoS profiles, run_end and plant parameters; the in-plant bag passes ``fohssv
-  check``, pymcap-cli doctor, rosbags' reader, the loader and ``fohssv plot``.
+  check``, pymcap-cli doctor, rosbags' reader, the loader and ``fohssv plot`` (the fohssv
+  commands through their entry point, ``fohssv_sim.cli.main``, in the test process).
 * A realtime writer that falls behind (a 4 KiB ring) is reported: a log line at once, the
   summary, the bag's run_end check, exit 8; the bag is closed and readable.
 * SIGKILL of the plant: the writer notices, closes the bag; SIGKILL of the plant and its writer:
@@ -17,7 +18,6 @@ from __future__ import annotations
 import os
 import re
 import signal
-import subprocess
 import time
 
 import pytest
@@ -28,20 +28,14 @@ from test_graph_support import batch_samples, plant_args, stop_all
 from fohssv_controller.state_feedback import StateFeedback
 from fohssv_sim.analysis.plots import controller_of
 from fohssv_sim.bag import load_run
+from fohssv_sim.cli import main as fohssv
 
 import rosproc
 from mcap_doctor import assert_doctor_clean
 
 pytestmark = pytest.mark.graph
 
-DURATION = 0.2
-
-
-FOHSSV = rosproc.executable('fohssv_sim', 'fohssv')
-
-
-def _fohssv(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([str(FOHSSV), *args], capture_output=True, text=True, timeout=300)
+DURATION = 0.05       # 501 samples: the 16 KiB ring (about 40) fills while the writer stops
 
 
 def _mcap(bag):
@@ -129,15 +123,13 @@ def test_inplant_bag_equals_the_recorder_bag_of_the_same_run(tmp_path, model):
         assert other_meta.get(key, my_meta[key]) == my_meta[key], key
 
     # what reads the recorder's bags reads this one
-    check = _fohssv('check', str(ours))
-    assert check.returncode == 0, check.stdout + check.stderr
+    assert fohssv(['check', str(ours)]) == 0
     assert_doctor_clean(_mcap(ours))
     with AnyReader([ours]) as reader:
         assert sum(1 for _ in reader.messages()) == sum(len(v) for v in mine.values())
     a, b = load_run(ours), load_run(theirs)
     assert (a.t == b.t).all() and (a.state == b.state).all() and not a.truncated
-    plot = _fohssv('plot', str(ours), '--out', str(tmp_path / 'fig'))
-    assert plot.returncode == 0, plot.stdout + plot.stderr
+    assert fohssv(['plot', str(ours), '--out', str(tmp_path / 'fig')]) == 0
     assert (tmp_path / 'fig' / 'run_time.png').stat().st_size > 10_000
 
 
@@ -219,7 +211,7 @@ def test_a_realtime_writer_that_falls_behind_is_reported(tmp_path):
     # every lost message is accounted for: the run_end shortfall and the /clock messages
     # (one per state, not listed in run_end)
     assert shortfall > 0 and shortfall + published['/state'] - run.topics['/clock'] == lost
-    assert _fohssv('check', str(bag)).returncode == 0
+    assert fohssv(['check', str(bag)]) == 0
 
 
 def _killed_run(tmp_path, name: str, kill_writer: bool):
@@ -254,17 +246,15 @@ def _killed_run(tmp_path, name: str, kill_writer: bool):
 @pytest.mark.parametrize('kill_writer', [False, True], ids=['plant', 'plant-and-writer'])
 def test_a_killed_plant_leaves_a_bag_that_repair_restores(tmp_path, kill_writer):
     bag = _killed_run(tmp_path, 'killed', kill_writer)
-    before = _fohssv('check', str(bag))
+    before = fohssv(['check', str(bag)])
     if kill_writer:
-        assert before.returncode == 1                    # cut: no summary, no metadata.yaml
+        assert before == 1                               # cut: no summary, no metadata.yaml
     else:
         # the writer saw the plant die and closed the bag (marked interrupted)
-        assert before.returncode == 0, before.stdout + before.stderr
+        assert before == 0
         assert 'fohssv.record_interrupted' in load_run(bag).metadata
-    repair = _fohssv('repair', str(bag))
-    assert repair.returncode == 0, repair.stdout + repair.stderr
-    after = _fohssv('check', str(bag))
-    assert after.returncode == 0, after.stdout + after.stderr
+    assert fohssv(['repair', str(bag)]) == 0
+    assert fohssv(['check', str(bag)]) == 0
     run = load_run(bag)
     # each sample's state is published (and put into the ring) before its planing_force: a
     # kill between the two leaves one state without its force (seen in a make test run:

@@ -9,8 +9,8 @@
   order, byte-identical to the bag, with /clock at every log time; at rate 1 the states
   arrive spread over about the recorded simulated time (loose bound). A cut bag plays what is
   recoverable, with a warning.
-* Missing, empty, truncated and non-bag paths: one ``player: error:`` line, exit 1, no
-  traceback.
+* Missing, empty, truncated and non-bag paths: the player's reader names each; the player
+  process says it in one ``player: error:`` line, exit 1, no traceback.
 """
 
 from __future__ import annotations
@@ -250,6 +250,9 @@ def test_republish_a_cut_bag_plays_what_is_recoverable(tmp_path, listener):
 
 
 def test_bad_paths_give_one_line_and_exit_1(tmp_path):
+    """Each bad path is named by the player's reader (``scan``) with its cause; a player
+    process turns that into one ``player: error:`` line and exit 1 (shown on one of them: the
+    line is the same code for every BagError), and refuses an unknown mode with exit 2."""
     good = tmp_path / 'good'
     write_bag(good, 20)
     mcap = next(good.glob('*.mcap'))
@@ -265,9 +268,13 @@ def test_bad_paths_give_one_line_and_exit_1(tmp_path):
              text: 'not an MCAP file',
              cut: 'truncated MCAP file',
              headless: 'nothing to recover'}
+    for path, words in cases.items():
+        with pytest.raises(BagError) as info:
+            scan(path)
+        assert str(path) in str(info.value) and words in str(info.value), info.value
     env = rosproc.ros_env()
-    procs = {path: _player(env, f'bag_path:={path}') for path in cases}
-    procs['mode'] = _player(env, f'bag_path:={good}', 'mode:=loop')
+    procs = {cut: _player(env, f'bag_path:={cut}'),
+             'mode': _player(env, f'bag_path:={good}', 'mode:=loop')}
     for path, proc in procs.items():
         code = rosproc.wait_exit(proc, 60)
         out = rosproc.output(proc)

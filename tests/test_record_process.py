@@ -87,11 +87,13 @@ class FakePlant:
 
     def publish(self, steps: int, period: float = 1e-3) -> None:
         """``steps`` steps, one every ``period`` s of wall time (as a real-time plant paces
-        them: command's keep-last queue is only COMMAND_DEPTH deep)."""
+        them: command's keep-last queue is only COMMAND_DEPTH deep); asleep in between (a
+        busy wait took a core for the whole run)."""
         start = time.perf_counter()
         for k in range(steps):
-            while time.perf_counter() < start + k * period:
-                pass
+            ahead = start + k * period - time.perf_counter()
+            if ahead > 0:
+                time.sleep(ahead)
             t, x = self.model.t, self.model.state
             u = (0.01 * np.sin(50 * t), -0.005)
             self.t.append(t)

@@ -21,18 +21,18 @@ from fohssv_sim import contract
 from fohssv_sim.bag.synthetic import float64_array
 from fohssv_sim.bag.writer import RunWriter
 
-#: Doubles per message: 8 KiB messages, 1000 per 8 MB.
-WIDTH = 1024
+#: Doubles per message: 64 KiB messages, 125 per 8 MB.
+WIDTH = 8192
 
 
 def write_blob_bag(path: Path, n_messages: int) -> int:
-    """A bag of ``n_messages`` random (incompressible) 8 KiB arrays; its MCAP size."""
+    """A bag of ``n_messages`` random (incompressible) 64 KiB arrays; its MCAP size."""
     rng = np.random.default_rng(1)
     w = RunWriter(path).open()
     w.add_topic('/state', contract.STATE.type)
-    block = rng.standard_normal((64, WIDTH))
+    block = rng.standard_normal((16, WIDTH))
     for i in range(n_messages):
-        values = block[i % 64].copy()
+        values = block[i % 16].copy()
         values[0] = i * 1e-4
         w.write('/state', i * 100_000, float64_array(contract.STATE, values))
     w.close()
@@ -56,8 +56,8 @@ def peak_rss_of_check(bag: Path) -> int:
 
 
 def test_check_memory_does_not_grow_with_the_bag(tmp_path):
-    small_size = write_blob_bag(tmp_path / 'small', 1000)
-    large_size = write_blob_bag(tmp_path / 'large', 10_000)
+    small_size = write_blob_bag(tmp_path / 'small', 125)
+    large_size = write_blob_bag(tmp_path / 'large', 1250)
     assert large_size > 9 * small_size > 60e6
     small = peak_rss_of_check(tmp_path / 'small')
     large = peak_rss_of_check(tmp_path / 'large')

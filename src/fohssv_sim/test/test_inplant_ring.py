@@ -11,6 +11,7 @@ import math
 import random
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -152,10 +153,10 @@ def test_writer_process_writes_a_complete_bag_and_checks_run_end(tmp_path):
     assert read_reply(proc.stdout)['ready']
     states = [_array([k * 1e-4, 0.0, float(k), 0.0, 0.0]) for k in range(3000)]
     for k, raw in enumerate(states):                 # 3000 x 2 records through a 64 KiB ring
-        while not ring.put(0, raw):
-            pass
+        while not ring.put(0, raw):                  # full: the writer's turn (no busy wait:
+            time.sleep(0.001)                        # it would share the cores with it)
         while not ring.put(1, _clock(round(k * 1e-4 * 1e9))):
-            pass
+            time.sleep(0.001)
     send(proc.stdin, ('end', contract.run_end_text('plant', 'test', 0, 0.2999,
                                                     {'/state': 3001})))
     reply = read_reply(proc.stdout)
@@ -334,6 +335,7 @@ def test_a_writer_stopped_by_a_full_disk_leaves_a_shortfall_the_ring_counts_exac
                 if proc.poll() is not None:    # the writer is gone: counted, as the plant does
                     failed += 1
                     break
+                time.sleep(0.001)              # full: the writer's turn
     reply = read_reply(proc.stdout)
     if limit is None:
         assert proc.wait(timeout=60) == -signal.SIGKILL and reply is None

@@ -26,6 +26,7 @@ Needs rclpy (the ROS layer); everything else comes from :mod:`fohssv_sim.envs`.
 
 from __future__ import annotations
 
+import functools
 import os
 import subprocess
 import tempfile
@@ -38,7 +39,6 @@ from typing import Any
 import numpy as np
 import rclpy
 from rcl_interfaces.srv import SetParameters
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
@@ -50,6 +50,7 @@ from ..envs.task import make_task
 from ..params import ParameterError
 from ..solvers import soe_options
 from .qos import profile
+from .spin import make_executor
 from .startup import default_discovery, default_transport
 
 __all__ = ['HSSVRosEnv']
@@ -95,14 +96,19 @@ class HSSVRosEnv(EpisodeEnv):
         self._node = rclpy.create_node('hssv_env', namespace='/' + self.namespace,
                                        context=self._context)
         node = self._node
-        self._executor = SingleThreadedExecutor(context=self._context)
+        # the nodes' executor: half the CPU a step of the single-threaded one in this process
+        self._executor = make_executor(self._context)
         self._executor.add_node(node)
         self._states: dict[float, tuple] = {}
         self._forces: dict[float, float] = {}
         self._command = Float64MultiArray()
         self._pub = node.create_publisher(Float64MultiArray, COMMAND.name, profile(COMMAND))
-        node.create_subscription(Float64MultiArray, STATE.name, self._on_state, profile(STATE))
-        node.create_subscription(Float64MultiArray, PLANING_FORCE.name, self._on_force,
+        # callbacks that hold the dicts, not the env: an executor's native side keeps them, and
+        # the garbage collector could not free an env they referred to (its plant would run on)
+        node.create_subscription(Float64MultiArray, STATE.name,
+                                 functools.partial(_on_state, self._states), profile(STATE))
+        node.create_subscription(Float64MultiArray, PLANING_FORCE.name,
+                                 functools.partial(_on_force, self._forces),
                                  profile(PLANING_FORCE))
         self._reset_client = node.create_client(Trigger, 'reset')
         self._param_client = node.create_client(SetParameters, 'plant/set_parameters')
@@ -156,16 +162,6 @@ class HSSVRosEnv(EpisodeEnv):
         return f'the plant exited with code {proc.returncode}: ' + (lines[-1] if lines else '')
 
     # -- messages ---------------------------------------------------------------------------
-    def _on_state(self, msg: Float64MultiArray) -> None:
-        d = msg.data
-        if len(d) == 5:
-            self._states[d[0]] = (d[1], d[2], d[3], d[4])
-
-    def _on_force(self, msg: Float64MultiArray) -> None:
-        d = msg.data
-        if len(d) == 2:
-            self._forces[d[0]] = d[1]
-
     def _wait(self, t: float, timeout: float | None = None) -> tuple[tuple, float] | str:
         """The state and Fp of the sample at time ``t``, or why the plant ended."""
         timeout = self.timeout if timeout is None else timeout
@@ -312,3 +308,15 @@ def _stop(proc: subprocess.Popen) -> None:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(timeout=5)
+
+
+def _on_state(states: dict, msg: Float64MultiArray) -> None:
+    d = msg.data
+    if len(d) == 5:
+        states[d[0]] = (d[1], d[2], d[3], d[4])
+
+
+def _on_force(forces: dict, msg: Float64MultiArray) -> None:
+    d = msg.data
+    if len(d) == 2:
+        forces[d[0]] = d[1]

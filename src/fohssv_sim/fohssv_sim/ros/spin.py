@@ -86,16 +86,17 @@ class PluginHung(BaseException):
 STOP = StopSignal()
 
 
-def make_executor() -> Executor:
-    """The executor the nodes use (see the module docstring)."""
+def make_executor(context: rclpy.context.Context | None = None) -> Executor:
+    """The executor the nodes use (see the module docstring), on ``context`` (default
+    rclpy's default context)."""
     if os.environ.get('FOHSSV_EXECUTOR', 'events') != 'single':
         try:
             from rclpy.experimental import EventsExecutor
         except ImportError:  # pragma: no cover - rclpy without it
             pass
         else:
-            return EventsExecutor()
-    return rclpy.executors.SingleThreadedExecutor()
+            return EventsExecutor(context=context)
+    return rclpy.executors.SingleThreadedExecutor(context=context)
 
 
 class Paced(Protocol):

@@ -155,8 +155,7 @@ def test_cpu_affinity_pins_every_thread_and_the_run_is_unchanged(tmp_path):
     the device (not root), each says in one line that it could not and runs on."""
     permitted = _may_hold_latency()
     usable = sorted(os.sched_getaffinity(0))
-    if len(usable) < 2:
-        pytest.skip('one usable CPU: pinning would not differ from the default')
+    # one usable CPU: both pinned to it (the pins change nothing there; the latency checks run)
     plant_cpu, ctl_cpu = usable[-1], usable[0]
     duration = 0.1
     domain = rosproc.unique_domain_id()

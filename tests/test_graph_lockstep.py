@@ -31,13 +31,16 @@ TOL = 1e-12
 DURATION = 0.1
 
 
-def _run(model: str, controller_exe: str, duration: float, controller_args=(),
-         **plant_params) -> tuple[np.ndarray, np.ndarray, str]:
+def _run(model: str, controller_exe: str, duration: float, controller_args=(), ctl_log=None,
+         **plant_params) -> tuple[np.ndarray, np.ndarray, str, bool]:
+    """The samples at the probe, the plant's output and whether the controller held the PM
+    QoS device (once it answered the run: fully built)."""
     domain = rosproc.unique_domain_id()
     env = rosproc.ros_env(domain)
     probe = Probe(domain)
     yaml_file = f"{get_package_share_directory('fohssv_sim')}/config/plant.yaml"
-    ctl = rosproc.start('fohssv_controller', controller_exe, list(controller_args), env=env)
+    ctl = rosproc.start('fohssv_controller', controller_exe, list(controller_args), env=env,
+                        log=ctl_log)
     plant = rosproc.start('fohssv_sim', 'plant',
                           ['--ros-args', '--params-file', yaml_file] + plant_args(
                               model=model, duration=duration, min_state_subscribers=2,
@@ -47,29 +50,35 @@ def _run(model: str, controller_exe: str, duration: float, controller_args=(),
         n = round(duration / 1e-4) + 1
         probe.wait(lambda: (len(probe.states) >= n and len(probe.forces) >= n)
                    or plant.poll() is not None, 90, f'{n} samples at the probe')
+        ctl_held = _holds_latency_device(ctl.pid)
         out = stop_all(plant)
         assert plant.returncode == 0, out
         assert 'stopping cleanly at t=' in out, out
         assert len(probe.states) >= n and len(probe.forces) >= n, out
-        return probe.state_array(), np.array(probe.forces), out
+        return probe.state_array(), np.array(probe.forces), out, ctl_held
     finally:
         stop_all(plant, ctl)
         probe.close()
 
 
-def test_lockstep_over_dds_reproduces_the_batch_runner():
+def test_lockstep_over_dds_reproduces_the_batch_runner(tmp_path):
     """The FOM plant (its params file, as ``ros2 run`` with ``--params-file`` gives it) and
     the PI^lambda D^mu node (its own executable, fractional integral and derivative terms
     active), each a process: every sample, in order, at the batch runner's times and equal to
     it. The FOM's samples but the first take the compiled sample (compiled_sample.py) and its
     commands are taken by rcl in compiled code (PlantNode.spin_taking), here from another
     process. (Every model under every built-in law, external and hosted, against the batch
-    runner: tests/node/test_plant_hosted.py.)"""
+    runner: tests/node/test_plant_hosted.py.) The controller node, given
+    cpu_dma_latency:=-1, holds no PM QoS request and says nothing of one."""
     gains = {'integral_order': 0.85, 'derivative_order': 0.7, 'depth_ki': 2.0,
              'pitch_ki': -1.0, 'pitch_kd': -0.2}
-    args = ['--ros-args'] + [a for k, v in gains.items() for a in ('-p', f'{k}:={v}')]
+    args = ['--ros-args', '-p', 'cpu_dma_latency:=-1'] + [
+        a for k, v in gains.items() for a in ('-p', f'{k}:={v}')]
     duration = DURATION
-    states, forces, out = _run('fractional', 'fractional_pid', duration, args)
+    ctl_log = tmp_path / 'controller.log'
+    states, forces, out, ctl_held = _run('fractional', 'fractional_pid', duration, args,
+                                         ctl_log=ctl_log)
+    assert not ctl_held and 'cpu_dma_latency' not in ctl_log.read_text()
     ref, fref = batch_samples('fractional', FractionalPID(**gains), duration)
     assert states.shape == ref.shape, out
     assert np.array_equal(states[:, 0], ref[:, 0])
@@ -138,11 +147,15 @@ def _cpus_allowed(pid: int) -> dict[int, str]:
 def test_cpu_affinity_pins_every_thread_and_the_run_is_unchanged(tmp_path):
     """cpu_affinity on the plant and the controller node: every thread of each process (DDS's
     included, and those started after the pin, at matching) runs only on its CPU while the
-    lockstep run gives the batch runner's samples; the plant's summary names its CPUs. The
-    controller node also holds cpu_dma_latency:=5 (the PM QoS device open while it runs)."""
+    lockstep run gives the batch runner's samples; the plant's summary names its CPUs. Both
+    also ask for a CPU wake-up latency (cpu_dma_latency 7 us on the plant, 5 on the
+    controller node): while the run waits and runs each holds the kernel's PM QoS device open
+    and the kernel's system-wide limit is at most 7 us (the least of the requests held; other
+    tests' nodes may hold 0); the plant's summary says 7. Where this process may not write
+    the device (not root), each says in one line that it could not and runs on."""
+    permitted = _may_hold_latency()
     usable = sorted(os.sched_getaffinity(0))
-    if len(usable) < 2:
-        pytest.skip('one usable CPU: pinning would not differ from the default')
+    # one usable CPU: both pinned to it (the pins change nothing there; the latency checks run)
     plant_cpu, ctl_cpu = usable[-1], usable[0]
     duration = 0.1
     domain = rosproc.unique_domain_id()
@@ -151,11 +164,15 @@ def test_cpu_affinity_pins_every_thread_and_the_run_is_unchanged(tmp_path):
     plant_log, ctl_log = tmp_path / 'plant.log', tmp_path / 'controller.log'
     plant = rosproc.start('fohssv_sim', 'plant', plant_args(
         model='fractional', duration=duration, min_state_subscribers=2, end_linger=60.0,
-        cpu_affinity=plant_cpu), env=env, log=plant_log)
+        cpu_affinity=plant_cpu, cpu_dma_latency=7), env=env, log=plant_log)
     ctl = None
     try:
-        rosproc.wait_for(lambda: 'cpu_affinity: ' in plant_log.read_text(), 60,
-                         what="the plant's pin")
+        rosproc.wait_for(lambda: 'cpu_affinity: ' in plant_log.read_text()
+                         and 'cpu_dma_latency: ' in plant_log.read_text(), 60,
+                         what="the plant's pin and latency request")
+        # the plant waits for its controller meanwhile: its request is held before the run
+        held = _holds_latency_device(plant.pid)
+        limit = cpu_latency_limit()
         # and holds a CPU wake-up latency limit (the controller node's hold, checked below)
         ctl = rosproc.start('fohssv_controller', 'state_feedback',
                             ['--ros-args', '-p', f'cpu_affinity:={ctl_cpu}', '-p',
@@ -177,11 +194,17 @@ def test_cpu_affinity_pins_every_thread_and_the_run_is_unchanged(tmp_path):
         assert len(cpus) >= 5 and set(cpus.values()) == {str(cpu)}, (name, cpus)
     assert f'threads run on CPU {plant_cpu}' in plant_log.read_text()
     assert f'threads run on CPU {ctl_cpu}' in ctl_log.read_text()
-    if _may_hold_latency():
+    text = plant_log.read_text()
+    summary = rosproc.summary(text)
+    if permitted:
         assert ctl_holds and 'CPU wake-up latency at most 5 us' in ctl_log.read_text()
+        assert held and limit is not None and 0 <= limit <= 7, (held, limit)
+        assert 'CPU wake-up latency at most 7 us while this process runs' in text, text
+        assert summary['cpu_dma_latency'] == 7
     else:
         assert not ctl_holds and 'cpu_dma_latency: 5 us not requested' in ctl_log.read_text()
-    summary = rosproc.summary(plant_log.read_text())
+        assert not held and summary['cpu_dma_latency'] is None
+        assert 'cpu_dma_latency: 7 us not requested: /dev/cpu_dma_latency' in text, text
     assert summary['cpu_affinity'] == [plant_cpu]
     ref, fref = batch_samples('fractional', StateFeedback(), duration)
     states, forces = probe.state_array(), np.array(probe.forces)
@@ -208,39 +231,3 @@ def _holds_latency_device(pid: int) -> bool:
         except OSError:            # closed meanwhile
             continue
     return False
-
-
-def test_cpu_dma_latency_is_held_by_the_process_while_it_runs(tmp_path):
-    """cpu_dma_latency:=7 on the plant, -1 on the controller node: while the run waits and
-    runs, the plant holds the kernel's PM QoS device open and the kernel's system-wide limit
-    is at most 7 us (the least of the requests held; other tests' nodes may hold 0); the
-    controller holds nothing; the plant's summary says 7. Where this process may not write
-    the device (not root), the plant says in one line that it could not and runs on."""
-    permitted = _may_hold_latency()
-    env = rosproc.ros_env()
-    plant_log, ctl_log = tmp_path / 'plant.log', tmp_path / 'controller.log'
-    plant = rosproc.start('fohssv_sim', 'plant', plant_args(
-        model='delay-free', duration=0.05, cpu_dma_latency=7), env=env, log=plant_log)
-    ctl = None
-    try:
-        # the plant waits for its controller meanwhile: its request is held before the run
-        rosproc.wait_for(lambda: 'cpu_dma_latency: ' in plant_log.read_text(), 60,
-                         what="the plant's latency request")
-        held = _holds_latency_device(plant.pid)
-        limit = cpu_latency_limit()
-        ctl = rosproc.start('fohssv_controller', 'state_feedback',
-                            ['--ros-args', '-p', 'cpu_dma_latency:=-1'], env=env, log=ctl_log)
-        assert rosproc.wait_exit(plant, 60) == 0, plant_log.read_text()
-        ctl_held = _holds_latency_device(ctl.pid)     # it answered the run: fully built
-    finally:
-        stop_all(plant, ctl)
-    text = plant_log.read_text()
-    summary = rosproc.summary(text)
-    assert not ctl_held and 'cpu_dma_latency' not in ctl_log.read_text()
-    if permitted:
-        assert held and limit is not None and 0 <= limit <= 7, (held, limit)
-        assert 'CPU wake-up latency at most 7 us while this process runs' in text, text
-        assert summary['cpu_dma_latency'] == 7
-    else:
-        assert not held and summary['cpu_dma_latency'] is None
-        assert 'cpu_dma_latency: 7 us not requested: /dev/cpu_dma_latency' in text, text

@@ -27,24 +27,31 @@ def _policy(pid: int) -> int:
         return int(f.read().rsplit(')', 1)[1].split()[38])
 
 
-def test_realtime_priority_puts_the_plant_under_sched_fifo_or_warns(tmp_path):
+def test_a_realtime_plant_under_sched_fifo_or_warning_lingers_while_subscribed(tmp_path):
     """realtime_priority:=10: while the run is paced the plant's thread is SCHED_FIFO (1) where
-    permitted; elsewhere the plant says why and runs with the normal scheduler."""
+    permitted; elsewhere the plant says why and runs with the normal scheduler. end_linger:=2:
+    after 'stopping cleanly' the plant keeps its publishers for 2 s while a controller still
+    subscribes to state (so a lagging subscriber can take the tail)."""
 
     env = rosproc.ros_env(rosproc.unique_domain_id())
     log = tmp_path / 'plant.log'
     ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
     plant = rosproc.start('fohssv_sim', 'plant', plant_args(
         model='delay-free', mode='realtime', control_period=1e-3, duration=SHORT,
-        real_time_factor=0.03, realtime_priority=10, end_linger=0.0), env=env, log=log)
+        real_time_factor=0.03, realtime_priority=10, end_linger=2.0), env=env, log=log)
     policies: list[int] = []
     try:
         rosproc.wait_for(lambda: 'peers matched' in log.read_text(), 30, what='the run')
         deadline = time.monotonic() + 2.0
-        while time.monotonic() < deadline and plant.poll() is None:
+        while (time.monotonic() < deadline and plant.poll() is None
+               and 'stopping cleanly' not in log.read_text()):
             policies.append(_policy(plant.pid))
             time.sleep(0.05)
-        code = rosproc.wait_exit(plant, 60)
+        rosproc.wait_for(lambda: 'stopping cleanly' in log.read_text(), 60,
+                         what='the end of the run', interval=0.005)
+        ended = time.monotonic()
+        code = rosproc.wait_exit(plant, 30)
+        lingered = time.monotonic() - ended
         out = log.read_text()
         assert code == 0, out
     finally:
@@ -53,23 +60,4 @@ def test_realtime_priority_puts_the_plant_under_sched_fifo_or_warns(tmp_path):
         assert 1 in policies and 'not permitted' not in out, (policies, out)
     else:
         assert 'running with the normal scheduler' in out, out
-
-
-def test_plant_lingers_after_the_run_while_samples_are_subscribed(tmp_path):
-    """end_linger:=2: after 'stopping cleanly' the plant keeps its publishers for 2 s while a
-    controller still subscribes to state (so a lagging subscriber can take the tail)."""
-    env = rosproc.ros_env(rosproc.unique_domain_id())
-    log = tmp_path / 'plant.log'
-    ctl = rosproc.start('fohssv_controller', 'state_feedback', env=env)
-    plant = rosproc.start('fohssv_sim', 'plant', plant_args(
-        model='delay-free', duration=0.05, end_linger=2.0), env=env, log=log)
-    try:
-        rosproc.wait_for(lambda: 'stopping cleanly' in log.read_text(), 60,
-                         what='the end of the run', interval=0.005)
-        ended = time.monotonic()
-        code = rosproc.wait_exit(plant, 30)
-        lingered = time.monotonic() - ended
-        assert code == 0, log.read_text()
-    finally:
-        stop_all(plant, ctl)
     assert 1.5 <= lingered <= 10.0, lingered

@@ -269,27 +269,44 @@ def test_a_complete_bag_waits_for_the_plant_parameters_asked(tmp_path):
     assert load_run(bag).parameters.get('model') == 'fractional', text
 
 
-_PROBE = ('import os; from fohssv_sim.ros.startup import init; import rclpy; init([]); '
-          "print('RANGE=' + os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'], flush=True); "
-          'rclpy.shutdown()')
+# each case (a discovery range, or '-' for none) inits rclpy in turn from the same environment
+_PROBE = """
+import os, sys
+import rclpy
+from fohssv_sim.ros.startup import init
+base = dict(os.environ)
+for given in sys.argv[1:]:
+    os.environ.clear()
+    os.environ.update(base)
+    if given != '-':
+        os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = given
+    print(f'CASE={given}', file=sys.stderr, flush=True)
+    init([])
+    print(f'{given} RANGE=' + os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'], flush=True)
+    rclpy.shutdown()
+"""
 
 
-@pytest.mark.parametrize('given', [None, 'SUBNET', 'LOCALHOST'])
-def test_discovery_stays_on_this_machine_unless_opened(given):
+def test_discovery_stays_on_this_machine_unless_opened():
+    """Unset, SUBNET and LOCALHOST, in one process (one interpreter start, not three)."""
+    cases = ('-', 'SUBNET', 'LOCALHOST')
     env = {k: v for k, v in os.environ.items()
            if k not in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_LOCALHOST_ONLY')}
-    if given is not None:
-        env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = given
     env['ROS_DOMAIN_ID'] = str(rosproc.unique_domain_id())
-    out = subprocess.run([sys.executable, '-c', _PROBE], env=env, capture_output=True,
+    out = subprocess.run([sys.executable, '-c', _PROBE, *cases], env=env, capture_output=True,
                          text=True, timeout=60)
     assert out.returncode == 0, out.stderr
-    # with the package's loopback-only Fast DDS profile in force (the default), LOCALHOST
-    # reaches rcl as SUBNET: rmw_fastrtps would add a UDP transport on every interface for
-    # LOCALHOST; the profile's transports keep discovery on this machine (startup.py)
-    assert f'RANGE={"SUBNET" if given in (None, "LOCALHOST") else given}' in out.stdout
-    said = 'discovery: this machine only (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST' in out.stderr
-    assert said == (given is None), out.stderr
+    logs = out.stderr.split('CASE=')[1:]                  # what each case's init said
+    assert len(logs) == len(cases), out.stderr
+    for given, log in zip(cases, logs):
+        assert log.startswith(given), out.stderr
+        # with the package's loopback-only Fast DDS profile in force (the default), LOCALHOST
+        # reaches rcl as SUBNET: rmw_fastrtps would add a UDP transport on every interface for
+        # LOCALHOST; the profile's transports keep discovery on this machine (startup.py)
+        assert f'{given} RANGE={"SUBNET" if given in ("-", "LOCALHOST") else given}' \
+            in out.stdout, out.stdout
+        said = 'discovery: this machine only (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST' in log
+        assert said == (given == '-'), log
 
 
 def test_a_recorder_stopped_early_does_not_stall_the_loop(tmp_path):

@@ -64,15 +64,14 @@ def _run(tmp_path, refuse: str, hosted: bool, duration: float = DURATION,
 
 
 @pytest.mark.parametrize(('hosted', 'inplant', 'model'), [
-    (True, True, 'delay-free'), (False, False, 'fractional')],
-    ids=['hosted-recorded-in-plant', 'external-fom'])
+    (True, False, 'delay-free'), (False, True, 'delay-free'), (False, False, 'fractional')],
+    ids=['hosted', 'external-recorded-in-plant', 'external-fom'])
 def test_a_refused_sample_ends_the_run_with_exit_9_and_the_bag_agrees(tmp_path, hosted,
                                                                          inplant, model):
-    """An external controller and a hosted one; the plant's state publish as it is, and (the
-    hosted run) recorded into the in-plant bag as it is published. (The FOM's lockstep
-    sample takes the plant's compiled fast path, which publishes its state before the model's
-    bookkeeping; the fault injection refuses there too, and the refusal must not undo the
-    bookkeeping.)"""
+    """An external controller and a hosted one; the plant's state publish as it is, and
+    recorded into the in-plant bag as it is published. (The FOM's lockstep sample takes the
+    plant's compiled fast path, which publishes its state before the model's bookkeeping; the
+    fault injection refuses there too, and the refusal must not undo the bookkeeping.)"""
     ref, fref = batch_samples(model, StateFeedback(), DURATION)
     steps = round(1e-4 / (2e-5 if model == 'fractional' else 1e-5))
     extra = {'record': str(tmp_path / 'inplant')} if inplant else {}

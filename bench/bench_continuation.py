@@ -32,7 +32,6 @@ for _var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
     os.environ.setdefault(_var, '1')
 
 import argparse  # noqa: E402
-import json  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -45,6 +44,8 @@ try:
     import fohssv_sim  # noqa: F401
 except ImportError:
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'src' / 'fohssv_sim'))
+
+from benchutil import finish, target  # noqa: E402
 
 from fohssv_sim.analysis.sweep import SweepSpec, run_sweep  # noqa: E402
 from fohssv_sim.continuation.run import follow_orbits  # noqa: E402
@@ -115,11 +116,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{r['case']:<20}{r['branch_s']:>12.1f}{r['branch_points']:>8}"
               f"{r['sweep_s']:>12.1f}{r['ratio_sweep_over_branch']:>8.2f}")
     print(f'load average (1 min): {load:.2f}')
-    if args.out:
-        clean = [{k: (None if isinstance(v, float) and math.isnan(v) else v)
-                  for k, v in r.items()} for r in rows]
-        args.out.write_text(json.dumps({'rows': clean, 'load1': load}, indent=1) + '\n')
-    return 0
+    res = {'targets': [], 'load1': load,
+           'rows': [{k: (None if isinstance(v, float) and math.isnan(v) else v)
+                     for k, v in r.items()} for r in rows]}
+    # the branch runs in one thread: its CPU seconds are its wall time on an idle machine
+    for r, goal in zip(rows, (30.0, 60.0)):
+        if not args.quick:
+            target(res['targets'], f"{r['case']}: branch CPU s (idle-machine wall)",
+                   r['branch_cpu_s'], '<=', goal)
+    return finish(res, 'bench_continuation targets', args.out)
 
 
 if __name__ == '__main__':

@@ -66,7 +66,11 @@ test: setup
 	@# lockstep plant their compiled paths) again
 	@$(IN_ENV) python -c 'from fohssv_sim import models; models.warm_up(); from fohssv_sim.bag import ringpack; ringpack.warm_up()' & warm=$$!; \
 	  $(IN_ENV) python -c 'from fohssv_sim.ros.plant.fastpath import sample; sample.warm_up()'; wait $$warm
-	$(IN_ENV) python -m pytest -n $(TEST_WORKERS) --dist worksteal -m 'not bench_smoke' $(TEST_PATHS) $(PYTEST_ARGS)
+	@# one BLAS thread per process: the test workers already fill the cores, and OpenBLAS's
+	@# threads spin while they wait (a 261 x 261 solve, as in harmonic balance, cost 50 ms of
+	@# CPU instead of 1 ms on two busy cores; test_continuation_vehicle 27 CPU s instead of 11)
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 \
+	  $(IN_ENV) python -m pytest -n $(TEST_WORKERS) --dist worksteal -m 'not bench_smoke' $(TEST_PATHS) $(PYTEST_ARGS)
 
 # e.g. make demo DEMO_ARGS=--hosted (the law hosted in the plant: no controller node)
 DEMO_ARGS ?=

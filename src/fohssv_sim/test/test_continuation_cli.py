@@ -1,4 +1,6 @@
-"""`fohssv continue` as a user runs it: the installed console script, real files."""
+"""`fohssv continue`: the installed console script as a user runs it (the FOM branch, real
+files), and the CLI's ``main`` in this process for the other cases (the same code after the
+entry point, without an interpreter importing numpy, numba, scipy and matplotlib each)."""
 
 import json
 import subprocess
@@ -20,7 +22,21 @@ def run(*args):
                                             **__import__('os').environ})
 
 
-def test_fom_branch_writes_branch_json_and_the_diagram(tmp_path):
+def in_process(capfd, *args):
+    """``fohssv continue ARGS`` through :func:`fohssv_sim.cli.main`: (exit code, stdout,
+    stderr)."""
+    from fohssv_sim.cli import main
+
+    capfd.readouterr()
+    try:
+        code = main(['continue', *args])
+    except SystemExit as e:      # argparse's own exits (usage errors)
+        code = e.code
+    out = capfd.readouterr()
+    return code, out.out, out.err
+
+
+def test_fom_branch_writes_branch_json_and_the_diagram(tmp_path, capfd):
     out = run('--vary', 'fractional_order=0.74:0.77', '--set', 'speed=84.5', '--points', '4',
               '--harmonics', '8', '--out', str(tmp_path))
     assert out.returncode == 0, out.stderr
@@ -37,21 +53,23 @@ def test_fom_branch_writes_branch_json_and_the_diagram(tmp_path):
              key=lambda e: abs(e.state[1]))
     assert abs(hopf['value'] - eq.critical_order) < 1e-3
     assert (tmp_path / 'branch.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
-    again = run('--vary', 'fractional_order=0.74:0.77', '--set', 'speed=84.5', '--points',
-                '4', '--harmonics', '8', '--out', str(tmp_path))
-    assert again.returncode == 0 and 'is complete' in again.stdout
+    code, again, _ = in_process(capfd, '--vary', 'fractional_order=0.74:0.77', '--set',
+                                'speed=84.5', '--points', '4', '--harmonics', '8', '--out',
+                                str(tmp_path))
+    assert code == 0 and 'is complete' in again
 
 
-def test_a_controller_gain_as_the_varied_parameter(tmp_path):
+def test_a_controller_gain_as_the_varied_parameter(tmp_path, capfd):
     """--vary pitch_rate_gain: the delay-free branch over the gain, its last point against a
     long simulation with the controller built at that gain (period to 1e-4)."""
     import numpy as np
 
     from fohssv_sim.simulate import simulate
 
-    out = run('--vary', 'pitch_rate_gain=-0.3:-0.22', '--set', 'model=delay-free', '--set',
-              'speed=75', '--points', '5', '--out', str(tmp_path))
-    assert out.returncode == 0, out.stderr
+    code, _, err = in_process(capfd, '--vary', 'pitch_rate_gain=-0.3:-0.22', '--set',
+                              'model=delay-free', '--set', 'speed=75', '--points', '5',
+                              '--out', str(tmp_path))
+    assert code == 0, err
     data = json.loads((tmp_path / 'branch.json').read_text())
     assert data['parameter'] == 'pitch_rate_gain'
     last = data['points'][-1]
@@ -62,9 +80,10 @@ def test_a_controller_gain_as_the_varied_parameter(tmp_path):
     up = np.where((w[:-1] < w.mean()) & (w[1:] >= w.mean()))[0]
     cross = t[up] + (w.mean() - w[up]) / (w[up + 1] - w[up]) * (t[up + 1] - t[up])
     assert last['period_s'] == pytest.approx(np.mean(np.diff(cross)), rel=1e-4)
-    bad = run('--vary', 'pitch_rate_gain=-0.3:-0.2', '--gain', 'pitch_rate_gain=-0.1',
-              '--set', 'model=delay-free', '--out', str(tmp_path / 'b'))
-    assert bad.returncode == 2 and 'both given' in bad.stderr
+    code, _, err = in_process(capfd, '--vary', 'pitch_rate_gain=-0.3:-0.2', '--gain',
+                              'pitch_rate_gain=-0.1', '--set', 'model=delay-free', '--out',
+                              str(tmp_path / 'b'))
+    assert code == 2 and 'both given' in err
 
 
 @pytest.mark.parametrize('args, text', [
@@ -74,8 +93,8 @@ def test_a_controller_gain_as_the_varied_parameter(tmp_path):
     (('--vary', 'speed'), 'must look like NAME=START:END'),
     (('--vary', 'fractional_order=0.8:0.9', '--set', 'speed=75'), 'no Hopf point'),
 ])
-def test_bad_input_is_one_line_and_exit_2(tmp_path, args, text):
-    out = run(*args, '--out', str(tmp_path))
-    assert out.returncode == 2, out.stderr
-    assert text in out.stderr and 'Traceback' not in out.stderr
-    assert len(out.stderr.strip().splitlines()) == 1
+def test_bad_input_is_one_line_and_exit_2(tmp_path, capfd, args, text):
+    code, _, err = in_process(capfd, *args, '--out', str(tmp_path))
+    assert code == 2, err
+    assert text in err and 'Traceback' not in err
+    assert len(err.strip().splitlines()) == 1

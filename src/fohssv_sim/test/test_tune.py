@@ -126,9 +126,21 @@ def client(dask_client):
     return dask_client
 
 
-def test_interrupted_search_resumes_to_the_same_winner(tmp_path, client):
+@pytest.fixture(scope='module')
+def resume_search(tmp_path_factory, dask_cluster):
+    """The search of ``RESUME`` run once for the tests below that read it or change a copy of
+    its folder (its chunks and optimiser sequence are the same in every run)."""
+    from dask.distributed import Client
+
+    folder = tmp_path_factory.mktemp('tune') / 'search'
+    with Client(dask_cluster) as client:
+        return run_tune(TuneSpec(**RESUME), folder, client=client), folder
+
+
+def test_interrupted_search_resumes_to_the_same_winner(tmp_path, client, resume_search):
     spec = TuneSpec(**RESUME)
-    full = run_tune(spec, tmp_path / 'full', client=client)
+    full, folder = resume_search
+    shutil.copytree(folder, tmp_path / 'full')
     rec = full.record
     assert len(rec['generations']) == 2 and full.computed_chunks == 6   # 10 points / 4
     # the winner's generation numbered from 1, as the progress lines number them
@@ -187,7 +199,8 @@ def test_continued_search_with_a_new_winner_checks_the_new_winner(tmp_path, clie
     assert job['spec']['candidates'] == [w['values']] and job['spec']['step_factor'] == 0.5
 
 
-def test_check_step_added_on_a_rerun_checks_the_search_already_run(tmp_path, client):
+def test_check_step_added_on_a_rerun_checks_the_search_already_run(tmp_path, client,
+                                                                   resume_search):
     """--check-step is not part of a search's identity: a rerun that adds it reads the
     generations back and checks their winner (it was refused as 'a different search', and
     the default folder, named from the identity, was another one: the search ran again)."""
@@ -197,7 +210,8 @@ def test_check_step_added_on_a_rerun_checks_the_search_already_run(tmp_path, cli
     checked = TuneSpec(**{**RESUME, 'check_step': True})
     assert job_name('state_feedback', plain.identity()) == job_name('state_feedback',
                                                                     checked.identity())
-    first = run_tune(plain, tmp_path / 'search', client=client)
+    first, folder = resume_search
+    shutil.copytree(folder, tmp_path / 'search')
     assert 'check_step' not in first.record
     again = run_tune(checked, tmp_path / 'search', client=client)
     assert again.computed_chunks == 0 and again.reused_chunks == first.computed_chunks
@@ -206,13 +220,14 @@ def test_check_step_added_on_a_rerun_checks_the_search_already_run(tmp_path, cli
     assert len(again.record['check_step']['half_step']) == len(plain.scenarios())
 
 
-def test_a_generation_folder_of_another_job_is_refused_as_such(tmp_path, client):
+def test_a_generation_folder_of_another_job_is_refused_as_such(tmp_path, client,
+                                                               resume_search):
     """A generation folder that holds another job (as those written before --check-step
     left a search's identity: their job.json carries it) is refused with the TuneError
     naming the folder, not with scipy's RuntimeError about its map-like callable (which
     wraps any ValueError raised in a generation: the CLI said 'internal error', exit 70)."""
     spec = TuneSpec(**RESUME)
-    run_tune(spec, tmp_path / 'old', client=client)
+    shutil.copytree(resume_search[1], tmp_path / 'old')
     job = tmp_path / 'old' / 'generations' / 'gen_0000' / 'job.json'
     d = json.loads(job.read_text())
     d['spec']['tune']['check_step'] = True
@@ -314,22 +329,22 @@ def test_more_bad_input_is_refused_in_one_line(tmp_path, capsys, args, text):
     assert not (tmp_path / 'bad').exists()
 
 
-def test_tune_step_script_reruns_the_winner_as_the_search_scored_it(tmp_path, client):
+def test_tune_step_script_reruns_the_winner_as_the_search_scored_it(tmp_path, resume_search):
     """``scripts/tune_step.py`` (the README's step and boundary tables) re-runs a search's
     winner in chosen scenarios at chosen steps: at the search's own step and scenarios it gives
     the outcome and metric the search recorded for the winner (scored there in a batched Dask
     chunk among the other candidates), and a step it is given is the step it runs."""
     import importlib.util
 
-    spec = TuneSpec(**RESUME)
-    rec = run_tune(spec, tmp_path / 'search', client=client).record
+    result, folder = resume_search
+    rec = result.record
     script = Path(__file__).resolve().parents[3] / 'scripts' / 'tune_step.py'
     out = tmp_path / 'step.json'
     # the script's own main in this process (a process start would only add its imports)
     loader = importlib.util.spec_from_file_location('tune_step', script)
     mod = importlib.util.module_from_spec(loader)
     loader.loader.exec_module(mod)
-    code = mod.main([str(tmp_path / 'search'), '--alphas', '0.8,0.9', '--speeds', '75',
+    code = mod.main([str(folder), '--alphas', '0.8,0.9', '--speeds', '75',
                      '--steps', f'{RESUME_STEP},{RESUME_STEP / 2}', '--json', str(out)])
     assert code == 0
     got = json.loads(out.read_text())

@@ -17,9 +17,8 @@ PYTEST_ARGS ?=
 # Options of scripts/demo.py for `make demo`, e.g. DEMO_ARGS=--viewer (watch it in Foxglove).
 DEMO_ARGS ?=
 # Parallel test workers (pytest-xdist; each gets its own ROS domains): a number, auto, or 0 for
-# one process. Three on two cores: the graph tests wait on other processes, so a third worker
-# fills the gaps (docs/testing.md).
-TEST_WORKERS ?= 3
+# one process.
+TEST_WORKERS ?= 2
 TEST_PATHS := src/fohssv_sim/test src/fohssv_controller/test tests
 
 .PHONY: setup test demo bench bench-smoke launch-soak lint lock clean help

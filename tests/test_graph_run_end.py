@@ -346,7 +346,8 @@ def test_after_sigint_a_lockstep_plant_steps_and_publishes_nothing(tmp_path, mod
         probe = Probe(int(loop.env['ROS_DOMAIN_ID']), command_publisher=False)
         try:
             _started(loop.plog)
-            time.sleep(0.3)                  # a run under way: thousands of samples
+            # a run under way (a fixed sleep found none yet once under load: 0 samples)
+            probe.wait(lambda: len(probe.states) >= 100, 60, 'a run under way')
             loop.plant.send_signal(signal.SIGINT)
             assert rosproc.wait_exit(loop.plant, 60) == 0, loop.plog.read_text()
             assert rosproc.wait_exit(loop.rec, 60) == 0, loop.log.read_text()

@@ -21,7 +21,7 @@ DEMO_ARGS ?=
 TEST_WORKERS ?= 2
 TEST_PATHS := src/fohssv_sim/test src/fohssv_controller/test tests
 
-.PHONY: setup test demo bench bench-smoke launch-soak lint lock clean help
+.PHONY: setup test demo bench bench-smoke soak lint lock clean help
 .DEFAULT_GOAL := help
 
 help:
@@ -29,7 +29,7 @@ help:
 	@echo "make test   set up, then lint and run every test"
 	@echo "make bench  set up, then run the benchmarks (figures in bench/RESULTS.md)"
 	@echo "make bench-smoke  every benchmark's tiny case (CI runs it after make test)"
-	@echo "make launch-soak  the default closed loop ten times under load (CI runs it too)"
+	@echo "make soak   the tests under load (busy processes beside each run; CI runs it too)"
 	@echo "make setup  only create the venv and build the colcon workspace"
 
 $(VENV_STAMP): requirements.txt constraints.txt
@@ -70,7 +70,7 @@ test: setup
 	@# threads spin while they wait (a 261 x 261 solve, as in harmonic balance, cost 50 ms of
 	@# CPU instead of 1 ms on two busy cores; test_continuation_vehicle 27 CPU s instead of 11)
 	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 \
-	  $(IN_ENV) python -m pytest -n $(TEST_WORKERS) --dist worksteal -m 'not bench_smoke' $(TEST_PATHS) $(PYTEST_ARGS)
+	  $(IN_ENV) python -m pytest -n $(TEST_WORKERS) --dist worksteal -m 'not bench_smoke and not load' $(TEST_PATHS) $(PYTEST_ARGS)
 
 # e.g. make demo DEMO_ARGS=--hosted (the law hosted in the plant: no controller node)
 DEMO_ARGS ?=
@@ -82,9 +82,11 @@ demo: setup
 bench-smoke: setup
 	$(IN_ENV) python -m pytest -n $(TEST_WORKERS) -m bench_smoke tests/test_bench.py $(PYTEST_ARGS)
 
-# The default closed loop ten times with two busy loops beside it: every bag complete (CI).
-launch-soak: setup
-	FOHSSV_LAUNCH_RUNS=10 $(IN_ENV) python -m pytest -n 0 tests/test_launch_load.py $(PYTEST_ARGS)
+# The tests under load (marker load: each starts busy processes that fill every core, so they
+# run one at a time, not beside make test's workers): the default closed loop ten times, a
+# recorded run and its replay, a recorder's drain at a signal; every bag complete (CI).
+soak: setup
+	FOHSSV_LAUNCH_RUNS=10 $(IN_ENV) python -m pytest -n 0 -m load $(TEST_PATHS) $(PYTEST_ARGS)
 
 # Every benchmark, its figures and targets into bench/RESULTS.md (committed, overwritten each run).
 bench: setup

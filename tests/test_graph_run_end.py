@@ -1,5 +1,6 @@
-"""Nothing lost between the run and its bag (issue 12, defect 9), with real processes over DDS
-while two busy processes (``yes``) keep both cores of a small machine loaded.
+"""Nothing lost between the run and its bag (issue 12, defect 9), with real processes over DDS;
+the first two cases while two busy processes (``yes``) keep both cores of a small machine
+loaded (marker ``load``: ``make soak`` runs them one at a time, not ``make test``).
 
 * A recorded lockstep run: the plant announces its end (``run_end``, the messages it
   published per topic); the recorder waits for them, closes the bag and exits 0 by itself.
@@ -117,6 +118,7 @@ def _messages(bag) -> dict[str, list[bytes]]:
     return out
 
 
+@pytest.mark.load
 def test_recorded_run_and_its_replay_lose_nothing_under_load(tmp_path):
     ref, _ = batch_samples('delay-free', StateFeedback(), DURATION)
     n = len(ref)                                  # 3001 samples: t = 0 .. 0.3 s
@@ -161,6 +163,7 @@ def test_recorded_run_and_its_replay_lose_nothing_under_load(tmp_path):
         assert replayed[topic] == original[topic], topic          # every message, in order
 
 
+@pytest.mark.load
 def test_sigint_at_the_end_of_the_run_drains_what_was_delivered(tmp_path):
     """The recorder is told to stop (SIGINT) the moment the plant logs the end of its run,
     with run_end ignored: what the plant published is in the bag all the same."""

@@ -5,8 +5,7 @@ two busy processes beside it, and every bag complete.
 With ``launch`` and ``launch_ros`` importable (a full ROS 2 install, or the public sources on
 ``PYTHONPATH``) the launch file itself runs, as ``ros2 launch`` runs it; without them (the
 project's venv: launch is not on PyPI) the same node list runs as processes, started as the
-launch file starts them. ``make test`` runs one such run; ``make launch-soak`` (CI runs it)
-runs ten.
+launch file starts them. ``make soak`` (CI runs it after ``make test``) runs ten.
 """
 
 from __future__ import annotations
@@ -71,6 +70,7 @@ def _run(bag: Path, env: dict[str, str], log: Path) -> int:
 
 
 @pytest.mark.graph
+@pytest.mark.load
 @pytest.mark.parametrize('run', range(RUNS))
 def test_the_default_launch_under_load_records_every_message(tmp_path, run):
     bag = tmp_path / 'run'

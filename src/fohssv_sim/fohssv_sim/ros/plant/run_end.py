@@ -19,7 +19,7 @@ from ...contract import run_end_text
 from ..loop import time_text
 from ..nodekit import STOP, final_log
 from ..pacing import cpu_seconds
-from .codes import EXIT_OK
+from .codes import EXIT_LAW_HUNG, EXIT_OK
 
 #: After the run (and ``end_linger``): the longest wait for the readers of ``run_end`` (the
 #: recorders, which leave once they took it) to leave (s).
@@ -194,9 +194,8 @@ class RunEnd:
         until nothing subscribes to the samples (or views) any more: a reader drops what it has not
         taken yet from a writer that goes away, so a subscriber lagging behind a fast run
         would lose its tail when the plant exits. Then, up to _RUN_END_WAIT s, while a reader
-        of ``run_end`` is still there (a recorder leaves once it took it). A signal after the
-        run ended ends it (``STOP.count`` beyond ``signals``, the count when the run ended: a
-        signal that interrupted the run does not, so a recorder still drains)."""
+        of ``run_end`` is still there (a recorder leaves once it took it). A signal beyond
+        the ``signals`` that ended the run (:func:`signals_that_ended`) ends it."""
         deadline = time.monotonic() + self.options.end_linger
         samples = self._sample_pubs
         while (self.context.ok() and STOP.count == signals and time.monotonic() < deadline
@@ -211,6 +210,21 @@ class RunEnd:
                and (end.get_subscription_count() > 0
                     or self.count_subscribers(end.topic_name) > 0)):
             executor.spin_once(timeout_sec=0.05)
+
+
+def signals_that_ended(node: Any) -> int:
+    """After the plant's spin loop: the signals that ended the run (:data:`STOP`'s count),
+    which the flush and the linger pass over so that a recorder still drains; any later one
+    ends them. A signal the loop found with the run still going interrupted it (logged as
+    such here); a hosted law's hung call ends the run on a signal (exit 10). A run that ended
+    by itself (its duration, a failure) counts none, even a signal that came while its last
+    sample went out (the loop looks between callbacks): counted, that signal, meant to end the
+    linger, left the plant lingering for ``end_linger`` (a test's stop found it alive 10 s
+    later)."""
+    if STOP.received is not None and not node.finished.done():
+        interrupted(node)
+        return STOP.count
+    return STOP.count if node.exit_code == EXIT_LAW_HUNG else 0
 
 
 def interrupted(node: Any) -> None:

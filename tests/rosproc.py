@@ -22,6 +22,7 @@ import time
 import zlib
 from collections.abc import Sequence
 from pathlib import Path
+from typing import NoReturn
 
 from ament_index_python.packages import get_package_prefix
 
@@ -141,6 +142,7 @@ def start(package: str, name: str, args: Sequence[str] = (), *, env: dict[str, s
     out = open(log, 'w') if log is not None else subprocess.PIPE  # noqa: SIM115
     proc = subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT, text=True,
                             start_new_session=True)
+    proc.log = log          # where a failure reads its output (:func:`_abort`)
     STARTED.append(proc)
     return proc
 
@@ -176,43 +178,53 @@ def kill_leftovers() -> None:
 
 
 def stop(proc: subprocess.Popen, sig: int = signal.SIGINT, timeout: float = 10.0) -> int:
-    """Signal ``proc`` and wait; escalate to SIGKILL after ``timeout``. Returns the exit code."""
+    """Signal ``proc`` and wait for it; the exit code. A process that has not exited
+    ``timeout`` s after the signal is a defect (every node ends within its bounded waits):
+    it fails like :func:`wait_exit`, with where its threads were."""
     if proc.poll() is None:
         proc.send_signal(sig)
         try:
             proc.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=5)
+            _abort(proc, f'did not exit within {timeout} s of {signal.Signals(sig).name}')
     return proc.returncode
 
 
 def wait_exit(proc: subprocess.Popen, timeout: float) -> int:
-    """Wait for ``proc`` to exit by itself; stop it and fail if it does not in time. It is
-    stopped with SIGABRT first: with ``PYTHONFAULTHANDLER`` (:func:`ros_env`) a Python
-    process then prints where each of its threads was (in its log, or in the failure's text
-    when its output is a pipe), then SIGKILL."""
+    """Wait for ``proc`` to exit by itself; fail with where its threads were
+    (:func:`_abort`) if it does not in time."""
     try:
         return proc.wait(timeout=timeout)
     except subprocess.TimeoutExpired:
-        native = native_stacks(proc.pid)
-        proc.send_signal(signal.SIGCONT)      # gdb killed mid-attach may leave it stopped
-        proc.send_signal(signal.SIGABRT)
-        try:
-            proc.wait(timeout=3)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=5)
-        # its output, with the thread dump, into the failure itself (a caller reading it after
-        # a successful wait never gets here): the last 6000 characters and the total, which
-        # is 65536 when the process had filled a pipe nobody read and blocked on it
+        _abort(proc, f'did not exit within {timeout} s')
+
+
+def _abort(proc: subprocess.Popen, what: str) -> NoReturn:
+    """Raise AssertionError for a process that ``what`` (did not exit in time), with where
+    each of its threads was: gdb's native backtraces (:func:`native_stacks`), then SIGABRT,
+    on which a Python process with ``PYTHONFAULTHANDLER`` (:func:`ros_env`) prints its
+    threads' Python stacks, then SIGKILL if it still lives. Its output, with that dump,
+    goes into the failure: the last 6000 characters of its pipe or its log, and the pipe's
+    total, which is 65536 when the process had filled a pipe nobody read and blocked on it."""
+    native = native_stacks(proc.pid)
+    proc.send_signal(signal.SIGCONT)      # gdb killed mid-attach may leave it stopped
+    proc.send_signal(signal.SIGABRT)
+    try:
+        proc.wait(timeout=3)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(timeout=5)
+    log = getattr(proc, 'log', None)
+    if log is not None:
+        text = Path(log).read_text(errors='replace')
+        told = f'the end of its log {log}'
+    else:
         text = _drain(proc, 5.0)
-        raise AssertionError(f'{proc.args[0]} did not exit within {timeout} s (stopped with '
-                             f'SIGABRT; {len(text)} characters of output'
-                             + (f', the last of them:\n{text[-6000:]}' if text else
-                                ': where its threads were is in its log') + ')'
-                             + (f'\nits threads in native code (gdb):\n{native}' if native
-                                else '')) from None
+        told = f'{len(text)} characters of output, the last of them'
+    raise AssertionError(f'{proc.args[0]} {what} (stopped with SIGABRT; {told}:\n'
+                         f'{text[-6000:]})'
+                         + (f'\nits threads in native code (gdb):\n{native}' if native
+                            else '')) from None
 
 
 def native_stacks(pid: int, timeout: float = 20.0, limit: int = 12000) -> str:

@@ -6,6 +6,8 @@ the states come from a publisher in the test process."""
 from __future__ import annotations
 
 import os
+import re
+import signal
 import subprocess
 import time
 
@@ -124,19 +126,33 @@ def test_inplant_recording_onto_a_full_disk_is_refused_and_leaves_nothing(small_
     assert not bag.exists()
 
 
+@pytest.mark.parametrize('late', [False, True], ids=['during-the-run', 'after-the-run'])
 def test_inplant_recording_that_fills_the_disk_says_so_once_and_counts_the_rest(small_disk,
-                                                                                 tmp_path):
+                                                                                 tmp_path,
+                                                                                 late):
     """Issue 51.5: a small disk fills during the run: one line naming "No space left" (no
     writer traceback), the run goes on and ends with exit 8, and the summary's record_lost is
     exactly what the bag lacks (the run's 4 a sample: state, force, clock and a command for
     each sample but the last, and the views, counted against the bag repaired), wherever the
     disk filled: the writer keeps the records it released and its last flush mark in the
     ring's header, and the plant counts the bag's complete chunks after that mark. The disk
-    holds one 1 MiB chunk of the bag, not all of it."""
+    holds one 1 MiB chunk of the bag, not all of it. ``late``: the writer is stopped
+    (SIGSTOP) from its start until the run ended, so the disk fills after the run's end, as
+    under load, where the writer (a batch job) drains the ring behind the run: the summary
+    said record_lost 0 then, logged before the writer died (a CI run with three workers)."""
     subprocess.run(['mount', '-o', 'remount,size=1600k', str(small_disk)], check=True)
     bag, log = small_disk / 'bag', tmp_path / 'plant.log'
     plant = _hosted_plant(bag, log)
     try:
+        if late:
+            rosproc.wait_for(lambda: 'writer ready' in log.read_text(), 120, what='the writer')
+            writer = int(re.search(r'writer process (\d+)', log.read_text()).group(1))
+            os.kill(writer, signal.SIGSTOP)
+            try:
+                rosproc.wait_for(lambda: 'stopping cleanly' in log.read_text(), 120,
+                                 what="the run's end")
+            finally:
+                os.kill(writer, signal.SIGCONT)
         code = rosproc.wait_exit(plant, 300)
     finally:
         stop_all(plant)
@@ -145,6 +161,8 @@ def test_inplant_recording_that_fills_the_disk_says_so_once_and_counts_the_rest(
     assert 'Traceback' not in text, text
     lines = [ln for ln in text.splitlines() if 'No space left' in ln]
     assert len(lines) == 1 and 'in-plant recording: the writer process failed' in lines[0], text
+    if late:
+        assert text.index('stopping cleanly') < text.index('No space left'), text
     summary = rosproc.summary(text)
     # a view is 5 messages: pose, twist, wrench and two markers (the body, the cavity)
     made = (3 * summary['published_states'] + summary['hosted_commands']

@@ -78,7 +78,6 @@ from .inplant_record import start as start_recording
 from .loop import SampledPlant, time_text
 from .nodekit import (
     NODE_OPTIONS,
-    STOP,
     ArrayReader,
     ArrayWriter,
     ClockWriter,
@@ -116,7 +115,7 @@ from .plant.instrumentation import Profile
 from .plant.lockstep import Lockstep
 from .plant.publishing import Publishing
 from .plant.realtime import RealTime
-from .plant.run_end import RunEnd, interrupted, on_interrupt, recorded
+from .plant.run_end import RunEnd, on_interrupt, recorded, signals_that_ended
 from .plant.start import RIVAL_CHECK_PERIOD, StartGate
 from .views import ViewPublisher
 from .wire import raw_publish
@@ -383,9 +382,7 @@ def _run(node: PlantNode) -> int:
     else:
         spin_until(executor, node.finished, paced=node)
     code = node.exit_code
-    signals = STOP.count          # a further signal ends the flush and the linger
-    if STOP.received is not None and not node.finished.done():
-        interrupted(node)
+    signals = signals_that_ended(node)   # a further signal ends the flush and the linger
     # a reader loses what it has not taken when the writer goes away: after a signal
     # too, the recorder gets the time to drain what was published (bounded waits)
     node.flush(signals)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import json
 import time
+from collections.abc import Callable
 from typing import Any
 
 from rclpy.duration import Duration
@@ -18,7 +19,7 @@ from ...contract import run_end_text
 from ..loop import time_text
 from ..nodekit import STOP, final_log
 from ..pacing import cpu_seconds
-from .codes import EXIT_OK
+from .codes import EXIT_LAW_HUNG, EXIT_OK
 
 #: After the run (and ``end_linger``): the longest wait for the readers of ``run_end`` (the
 #: recorders, which leave once they took it) to leave (s).
@@ -27,6 +28,10 @@ _RUN_END_WAIT = 10.0
 
 class RunEnd:
     """The plant node's end of a run (the module docstring)."""
+
+    #: the summary line not yet logged: (how it is logged, its lead, the figures); held back
+    #: with ``record`` until the bag is closed (:meth:`say_summary`)
+    _unsaid: tuple[Callable[[str], None], str, dict[str, Any]] | None = None
 
     def summary(self) -> dict[str, Any]:
         """Figures of the run so far (also logged as one JSON line at the end)."""
@@ -87,6 +92,29 @@ class RunEnd:
             s.update(samples_per_second=total / wall, steps_per_second=steps / wall)
         return s
 
+    def _summarise(self, say: Callable[[str], None], lead: str = '') -> dict[str, Any]:
+        """The run's figures at its end, logged through ``say`` as one line ``LEAD summary:
+        JSON``: at once, or with ``record`` once the bag is closed (:func:`recorded`), as the
+        recording's figures are final only then: a writer lagging behind the run (a batch
+        job, on a loaded machine) may die after the run's end, a disk that fills while it
+        drains the ring (its ``record_lost`` read 0 with exit 8 before)."""
+        s = self.summary()
+        self._unsaid = (say, lead, s)
+        if self.record is None:
+            self.say_summary()
+        return s
+
+    def say_summary(self) -> None:
+        """Log the summary line :meth:`_summarise` held, the recording's figures as they are
+        now (once)."""
+        if self._unsaid is None:
+            return
+        say, lead, s = self._unsaid
+        self._unsaid = None
+        if self.record is not None:
+            s.update(self.record.summary())
+        say(f'{lead}summary: {json.dumps(s)}')
+
     def _made(self) -> tuple[float, int]:
         """(t, steps) of the run's last sample: the plant's, unless a refused publish ended
         the run inside a burst whose later samples the kernel had computed already."""
@@ -98,8 +126,7 @@ class RunEnd:
         self.exit_code = code
         self._law_watch_end.set()
         self.flush_views()      # the summary counts a view's last messages too
-        s = self.summary()
-        self.get_logger().info('summary: ' + json.dumps(s))
+        s = self._summarise(self.get_logger().info)
         verdict = self._real_time_verdict(s)
         if verdict is not None:
             self.get_logger().warning(verdict)
@@ -167,9 +194,8 @@ class RunEnd:
         until nothing subscribes to the samples (or views) any more: a reader drops what it has not
         taken yet from a writer that goes away, so a subscriber lagging behind a fast run
         would lose its tail when the plant exits. Then, up to _RUN_END_WAIT s, while a reader
-        of ``run_end`` is still there (a recorder leaves once it took it). A signal after the
-        run ended ends it (``STOP.count`` beyond ``signals``, the count when the run ended: a
-        signal that interrupted the run does not, so a recorder still drains)."""
+        of ``run_end`` is still there (a recorder leaves once it took it). A signal beyond
+        the ``signals`` that ended the run (:func:`signals_that_ended`) ends it."""
         deadline = time.monotonic() + self.options.end_linger
         samples = self._sample_pubs
         while (self.context.ok() and STOP.count == signals and time.monotonic() < deadline
@@ -186,25 +212,43 @@ class RunEnd:
             executor.spin_once(timeout_sec=0.05)
 
 
+def signals_that_ended(node: Any) -> int:
+    """After the plant's spin loop: the signals that ended the run (:data:`STOP`'s count),
+    which the flush and the linger pass over so that a recorder still drains; any later one
+    ends them. A signal the loop found with the run still going interrupted it (logged as
+    such here); a hosted law's hung call ends the run on a signal (exit 10). A run that ended
+    by itself (its duration, a failure) counts none, even a signal that came while its last
+    sample went out (the loop looks between callbacks): counted, that signal, meant to end the
+    linger, left the plant lingering for ``end_linger`` (a test's stop found it alive 10 s
+    later)."""
+    if STOP.received is not None and not node.finished.done():
+        interrupted(node)
+        return STOP.count
+    return STOP.count if node.exit_code == EXIT_LAW_HUNG else 0
+
+
 def interrupted(node: Any) -> None:
     node.flush_views()
-    summary = json.dumps(node.summary())
+    node._summarise(lambda text: final_log(node.get_name(), text),
+                    'interrupted; stopping cleanly. ')
     # the announced end is the end: nothing is stepped or published after it (the linger
     # spins the executor, and a lockstep command arriving then would advance the run)
     node.running = False
     node.pacer = None
-    final_log(node.get_name(), f'interrupted; stopping cleanly. summary: {summary}')
     node.announce_end('interrupted', node.exit_code)
 
 
 def recorded(node: Any, code: int) -> int:
-    """With ``record``: wait until the writer closed the bag; exit 8 when it misses messages."""
+    """With ``record``: wait until the writer closed the bag, then log the summary; exit 8
+    when it misses messages."""
     if node.record is None:
         return code
     if node._compiled is not None:    # the ring closes: the compiled sample puts no more
         node._compiled.disarm()
         node._compiled.record_into(None)
-    return node.record.finish(code)
+    code = node.record.finish(code)
+    node.say_summary()
+    return code
 
 
 def on_interrupt(node: Any) -> int:

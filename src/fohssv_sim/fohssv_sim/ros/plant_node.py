@@ -78,6 +78,7 @@ from .inplant_record import start as start_recording
 from .loop import SampledPlant, time_text
 from .nodekit import (
     NODE_OPTIONS,
+    STOP,
     ArrayReader,
     ArrayWriter,
     ClockWriter,
@@ -382,10 +383,11 @@ def _run(node: PlantNode) -> int:
     else:
         spin_until(executor, node.finished, paced=node)
     code = node.exit_code
-    signals = signals_that_ended(node)   # a further signal ends the flush and the linger
-    # a reader loses what it has not taken when the writer goes away: after a signal
-    # too, the recorder gets the time to drain what was published (bounded waits)
-    node.flush(signals)
+    signals = signals_that_ended(node)   # a further signal ends the linger
+    # a reader loses what it has not taken when the writer goes away: after a signal too
+    # (even one that came as the run ended by itself), the recorder gets the time to drain
+    # what was published (bounded waits; a further signal ends it)
+    node.flush(STOP.count)
     if node.record is not None:       # the controller's name for the bag, if still asked
         node.record.settle(executor)
     code = recorded(node, code)      # the bag closed before the linger (which may wait 1 s)

@@ -214,8 +214,8 @@ class RunEnd:
 
 def signals_that_ended(node: Any) -> int:
     """After the plant's spin loop: the signals that ended the run (:data:`STOP`'s count),
-    which the flush and the linger pass over so that a recorder still drains; any later one
-    ends them. A signal the loop found with the run still going interrupted it (logged as
+    which the linger passes over so that a recorder still drains; any later one ends it. A
+    signal the loop found with the run still going interrupted it (logged as
     such here); a hosted law's hung call ends the run on a signal (exit 10). A run that ended
     by itself (its duration, a failure) counts none, even a signal that came while its last
     sample went out (the loop looks between callbacks): counted, that signal, meant to end the

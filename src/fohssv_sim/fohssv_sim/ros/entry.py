@@ -19,6 +19,13 @@ of each frame's file among every imported module: in a plant (a thousand modules
 CPU for its first message and about 5 ms for each after. It keeps only the file name, which
 for a frame of a source file is the frame's own ``f_code.co_filename``: :func:`cheap_log_callers`
 hands rclpy that directly (the same caller, function, file and line).
+
+numba's first compile or cache load in a process checks that BLAS is there by importing
+``scipy.linalg.cython_blas``, which imports the whole ``scipy.linalg`` package first and with
+it scipy's array-API layer (numpy.f2py, numpy.testing, ...): 0.15 s of CPU at each start of a
+plant, which calls no scipy.linalg function. :func:`blas_alone` loads that one extension module
+by itself under its own name, so numba finds it imported; a law that needs scipy.linalg (the
+LQR) imports the package later as before, and it takes the same module.
 """
 
 from __future__ import annotations
@@ -28,10 +35,12 @@ import signal
 import sys
 from collections.abc import Callable
 from importlib import import_module
+from importlib.machinery import PathFinder
+from importlib.util import module_from_spec
 from types import FrameType, SimpleNamespace
 
-__all__ = ['quiet_until_started', 'skip_coverage', 'cheap_log_callers', 'run', 'plant',
-           'recorder', 'player', 'viewer']
+__all__ = ['quiet_until_started', 'skip_coverage', 'cheap_log_callers', 'blas_alone', 'run',
+           'plant', 'recorder', 'player', 'viewer']
 
 
 def _ended(signum: int, frame: object) -> None:
@@ -68,19 +77,42 @@ def cheap_log_callers() -> None:
                                                  getframeinfo=_frame_file)
 
 
-def run(module: str, function: str = 'main') -> Callable[[], int]:
+def blas_alone() -> None:
+    """Import ``scipy.linalg.cython_blas`` without the ``scipy.linalg`` package (see the module
+    docstring); where that fails (another scipy), nothing changes."""
+    name = 'scipy.linalg.cython_blas'
+    if 'scipy.linalg' in sys.modules or name in sys.modules:
+        return
+    try:
+        import scipy
+
+        spec = PathFinder.find_spec(name, [os.path.join(os.path.dirname(scipy.__file__),
+                                                        'linalg')])
+        if spec is None or spec.loader is None:
+            return
+        module = module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+    except Exception:  # noqa: BLE001 - numba then imports scipy.linalg as before
+        sys.modules.pop(name, None)
+
+
+def run(module: str, function: str = 'main', compiled: bool = False) -> Callable[[], int]:
     """The entry point ``module:function``, imported after :func:`quiet_until_started`,
-    :func:`skip_coverage` and :func:`cheap_log_callers`."""
+    :func:`skip_coverage`, :func:`cheap_log_callers` and, for a node that runs numba's
+    compiled code (``compiled``), :func:`blas_alone`."""
     def entry() -> int:
         quiet_until_started()
         skip_coverage()
         cheap_log_callers()
+        if compiled:
+            blas_alone()
         return getattr(import_module(module), function)()
     entry.__name__ = function
     return entry
 
 
-plant = run('fohssv_sim.ros.plant_node')
+plant = run('fohssv_sim.ros.plant_node', compiled=True)
 recorder = run('fohssv_sim.ros.recorder_node')
 player = run('fohssv_sim.ros.player_node')
 viewer = run('fohssv_sim.ros.viewer_node')

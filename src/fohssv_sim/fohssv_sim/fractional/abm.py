@@ -23,8 +23,8 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-from scipy.special import gamma
 
+from ._stored import gamma
 from ._validate import check_alpha, check_positive_int, check_state, check_step, check_t0
 from .weights import WeightTable, weight_table
 

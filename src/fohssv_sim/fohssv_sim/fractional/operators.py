@@ -22,8 +22,8 @@ for every lag up to ``horizon_steps`` (default 1e12). Pure numpy; no ROS imports
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import gamma
 
+from ._stored import gamma
 from ._validate import check_alpha, check_positive_int, check_step
 from .soe import SOEHistory
 from .soe_kernel import soe_modes

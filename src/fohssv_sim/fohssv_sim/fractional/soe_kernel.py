@@ -42,8 +42,8 @@ from typing import NamedTuple
 
 import numpy as np
 from numpy.polynomial.legendre import leggauss
-from scipy.special import gamma, gammainccinv, roots_jacobi
 
+from ._stored import stored
 from ._validate import check_positive_int, check_tolerance
 from .weights import corrector_weights, predictor_weights
 
@@ -88,6 +88,8 @@ class SOEModes:
 
 @lru_cache(maxsize=256)
 def _roots_jacobi(nj: int, beta: float) -> tuple[np.ndarray, np.ndarray]:
+    from scipy.special import roots_jacobi
+
     return roots_jacobi(nj, 0.0, beta - 1.0)
 
 
@@ -126,6 +128,8 @@ _PANEL_WIDTH = 4.0
 @lru_cache(maxsize=64)
 def _scaled_soe(beta: float, R: float, eps: float) -> tuple[np.ndarray, np.ndarray]:
     """SOE of t^-beta on [1, R] with relative error < eps (cheapest of a candidate family)."""
+    from scipy.special import gamma, gammainccinv
+
     sb = float(gammainccinv(beta, eps / 20.0))
     sb = max(sb, 1.0)
     t_grid = np.geomspace(1.0, R, 1500)
@@ -157,6 +161,17 @@ def _scaled_soe(beta: float, R: float, eps: float) -> tuple[np.ndarray, np.ndarr
 @lru_cache(maxsize=128)
 def _soe_modes_cached(alpha: float, n_exact: int, tolerance: float,
                       horizon_steps: int) -> SOEModes:
+    rows = stored('soe', (alpha, n_exact, tolerance, horizon_steps),
+                  lambda: np.stack(_mode_arrays(alpha, n_exact, tolerance, horizon_steps)))
+    s, W, decay, pred, corr = (row.copy() for row in rows)
+    for arr in (s, W, decay, pred, corr):
+        arr.flags.writeable = False
+    return SOEModes(alpha, n_exact, tolerance, horizon_steps, s, decay, W, pred, corr)
+
+
+def _mode_arrays(alpha: float, n_exact: int, tolerance: float,
+                 horizon_steps: int) -> tuple[np.ndarray, ...]:
+    """The arrays of :class:`SOEModes`: s, weight, decay, pred, corr (computed)."""
     if alpha == 1.0:
         s = np.zeros(1)
         W = np.ones(1)
@@ -176,9 +191,7 @@ def _soe_modes_cached(alpha: float, n_exact: int, tolerance: float,
         zeta = np.exp(-s * n_exact)       # z^n_exact
         pred = alpha * W * ratio * zeta
         corr = alpha * (alpha + 1.0) * W * ratio * ratio * zeta
-    for arr in (s, W, decay, pred, corr):
-        arr.flags.writeable = False
-    return SOEModes(alpha, n_exact, tolerance, horizon_steps, s, decay, W, pred, corr)
+    return s, W, decay, pred, corr
 
 
 def soe_modes(alpha: float, tolerance: float = 1e-10, horizon_steps: int = 10**8,

@@ -22,7 +22,10 @@ in the sending process with serialized messages against 58 us with message objec
 * :func:`serialized` is rclpy's serialization with the CDR alignment padding zeroed: the
   serializer leaves those bytes as the buffer held them (fragments of the process's memory,
   different from run to run), and every message the plant publishes (contract and views) is
-  made from it, so a bag is a function of the run.
+  made from it, so a bag is a function of the run. The padding is found by walking the
+  message's fields (their rosidl types, ``SLOT_TYPES``) by the CDR rules; the bytes are those
+  rosbags' serializer writes (tests/test_wire_padding.py compares them for every type the
+  plant publishes), without building rosbags' typestore of every ROS type at each start.
 
 Both rely on the machine's byte order being the one the serializer wrote (checked at
 construction: the encapsulation must be CDR little-endian and the round trip through
@@ -38,9 +41,9 @@ from collections.abc import Sequence
 from typing import Any
 
 from rclpy.serialization import deserialize_message, serialize_message
+from rosidl_parser import definition as idl
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from ..bag.writer import typestore
 from ..contract import Topic
 
 __all__ = ['raw_publish', 'serialized', 'ArrayWriter', 'ArrayReader', 'ClockWriter',
@@ -56,25 +59,85 @@ class WireError(RuntimeError):
 
 def serialized(msg: Any) -> bytearray:
     """``msg`` as rclpy serializes it (what ``publish(msg)`` sends), with the alignment padding
-    zeroed: the bytes where the same message serialized by rosbags' CDR serializer (which
-    writes zeros there) holds a zero are taken from it; the two must agree everywhere else.
+    (and the encapsulation's options) zeroed: the bytes a CDR serializer that writes zeros
+    there (rosbags') gives for the same message.
 
     Raises:
-        WireError: the two serializations differ in a byte that carries data (another
-            layout of the type than the typestore's).
+        WireError: not CDR little-endian, or the bytes do not have the layout the message's
+            field types give (a type this walk does not know: wide strings, long double).
     """
-    raw = serialize_message(msg)
-    cls = type(msg)
-    typename = f"{cls.__module__.split('.')[0]}/msg/{cls.__name__}"
-    ts = typestore()
+    raw = bytearray(serialize_message(msg))
+    typename = f"{type(msg).__module__.split('.')[0]}/msg/{type(msg).__name__}"
+    if raw[:2] != _CDR_LE:
+        raise WireError(f'{typename}: serialized as {bytes(raw[:4])!r}, not CDR LE')
+    raw[2:4] = bytes(2)
     try:
-        canon = ts.serialize_cdr(ts.deserialize_cdr(raw, typename), typename)
-    except Exception as exc:  # noqa: BLE001 - a type or layout the typestore does not know
-        raise WireError(f'{typename}: cannot be re-serialized to zero its padding ({exc})'
-                        ) from None
-    if len(canon) != len(raw) or any(a != b and b != 0 for a, b in zip(raw, canon)):
-        raise WireError(f'{typename}: rosbags and rclpy serialize it differently')
-    return bytearray(canon)
+        end = _zero_struct(raw, 4, msg)
+    except (WireError, struct.error) as exc:
+        raise WireError(f'{typename}: cannot zero its padding ({exc})') from None
+    if end != len(raw):
+        raise WireError(f'{typename}: {len(raw)} bytes serialized, {end} by its field types')
+    return raw
+
+
+#: Sizes of the CDR primitives (bytes; each aligned to its size, from the end of the 4-byte
+#: encapsulation header).
+_PRIMITIVES = {'boolean': 1, 'octet': 1, 'char': 1, 'int8': 1, 'uint8': 1, 'int16': 2,
+               'uint16': 2, 'int32': 4, 'uint32': 4, 'float': 4, 'int64': 8, 'uint64': 8,
+               'double': 8}
+
+
+def _align(raw: bytearray, pos: int, size: int) -> int:
+    """Zero the padding from ``pos`` to the next multiple of ``size`` (after the header)."""
+    end = 4 + (pos - 4 + size - 1) // size * size
+    raw[pos:end] = bytes(end - pos)
+    return end
+
+
+def _zero_struct(raw: bytearray, pos: int, msg: Any) -> int:
+    """Zero the padding of the message ``msg`` serialized at ``pos``; the offset after it."""
+    kinds = type(msg).SLOT_TYPES
+    if not kinds:              # an empty message: one uint8 stands for it in CDR
+        return pos + 1
+    for name, kind in zip(type(msg).get_fields_and_field_types(), kinds):
+        pos = _zero_value(raw, pos, getattr(msg, name), kind)
+    return pos
+
+
+def _zero_value(raw: bytearray, pos: int, value: Any, kind: Any) -> int:
+    if isinstance(kind, idl.BasicType):
+        size = _size(kind)
+        return _align(raw, pos, size) + size
+    if isinstance(kind, idl.AbstractString):          # uint32 length with the NUL, UTF-8
+        pos = _align(raw, pos, 4)
+        n = struct.unpack_from('<I', raw, pos)[0]
+        if n != len(value.encode()) + 1:
+            raise WireError(f'a string of {n} bytes where {value!r} was written')
+        return pos + 4 + n
+    if isinstance(kind, idl.NamespacedType):
+        return _zero_struct(raw, pos, value)
+    if isinstance(kind, idl.AbstractNestedType):      # arrays; sequences after their count
+        if isinstance(kind, idl.AbstractSequence):
+            pos = _align(raw, pos, 4)
+            n = struct.unpack_from('<I', raw, pos)[0]
+            if n != len(value):
+                raise WireError(f'a sequence of {n} where {len(value)} were written')
+            pos += 4
+        item = kind.value_type
+        if isinstance(item, idl.BasicType):           # contiguous, aligned once
+            size = _size(item)
+            return _align(raw, pos, size) + size * len(value) if len(value) else pos
+        for v in value:
+            pos = _zero_value(raw, pos, v, item)
+        return pos
+    raise WireError(f'no CDR layout known for {type(kind).__name__}')
+
+
+def _size(kind: Any) -> int:
+    size = _PRIMITIVES.get(kind.typename)
+    if size is None:
+        raise WireError(f'no CDR layout known for {kind.typename}')
+    return size
 
 
 def array_message(topic: Topic) -> Float64MultiArray:
@@ -115,8 +178,6 @@ def _template(topic: Topic) -> tuple[bytearray, int]:
     probe = tuple(float(i + 1) for i in range(n))
     msg.data = array.array('d', probe)
     raw = serialized(msg)
-    if raw[:2] != _CDR_LE:
-        raise WireError(f'{topic.name}: serialized as {bytes(raw[:4])!r}, not CDR LE')
     offset = len(raw) - 8 * n
     if struct.unpack_from(f'<{n}d', raw, offset) != probe or tuple(
             deserialize_message(bytes(raw), Float64MultiArray).data) != probe:

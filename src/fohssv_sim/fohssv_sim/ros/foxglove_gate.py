@@ -37,6 +37,7 @@ from http import HTTPStatus
 from typing import Any
 
 from websockets.asyncio.client import connect
+from websockets.asyncio.connection import Connection
 from websockets.asyncio.server import ServerConnection, serve
 from websockets.exceptions import ConnectionClosed
 from websockets.http11 import Request, Response
@@ -71,7 +72,7 @@ def origin_allowed(origin: str | None, extra: Sequence[str] = ()) -> bool:
     return '*' in allowed or o in allowed or bool(_LOCAL.fullmatch(o))
 
 
-async def _forward(src: Any, dst: Any) -> None:
+async def _forward(src: Connection, dst: Connection) -> None:
     """Relay ``src``'s frames to ``dst`` until ``src`` closes, then close ``dst``. Once ``dst``
     is gone ``src`` is still read to its end, its frames dropped: websockets stops reading a
     socket while 16 received frames wait unread, so a side left unread with frames queued

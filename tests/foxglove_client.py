@@ -56,8 +56,12 @@ class FoxgloveClient:
 
     def __init__(self, url: str, timeout: float = 10.0) -> None:
         self._stack = ExitStack()
+        # max_queue=None: frames are read as they arrive, as the app reads them (a websockets
+        # client holding 16 unread frames stops reading, and its close then waits 10 s for a
+        # close frame it no longer reads)
         self.ws = self._stack.enter_context(connect(url, subprotocols=[SUBPROTOCOL],
-                                                    open_timeout=timeout, compression=None))
+                                                    open_timeout=timeout, compression=None,
+                                                    max_queue=None))
         self.channels: dict[int, dict] = {}
         self.texts: list[dict] = []
         self.received: list[Received] = []

@@ -8,7 +8,9 @@ line naming its reason.
 
 from __future__ import annotations
 
+import contextlib
 import json
+import socket
 import struct
 import time
 
@@ -18,7 +20,7 @@ from websockets.sync.client import connect
 
 from fohssv_sim.params import ParameterError
 from fohssv_sim.ros.foxglove_gate import origin_allowed
-from fohssv_sim.ros.foxglove_live import LiveServer, Marker, ViewAssembler
+from fohssv_sim.ros.foxglove_live import TOPICS, LiveServer, Marker, ViewAssembler
 from fohssv_sim.ros.viewer_options import ViewerOptions
 
 OLD_NAME = 'foxglove.websocket.v1'
@@ -49,15 +51,40 @@ def _json(ws, op: str) -> dict:
             return json.loads(frame)
 
 
-def _view(stamp: int):
+def _view(stamp: int, world: str = 'w', body: str = 'b'):
     a = ViewAssembler()
-    a.add_pose(stamp, 'w', (0.0, 0.0, -0.25), (0.0, 0.0, 0.0, 1.0))
-    a.add_twist(stamp, 'b', (75.0, 0.0, -1.5), (0.0, 0.125, 0.0))
-    a.add_wrench(stamp, 'b', (0.0, 0.0, -3.0), (0.0, 0.0, 0.0))
+    a.add_pose(stamp, world, (0.0, 0.0, -0.25), (0.0, 0.0, 0.0, 1.0))
+    a.add_twist(stamp, body, (75.0, 0.0, -1.5), (0.0, 0.125, 0.0))
+    a.add_wrench(stamp, body, (0.0, 0.0, -3.0), (0.0, 0.0, 0.0))
     for i in (0, 1):
-        a.add_marker(stamp, Marker(i, 'w', (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0),
+        a.add_marker(stamp, Marker(i, world, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0),
                                    (1.0, 1.0, 1.0), (1.0, 1.0, 1.0, 1.0)))
     return a.take()
+
+
+@contextlib.contextmanager
+def _behind(server):
+    """A client subscribed to every channel that reads nothing (a websockets client stops
+    reading its socket at 16 unread frames; its receive buffer is 4 kB), sent 6 MB of views
+    (frame ids of 10 kB): more than the sockets between the SDK, the gate and the client
+    hold, so the gate is left holding frames on both of its sides. Gives the client's
+    socket."""
+    sock = socket.create_connection(('127.0.0.1', server.port), timeout=10)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    with connect(f'ws://127.0.0.1:{server.port}', sock=sock, subprotocols=[OLD_NAME],
+                 open_timeout=10, compression=None) as ws:
+        channels = _json(ws, 'advertise')['channels']
+        ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [
+            {'id': i, 'channelId': c['id']} for i, c in enumerate(channels, 1)]}))
+        deadline = time.monotonic() + 10
+        while server.subscriptions < len(TOPICS) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        view = _view(1_000_000_000, 'w' * 10_000, 'b' * 10_000)
+        for _ in range(100):
+            server.send(view)
+        yield sock
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack('ii', 1, 0))
+        sock.close()                  # a reset: no close frame (a killed app, a lost network)
 
 
 def test_a_client_offering_only_foxglove_websocket_v1_gets_the_run(server):
@@ -122,6 +149,38 @@ def test_connections_past_max_clients_are_refused_until_one_leaves(server):
         else:
             pytest.fail('no client was accepted after one left')
         assert _json(second, 'serverInfo')['name'] == 'fohssv'
+
+
+def test_a_client_gone_while_behind_the_views_frees_its_place_at_once(server):
+    """Gone without a close (a killed app, a lost network) while the gate held its frames:
+    its place (one of max_clients=2) is free at once. Before, the gate stopped reading the
+    SDK's side when the client went, websockets' flow control then never read the close
+    frame that ends it, and the place was held for its close_timeout, 10 s."""
+    with _behind(server):
+        pass
+    with _open(server) as first:
+        deadline = time.monotonic() + 5
+        while True:
+            try:
+                with _open(server) as second:
+                    assert _json(second, 'serverInfo')['name'] == 'fohssv'
+                break
+            except InvalidStatus as e:
+                assert e.response.status_code == 503
+                assert time.monotonic() < deadline, 'the gone client still holds its place'
+                time.sleep(0.05)
+        assert _json(first, 'serverInfo')['name'] == 'fohssv'
+
+
+def test_the_viewer_stops_at_once_beside_a_client_that_stopped_reading():
+    """The viewer's stop closes every connection; a client that stopped reading never
+    answers the close (it waits for buffer space the client never frees), so the gate cuts
+    it after its grace, 1 s. Before, the stop raised TimeoutError after 10 s."""
+    live = LiveServer('127.0.0.1', 0)
+    with _behind(live):
+        start = time.monotonic()
+        live.stop()
+        assert time.monotonic() - start < 5
 
 
 def test_origin_rules():

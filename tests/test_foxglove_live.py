@@ -122,12 +122,14 @@ def test_the_client_gets_every_channel_with_its_schema_and_the_view_values(serve
     client.wait(lambda: server.subscriptions == len(TOPICS), 10, 'the server to count them')
     a = ViewAssembler()
     _feed(a)
-    view = a._latest
-    # the SDK delivers on a channel once it has processed the subscription: send until then
+    server.send(a.take())     # once: the SDK tells the server of a subscription it has taken
+    # the time goes on the SDK's control queue, the messages on its data queue: it may come
+    # after them
     topics = set(TOPICS.values())
-    client.wait(lambda: server.send(view) or {r.topic for r in client.received} == topics,
-                10, 'the view on every topic')
-    assert all(r.log_time == STAMP for r in client.received) and STAMP in client.times
+    client.wait(lambda: {r.topic for r in client.received} == topics and client.times,
+                10, 'the view on every topic and its time')
+    assert [r.log_time for r in client.received] == [STAMP] * len(TOPICS)
+    assert client.times == [STAMP]
     got = {r.topic: r for r in client.received}
 
     (body, cavity) = got['/vehicle_marker'].message.entities
@@ -176,10 +178,11 @@ def test_a_reset_starts_a_new_session(served):
     server, client = served
     client.wait(lambda: len(client.channels) == len(TOPICS), 10, 'the advertised channels')
     client.subscribe(['/state'])
+    client.wait(lambda: server.subscriptions == 1, 10, 'the server to count it')
     a = ViewAssembler()
     _feed(a)
-    later = a._latest
-    client.wait(lambda: server.send(later) or client.received, 10, 'a view')
+    server.send(a.take())
+    client.wait(lambda: client.received, 10, 'a view')
     _feed(a, stamp=0)
     server.send(a.take())                          # back to t = 0: the plant was reset
     infos = lambda: [m for m in client.texts if m['op'] == 'serverInfo']   # noqa: E731

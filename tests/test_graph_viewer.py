@@ -60,21 +60,34 @@ def _run(tmp_path: Path) -> tuple[FoxgloveClient, str]:
             model='delay-free', mode='lockstep', duration=DURATION, min_state_subscribers=2,
             min_view_subscribers=1,
             pace_to_subscribers=512), env=env)
-        client.wait(lambda: plant.poll() is not None, 240, 'the end of the run')
-        assert plant.returncode == 0, rosproc.output(plant)
+        # the newest view reaches the client at the viewer's next tick, on every channel
+        _wait_for_the_last_view(client, DURATION, TOPICS.values())
         assert rosproc.wait_exit(rec, 60) == 0, rlog.read_text()
-        last = round(DURATION * 1e9)
-        # the newest view reaches the client at the viewer's next tick
-        client.wait(lambda: any(r.log_time == last for r in client.messages('/state')),
-                    10, f'the last view (t = {DURATION} s)')
-        client.drain(0.3)
-        assert rosproc.stop(viewer, signal.SIGINT) == 0, vlog.read_text()
+        _stop_the_listeners(viewer, vlog, ctl)
+        assert rosproc.wait_exit(plant, 60) == 0, rosproc.output(plant)
     finally:
         if client is not None:
             client.close()
         stop_all(*(p for p in (plant, ctl, rec) if p is not None))
         rosproc.stop(viewer)
     return client, vlog.read_text()
+
+
+def _wait_for_the_last_view(client: FoxgloveClient, duration: float, topics) -> None:
+    """Until the client has the run's last view (t = ``duration``) on every channel of
+    ``topics`` and its time (both planes of the SDK's server)."""
+    last = round(duration * 1e9)
+    client.wait(lambda: last in client.times and all(
+        any(r.log_time == last for r in client.messages(topic)) for topic in topics),
+        240, f'the last view (t = {duration} s)')
+
+
+def _stop_the_listeners(viewer, vlog: Path, controller) -> None:
+    """Stop the controller and the viewer (SIGINT: exit 0) once the run is over: the plant
+    keeps its writers for ``end_linger`` while anything still subscribes, and exits as soon
+    as nothing does (its exit code is checked after; the finally reaps the controller)."""
+    controller.send_signal(signal.SIGINT)
+    assert rosproc.stop(viewer, signal.SIGINT) == 0, vlog.read_text()
 
 
 def _path_value(fields, path: str):
@@ -225,10 +238,11 @@ def test_the_views_are_decimated_to_the_viewer_rate(tmp_path):
         ctl = rosproc.start('fohssv_controller', 'state_feedback', [], env=env)
         plant = rosproc.start('fohssv_sim', 'plant', plant_args(
             model='delay-free', duration=0.3, min_view_subscribers=1), env=env)
-        client.wait(lambda: plant.poll() is not None, 120, 'the end of the run')
-        assert plant.returncode == 0, rosproc.output(plant)
-        client.drain(1.0)       # past the viewer's next ticks, which send the newest view
-        assert rosproc.stop(viewer, signal.SIGINT) == 0, vlog.read_text()
+        # the newest view reaches the client at the viewer's next tick: the client has every
+        # view the viewer sends then
+        _wait_for_the_last_view(client, 0.3, ['/state'])
+        _stop_the_listeners(viewer, vlog, ctl)
+        assert rosproc.wait_exit(plant, 60) == 0, rosproc.output(plant)
     finally:
         if client is not None:
             client.close()

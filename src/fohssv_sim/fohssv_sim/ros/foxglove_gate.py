@@ -21,11 +21,15 @@ A refused handshake gets an HTTP error (403 origin, 400 subprotocol, 503 full) w
 reason, and the gate reports it once per reason and peer (the first 100) through
 ``on_refused`` (the viewer logs it). Hostile frames reach the SDK's server as they came (it
 survives malformed ones); a frame larger than 1 MiB from a client closes that connection.
+When either side of a relayed connection closes, the gate closes the other, at once even when
+frames for a client that fell behind are still on their way; when the viewer stops, a client
+that does not answer the close within a second is cut off.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import re
 import threading
 from collections.abc import Callable, Sequence
@@ -33,6 +37,7 @@ from http import HTTPStatus
 from typing import Any
 
 from websockets.asyncio.client import connect
+from websockets.asyncio.connection import Connection
 from websockets.asyncio.server import ServerConnection, serve
 from websockets.exceptions import ConnectionClosed
 from websockets.http11 import Request, Response
@@ -48,6 +53,9 @@ SUBPROTOCOLS = (SDK_SUBPROTOCOL, 'foxglove.websocket.v1')
 #: any port, http or https).
 DEFAULT_ORIGINS = ('https://app.foxglove.dev', 'https://embed.foxglove.dev',
                    'https://app.lichtblick.dev', 'https://lichtblick-suite.github.io')
+#: Seconds the clients have to answer the gate's close when it stops, before their connections
+#: are cut: a client that stopped reading never answers (its close waits for buffer space).
+_CLOSE_GRACE = 1.0
 #: Refusal lines logged at most (distinct reason and peer); the count goes on (a flood of
 #: handshakes with made-up origins neither fills the log nor the memory).
 _MAX_SAID = 100
@@ -62,6 +70,20 @@ def origin_allowed(origin: str | None, extra: Sequence[str] = ()) -> bool:
     o = origin.strip().lower().rstrip('/')
     allowed = {x.lower().rstrip('/') for x in (*DEFAULT_ORIGINS, *extra)}
     return '*' in allowed or o in allowed or bool(_LOCAL.fullmatch(o))
+
+
+async def _forward(src: Connection, dst: Connection) -> None:
+    """Relay ``src``'s frames to ``dst`` until ``src`` closes, then close ``dst``. Once ``dst``
+    is gone ``src`` is still read to its end, its frames dropped: websockets stops reading a
+    socket while 16 received frames wait unread, so a side left unread with frames queued
+    (the SDK's, when its client was behind the views) never sees the close frame that ends
+    it, and closing it waited websockets' close_timeout (10 s)."""
+    try:
+        async for frame in src:
+            with contextlib.suppress(ConnectionClosed):
+                await dst.send(frame)
+    finally:
+        await dst.close()
 
 
 class Gate:
@@ -84,7 +106,7 @@ class Gate:
         self.allowed_origins = tuple(allowed_origins)
         self._on_refused = on_refused or (lambda line: None)
         self._said: set[tuple[str, str]] = set()
-        self.clients = 0
+        self._relayed: set[ServerConnection] = set()
         self.refused = 0
         self._loop = asyncio.new_event_loop()
         self._ready = threading.Event()
@@ -99,6 +121,11 @@ class Gate:
     @property
     def port(self) -> int:
         return self._port
+
+    @property
+    def clients(self) -> int:
+        """The clients connected now."""
+        return len(self._relayed)
 
     def _run(self, host: str, port: int) -> None:
         async def start() -> Any:
@@ -145,31 +172,30 @@ class Gate:
         return None
 
     async def _relay(self, client: ServerConnection) -> None:
-        """One client's connection: relayed both ways until either side closes."""
-        self.clients += 1
+        """One client's connection: relayed both ways until either side closes; then the
+        other side is closed too."""
+        self._relayed.add(client)
         try:
             async with connect(self._upstream, subprotocols=[SDK_SUBPROTOCOL],
                                max_size=None, compression=None) as upstream:
-                async def pump(src, dst) -> None:
-                    async for frame in src:
-                        await dst.send(frame)
-
-                tasks = [asyncio.ensure_future(pump(client, upstream)),
-                         asyncio.ensure_future(pump(upstream, client))]
-                await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
-                for task in tasks:
-                    task.cancel()
-                await asyncio.gather(*tasks, return_exceptions=True)
+                await asyncio.gather(_forward(client, upstream), _forward(upstream, client),
+                                     return_exceptions=True)
         except (OSError, ConnectionClosed):
             pass
         finally:
-            self.clients -= 1
+            self._relayed.discard(client)
 
     def stop(self) -> None:
-        """Close the gate and every relayed connection."""
+        """Close the gate and every relayed connection (a client that does not answer the
+        close within :data:`_CLOSE_GRACE` s is cut off)."""
         async def close() -> None:
             self._server.close()
-            await self._server.wait_closed()
+            try:
+                await asyncio.wait_for(self._server.wait_closed(), _CLOSE_GRACE)
+            except TimeoutError:
+                for client in list(self._relayed):
+                    client.transport.abort()
+                await self._server.wait_closed()
 
         if self._error is None and self._loop.is_running():
             asyncio.run_coroutine_threadsafe(close(), self._loop).result(timeout=10)

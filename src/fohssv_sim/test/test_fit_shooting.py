@@ -39,7 +39,7 @@ def _open_fit(bag: Path, tmp: Path, names=('fractional_order',), **kw):
     run = load_run(bag)
     base = base_from_run(run)
     data = data_from_run(run, base)
-    kw = {'population': 8, 'starts': 1, 'profile_points': 9, 'fine_points': 5, **kw}
+    kw = {'population': 8, 'starts': 1, 'profile_points': 5, 'fine_points': 3, **kw}
     spec = FitSpec(names=tuple(names), bounds=resolve_bounds(names, {}, base),
                    base=base.to_dict(), **kw)
     return run_fit(spec, data, tmp / 'out')

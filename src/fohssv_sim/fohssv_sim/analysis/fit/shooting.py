@@ -189,7 +189,13 @@ def run_segments(params: Sequence[ModelParameters], n_periods: int, hold: int,
     P, C, S = len(params), delta.shape[1], int(starts.size)
     X0 = np.tile(np.asarray(initial_state, dtype=float), (P, 1))
     CV = np.array([coefficients(p).kernel for p in params], dtype=float)
-    hist, alphas, cp, cc = _soe_arrays([p for p in params for _ in range(C + 1)], duration)
+    # one history per point, its C + 1 groups copies of it (the same arrays, built once)
+    hist, alphas, cp, cc = _soe_arrays(params, duration)
+    H = np.zeros((P * (C + 1), *hist.H.shape[1:]))
+    W = np.repeat(hist.W, C + 1, axis=1)
+    eps_k, ET, a0_coef, a0_small, alphas, cp, cc = (
+        np.repeat(a, C + 1, axis=0)
+        for a in (hist.eps_k, hist.ET, hist.a0_coef, hist.a0_small, alphas, cp, cc))
     speeds = np.array([p.speed for p in params], dtype=float)
     out = np.empty((P, C, n_periods + 1, 4))
     jumps = np.zeros((P, C, S, 4))
@@ -199,9 +205,9 @@ def run_segments(params: Sequence[ModelParameters], n_periods: int, hold: int,
                      int(n_periods), np.ascontiguousarray(starts, dtype=np.int64),
                      np.ascontiguousarray(data[:n_periods + 1], dtype=float),
                      np.ascontiguousarray(reset, dtype=np.bool_),
-                     np.ascontiguousarray(delta, dtype=float), hist.H, hist.W,
-                     np.zeros((C + 1) * P, dtype=np.int64), hist.eps_k, hist.ET,
-                     hist.a0_coef, hist.a0_small, alphas, cp, cc, speeds, out, jumps, failed)
+                     np.ascontiguousarray(delta, dtype=float), H, W,
+                     np.zeros((C + 1) * P, dtype=np.int64), eps_k, ET, a0_coef, a0_small,
+                     alphas, cp, cc, speeds, out, jumps, failed)
     return out, jumps, failed
 
 

@@ -122,7 +122,7 @@ def test_a_delayed_model_replay_is_not_reproduced_over_the_whole_record(tmp_path
     reproduces it over the whole record, residual and noise side by side."""
     r = _run('delayed', duration=0.15)
     bag = _bag(tmp_path / 'run', r, 0.01, 4)
-    res = _open_fit(bag, tmp_path, step_check=False)
+    res = _open_fit(bag, tmp_path, step_check=False, population=4)
     assert not res.reproduces, res.message
     assert res.horizon_end == pytest.approx(0.15), res.message
     v = res.settings['verdict']

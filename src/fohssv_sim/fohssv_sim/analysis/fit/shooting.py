@@ -34,9 +34,11 @@ trajectory instead, one segment thrown off by a contact spoils every later one).
 adds the difference to x0 from its instant on: the restarts stay outside the fractional
 dynamics (D^alpha (x - sum of the restarts) = f(x, u)). Checked against an exact solver:
 test/test_fit_shooting.py. The point and its perturbed copies (``C`` in all) share one
-follower: with every state measured its history does not depend on their corrections (an
-unmeasured state follows copy 0, the point itself). Cost: ``C + 1`` plain replays per call;
-``6 iterations + 2`` replays of the record per parameter value (20 at the default 3).
+follower; with every state measured its history does not depend on their corrections (an
+unmeasured state follows copy 0, the point itself), so it runs in the first call only and
+its state at each node is kept for the later calls (:class:`Memo`). Cost per parameter
+value: ``5 iterations + 1`` replays of the record and one of the follower (17 at the default
+3; with a state unmeasured, ``6 iterations + 2``).
 
 Pure: numpy, numba; never imports rclpy or the CLI.
 """
@@ -46,7 +48,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -72,6 +74,51 @@ else:  # pragma: no cover - numba is pinned
         return fn
 
 
+class Memo(NamedTuple):
+    """The followers of P points at their S nodes (SOE history ``H``, its ``fill``, state
+    ``y`` and Volterra constant ``y0``), ``have``: complete; kept only when ``keep`` (every
+    state measured: the follower is then the same in every call for the same points)."""
+
+    H: np.ndarray
+    fill: np.ndarray
+    y: np.ndarray
+    y0: np.ndarray
+    have: np.ndarray
+    keep: bool
+
+    @classmethod
+    def make(cls, P: int, S: int, rows: int, keep: bool) -> Memo:
+        """Room for P points, S nodes and histories of ``rows`` rows (none unless ``keep``)."""
+        n = S if keep else 0
+        return cls(np.zeros((P, n, 4, rows)), np.zeros((P, n), dtype=np.int64),
+                   np.zeros((P, n, 4)), np.zeros((P, n, 4)), np.zeros(P, dtype=np.bool_),
+                   bool(keep))
+
+    def part(self, a: int, b: int) -> Memo:
+        """The points a..b-1 (views: what a call fills in is kept)."""
+        return Memo(self.H[a:b], self.fill[a:b], self.y[a:b], self.y0[a:b], self.have[a:b],
+                    self.keep)
+
+
+@_njit
+def _memo_node(memo, follow, p, b, gf, y, y0, H, fill):
+    """The follower of point p at node ``b``: kept into ``memo`` (``follow``), or taken from
+    it."""
+    R = H.shape[2]                 # a thread's points may pad fewer modes than all points
+    if follow:
+        if not memo.keep:
+            return
+        memo.H[p, b, :, :R] = H[gf]
+        memo.fill[p, b] = fill[gf]
+        memo.y[p, b] = y
+        memo.y0[p, b] = y0
+    else:
+        H[gf] = memo.H[p, b, :, :R]
+        fill[gf] = memo.fill[p, b]
+        y[:] = memo.y[p, b]
+        y0[:] = memo.y0[p, b]
+
+
 @_njit
 def _take_node(p, b, k, gf, x, x0, y, y0, delta, jumps, out, H, fill):
     """At node ``b`` (period ``k``) every copy c of point p takes the follower's memory
@@ -91,14 +138,16 @@ def _take_node(p, b, k, gf, x, x0, y, y0, delta, jumps, out, H, fill):
 @_njit
 def _shooting_kernel(X0, CV, smooth, inputs, hold, n_periods, starts, data, reset, delta,
                      H, W, fill, eps_k, ET, a0_coef, a0_small, alphas, cp, cc, speeds,
-                     out, jumps, failed):
+                     out, jumps, failed, memo):
     """Every point p's C copies (SOE groups (C + 1) p + 1 + c) over ``n_periods`` periods on
     the held ``inputs``, beside the point's one *follower* (group (C + 1) p): the same model
     restarted every period from the sample ``data[k]`` (where ``reset`` and finite; elsewhere
     from copy 0's state). At period ``starts[b]`` each copy c takes the follower's memory and
     state plus ``delta[p, c, b]`` (the jump, node minus the state the copy reached, kept in
     ``jumps[p, c, b]``); see the module docstring. A copy that leaves the domain stops its
-    point (``failed[p]``, NaN from there on)."""
+    point (``failed[p]``, NaN from there on). ``memo`` (:class:`Memo`): the follower at each
+    node, kept where it ran to the last node and taken from there in a later call (it does
+    not depend on the copies' corrections when every state is measured)."""
     P, C = delta.shape[0], delta.shape[1]
     S = starts.shape[0]
     x = np.empty((C, 4))
@@ -121,8 +170,10 @@ def _shooting_kernel(X0, CV, smooth, inputs, hold, n_periods, starts, data, rese
                 out[p, c, 0, i] = X0[p, i]
         n = 0
         b = 0
+        follow = not memo.have[p]
         for k in range(n_periods):
             if b < S and k == starts[b]:
+                _memo_node(memo, follow, p, b, gf, y, y0, H, fill)
                 _take_node(p, b, k, gf, x, x0, y, y0, delta, jumps, out, H, fill)
                 b += 1
             held[8] = inputs[k, 0]
@@ -139,7 +190,7 @@ def _shooting_kernel(X0, CV, smooth, inputs, hold, n_periods, starts, data, rese
                                         <= 1.5707963267948966):
                     ok = False
                     break
-            if ok and b < S:
+            if ok and follow and b < S:
                 taken = kernels.fom_soe_run(
                     y, y0, n, hold, CV[p], smooth, held, False, H[gf:gf + 1],
                     W[:, gf:gf + 1], fill[gf:gf + 1], eps_k[gf:gf + 1], ET[gf:gf + 1],
@@ -161,18 +212,21 @@ def _shooting_kernel(X0, CV, smooth, inputs, hold, n_periods, starts, data, rese
             for c in range(C):
                 for i in range(4):
                     out[p, c, k + 1, i] = x[c, i]
+        if memo.keep and not failed[p]:
+            memo.have[p] = True
 
 
 def run_segments(params: Sequence[ModelParameters], n_periods: int, hold: int,
                  inputs: np.ndarray, starts: np.ndarray, data: np.ndarray,
                  reset: np.ndarray, delta: np.ndarray, *, initial_state: Sequence[float],
-                 duration: float | None, threads: int = 1
+                 duration: float | None, threads: int = 1, memo: Memo | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(states (P, C, n_periods + 1, 4), jumps (P, C, S, 4), failed (P,)) of the points
     ``params``, C copies each (their node corrections ``delta`` (P, C, S, 4)), replayed on
     ``inputs`` with nodes at the periods ``starts``, each point's follower restarted from
     ``data`` (n_periods + 1, 4; NaN: not measured) (:func:`_shooting_kernel`); ``threads``
-    > 1 splits the points over threads (the same numbers)."""
+    > 1 splits the points over threads (the same numbers); ``memo``: the followers kept
+    between calls for the same points (:class:`Memo`; None: not kept)."""
     params = list(params)
     if threads > 1 and len(params) > 1:
         from concurrent.futures import ThreadPoolExecutor
@@ -182,8 +236,8 @@ def run_segments(params: Sequence[ModelParameters], n_periods: int, hold: int,
         with ThreadPoolExecutor(m) as pool:
             parts = list(pool.map(lambda ab: run_segments(
                 params[ab[0]:ab[1]], n_periods, hold, inputs, starts, data, reset,
-                delta[ab[0]:ab[1]], initial_state=initial_state, duration=duration),
-                zip(cuts[:-1], cuts[1:])))
+                delta[ab[0]:ab[1]], initial_state=initial_state, duration=duration,
+                memo=None if memo is None else memo.part(*ab)), zip(cuts[:-1], cuts[1:])))
         return tuple(np.concatenate([q[i] for q in parts]) for i in range(3))
     check_population(params)
     P, C, S = len(params), delta.shape[1], int(starts.size)
@@ -191,6 +245,8 @@ def run_segments(params: Sequence[ModelParameters], n_periods: int, hold: int,
     CV = np.array([coefficients(p).kernel for p in params], dtype=float)
     # one history per point, its C + 1 groups copies of it (the same arrays, built once)
     hist, alphas, cp, cc = _soe_arrays(params, duration)
+    if memo is None:
+        memo = Memo.make(P, S, hist.H.shape[2], keep=False)
     H = np.zeros((P * (C + 1), *hist.H.shape[1:]))
     W = np.repeat(hist.W, C + 1, axis=1)
     eps_k, ET, a0_coef, a0_small, alphas, cp, cc = (
@@ -207,7 +263,7 @@ def run_segments(params: Sequence[ModelParameters], n_periods: int, hold: int,
                      np.ascontiguousarray(reset, dtype=np.bool_),
                      np.ascontiguousarray(delta, dtype=float), H, W,
                      np.zeros((C + 1) * P, dtype=np.int64), eps_k, ET, a0_coef, a0_small,
-                     alphas, cp, cc, speeds, out, jumps, failed)
+                     alphas, cp, cc, speeds, out, jumps, failed, memo)
     return out, jumps, failed
 
 
@@ -292,13 +348,15 @@ class Segments:
         free[np.unique(seg[seg >= 0])] = True         # nodes with samples to fit them
         wr = pr.w / pr.scale
         delta = np.zeros((P, 1, S, 4))
+        memo = Memo.make(P, S, _soe_arrays(params, d.duration)[0].H.shape[2],
+                         keep=bool(self.reset.all()))
         for _ in range(self.iterations if S else 0):
             D = np.repeat(delta, 5, axis=1)           # the point and its 4 perturbed copies
             for j in range(4):
                 D[:, j + 1, :, j] += self.h[j]
             out, jumps, failed = run_segments(params, n, pr.hold, d.inputs, starts, data_all,
                                               self.reset, D, initial_state=d.initial_state,
-                                              duration=d.duration, threads=threads)
+                                              duration=d.duration, threads=threads, memo=memo)
             for p in np.flatnonzero(~failed):
                 J = np.stack([(out[p, j + 1, sel] - out[p, 0, sel]) * wr / self.h[j]
                               for j in range(4)], axis=-1)          # (T, 4, 4): d row / d node
@@ -308,7 +366,7 @@ class Segments:
                 delta[p, 0] += _node_step(J, r, seg, dj, jumps[p, 0], free, self.c ** 2)
         out, jumps, failed = run_segments(params, n, pr.hold, d.inputs, starts, data_all,
                                           self.reset, delta, initial_state=d.initial_state,
-                                          duration=d.duration, threads=threads)
+                                          duration=d.duration, threads=threads, memo=memo)
         jumps = jumps[:, 0]
         jumps[:, ~free] = 0.0                     # a node before the window is not judged
         return Shot(states=out[:, 0], jumps=jumps, failed=failed, starts=starts)

@@ -66,6 +66,9 @@ from .data import CLIP
 SEGMENT = 0.001
 #: Gauss-Newton steps for the nodes.
 ITERATIONS = 3
+#: The most the followers kept between a shot's calls may take (:class:`Memo`: 4 KB per node
+#: and point, 4 MB per point and second of record): a shot of more points runs in groups.
+MEMO_BYTES = 64 * 2 ** 20
 
 if kernels.numba is not None:
     _njit = kernels.numba.njit(cache=True, nogil=True, error_model='numpy')
@@ -336,7 +339,24 @@ class Segments:
 
     def shoot(self, params: list[ModelParameters], upto: int, threads: int = 1) -> Shot:
         """The segmented replays of ``params`` over the first ``upto`` samples, their nodes
-        fitted."""
+        fitted; the followers kept (:class:`Memo`) for as many points at a time as
+        :data:`MEMO_BYTES` holds (none where one point's exceed it)."""
+        pr = self.problem
+        S = self.starts(int(pr.index[upto - 1])).size
+        rows = _soe_arrays(params, pr.data.duration)[0].H.shape[2]
+        per_point = max(1, S * rows * 4 * 8)
+        keep = bool(self.reset.all()) and per_point <= MEMO_BYTES
+        size = max(1, MEMO_BYTES // per_point) if keep else len(params)
+        shots = [self._shoot(params[i:i + size], upto, threads,
+                             Memo.make(len(params[i:i + size]), S, rows, keep))
+                 for i in range(0, len(params), size)]
+        if len(shots) == 1:
+            return shots[0]
+        return Shot(*(np.concatenate([getattr(q, f) for q in shots])
+                      for f in ('states', 'jumps', 'failed')), starts=shots[0].starts)
+
+    def _shoot(self, params: list[ModelParameters], upto: int, threads: int, memo: Memo
+               ) -> Shot:
         pr, d = self.problem, self.problem.data
         n = int(pr.index[upto - 1])
         starts = self.starts(n)
@@ -348,8 +368,6 @@ class Segments:
         free[np.unique(seg[seg >= 0])] = True         # nodes with samples to fit them
         wr = pr.w / pr.scale
         delta = np.zeros((P, 1, S, 4))
-        memo = Memo.make(P, S, _soe_arrays(params, d.duration)[0].H.shape[2],
-                         keep=bool(self.reset.all()))
         for _ in range(self.iterations if S else 0):
             D = np.repeat(delta, 5, axis=1)           # the point and its 4 perturbed copies
             for j in range(4):

@@ -11,7 +11,7 @@ state feedback with a zero-order hold of 1e-4 s, 2 s from x(0) = 0 (20 000 contr
 t = 0 (seed 1), written as the recorder writes a lockstep run
 (:func:`fohssv_sim.bag.synthetic.write_simulation`). The fit: ``fohssv fit BAG --fit
 fractional_order --controller state_feedback`` (closed loop: without the controller the fit
-replays the recorded commands by multiple shooting, about 32 replays of the record per
+replays the recorded commands by multiple shooting, about 17 replays of the record per
 parameter value, docs/fit.md), default population, profile and step check, on a local Dask cluster
 of ``--workers`` threads (the default; ``--processes-too`` also runs it with ``--processes``,
 side by side), the installed console script timed from start to exit (cluster start-up, imports

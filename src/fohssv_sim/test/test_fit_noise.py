@@ -80,7 +80,7 @@ def _fit(bag: Path, tmp: Path, names=('fractional_order',), bounds=None, weights
     run = load_run(bag)
     base = base_from_run(run)
     data = data_from_run(run, base)
-    kw = {'population': 8, 'starts': 1, 'profile_points': 9, 'fine_points': 5, **kw}
+    kw = {'population': 8, 'starts': 1, 'profile_points': 5, 'fine_points': 3, **kw}
     spec = FitSpec(names=tuple(names), bounds=resolve_bounds(names, bounds or {}, base),
                    base=base.to_dict(), controller='state_feedback', weights=weights, **kw)
     return run_fit(spec, data, tmp / 'out')

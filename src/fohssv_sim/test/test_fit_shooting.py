@@ -39,7 +39,7 @@ def _open_fit(bag: Path, tmp: Path, names=('fractional_order',), **kw):
     run = load_run(bag)
     base = base_from_run(run)
     data = data_from_run(run, base)
-    kw = {'population': 8, 'starts': 1, 'profile_points': 9, 'fine_points': 5, **kw}
+    kw = {'population': 8, 'starts': 1, 'profile_points': 5, 'fine_points': 3, **kw}
     spec = FitSpec(names=tuple(names), bounds=resolve_bounds(names, {}, base),
                    base=base.to_dict(), **kw)
     return run_fit(spec, data, tmp / 'out')
@@ -122,7 +122,7 @@ def test_a_delayed_model_replay_is_not_reproduced_over_the_whole_record(tmp_path
     reproduces it over the whole record, residual and noise side by side."""
     r = _run('delayed', duration=0.15)
     bag = _bag(tmp_path / 'run', r, 0.01, 4)
-    res = _open_fit(bag, tmp_path, step_check=False)
+    res = _open_fit(bag, tmp_path, step_check=False, population=4)
     assert not res.reproduces, res.message
     assert res.horizon_end == pytest.approx(0.15), res.message
     v = res.settings['verdict']

@@ -226,8 +226,7 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
     res, window_res = horizon_verdict['residual'], window_verdict['residual']
     reproduced = verdict['reproduced']
     t_end = float(data.t[problem.index[upto - 1]])
-    sim, _ = problem.simulate([x], problem.index.size)  # the overlay: the whole window
-    fitted = sim.states[0] if sim is not None else np.full_like(data.states, np.nan)
+    fitted = _fitted_states(problem, x)
     params = problem.params_for(x)
     if params is None:              # every point the search tried: legal but unusable
         rng = ', '.join(f'{n}={lo:g}:{hi:g}' for n, (lo, hi) in zip(spec.names, spec.bounds))
@@ -267,6 +266,16 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
                         if np.isfinite(fitted[sel, 1]).all() else None}
     result.message = summary_line(result)
     return result
+
+
+def _fitted_states(problem: Problem, x: np.ndarray) -> np.ndarray:
+    """The states of the estimate ``x`` at every sample of the run (the overlay), run over the
+    whole window; NaN after it (not run) or where the model cannot run."""
+    fitted = np.full_like(problem.data.states, np.nan)
+    sim, _ = problem.simulate([x], problem.index.size)
+    if sim is not None:
+        fitted[:sim.states.shape[1]] = sim.states[0]
+    return fitted
 
 
 def _verdicts(problem: Problem, x: np.ndarray, r: np.ndarray, upto: int,

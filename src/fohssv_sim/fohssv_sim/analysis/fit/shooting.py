@@ -9,9 +9,13 @@ first sample, estimated from the data, and runs the FOM on the recorded commands
 measured states as sampled, the unmeasured ones as the previous segment left them, plus a
 correction; the corrections (4 per segment, nuisance unknowns) are fitted for every parameter
 point by Gauss-Newton (``iterations`` steps from zero; each step one batched call of the point
-and its 4 perturbed copies, every segment perturbed at once), each segment's correction from
-its own samples. The last step's corrections give the residual, so the residual is a smooth,
-deterministic function of the parameters (the outer least squares differentiates it).
+and its 4 perturbed copies, every segment perturbed at once), all of them together: a
+segment's samples depend on its own node's correction, a jump (below) on its node's and,
+through the state the previous segment reached, on the previous node's, so the normal
+equations are block tridiagonal and one banded solve gives the step of every node of the
+record (:func:`_node_step`). The last step's corrections give the residual, so the residual
+is a smooth, deterministic function of the parameters (the outer least squares
+differentiates it).
 
 **Continuity, as a soft constraint.** The jump at each node (its state minus the previous
 segment's end there) is a residual row like a sample, in the same units (measured states
@@ -29,8 +33,12 @@ error enters a later one through the memory (with the memory of the model's own 
 trajectory instead, one segment thrown off by a contact spoils every later one). A restart
 adds the difference to x0 from its instant on: the restarts stay outside the fractional
 dynamics (D^alpha (x - sum of the restarts) = f(x, u)). Checked against an exact solver:
-test/test_fit_shooting.py. Cost: twice a plain replay's (the follower), times
-``5 iterations + 1`` calls.
+test/test_fit_shooting.py. The point and its perturbed copies (``C`` in all) share one
+follower; with every state measured its history does not depend on their corrections (an
+unmeasured state follows copy 0, the point itself), so it runs in the first call only and
+its state at each node is kept for the later calls (:class:`Memo`). Cost per parameter
+value: ``5 iterations + 1`` replays of the record and one of the follower (17 at the default
+3; with a state unmeasured, ``6 iterations + 2``).
 
 Pure: numpy, numba; never imports rclpy or the CLI.
 """
@@ -40,7 +48,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -58,6 +66,9 @@ from .data import CLIP
 SEGMENT = 0.001
 #: Gauss-Newton steps for the nodes.
 ITERATIONS = 3
+#: The most the followers kept between a shot's calls may take (:class:`Memo`: 4 KB per node
+#: and point, 4 MB per point and second of record): a shot of more points runs in groups.
+MEMO_BYTES = 64 * 2 ** 20
 
 if kernels.numba is not None:
     _njit = kernels.numba.njit(cache=True, nogil=True, error_model='numpy')
@@ -66,20 +77,84 @@ else:  # pragma: no cover - numba is pinned
         return fn
 
 
+class Memo(NamedTuple):
+    """The followers of P points at their S nodes (SOE history ``H``, its ``fill``, state
+    ``y`` and Volterra constant ``y0``), ``have``: complete; kept only when ``keep`` (every
+    state measured: the follower is then the same in every call for the same points)."""
+
+    H: np.ndarray
+    fill: np.ndarray
+    y: np.ndarray
+    y0: np.ndarray
+    have: np.ndarray
+    keep: bool
+
+    @classmethod
+    def make(cls, P: int, S: int, rows: int, keep: bool) -> Memo:
+        """Room for P points, S nodes and histories of ``rows`` rows (none unless ``keep``)."""
+        n = S if keep else 0
+        return cls(np.zeros((P, n, 4, rows)), np.zeros((P, n), dtype=np.int64),
+                   np.zeros((P, n, 4)), np.zeros((P, n, 4)), np.zeros(P, dtype=np.bool_),
+                   bool(keep))
+
+    def part(self, a: int, b: int) -> Memo:
+        """The points a..b-1 (views: what a call fills in is kept)."""
+        return Memo(self.H[a:b], self.fill[a:b], self.y[a:b], self.y0[a:b], self.have[a:b],
+                    self.keep)
+
+
+@_njit
+def _memo_node(memo, follow, p, b, gf, y, y0, H, fill):
+    """The follower of point p at node ``b``: kept into ``memo`` (``follow``), or taken from
+    it."""
+    R = H.shape[2]                 # a thread's points may pad fewer modes than all points
+    if follow:
+        if not memo.keep:
+            return
+        memo.H[p, b, :, :R] = H[gf]
+        memo.fill[p, b] = fill[gf]
+        memo.y[p, b] = y
+        memo.y0[p, b] = y0
+    else:
+        H[gf] = memo.H[p, b, :, :R]
+        fill[gf] = memo.fill[p, b]
+        y[:] = memo.y[p, b]
+        y0[:] = memo.y0[p, b]
+
+
+@_njit
+def _take_node(p, b, k, gf, x, x0, y, y0, delta, jumps, out, H, fill):
+    """At node ``b`` (period ``k``) every copy c of point p takes the follower's memory
+    (group ``gf``) and state plus its correction ``delta[p, c, b]``; the jump is kept."""
+    for c in range(x.shape[0]):
+        g = gf + 1 + c
+        for i in range(4):
+            node = y[i] + delta[p, c, b, i]
+            jumps[p, c, b, i] = node - x[c, i]
+            x0[c, i] = y0[i] + delta[p, c, b, i]
+            x[c, i] = node
+            out[p, c, k, i] = node
+        H[g, :, :] = H[gf, :, :]
+        fill[g] = fill[gf]
+
+
 @_njit
 def _shooting_kernel(X0, CV, smooth, inputs, hold, n_periods, starts, data, reset, delta,
                      H, W, fill, eps_k, ET, a0_coef, a0_small, alphas, cp, cc, speeds,
-                     out, jumps, failed):
-    """Every point p over ``n_periods`` periods on the held ``inputs`` (its SOE group 2p),
-    beside its *follower* (group 2p + 1): the same model restarted every period from the
-    sample ``data[k]`` (where ``reset`` and finite; elsewhere from the point's state). At
-    period ``starts[b]`` the point takes the follower's memory and state plus ``delta[p, b]``
-    (the jump, node minus the state reached, kept in ``jumps[p, b]``); see the module
-    docstring."""
-    P = X0.shape[0]
+                     out, jumps, failed, memo):
+    """Every point p's C copies (SOE groups (C + 1) p + 1 + c) over ``n_periods`` periods on
+    the held ``inputs``, beside the point's one *follower* (group (C + 1) p): the same model
+    restarted every period from the sample ``data[k]`` (where ``reset`` and finite; elsewhere
+    from copy 0's state). At period ``starts[b]`` each copy c takes the follower's memory and
+    state plus ``delta[p, c, b]`` (the jump, node minus the state the copy reached, kept in
+    ``jumps[p, c, b]``); see the module docstring. A copy that leaves the domain stops its
+    point (``failed[p]``, NaN from there on). ``memo`` (:class:`Memo`): the follower at each
+    node, kept where it ran to the last node and taken from there in a later call (it does
+    not depend on the copies' corrections when every state is measured)."""
+    P, C = delta.shape[0], delta.shape[1]
     S = starts.shape[0]
-    x = np.empty(4)
-    x0 = np.empty(4)
+    x = np.empty((C, 4))
+    x0 = np.empty((C, 4))
     y = np.empty(4)
     y0 = np.empty(4)
     last_f = np.empty(4)
@@ -88,69 +163,73 @@ def _shooting_kernel(X0, CV, smooth, inputs, hold, n_periods, starts, data, rese
     held[10] = math.inf
     held[11] = math.inf
     for p in range(P):
-        gp, gf = 2 * p, 2 * p + 1
+        gf = (C + 1) * p
         for i in range(4):
-            x[i] = X0[p, i]
-            x0[i] = X0[p, i]
             y[i] = X0[p, i]
             y0[i] = X0[p, i]
-            out[p, 0, i] = x[i]
+            for c in range(C):
+                x[c, i] = X0[p, i]
+                x0[c, i] = X0[p, i]
+                out[p, c, 0, i] = X0[p, i]
         n = 0
         b = 0
+        follow = not memo.have[p]
         for k in range(n_periods):
             if b < S and k == starts[b]:
-                for i in range(4):
-                    node = y[i] + delta[p, b, i]
-                    jumps[p, b, i] = node - x[i]
-                    x0[i] = y0[i] + delta[p, b, i]
-                    x[i] = node
-                    out[p, k, i] = x[i]
-                H[gp, :, :] = H[gf, :, :]
-                fill[gp] = fill[gf]
+                _memo_node(memo, follow, p, b, gf, y, y0, H, fill)
+                _take_node(p, b, k, gf, x, x0, y, y0, delta, jumps, out, H, fill)
                 b += 1
             held[8] = inputs[k, 0]
             held[9] = inputs[k, 1]
-            taken = kernels.fom_soe_run(
-                x, x0, n, hold, CV[p], smooth, held, False, H[gp:gp + 1], W[:, gp:gp + 1],
-                fill[gp:gp + 1], eps_k[gp:gp + 1], ET[gp:gp + 1], a0_coef[gp:gp + 1],
-                a0_small[gp:gp + 1], alphas[gp], cp[gp], cc[gp], last_f, bad)
-            if b < S and taken == hold:
+            v = speeds[p]
+            ok = True
+            for c in range(C):
+                g = gf + 1 + c
+                taken = kernels.fom_soe_run(
+                    x[c], x0[c], n, hold, CV[p], smooth, held, False, H[g:g + 1],
+                    W[:, g:g + 1], fill[g:g + 1], eps_k[g:g + 1], ET[g:g + 1],
+                    a0_coef[g:g + 1], a0_small[g:g + 1], alphas[g], cp[g], cc[g], last_f, bad)
+                if taken < hold or not (-v <= x[c, 1] <= v and -1.5707963267948966 <= x[c, 2]
+                                        <= 1.5707963267948966):
+                    ok = False
+                    break
+            if ok and follow and b < S:
                 taken = kernels.fom_soe_run(
                     y, y0, n, hold, CV[p], smooth, held, False, H[gf:gf + 1],
                     W[:, gf:gf + 1], fill[gf:gf + 1], eps_k[gf:gf + 1], ET[gf:gf + 1],
                     a0_coef[gf:gf + 1], a0_small[gf:gf + 1], alphas[gf], cp[gf], cc[gf],
                     last_f, bad)
+                ok = taken == hold
                 for i in range(4):             # restarted from the sample (its memory kept)
-                    target = x[i]
+                    target = x[0, i]
                     if reset[i] and math.isfinite(data[k + 1, i]):
                         target = data[k + 1, i]
                     y0[i] += target - y[i]
                     y[i] = target
-            n += taken
-            v = speeds[p]
-            if taken < hold or not (-v <= x[1] <= v and -1.5707963267948966 <= x[2]
-                                    <= 1.5707963267948966):
+            if not ok:
                 failed[p] = True
-                for j in range(k + 1, n_periods + 1):
-                    for i in range(4):
-                        out[p, j, i] = np.nan
-                for j in range(b, S):
-                    for i in range(4):
-                        jumps[p, j, i] = np.nan
+                out[p, :, k + 1:] = np.nan
+                jumps[p, :, b:] = np.nan
                 break
-            for i in range(4):
-                out[p, k + 1, i] = x[i]
+            n += hold
+            for c in range(C):
+                for i in range(4):
+                    out[p, c, k + 1, i] = x[c, i]
+        if memo.keep and not failed[p]:
+            memo.have[p] = True
 
 
 def run_segments(params: Sequence[ModelParameters], n_periods: int, hold: int,
                  inputs: np.ndarray, starts: np.ndarray, data: np.ndarray,
                  reset: np.ndarray, delta: np.ndarray, *, initial_state: Sequence[float],
-                 duration: float | None, threads: int = 1
+                 duration: float | None, threads: int = 1, memo: Memo | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(states (P, n_periods + 1, 4), jumps (P, S, 4), failed (P,)) of the points ``params``
-    replayed on ``inputs`` with nodes at the periods ``starts``, their followers restarted
-    from ``data`` (n_periods + 1, 4; NaN: not measured) (:func:`_shooting_kernel`);
-    ``threads`` > 1 splits the points over threads (the same numbers)."""
+    """(states (P, C, n_periods + 1, 4), jumps (P, C, S, 4), failed (P,)) of the points
+    ``params``, C copies each (their node corrections ``delta`` (P, C, S, 4)), replayed on
+    ``inputs`` with nodes at the periods ``starts``, each point's follower restarted from
+    ``data`` (n_periods + 1, 4; NaN: not measured) (:func:`_shooting_kernel`); ``threads``
+    > 1 splits the points over threads (the same numbers); ``memo``: the followers kept
+    between calls for the same points (:class:`Memo`; None: not kept)."""
     params = list(params)
     if threads > 1 and len(params) > 1:
         from concurrent.futures import ThreadPoolExecutor
@@ -160,27 +239,73 @@ def run_segments(params: Sequence[ModelParameters], n_periods: int, hold: int,
         with ThreadPoolExecutor(m) as pool:
             parts = list(pool.map(lambda ab: run_segments(
                 params[ab[0]:ab[1]], n_periods, hold, inputs, starts, data, reset,
-                delta[ab[0]:ab[1]], initial_state=initial_state, duration=duration),
-                zip(cuts[:-1], cuts[1:])))
+                delta[ab[0]:ab[1]], initial_state=initial_state, duration=duration,
+                memo=None if memo is None else memo.part(*ab)), zip(cuts[:-1], cuts[1:])))
         return tuple(np.concatenate([q[i] for q in parts]) for i in range(3))
     check_population(params)
-    P, S = len(params), int(starts.size)
+    P, C, S = len(params), delta.shape[1], int(starts.size)
     X0 = np.tile(np.asarray(initial_state, dtype=float), (P, 1))
     CV = np.array([coefficients(p).kernel for p in params], dtype=float)
-    hist, alphas, cp, cc = _soe_arrays([p for p in params for _ in range(2)], duration)
+    # one history per point, its C + 1 groups copies of it (the same arrays, built once)
+    hist, alphas, cp, cc = _soe_arrays(params, duration)
+    if memo is None:
+        memo = Memo.make(P, S, hist.H.shape[2], keep=False)
+    H = np.zeros((P * (C + 1), *hist.H.shape[1:]))
+    W = np.repeat(hist.W, C + 1, axis=1)
+    eps_k, ET, a0_coef, a0_small, alphas, cp, cc = (
+        np.repeat(a, C + 1, axis=0)
+        for a in (hist.eps_k, hist.ET, hist.a0_coef, hist.a0_small, alphas, cp, cc))
     speeds = np.array([p.speed for p in params], dtype=float)
-    out = np.empty((P, n_periods + 1, 4))
-    jumps = np.zeros((P, S, 4))
+    out = np.empty((P, C, n_periods + 1, 4))
+    jumps = np.zeros((P, C, S, 4))
     failed = np.zeros(P, dtype=np.bool_)
     _shooting_kernel(X0, CV, params[0].planing_form == 'smooth',
                      np.ascontiguousarray(inputs[:n_periods], dtype=float), int(hold),
                      int(n_periods), np.ascontiguousarray(starts, dtype=np.int64),
                      np.ascontiguousarray(data[:n_periods + 1], dtype=float),
                      np.ascontiguousarray(reset, dtype=np.bool_),
-                     np.ascontiguousarray(delta, dtype=float), hist.H, hist.W,
-                     np.zeros(2 * P, dtype=np.int64), hist.eps_k, hist.ET, hist.a0_coef,
-                     hist.a0_small, alphas, cp, cc, speeds, out, jumps, failed)
+                     np.ascontiguousarray(delta, dtype=float), H, W,
+                     np.zeros((C + 1) * P, dtype=np.int64), eps_k, ET, a0_coef, a0_small,
+                     alphas, cp, cc, speeds, out, jumps, failed, memo)
     return out, jumps, failed
+
+
+def _node_step(J: np.ndarray, r: np.ndarray, seg: np.ndarray, dj: np.ndarray,
+               jump: np.ndarray, free: np.ndarray, c2: np.ndarray) -> np.ndarray:
+    """The Gauss-Newton step (S, 4) of the node corrections of one point: the least squares
+    of the samples' rows ``r`` + ``J`` step (a sample of segment ``seg`` depends on its own
+    node's correction only) and the jumps' rows c (jump_b + step_b - E_{b-1} step_{b-1}),
+    ``c2`` = c^2 (a jump depends on its node's correction and, through the state reached at
+    it, on the previous node's: E_{b-1} = I - d jump_b / d all, ``dj`` being the jumps'
+    response to every node perturbed at once). Both couplings kept, the normal equations are
+    block tridiagonal (bandwidth 7), solved by banded Cholesky: the nodes of the whole record
+    at once (the nodes outside ``free`` stay 0, their jumps unjudged)."""
+    from scipy.linalg import solveh_banded
+
+    S = jump.shape[0]
+    ok = seg >= 0
+    A = np.zeros((S, 4, 4))
+    g = np.zeros((S, 4))
+    np.add.at(A, seg[ok], np.einsum('tij,tik->tjk', J[ok], J[ok]))
+    np.add.at(g, seg[ok], np.einsum('tij,ti->tj', J[ok], r[ok]))
+    A += np.diag(c2)[None]                                # each jump's own node
+    g += c2 * jump
+    E = np.zeros((S, 4, 4))                               # E[b]: state at node b + 1 / node b
+    E[:-1] = np.eye(4)[None] - dj[1:]
+    E[:-1] *= (free[:-1] & free[1:])[:, None, None]       # both judged, else no coupling
+    A += np.einsum('bki,k,bkj->bij', E, c2, E)
+    g[:-1] -= np.einsum('bki,k,bk->bi', E[:-1], c2, jump[1:])
+    ridge = 1e-12 * np.maximum(np.trace(A, axis1=1, axis2=2), 1e-300)
+    A += ridge[:, None, None] * np.eye(4)[None]
+    A[~free] = np.eye(4)
+    g[~free] = 0.0
+    ab = np.zeros((8, 4 * S))                 # upper band: row 7 + i - j holds a[i, j]
+    for i in range(4):
+        for j in range(4):
+            if i <= j:
+                ab[7 + i - j, j::4] = A[:, i, j]
+            ab[3 + i - j, 4 + j::4] = -(c2[j] * E[:-1, j, i])   # block (b - 1, b) = -E^T C^2
+    return -solveh_banded(ab, g.reshape(-1), check_finite=False).reshape(S, 4)
 
 
 @dataclass
@@ -214,49 +339,55 @@ class Segments:
 
     def shoot(self, params: list[ModelParameters], upto: int, threads: int = 1) -> Shot:
         """The segmented replays of ``params`` over the first ``upto`` samples, their nodes
-        fitted."""
+        fitted; the followers kept (:class:`Memo`) for as many points at a time as
+        :data:`MEMO_BYTES` holds (none where one point's exceed it)."""
+        pr = self.problem
+        S = self.starts(int(pr.index[upto - 1])).size
+        rows = _soe_arrays(params, pr.data.duration)[0].H.shape[2]
+        per_point = max(1, S * rows * 4 * 8)
+        keep = bool(self.reset.all()) and per_point <= MEMO_BYTES
+        size = max(1, MEMO_BYTES // per_point) if keep else len(params)
+        shots = [self._shoot(params[i:i + size], upto, threads,
+                             Memo.make(len(params[i:i + size]), S, rows, keep))
+                 for i in range(0, len(params), size)]
+        if len(shots) == 1:
+            return shots[0]
+        return Shot(*(np.concatenate([getattr(q, f) for q in shots])
+                      for f in ('states', 'jumps', 'failed')), starts=shots[0].starts)
+
+    def _shoot(self, params: list[ModelParameters], upto: int, threads: int, memo: Memo
+               ) -> Shot:
         pr, d = self.problem, self.problem.data
         n = int(pr.index[upto - 1])
         starts = self.starts(n)
         S, P = starts.size, len(params)
         data_all = np.where(self.reset, pr.states, np.nan)
-        kw = {'initial_state': d.initial_state, 'duration': d.duration, 'threads': threads}
-        delta = np.zeros((P, S, 4))
         sel = pr.index[:upto]
         seg = np.searchsorted(starts, sel, side='right') - 1       # -1: from x(0), no node
         free = np.zeros(S, dtype=bool)
         free[np.unique(seg[seg >= 0])] = True         # nodes with samples to fit them
-        data = pr.states[sel]
+        wr = pr.w / pr.scale
+        delta = np.zeros((P, 1, S, 4))
         for _ in range(self.iterations if S else 0):
-            pts = [p for p in params for _ in range(5)]
-            D = np.repeat(delta, 5, axis=0)
+            D = np.repeat(delta, 5, axis=1)           # the point and its 4 perturbed copies
             for j in range(4):
-                D[j + 1::5, :, j] += self.h[j]
-            out, jumps, failed = run_segments(pts, n, pr.hold, d.inputs, starts, data_all,
-                                              self.reset, D, **kw)
-            for p in range(P):
-                if failed[5 * p:5 * p + 5].any():
-                    continue
-                base = out[5 * p]
-                r = (base[sel] - data) * pr.w / pr.scale                    # (T, 4)
-                J = np.stack([(out[5 * p + 1 + j][sel] - base[sel]) * pr.w / pr.scale
-                              / self.h[j] for j in range(4)], axis=-1)    # (T, 4, 4)
-                A = np.zeros((S, 4, 4))
-                g = np.zeros((S, 4))
-                ok = seg >= 0
-                np.add.at(A, seg[ok], np.einsum('tij,tik->tjk', J[ok], J[ok]))
-                np.add.at(g, seg[ok], np.einsum('tij,ti->tj', J[ok], r[ok]))
-                c2 = self.c ** 2
-                A += np.eye(4)[None] * c2[None, :, None]          # the jump's own row
-                g += c2[None] * jumps[5 * p]
-                ridge = 1e-12 * np.maximum(np.trace(A, axis1=1, axis2=2), 1e-300)
-                A += ridge[:, None, None] * np.eye(4)[None]
-                step = -np.linalg.solve(A[free], g[free][..., None])[..., 0]
-                delta[p, free] += step
+                D[:, j + 1, :, j] += self.h[j]
+            out, jumps, failed = run_segments(params, n, pr.hold, d.inputs, starts, data_all,
+                                              self.reset, D, initial_state=d.initial_state,
+                                              duration=d.duration, threads=threads, memo=memo)
+            for p in np.flatnonzero(~failed):
+                J = np.stack([(out[p, j + 1, sel] - out[p, 0, sel]) * wr / self.h[j]
+                              for j in range(4)], axis=-1)          # (T, 4, 4): d row / d node
+                dj = np.stack([(jumps[p, j + 1] - jumps[p, 0]) / self.h[j] for j in range(4)],
+                              axis=-1)                              # (S, 4, 4): d jump / d all
+                r = (out[p, 0, sel] - pr.states[sel]) * wr
+                delta[p, 0] += _node_step(J, r, seg, dj, jumps[p, 0], free, self.c ** 2)
         out, jumps, failed = run_segments(params, n, pr.hold, d.inputs, starts, data_all,
-                                          self.reset, delta, **kw)
+                                          self.reset, delta, initial_state=d.initial_state,
+                                          duration=d.duration, threads=threads, memo=memo)
+        jumps = jumps[:, 0]
         jumps[:, ~free] = 0.0                     # a node before the window is not judged
-        return Shot(states=out, jumps=jumps, failed=failed, starts=starts)
+        return Shot(states=out[:, 0], jumps=jumps, failed=failed, starts=starts)
 
     def rows(self, shot: Shot) -> np.ndarray:
         """(P, S * 4) continuity rows: each jump in the units of a sample's residual."""

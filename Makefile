@@ -17,8 +17,9 @@ PYTEST_ARGS ?=
 # Options of scripts/demo.py for `make demo`, e.g. DEMO_ARGS=--viewer (watch it in Foxglove).
 DEMO_ARGS ?=
 # Parallel test workers (pytest-xdist; each gets its own ROS domains): a number, auto, or 0 for
-# one process.
-TEST_WORKERS ?= 2
+# one process. Four on two cores: the graph tests wait on the processes they start, and the
+# other workers use those gaps (docs/testing.md).
+TEST_WORKERS ?= 4
 TEST_PATHS := src/fohssv_sim/test src/fohssv_controller/test tests
 
 .PHONY: setup test demo bench bench-smoke soak lint lock clean help
@@ -80,7 +81,7 @@ demo: setup
 # Every benchmark's tiny case (tests/test_bench.py: scripts/bench.py --quick), so a benchmark
 # that no longer starts fails CI (.ci/run runs it after `make test`).
 bench-smoke: setup
-	$(IN_ENV) python -m pytest -n $(TEST_WORKERS) -m bench_smoke tests/test_bench.py $(PYTEST_ARGS)
+	$(IN_ENV) python -m pytest -n 2 -m bench_smoke tests/test_bench.py $(PYTEST_ARGS)
 
 # The tests under load (marker load: each starts busy processes that fill every core, so they
 # run one at a time, not beside make test's workers): the default closed loop ten times, a

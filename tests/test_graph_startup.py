@@ -19,8 +19,9 @@ NODES = {'plant': ('fohssv_sim', 'plant'), 'controller': ('fohssv_controller', '
 
 def bad_parameter_cases(tmp):
     """(node, arguments after --ros-args, words the one line must hold): each kind of refusal
-    once per node (the words of every other bad value of the plant and the controller node,
-    refused as each is built: tests/node/test_bad_parameters.py)."""
+    of a value once per node, each kind of bad argument once (the words of every other bad
+    value of the plant and the controller node, refused as each is built:
+    tests/node/test_bad_parameters.py)."""
     misspelt = tmp / 'misspelt.yaml'
     misspelt.write_text('plant:\n  ros__parameters:\n    model: delay-free\n    sped: 80.0\n')
     wildcard = tmp / 'wildcard.yaml'
@@ -40,6 +41,11 @@ def bad_parameter_cases(tmp):
     many.write_text('plant:\n  ros__parameters:\n'
                     + ''.join(f'    k{i}: 1\n' for i in range(12_000)))
     bag = str(tmp / 'bag')
+    kinds = [(['--params-file', missing], 'invalid arguments: '),
+             (['--params-file', str(broken)], 'invalid arguments: '),
+             (['-p', 'speed'], 'invalid arguments: '),
+             (['--', '--speed', '80'], "unexpected argument(s) '--speed 80': the nodes take "
+              'only ROS arguments')]
     return [
         # defect 2: out of range, wrong type; one line with name, value, range and unit
         ('plant', ['-p', 'fractional_order:=1.5'],
@@ -99,13 +105,10 @@ def bad_parameter_cases(tmp):
         ('recorder', ['--params-file', str(many)],
          f'params file {many} has more than 10000 keys'),
         ('viewer', ['-p', 'prot:=9000'], "unknown parameter 'prot' (did you mean 'port'?)"),
-        # defect 4: a missing or malformed params file, bad --ros-args
-        *[(node, ['--params-file', missing], 'invalid arguments: ') for node in NODES],
-        *[(node, ['--params-file', str(broken)], 'invalid arguments: ') for node in NODES],
-        *[(node, ['-p', 'speed'], 'invalid arguments: ') for node in NODES],
-        # an argument outside --ros-args (after '--' here): rcl ignores it, the node refuses
-        *[(node, ['--', '--speed', '80'], "unexpected argument(s) '--speed 80': the nodes "
-           'take only ROS arguments') for node in NODES],
+        # defect 4: a missing or malformed params file, bad --ros-args, and an argument outside
+        # --ros-args (after '--' here: rcl ignores it, the node refuses). One code path for
+        # every node (nodekit.run_node's init): each kind at least once, each node once
+        *[(node, *kinds[i % len(kinds)]) for i, node in enumerate(NODES)],
     ]
 
 

@@ -215,3 +215,28 @@ def _sampled_periods(plant: Plant, affine: AffineLaw, law: Callable, hold: int, 
                 u_out[(q0 + taken) // k] = u
         held = (float(burst[taken - 1, 5]), float(burst[taken - 1, 6]))
     return done * hold
+
+
+class _ZeroAffine:
+    """u = 0 x + 0 as an affine controller: what :func:`warm_up` passes to reach the drivers
+    with the argument types an affine law gives them."""
+
+    stateless = True
+
+    def affine(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.zeros((2, 4)), np.zeros(2)
+
+    def command(self, t: float, state: Sequence[float]) -> tuple[float, float]:
+        return 0.0, 0.0
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the drivers :func:`simulate` runs for every model
+    under an affine law in zero-order hold: the sampled ones (rows on control instants) and the
+    recorded ones (a row every step), so that the first simulate() of a process pays no
+    compilation (``make test`` calls it once before the workers start)."""
+    for model in ('delay-free', 'delayed', 'fractional'):
+        params = ModelParameters(model=model)
+        hold = steps_per_period(1e-4, params.step)
+        for every in (1, hold):
+            simulate(params, _ZeroAffine(), 2e-3, control_period=1e-4, sample_every=every)

@@ -264,3 +264,9 @@ def run_population_reference(params: Sequence[ModelParameters], n_periods: int, 
             out[i, k + 1] = plant.x
     t = np.arange(n_periods + 1) * (hold * params[0].step)
     return PopulationResult(t=t, states=out, inputs=used, failed=failed)
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) :func:`_population_kernel` with the argument types
+    the sweeps and fits pass (``make test`` calls it once, before the test workers start)."""
+    run_population([ModelParameters(model='fractional')], 2, 5, inputs=np.zeros((2, 2)))

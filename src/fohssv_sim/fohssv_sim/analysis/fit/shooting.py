@@ -394,3 +394,12 @@ class Segments:
         r = shot.jumps * self.c
         r = np.where(np.isfinite(r), np.clip(r, -CLIP, CLIP), CLIP)
         return r.reshape(r.shape[0], -1)
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) :func:`_shooting_kernel` with the argument types
+    a fit passes (``make test`` calls it once, before the test workers start)."""
+    n, hold = 4, 5
+    run_segments([ModelParameters(model='fractional')], n, hold, np.zeros((n, 2)),
+                 np.array([2], dtype=np.int64), np.zeros((n + 1, 4)), np.ones(4, dtype=bool),
+                 np.zeros((1, 2, 1, 4)), initial_state=(0.0, 0.0, 0.0, 0.0), duration=None)

@@ -21,11 +21,11 @@ from pathlib import Path
 
 import pytest
 from ament_index_python.packages import get_package_prefix
+from clirun import fohssv
 
 from fohssv_sim import contract
 from fohssv_sim.bag.synthetic import float64_array
 from fohssv_sim.bag.writer import RunWriter
-from fohssv_sim.cli import main
 from fohssv_sim.cli.common import LIMITS, CliError, output_file, safe_name
 
 FOHSSV = Path(get_package_prefix('fohssv_sim')) / 'lib' / 'fohssv_sim' / 'fohssv'
@@ -268,11 +268,8 @@ def files_under(path: Path) -> set[Path]:
 
 
 def run_in_process(argv: list[str], capfd) -> tuple[int, str]:
-    try:
-        code = main(argv)
-    except SystemExit as e:      # argparse's own exits (usage errors)
-        code = e.code
-    return code, capfd.readouterr().err
+    code, _, err = fohssv(capfd, *argv)
+    return code, err
 
 
 def test_every_bad_input_of_every_subcommand_is_one_line_and_refused(tmp_path, monkeypatch,

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 from ament_index_python.packages import get_package_prefix
+from clirun import fohssv as run_cli
 
 from fohssv_controller.state_feedback import StateFeedback
 from fohssv_sim import contract
@@ -25,14 +26,8 @@ FOHSSV = Path(get_package_prefix('fohssv_sim')) / 'lib' / 'fohssv_sim' / 'fohssv
 
 def fohssv(argv, capfd) -> tuple[int, str]:
     """``fohssv ARGV`` in this process: (exit code, stderr)."""
-    from fohssv_sim.cli import main
-
-    capfd.readouterr()
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as e:      # argparse's own exits (usage errors)
-        code = e.code
-    return code, capfd.readouterr().err
+    code, _, err = run_cli(capfd, *argv)
+    return code, err
 
 
 def record(path, run, params):

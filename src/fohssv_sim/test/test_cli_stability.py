@@ -8,9 +8,8 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from clirun import fohssv
 from PIL import Image
-
-from fohssv_sim.cli import main
 
 from test_equilibria import analytic_jacobian, reduced_equilibrium
 
@@ -19,13 +18,8 @@ from test_equilibria import analytic_jacobian, reduced_equilibrium
 def run(capfd):
     """``fohssv ARGS`` in this process: an object with returncode, stdout and stderr."""
     def run(*args):
-        capfd.readouterr()
-        try:
-            code = main([str(a) for a in args])
-        except SystemExit as e:      # argparse's own exits (usage errors)
-            code = e.code
-        out = capfd.readouterr()
-        return SimpleNamespace(returncode=code, stdout=out.out, stderr=out.err)
+        code, out, err = fohssv(capfd, *args)
+        return SimpleNamespace(returncode=code, stdout=out, stderr=err)
     return run
 
 

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 from ament_index_python.packages import get_package_prefix
+from clirun import fohssv
 
 from fohssv_controller.state_feedback import StateFeedback
 from fohssv_sim.equilibria import find_equilibria
@@ -25,15 +26,7 @@ def run(*args):
 def in_process(capfd, *args):
     """``fohssv continue ARGS`` through :func:`fohssv_sim.cli.main`: (exit code, stdout,
     stderr)."""
-    from fohssv_sim.cli import main
-
-    capfd.readouterr()
-    try:
-        code = main(['continue', *args])
-    except SystemExit as e:      # argparse's own exits (usage errors)
-        code = e.code
-    out = capfd.readouterr()
-    return code, out.out, out.err
+    return fohssv(capfd, 'continue', *args)
 
 
 def test_fom_branch_writes_branch_json_and_the_diagram(tmp_path, capfd):

@@ -7,6 +7,7 @@ import shutil
 
 import numpy as np
 import pytest
+from clirun import fohssv
 from PIL import Image
 
 from fohssv_controller.state_feedback import StateFeedback
@@ -110,15 +111,7 @@ def run_in_process(capfd, *args) -> tuple[int, str, str]:
     stderr). The parser and commands the console script calls; a new interpreter importing
     numpy, numba, scipy and matplotlib would cost more than the tiny map (the installed
     script and its own local cluster are run by test_sweep and test_cli_bad_input)."""
-    from fohssv_sim.cli import main
-
-    capfd.readouterr()
-    try:
-        code = main(['gainmap', *args])
-    except SystemExit as e:      # argparse's own exits (usage errors)
-        code = e.code
-    out = capfd.readouterr()
-    return code, out.out, out.err
+    return fohssv(capfd, 'gainmap', *args)
 
 
 def test_cli_draws_valid_figures_and_rejects_bad_input(tmp_path, capfd, dask_cluster):

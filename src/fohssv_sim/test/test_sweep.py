@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from ament_index_python.packages import get_package_prefix
+from clirun import fohssv as run_cli
 
 from fohssv_controller.state_feedback import StateFeedback
 from fohssv_sim.analysis.orbits import classify, local_maxima
@@ -150,15 +151,7 @@ def fohssv(argv, capfd) -> tuple[int, str, str]:
     """``fohssv ARGV`` through the CLI's ``main`` in this process: (exit code, stdout,
     stderr). The installed script is run where it is the subject (a killed client, its own
     local cluster of worker processes)."""
-    from fohssv_sim.cli import main
-
-    capfd.readouterr()
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as e:      # argparse's own exits (usage errors)
-        code = e.code
-    out = capfd.readouterr()
-    return code, out.out, out.err
+    return run_cli(capfd, *argv)
 
 
 def test_interrupted_sweep_resumes_without_recomputing_finished_chunks(tmp_path, dask_cluster,

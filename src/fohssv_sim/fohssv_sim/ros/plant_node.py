@@ -56,7 +56,6 @@ from __future__ import annotations
 import math
 import sys
 import threading
-import time
 from collections.abc import Mapping
 from time import monotonic
 from typing import Any
@@ -117,7 +116,7 @@ from .plant.lockstep import Lockstep
 from .plant.publishing import Publishing
 from .plant.realtime import RealTime
 from .plant.run_end import RunEnd, on_interrupt, recorded, signals_that_ended
-from .plant.start import RIVAL_CHECK_PERIOD, StartGate
+from .plant.start import PeerGate, RunStart
 from .views import ViewPublisher
 from .wire import raw_publish
 
@@ -142,7 +141,7 @@ def build_config(values: Mapping[str, Any]) -> tuple[ModelParameters, PlantOptio
     return model, options, hold
 
 
-class PlantNode(StartGate, Publishing, HostedRoom, Lockstep, CompiledTaking, RealTime,
+class PlantNode(RunStart, Publishing, HostedRoom, Lockstep, CompiledTaking, RealTime,
                 CommandIntake, RunEnd, Node):
     """See the module docstring. Raises ParameterError from the constructor on bad values.
 
@@ -242,7 +241,7 @@ class PlantNode(StartGate, Publishing, HostedRoom, Lockstep, CompiledTaking, Rea
         self._announced = False                   # run_end published
         self.forces_lost = 0                      # planing_force samples not published
         self._cut: tuple[float, int] | None = None  # (t, steps) where a burst ended the run
-        self.cpu_latency: int | None = None    # the cpu_dma_latency held (us), set by _run
+        self.cpu_latency: int | None = None    # the cpu_dma_latency held (us): tune_host's
         self.publish_retries = 0                  # publishes DDS refused at first
         self.resets = 0
         self._samples_before = 0                  # samples and steps before the last reset
@@ -290,16 +289,14 @@ class PlantNode(StartGate, Publishing, HostedRoom, Lockstep, CompiledTaking, Rea
         self._watchdog_warned = False
         self._slow_warn_at = 0.0                  # realtime: when "not keeping real time" may come
         self._max_lag = 0.0                       # realtime: sim time between state and command
-        self._wall_start = time.monotonic()
         self._run_wall_start = 0.0
         self._timer = None
         self.pacer: Pacer | None = None
-        self._minimums_since: float | None = None
-        self._peers_logged: tuple[int, int] | None = None
-        self._next_wait_log = 0.0
-        self._peer_timer = self.create_timer(0.01, self._wait_for_peers)
-        self._unnamed_checks = 0
-        self._rival_timer = self.create_timer(RIVAL_CHECK_PERIOD, self._check_rivals)
+        # the start gate: the run starts once the peers matched (a second plant ends it)
+        self.gate = PeerGate(
+            self, lambda: self.options, None if self.hosted is None else self.hosted.name,
+            self.state_pub, self.clock_pub, self._sample_pubs, self.views, self.command_sub,
+            self.command_topic, self.finished, start=self._start, fail=self._fail)
         self.get_logger().info(
             f'{self.sim.plant.describe()} (ready in {self.sim.compile_seconds:.2f} s); mode '
             f'{self.options.mode}, control period '
@@ -371,7 +368,7 @@ def _run(node: PlantNode) -> int:
         node.record.ready()
     executor = make_executor()
     executor.add_node(node)
-    tune_host(node)                   # after the in-plant writer started
+    node.cpu_latency = tune_host(node, node.options)   # after the in-plant writer started
     if node.options.mode == 'realtime':
         with PausedCollector():
             spin_until(executor, node.finished, paced=node)

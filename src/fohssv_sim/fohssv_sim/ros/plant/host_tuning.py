@@ -2,6 +2,9 @@
 real time, timer slack, SCHED_FIFO and the kernel's preemption model (what a run on this host
 can expect). Each setting is a parameter of the plant (``cpu_affinity``, ``cpu_dma_latency``,
 ``realtime_priority``); what cannot be set is said in one line and the run goes on.
+
+A function, not a room with state: it is given the node (its logger, its threads) and the
+options, and gives back the CPU latency it holds, which the run's summary reports.
 """
 
 from __future__ import annotations
@@ -16,18 +19,18 @@ from ..host import (
     set_realtime_priority,
     tighten_timer_slack,
 )
+from ..options import PlantOptions
 
 __all__ = ['tune_host']
 
 
-def tune_host(node: Any) -> None:
-    """Apply the plant ``node``'s host settings to its process (once, before it spins)."""
-    o = node.options
+def tune_host(node: Any, o: PlantOptions) -> int | None:
+    """Apply the host settings of ``o`` to the process of the plant ``node`` (once, before
+    it spins); the ``cpu_dma_latency`` held (us), None when none is."""
     pinned = pin_node(node, o.cpu_affinity)
-    node.cpu_latency = hold_latency(node, o.cpu_dma_latency,
-                                    warn=o.mode == 'realtime')
+    latency = hold_latency(node, o.cpu_dma_latency, warn=o.mode == 'realtime')
     if o.mode != 'realtime':
-        return
+        return latency
     tighten_timer_slack()
     refused = set_realtime_priority(o.realtime_priority)
     model, hz = kernel_preemption()
@@ -45,3 +48,4 @@ def tune_host(node: Any) -> None:
             'cpu_affinity names one CPU and the pacing thread runs under SCHED_FIFO: '
             "behind schedule it can keep the process's own DDS threads (commands, "
             'acknowledgements) off that CPU; give the plant two CPUs or realtime_priority:=0')
+    return latency

@@ -103,7 +103,7 @@ class Lockstep:
                        f'lockstep timeout: the state for t={time_text(self._awaiting)} s was not '
                        f'acknowledged by the subscribers of {self.state_pub.topic_name} within '
                        f'{waited:.1f} s (command_timeout={self.options.command_timeout:g} s + '
-                       f'{_DELIVERY_GRACE:g} s for delivery; command has {self._peers()[1]} '
+                       f'{_DELIVERY_GRACE:g} s for delivery; command has {self.gate.peers()[1]} '
                        'publisher(s))')
             return
         if self._undelivered == self._awaiting:
@@ -122,7 +122,7 @@ class Lockstep:
                    f'lockstep timeout: the controller stalled: no command answering '
                    f't={time_text(self._awaiting)} s within command_timeout='
                    f'{self.options.command_timeout:g} s ({last}; command has '
-                   f'{self._peers()[1]} publisher(s))')
+                   f'{self.gate.peers()[1]} publisher(s))')
 
     def _lockstep_command(self, data: Any, t: float | None) -> None:
         if self._awaiting is None or t != self._awaiting:

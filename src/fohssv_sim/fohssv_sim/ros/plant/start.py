@@ -1,15 +1,23 @@
 """The start gate and the restart: peers, listed readers, a second plant or controller, the
 start, and the ``reset`` service.
 
-A room of :class:`fohssv_sim.ros.plant_node.PlantNode`: a mixin whose methods run on the node
-(its attributes are set in ``PlantNode.__init__``).
+Two rooms of :class:`fohssv_sim.ros.plant_node.PlantNode`:
+
+* :class:`PeerGate`, an object that owns its state (how long it has waited, what it last
+  logged, its two timers): given the node's graph queries and publishers, it calls the node
+  back once to start the run, or to fail it (no peers, a second plant or controller);
+* :class:`RunStart`, the start and the reset of a run, a mixin over the node's attributes.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from time import monotonic
+from typing import Any
 
+from rclpy.node import Node
+from rclpy.task import Future
 from std_srvs.srv import Trigger
 
 from ..matching import UNKNOWN_NODE, node_path
@@ -25,7 +33,7 @@ from .codes import (
 from .realtime import WATCHDOG_CHECK
 
 #: How long a plant whose minimum peers are there waits for the other listed subscribers of
-#: its sample topics to match before it starts anyway (_listed_matched).
+#: its sample topics to match before it starts anyway (PeerGate._listed_matched).
 _LISTED_WAIT = 10.0
 
 #: Wall seconds between two looks at the graph for a second plant (a graph query, off the
@@ -41,24 +49,52 @@ _NAME_WAIT = 10
 _WAIT_LOG_PERIOD = 5.0
 
 
-class StartGate:
-    """The start gate of the plant node (the module docstring)."""
+class PeerGate:
+    """The start gate (the module docstring): the plant publishes nothing until its peers
+    matched; every :data:`RIVAL_CHECK_PERIOD` s, for the whole run, it looks for a second
+    plant (and, hosted, a second controller).
 
-    def _peers(self) -> tuple[int, int]:
+    Given: ``node`` (its graph queries, timers and logger), ``options`` (the plant's options
+    now: they may change at run time), ``hosted`` (the hosted law's name, None with an
+    external controller), the node's publishers (``state_pub``, ``clock_pub``, the
+    ``sample_pubs`` whose listed readers the start waits for, ``views``), its ``command_sub``
+    (None when hosted) and ``command_topic``, ``finished`` (the run's end) and two calls back:
+    ``start()`` once the peers matched, ``fail(code, message)``. Offers :meth:`peers`.
+    """
+
+    def __init__(self, node: Node, options: Callable[[], Any], hosted: str | None,
+                 state_pub: Any, clock_pub: Any, sample_pubs: tuple[Any, ...], views: Any,
+                 command_sub: Any, command_topic: str, finished: Future,
+                 start: Callable[[], None], fail: Callable[[int, str], None]) -> None:
+        self._node, self._options, self._hosted = node, options, hosted
+        self._state_pub, self._clock_pub, self._sample_pubs = state_pub, clock_pub, sample_pubs
+        self._views, self._command_sub, self._command_topic = views, command_sub, command_topic
+        self._finished, self._start, self._fail = finished, start, fail
+        self._log = node.get_logger()
+        self._started = False
+        self._wall_start = time.monotonic()
+        self._minimums_since: float | None = None   # when the minimums were last met
+        self._peers_logged: tuple[int, int] | None = None   # the counts last said
+        self._next_wait_log = 0.0
+        self._unnamed_checks = 0    # rival checks that waited for a publisher's node name
+        self._peer_timer = node.create_timer(0.01, self._wait_for_peers)
+        self._rival_timer = node.create_timer(RIVAL_CHECK_PERIOD, self._check_rivals)
+
+    def peers(self) -> tuple[int, int]:
         """Matched (state subscribers, command publishers); a hosted law counts as one of
         each (it reads every sample and commands), so the same minimums start a hosted plant
         alone and a hosted plant with a recorder."""
-        subs = self.state_pub.get_subscription_count()
-        if self.hosted is not None:
+        subs = self._state_pub.get_subscription_count()
+        if self._hosted is not None:
             return subs + 1, 1
-        return subs, self.command_sub.get_publisher_count()
+        return subs, self._command_sub.get_publisher_count()
 
     def _views_matched(self) -> int:
         """The fewest matched subscribers of any typed view (a large number with views off:
         nothing to wait for)."""
-        if self.views is None:
+        if self._views is None:
             return 1 << 30
-        return min(p.get_subscription_count() for p in self.views.publishers)
+        return min(p.get_subscription_count() for p in self._views.publishers)
 
     def _listed_matched(self) -> bool:
         """Every subscription the graph lists on the sample topics and ``/clock`` has matched
@@ -72,13 +108,13 @@ class StartGate:
         if self._minimums_since is None:
             self._minimums_since = time.monotonic()
         unmatched = [f'{pub.topic_name} ({pub.get_subscription_count()} of {listed} '
-                     'matched)' for pub in self._sample_pubs + (self.clock_pub,)
-                     if pub.get_subscription_count() < (listed := self.count_subscribers(
+                     'matched)' for pub in self._sample_pubs + (self._clock_pub,)
+                     if pub.get_subscription_count() < (listed := self._node.count_subscribers(
                          pub.topic_name))]
         if not unmatched:
             return True
         if time.monotonic() - self._minimums_since > _LISTED_WAIT:
-            self.get_logger().warning(
+            self._log.warning(
                 f'starting although not every listed subscriber matched after '
                 f'{_LISTED_WAIT:g} s: {", ".join(unmatched)}; those readers may miss the '
                 'first samples (incompatible QoS?)')
@@ -87,7 +123,7 @@ class StartGate:
 
     def _waiting_for(self, subs: int, pubs: int) -> str:
         """What the plant waits for, in words (logged at start, on a change, every 5 s)."""
-        o = self.options
+        o = self._options()
         missing = []
         if pubs < o.min_command_publishers:
             missing.append('a controller' if o.min_command_publishers - pubs == 1 else
@@ -101,22 +137,22 @@ class StartGate:
                            '(a viewer)')
         what = ' and '.join(missing) or 'the listed subscribers to match'
         return (f'waiting for {what}: command has {pubs}/{o.min_command_publishers} '
-                f'publisher(s), {self.state_pub.topic_name} has {subs}/'
+                f'publisher(s), {self._state_pub.topic_name} has {subs}/'
                 f'{o.min_state_subscribers} subscriber(s)')
 
     def _check_rivals(self) -> None:
         """Refuse to run beside another publisher of ``state`` (a second plant, a republishing
         player): the two would take each other's commands and publish interleaved samples.
         With a hosted controller, also beside another publisher of ``command``."""
-        if self.hosted is not None:
+        if self._hosted is not None:
             self._check_second_controller()
-        if self.finished.done() or self.count_publishers(self.state_pub.topic_name) <= 1:
+        if self._finished.done() or self._node.count_publishers(self._state_pub.topic_name) <= 1:
             return                                # only this plant's own publisher
-        nodes = self._publisher_nodes(self.state_pub.topic_name)
+        nodes = self._publisher_nodes(self._state_pub.topic_name)
         if nodes is None:
             return
         self._fail(EXIT_SECOND_PLANT,
-                   f'{len(nodes)} publishers of {self.state_pub.topic_name} (nodes: '
+                   f'{len(nodes)} publishers of {self._state_pub.topic_name} (nodes: '
                    f"{', '.join(nodes)}): another plant (or a republishing player) runs on this "
                    'ROS_DOMAIN_ID and namespace, and the two would take each other\'s commands; '
                    'stopping. Give each its own ROS_DOMAIN_ID or namespace.')
@@ -124,16 +160,16 @@ class StartGate:
     def _check_second_controller(self) -> None:
         """A hosted plant and an external publisher of ``command`` (a controller node, a
         player replaying commands): two controllers must never mix, so the plant stops."""
-        topic = self.command_topic
-        if self.finished.done() or self.count_publishers(topic) <= 1:
+        topic = self._command_topic
+        if self._finished.done() or self._node.count_publishers(topic) <= 1:
             return                                # only the plant's own command publisher
         nodes = self._publisher_nodes(topic)
         if nodes is None:
             return
         self._fail(EXIT_SECOND_CONTROLLER,
                    f'{len(nodes)} publishers of {topic} (nodes: {", ".join(nodes)}): this '
-                   f'plant hosts the controller {self.hosted.name!r} (controller:='
-                   f'{self.options.controller}) and another node publishes commands too; two '
+                   f'plant hosts the controller {self._hosted!r} (controller:='
+                   f'{self._options().controller}) and another node publishes commands too; two '
                    'controllers must not mix, stopping. Stop the external controller, or start '
                    "the plant with controller:='' to use it.")
 
@@ -143,7 +179,7 @@ class StartGate:
         node's name: the line said ``_NODE_NAMESPACE_UNKNOWN_/_NODE_NAME_UNKNOWN_``) and the
         name has been waited for less than :data:`_NAME_WAIT` rival checks; after that the
         stop goes ahead, naming the node as not yet known."""
-        infos = self.get_publishers_info_by_topic(topic)
+        infos = self._node.get_publishers_info_by_topic(topic)
         unnamed = sum(i.node_name == UNKNOWN_NODE for i in infos)
         if unnamed and self._unnamed_checks < _NAME_WAIT:
             self._unnamed_checks += 1
@@ -152,13 +188,15 @@ class StartGate:
                       else node_path(i) for i in infos)
 
     def _wait_for_peers(self) -> None:
-        if self.running or self.finished.done():
-            return    # a timer event queued before _start destroyed the timer: start once
-        subs, pubs = self._peers()
-        o = self.options
+        if self._started or self._finished.done():
+            return    # a timer event queued before the start destroyed the timer: start once
+        subs, pubs = self.peers()
+        o = self._options()
         if (subs >= o.min_state_subscribers and pubs >= o.min_command_publishers
                 and self._views_matched() >= o.min_view_subscribers):
             if self._listed_matched():
+                self._node.destroy_timer(self._peer_timer)
+                self._started = True
                 self._start()
                 return
         else:
@@ -175,7 +213,7 @@ class StartGate:
                 hint = ('; start one in the same ROS_DOMAIN_ID and namespace, e.g. '
                         '`ros2 run fohssv_controller state_feedback`'
                         if pubs < o.min_command_publishers else '')
-                self.get_logger().info(f'{self._waiting_for(subs, pubs)} (waited {waited:.0f} '
+                self._log.info(f'{self._waiting_for(subs, pubs)} (waited {waited:.0f} '
                                        f's, {limit}){hint}')
             return
         self._fail(EXIT_NO_PEERS, f'start timeout: state has {subs}/{o.min_state_subscribers} '
@@ -183,8 +221,11 @@ class StartGate:
                    f'publisher(s) after {waited:.1f} s (start_timeout={o.start_timeout:g} s); '
                    'is the controller running in the same ROS_DOMAIN_ID and namespace?')
 
+class RunStart:
+    """The start and the reset of a run (the module docstring): a mixin, as both drive every
+    other room (publishing, lockstep, real time, the hosted law) over the node's attributes."""
+
     def _start(self) -> None:
-        self.destroy_timer(self._peer_timer)
         self.running = True
         self._run_wall_start = time.monotonic()
         self._cpu_start = cpu_seconds()
@@ -195,7 +236,7 @@ class StartGate:
             self._fail(EXIT_PUBLISH_FAILED, str(exc))
 
     def _start_run(self) -> None:
-        subs, pubs = self._peers()
+        subs, pubs = self.gate.peers()
         self.get_logger().info(f'peers matched (command: {pubs} publisher(s), state: {subs} '
                                'subscriber(s)); starting at t = 0')
         if self.record is not None:   # the law's name in the bag (plot titles)

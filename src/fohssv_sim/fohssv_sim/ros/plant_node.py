@@ -93,7 +93,7 @@ from .nodekit import (
     spin_until,
 )
 from .options import NODE_PARAMETERS, PlantOptions, check_options, clock_samples, view_samples
-from .pacing import BurstWait, CommandLag, Pacer
+from .pacing import BurstWait, Pacer
 from .plant.codes import (
     CONTROLLER_PREFIX,
     EXIT_BAD_PARAMETERS,
@@ -114,7 +114,7 @@ from .plant.hosted import BURST_ROWS, HostedRoom
 from .plant.instrumentation import Profile
 from .plant.lockstep import Lockstep
 from .plant.publishing import Publishing
-from .plant.realtime import RealTime
+from .plant.realtime import LagStop, RealTime, Watchdog
 from .plant.run_end import RunEnd, on_interrupt, recorded, signals_that_ended
 from .plant.start import PeerGate, RunStart
 from .views import ViewPublisher
@@ -171,7 +171,6 @@ class PlantNode(RunStart, Publishing, HostedRoom, Lockstep, CompiledTaking, Real
         self._force_data = self._force_out.values
         self._clock_out = ClockWriter()
         self._command_in = ArrayReader(COMMAND)
-        self._lag = CommandLag(self.options.max_command_lag, self.options.control_period)
         self._free_run = self.hosted is not None and self.options.mode == 'lockstep'
         self._clock_every = clock_samples(self.options)
         self._lockstep = self.options.mode == 'lockstep'
@@ -282,13 +281,10 @@ class PlantNode(RunStart, Publishing, HostedRoom, Lockstep, CompiledTaking, Real
         self._checked = 0.0                       # lockstep: when the timer last checked
         self._resumed = -math.inf                 # lockstep: when it last came late
         self._last_command_t: float | None = None  # t of the last command with a finite t
-        self._last_command_wall: float | None = None
-        self._lag_wall: float | None = None       # wall time the lag stop's span began
-        self._lag_from = (0.0, 0.0)               # (t, lag in control periods) then
-        self._lag_gap = 0.0                       # the controller's silence before that lag (s)
-        self._watchdog_warned = False
+        # real time, an external controller: its silence, and the lag of its commands
+        self.watchdog = Watchdog(self.get_logger())
+        self.lag_stop = LagStop(self.options.max_command_lag, self.options.control_period)
         self._slow_warn_at = 0.0                  # realtime: when "not keeping real time" may come
-        self._max_lag = 0.0                       # realtime: sim time between state and command
         self._run_wall_start = 0.0
         self._timer = None
         self.pacer: Pacer | None = None
@@ -308,7 +304,7 @@ class PlantNode(RunStart, Publishing, HostedRoom, Lockstep, CompiledTaking, Real
     def _apply(self, config: tuple[ModelParameters, PlantOptions, int]) -> None:
         _, options, _ = config
         self.options = options
-        self._lag.limit = options.max_command_lag
+        self.lag_stop.lag.limit = options.max_command_lag
         if self._compiled is not None:    # the awaited command's too
             self._compiled.limit(options.max_fin_deflection, options.max_cavitator_deflection)
         # a lowered deflection limit applies to the command held now, not only to the next

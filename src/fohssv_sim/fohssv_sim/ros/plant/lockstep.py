@@ -252,18 +252,18 @@ class Lockstep:
                             return
                     except FloatingPointError as exc:
                         self.sim.failed_period(exc)
-                        self._took(raw, t, begin)
+                        self._took(raw, t)
                         self._diverged(exc)
                         return
-                self._took(raw, t, begin)
+                self._took(raw, t)
                 self._stepped(begin)
                 return
         self._on_command(raw)
 
-    def _took(self, raw: bytes, t: float, begin: float, compiled: bool = False) -> None:
-        """Lockstep: the awaited command ``raw`` (answering ``t``) was taken at ``begin``
-        (``compiled``: by the compiled sample, which disarmed itself and put its record into
-        the in-plant ring)."""
+    def _took(self, raw: bytes, t: float, compiled: bool = False) -> None:
+        """Lockstep: the awaited command ``raw`` (answering ``t``) was taken (``compiled``: by
+        the compiled sample, which disarmed itself and put its record into the in-plant
+        ring). (The watchdog's time of the last command is not kept: real time only.)"""
         self.received += 1
         if not compiled:
             if self._compiled is not None:
@@ -272,7 +272,6 @@ class Lockstep:
                 self.record.command(raw)
         self._last_command_t = t
         self._awaiting = None
-        self._last_command_wall = begin
 
     def _quick_sample(self, raw: bytes, t: float, begin: float) -> None:
         """Lockstep: :class:`~fohssv_sim.models.HeldPeriod` ran the period of the command
@@ -303,7 +302,7 @@ class Lockstep:
         else:                  # the compiled sample wrote the same [t, Fp] into the message
             self._quick.settle()
         self.sim.took(self.sim.command)
-        self._took(raw, t, begin, compiled is not None)
+        self._took(raw, t, compiled is not None)
         self.sent += 1
         try:
             if failed is not None:

@@ -1,19 +1,22 @@
 """Real time: the pacing the spin loop asks for, the watchdog, stale commands, the command lag
 stop.
 
-A room of :class:`fohssv_sim.ros.plant_node.PlantNode`: a mixin whose methods run on the node
-(its attributes are set in ``PlantNode.__init__``).
+Rooms of :class:`fohssv_sim.ros.plant_node.PlantNode`: two objects that own their state,
+:class:`Watchdog` (the silence of an external controller) and :class:`LagStop` (the lag of
+its commands and when it ends the run); :class:`RealTime`, a mixin over the node's
+attributes, paces the samples and words the warnings and stops (it reads the pacer, the
+model's time and the plant's cost, which other rooms own).
 """
 
 from __future__ import annotations
 
 import time
 from time import monotonic
+from typing import Any
 
 from ..loop import time_text
-from ..pacing import cpu_seconds
+from ..pacing import CommandLag, cpu_seconds
 from .codes import EXIT_COMMAND_LAG, EXIT_NOT_REAL_TIME
-from .commands import LAG_WALL
 
 #: Realtime mode: wall-clock period of the watchdog check (s).
 WATCHDOG_CHECK = 0.01
@@ -24,6 +27,100 @@ WATCHDOG_CHECK = 0.01
 SLOW_MISS_RATE = 0.01
 SLOW_AFTER = 1000
 SLOW_WARN_EVERY = 10.0
+
+#: Realtime: a command lag over ``max_command_lag`` for that many periods that then falls
+#: (the controller catching up after a stall of the machine) may take this wall time (s) to
+#: fall under the limit before the run stops (exit 6); one that does not fall stops it.
+LAG_WALL = 1.0
+
+
+class Watchdog:
+    """Real time, an external controller: a warning once per outage when no command came for
+    ``watchdog_timeout`` (a limit the node passes at each check: it may change at run time).
+
+    Given the node's logger. The command intake writes :attr:`last` and looks at
+    :attr:`warned` for each command (inline: the per-command path), calling :meth:`back`
+    when an outage ends; the node's real-time timer calls :meth:`check`; a reset
+    :meth:`rearms <rearm>` it."""
+
+    def __init__(self, log: Any) -> None:
+        self._log = log
+        self.last: float | None = None   # wall time (monotonic s) of the last command, or start
+        self.warned = False              # the current outage has been warned of
+
+    def back(self) -> None:
+        """Commands come again after a warned outage."""
+        self.warned = False
+        self._log.info('watchdog: commands are arriving again')
+
+    def rearm(self) -> None:
+        self.warned = False
+
+    def check(self, timeout: float, t: float, command: tuple[float, float]) -> None:
+        """Warn (once per outage) when no command came for ``timeout`` s (0: off); ``t`` and
+        ``command`` are the sample time and the command held, for the line."""
+        if timeout > 0.0 and not self.warned and self.last is not None:
+            silent = time.monotonic() - self.last
+            if silent > timeout:
+                self.warned = True
+                df, dc = command
+                self._log.warning(
+                    f'watchdog: no command for {silent:.3f} s (watchdog_timeout={timeout:g} s) '
+                    f'at t={t:.6f} s; holding delta_f={df!r} rad, delta_c={dc!r} rad')
+
+
+class LagStop:
+    """Real time, an external controller: the lag of its commands (:attr:`lag`, a
+    :class:`~fohssv_sim.ros.pacing.CommandLag` of ``max_command_lag`` and the control period)
+    and whether it has stayed over the limit long enough to end the run (exit 6).
+
+    The command intake calls :meth:`over` for each command in time (after its own checks);
+    the node changes :attr:`lag`'s ``limit`` when ``max_command_lag`` changes, and a reset
+    forgets the span over it."""
+
+    def __init__(self, limit: float, period: float) -> None:
+        self.lag = CommandLag(limit, period)
+        self.worst = 0.0                  # the largest lag of a command held (simulated s)
+        self.gap = 0.0                    # the controller's silence before the lag span (s)
+        self._wall: float | None = None   # wall time the span over the limit began
+        self._from = (0.0, 0.0)           # (t, lag in control periods) then
+
+    def over(self, now: float, t: float, wall: float, prev: float | None) -> bool:
+        """The command answering ``t`` arrived at sample time ``now`` and wall time ``wall``
+        (the one before at ``prev``): True when its lag has been over the limit for
+        ``max_command_lag`` periods and, given the wall time :data:`LAG_WALL` to fall after
+        a stall, has not fallen: the run stops."""
+        lags = self.lag
+        over = lags.add(now, t)
+        # the longest silence since the lag went over the limit, the one before its first
+        # command included (a stall that began it; the backlog answered after a stall
+        # comes in quick succession)
+        silence = wall - prev if prev is not None else 0.0
+        self.gap = 0.0 if lags.over_since is None else max(self.gap, silence)
+        if not over:                 # under the limit, or not for max_command_lag periods
+            self._wall = None
+            return False
+        if self._wall is None:
+            self._wall, self._from = wall, (now, lags.last)
+            return False
+        return self._lost(now, wall)
+
+    def _lost(self, now: float, wall: float) -> bool:
+        """The lag has been over the limit for ``max_command_lag`` periods: True when over
+        as many periods again it did not fall (the loop cannot keep up), or it is still over
+        after :data:`LAG_WALL` s of wall time; a lag falling after a stall gets that time."""
+        lags, (t0, lag0) = self.lag, self._from
+        return (wall - self._wall >= LAG_WALL
+                or (now - t0 >= lags.limit * lags.period and lags.last >= lag0))
+
+    def held(self, lag: float) -> None:
+        """A command ``lag`` s of simulated time behind the sample was held."""
+        if lag > self.worst:
+            self.worst = lag
+
+    def rearm(self) -> None:
+        """A reset: the span over the limit starts again."""
+        self.lag.over_since = None
 
 
 class RealTime:
@@ -58,15 +155,7 @@ class RealTime:
         if not self.running:      # max_deadline_miss_rate ended the run
             return
         self._refresh_matched()
-        wd = self.options.watchdog_timeout
-        if wd > 0.0 and not self._watchdog_warned and self._last_command_wall is not None:
-            silent = time.monotonic() - self._last_command_wall
-            if silent > wd:
-                self._watchdog_warned = True
-                df, dc = self.sim.command
-                self.get_logger().warning(
-                    f'watchdog: no command for {silent:.3f} s (watchdog_timeout={wd:g} s) at '
-                    f't={self.sim.t:.6f} s; holding delta_f={df!r} rad, delta_c={dc!r} rad')
+        self.watchdog.check(self.options.watchdog_timeout, self.sim.t, self.sim.command)
 
     def _check_real_time(self) -> None:
         """Warn while the run misses more than :data:`SLOW_MISS_RATE` of its deadlines (the
@@ -128,8 +217,8 @@ class RealTime:
                 'plant, controller:=NAME (e.g. controller:=state_feedback: no DDS in the loop)')
 
     def _lag_stop(self) -> None:
-        lag, o = self._lag, self.options
-        gap = self._lag_gap
+        lag, o = self.lag_stop.lag, self.options
+        gap = self.lag_stop.gap
         stall = (f'it began with a stall: no command for {gap:.3f} s of wall time, and the '
                  'lag has not recovered since; ' if gap > 10 * self.pacer.period else '')
         self._fail(EXIT_COMMAND_LAG,
@@ -147,7 +236,7 @@ class RealTime:
     def _lag_note(self) -> str:
         """For a failure in realtime with an external controller: the command lag, and when
         it was beyond the limit, that the run was probably lost to it."""
-        lag = self._lag
+        lag = self.lag_stop.lag
         if self.hosted is not None or self.pacer is None or not lag.count:
             return ''
         text = (f'; command lag: now {lag.last:.1f}, mean {lag.mean:.1f}, worst '

@@ -80,10 +80,10 @@ class RunEnd:
                      late_samples=p.late,
                      mean_lateness=p.lateness_sum / p.produced if p.produced else 0.0,
                      slips=p.slips, worst_lateness=p.worst_lateness,
-                     max_command_lag=self._max_lag, stale_commands=self.stale,
+                     max_command_lag=self.lag_stop.worst, stale_commands=self.stale,
                      cpu_share_of_period=(cpu / total / p.period if total else 0.0))
             if self.hosted is None:
-                s.update(self._lag.summary())
+                s.update(self.lag_stop.lag.summary())
             elif self.bursts is not None:   # hosted: wake-ups, and how often they backed off
                 s.update(wake_ups=self.bursts.wake_ups, burst_backoffs=self.bursts.near_misses,
                          samples_per_wake_up=(p.produced / self.bursts.wake_ups

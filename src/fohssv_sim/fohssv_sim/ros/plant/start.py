@@ -229,7 +229,7 @@ class RunStart:
         self.running = True
         self._run_wall_start = time.monotonic()
         self._cpu_start = cpu_seconds()
-        self._last_command_wall = self._run_wall_start
+        self.watchdog.last = self._run_wall_start
         try:
             self._start_run()
         except PublishFailed as exc:
@@ -291,8 +291,8 @@ class RunStart:
         self._samples_before += self.sim.samples
         self._steps_before += self.sim.plant.n
         self.sim.reset(self.options.initial_state)
-        self._lag.over_since = None
-        self._watchdog_warned = False
+        self.lag_stop.rearm()
+        self.watchdog.rearm()
         self.get_logger().info(f'reset to t = 0 at {list(self.options.initial_state)}')
         if self.running:
             if self.pacer is not None:     # due from now on; its counts stay the run's

@@ -141,7 +141,7 @@ class CompiledTaking:
                 quick.finish(fastpath.FAILED - code, df, dc)
             except FloatingPointError as exc:
                 self.sim.failed_period(exc)
-                self._took(raw, t, begin)
+                self._took(raw, t)
                 self._diverged(exc)
             return
         # the entry checked the command and wrote the sample (and, but for a refused state,

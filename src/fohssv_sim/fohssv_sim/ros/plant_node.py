@@ -53,7 +53,6 @@ run ends there with its summary and a ``run_end`` listing what was published,
 
 from __future__ import annotations
 
-import math
 import sys
 import threading
 from collections.abc import Mapping
@@ -112,7 +111,7 @@ from .plant.fastpath.taking import CompiledTaking
 from .plant.host_tuning import tune_host
 from .plant.hosted import BURST_ROWS, HostedRoom
 from .plant.instrumentation import Profile
-from .plant.lockstep import Lockstep
+from .plant.lockstep import CommandWait, Lockstep, ReaderPacing
 from .plant.publishing import Publishing
 from .plant.realtime import LagStop, RealTime, Watchdog
 from .plant.run_end import RunEnd, on_interrupt, recorded, signals_that_ended
@@ -177,7 +176,6 @@ class PlantNode(RunStart, Publishing, HostedRoom, Lockstep, CompiledTaking, Real
         self.profile: Profile | None = Profile() if self.options.profile else None
         self._cpu_start = 0.0
         self.state_pub = self.create_publisher(Float64MultiArray, STATE.name, profile(STATE))
-        self._all_acked: dict[str, int] = {}   # topic -> samples when all acknowledged
         self.force_pub = self.create_publisher(Float64MultiArray, PLANING_FORCE.name,
                                                profile(PLANING_FORCE))
         self.clock_pub = self.create_publisher(Clock, CLOCK.name, profile(CLOCK))
@@ -225,8 +223,9 @@ class PlantNode(RunStart, Publishing, HostedRoom, Lockstep, CompiledTaking, Real
             # its commands are the run's output like the samples: the start waits for their
             # listed readers, pace_to_subscribers for their acknowledgements, the linger too
             self._sample_pubs += (self.command_pub,)
-        self._paced_pubs = (self.state_pub, self.force_pub) + (
-            () if self.command_pub is None else (self.command_pub,))
+        # pace_to_subscribers: the readers of the samples (and a hosted law's commands)
+        self.reader_pacing = ReaderPacing((self.state_pub, self.force_pub) + (
+            () if self.command_pub is None else (self.command_pub,)), self.get_logger())
         self.reset_srv = self.create_service(Trigger, 'reset', self._on_reset)
         # once, when the run ends: what was published, for recorders to check (contract.py)
         self.end_pub = self.create_publisher(String, RUN_END.name, profile(RUN_END))
@@ -275,11 +274,6 @@ class PlantNode(RunStart, Publishing, HostedRoom, Lockstep, CompiledTaking, Real
         self._rows = np.zeros((BURST_ROWS, 7))
         self._limits = np.array([0.0, 0.0, self.model.speed, MAX_PITCH])
         self._awaiting: float | None = None       # lockstep: t of the state awaiting a command
-        self._published_wall = 0.0                # lockstep: when that state went out
-        self._undelivered: float | None = None    # lockstep: t of a state not yet acknowledged
-        self._slow: tuple[int, float] | None = None  # lockstep: (samples, CPU s), slow period
-        self._checked = 0.0                       # lockstep: when the timer last checked
-        self._resumed = -math.inf                 # lockstep: when it last came late
         self._last_command_t: float | None = None  # t of the last command with a finite t
         # real time, an external controller: its silence, and the lag of its commands
         self.watchdog = Watchdog(self.get_logger())
@@ -293,6 +287,9 @@ class PlantNode(RunStart, Publishing, HostedRoom, Lockstep, CompiledTaking, Real
             self, lambda: self.options, None if self.hosted is None else self.hosted.name,
             self.state_pub, self.clock_pub, self._sample_pubs, self.views, self.command_sub,
             self.command_topic, self.finished, start=self._start, fail=self._fail)
+        # lockstep: the awaited command's timeout and graces, a period's overrun
+        self.command_wait = CommandWait(self.get_logger(), self.state_pub, self.gate.peers,
+                                        self._fail)
         self.get_logger().info(
             f'{self.sim.plant.describe()} (ready in {self.sim.compile_seconds:.2f} s); mode '
             f'{self.options.mode}, control period '

@@ -176,7 +176,7 @@ class HostedRoom:
                 self._diverged(exc)
             return False
         if every and self.running and sim.samples % every == 0:
-            self._keep_subscribers_up()
+            self.reader_pacing.keep_up(sim.samples, every, sim.t)
         return self.running
 
     def _advance_each(self, periods: int) -> bool:
@@ -186,7 +186,7 @@ class HostedRoom:
             if not self._advance():
                 return False
             if every and self.sim.samples % every == 0:
-                self._keep_subscribers_up()
+                self.reader_pacing.keep_up(self.sim.samples, every, self.sim.t)
         return True
 
     def _control(self) -> None:

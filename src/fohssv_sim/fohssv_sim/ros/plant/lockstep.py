@@ -1,13 +1,18 @@
 """Lockstep: the awaited command, its timeout and graces, overruns, pacing to slow subscribers, the
 short path of the good command.
 
-A room of :class:`fohssv_sim.ros.plant_node.PlantNode`: a mixin whose methods run on the node
-(its attributes are set in ``PlantNode.__init__``).
+Rooms of :class:`fohssv_sim.ros.plant_node.PlantNode`: two objects that own their state,
+:class:`CommandWait` (the timeout of the awaited command, its graces, the overrun of a period)
+and :class:`ReaderPacing` (``pace_to_subscribers``); :class:`Lockstep`, a mixin over the
+node's attributes, runs the per-sample path: the awaited command taken, the model advanced,
+the sample published (the round trip, where each attribute hop counts).
 """
 
 from __future__ import annotations
 
+import math
 import time
+from collections.abc import Callable
 from time import monotonic
 from typing import Any
 
@@ -40,12 +45,167 @@ _DELIVERY_GRACE = 30.0
 _RESUME_GRACE = 5.0
 
 
+class CommandWait:
+    """Lockstep: the wait for the awaited command (the module docstring): its timeout
+    (``command_timeout``, exit 3 naming the side that stalled), the graces for a state not
+    yet delivered and for a plant that did not run, and the overrun of a control period.
+
+    Given the node's logger, the ``state`` publisher (whose acknowledgements tell a stalled
+    controller from an undelivered state), ``peers()`` (the start gate's: the command
+    publishers a timeout's line names) and ``fail(code, message)``. The node sets
+    :attr:`published` when the awaited state went out (per sample, inline) and
+    :attr:`checked` after a wait of its own (a publish retried, the readers waited for); its
+    timer calls :meth:`check`, a period longer than the timeout :meth:`overrun`."""
+
+    def __init__(self, log: Any, state_pub: Any, peers: Callable[[], tuple[int, int]],
+                 fail: Callable[[int, str], None]) -> None:
+        self._log, self._state_pub, self._peers, self._fail = log, state_pub, peers, fail
+        self.published = 0.0                      # when the awaited state went out
+        self.checked = 0.0                        # when the timer last checked
+        self._undelivered: float | None = None    # t of a state not yet acknowledged
+        self._resumed = -math.inf                 # when the plant last came late to a check
+        self._slow: tuple[int, float] | None = None   # (samples, CPU s) of a slow period
+
+    def check(self, awaiting: float | None, timeout: float, timer_period_ns: int,
+              last_t: float | None, received: int) -> None:
+        """The timer's look (every ``timer_period_ns``) at the command awaited for the state
+        at ``awaiting`` (None: none awaited) with ``timeout`` s; ``last_t`` and ``received``
+        (the last command's t, the commands received) word a stalled controller's line."""
+        now = monotonic()
+        late, self.checked = now - self.checked, now
+        waited = now - self.published
+        # (at least two periods of this timer, whose period command_timeout set at the start:
+        # lowered during the run, it would otherwise take every check for a stopped plant)
+        if late > max(timeout / 2, 2e-9 * timer_period_ns):
+            # this check (every command_timeout / 4 at most) came that late: the plant itself
+            # was not running (a stalled host, a stopped process); a command that came
+            # meanwhile may be waiting behind this timer, or lost on the way and sent again
+            # at its writer's next heartbeat: the controller gets _RESUME_GRACE more (also
+            # when the wait is not over yet: a 3 s stop with the default 5 s timeout)
+            self._resumed = now
+            if awaiting is not None and waited > timeout:
+                self._log.info(
+                    f'lockstep: the plant did not run for {late:.3f} s (a stopped process or '
+                    f'a stalled host) while awaiting the command for '
+                    f't={time_text(awaiting)} s: '
+                    f'its controller gets command_timeout + {_RESUME_GRACE:g} s from now (a '
+                    'command lost meanwhile comes again at its writer\'s next heartbeat)')
+            return
+        if awaiting is None or waited <= timeout:
+            return
+        if now - self._resumed <= timeout + _RESUME_GRACE:
+            return
+        if not self._state_pub.wait_for_all_acked(Duration(seconds=0)):
+            # not the controller's delay: a subscriber has not got the state yet
+            if waited <= timeout + _DELIVERY_GRACE:
+                if self._undelivered != awaiting:
+                    self._undelivered = awaiting
+                    self._log.info(
+                        f'the state for t={time_text(awaiting)} s is not acknowledged by all '
+                        f'{self._state_pub.get_subscription_count()} subscriber(s) of '
+                        f'{self._state_pub.topic_name} after {waited:.1f} s (discovery not '
+                        'finished on their side?): command_timeout counts from its delivery')
+                return
+            self._fail(EXIT_TIMEOUT,
+                       f'lockstep timeout: the state for t={time_text(awaiting)} s was not '
+                       f'acknowledged by the subscribers of {self._state_pub.topic_name} within '
+                       f'{waited:.1f} s (command_timeout={timeout:g} s + '
+                       f'{_DELIVERY_GRACE:g} s for delivery; command has {self._peers()[1]} '
+                       'publisher(s))')
+            return
+        if self._undelivered == awaiting:
+            # delivered since the last check: the controller has its full timeout from now
+            self._undelivered = None
+            self.published = now
+            return
+        if last_t is not None:
+            last = f'the last command answered t={time_text(last_t)} s'
+        elif received:
+            last = (f'{received} command(s) received, none answering a sample: empty or '
+                    'without a finite t')
+        else:
+            last = 'no command received at all'
+        self._fail(EXIT_TIMEOUT,
+                   f'lockstep timeout: the controller stalled: no command answering '
+                   f't={time_text(awaiting)} s within command_timeout='
+                   f'{timeout:g} s ({last}; command has '
+                   f'{self._peers()[1]} publisher(s))')
+
+    def overrun(self, took: float, timeout: float, samples: int, hold: int, t: float) -> bool:
+        """A control period took ``took`` s of wall time, more than ``timeout``:
+        the plant's own work, or a wait outside it (a publish that DDS blocked: Fast DDS
+        spends up to 1 s checking the shared-memory port of a stopped subscriber's process; a
+        host that did not run the plant). The first such period is logged and its end marks
+        the process's CPU time; when the very next period is too long as well, the plant is
+        overrunning (exit 3) if it used more CPU than ``timeout`` since the mark
+        (one period's work and the wait for its command). Nothing is added to a period that
+        is not too long."""
+        cpu = time.process_time()
+        mark, self._slow = self._slow, (samples, cpu)
+        if mark is not None and mark[0] == samples - 1 and cpu - mark[1] > timeout:
+            self._fail(EXIT_TIMEOUT,
+                       f'lockstep timeout: the plant is overrunning: one control period '
+                       f'({hold} steps) took {took:.3f} s > command_timeout='
+                       f'{timeout:g} s at t={time_text(t)} s, using '
+                       f'{cpu - mark[1]:.3f} s of '
+                       'CPU with the wait for its command (the one before took too long '
+                       'as well)')
+            return True
+        self._log.warning(
+            f'one control period ({hold} steps) took {took:.3f} s > command_timeout='
+            f'{timeout:g} s of wall time at t={time_text(t)} s: not an overrun unless the '
+            'next one takes as long in CPU time (a publish blocked by DDS, e.g. for a stopped '
+            'subscriber, or a stalled host)')
+        return False
+
+
+class ReaderPacing:
+    """``pace_to_subscribers`` (lockstep, and a hosted law in lockstep): every so many
+    samples the run waits for the subscribers of its samples to acknowledge them.
+
+    Given the publishers whose readers pace the run and the node's logger; offers
+    :meth:`keep_up`. Owns, per topic, the sample count when all its readers last
+    acknowledged everything (-1: a reader left behind as stalled)."""
+
+    def __init__(self, pubs: tuple[Any, ...], log: Any) -> None:
+        self._pubs, self._log = pubs, log
+        self._all_acked: dict[str, int] = {}
+
+    def keep_up(self, n: int, every: int, t: float) -> None:
+        """At sample ``n`` (time ``t``), pacing every ``every`` samples: wait until every
+        subscriber of the samples has acknowledged them, so a subscriber slower than the loop
+        (a recorder, whose keep-all readers stop acknowledging when their queue is full) paces
+        the run instead of losing what falls out of the writer's queue. After _ACK_TIMEOUT the
+        loop goes on only while that cannot lose a sample: the samples since the subscriber
+        last acknowledged everything, plus those until the next wait, still fit the writer's
+        queue. Otherwise it waits on, up to _STALL_TIMEOUT; a subscriber silent that long
+        (stalled) is left behind with a warning, and from then on waited for only
+        _ACK_TIMEOUT until it catches up."""
+        for pub in self._pubs:
+            topic = pub.topic_name
+            if pub.wait_for_all_acked(Duration(seconds=_ACK_TIMEOUT)):
+                self._all_acked[topic] = n
+                continue
+            behind = n - self._all_acked.get(topic, 0)
+            if behind + every <= pub.qos_profile.depth or self._all_acked.get(topic) == -1:
+                continue       # nothing can be lost before the next wait (or stalled before)
+            if pub.wait_for_all_acked(Duration(seconds=_STALL_TIMEOUT - _ACK_TIMEOUT)):
+                self._all_acked[topic] = n
+                continue
+            self._all_acked[topic] = -1
+            self._log.warning(
+                f'{topic}: a subscriber has not acknowledged up to {behind} samples for '
+                f'{_STALL_TIMEOUT:g} s at t={time_text(t)} s (the queue holds '
+                f'{pub.qos_profile.depth}); continuing (it may lose samples)')
+
+
 class Lockstep:
-    """The plant node in lockstep (the module docstring)."""
+    """The plant node in lockstep (the module docstring): a mixin, as the per-sample path
+    reads and writes the node's messages, model and counters directly."""
 
     def _await_command(self) -> None:
         self._awaiting = t = self.sim.t
-        self._published_wall = time.monotonic()
+        self.command_wait.published = time.monotonic()
         compiled = self._compiled
         if compiled is not None:
             if self.running and self._send_state is self._armable_send:
@@ -63,66 +223,9 @@ class Lockstep:
         if not self.running:
             return
         self._refresh_matched()
-        now = monotonic()
-        late, self._checked = now - self._checked, now
-        timeout = self.options.command_timeout
-        waited = now - self._published_wall
-        # (at least two periods of this timer, whose period command_timeout set at the start:
-        # lowered during the run, it would otherwise take every check for a stopped plant)
-        if late > max(timeout / 2, 2e-9 * self._timer.timer_period_ns):
-            # this check (every command_timeout / 4 at most) came that late: the plant itself
-            # was not running (a stalled host, a stopped process); a command that came
-            # meanwhile may be waiting behind this timer, or lost on the way and sent again
-            # at its writer's next heartbeat: the controller gets _RESUME_GRACE more (also
-            # when the wait is not over yet: a 3 s stop with the default 5 s timeout)
-            self._resumed = now
-            if self._awaiting is not None and waited > timeout:
-                self.get_logger().info(
-                    f'lockstep: the plant did not run for {late:.3f} s (a stopped process or '
-                    f'a stalled host) while awaiting the command for '
-                    f't={time_text(self._awaiting)} s: '
-                    f'its controller gets command_timeout + {_RESUME_GRACE:g} s from now (a '
-                    'command lost meanwhile comes again at its writer\'s next heartbeat)')
-            return
-        if self._awaiting is None or waited <= timeout:
-            return
-        if now - self._resumed <= timeout + _RESUME_GRACE:
-            return
-        if not self.state_pub.wait_for_all_acked(Duration(seconds=0)):
-            # not the controller's delay: a subscriber has not got the state yet
-            if waited <= self.options.command_timeout + _DELIVERY_GRACE:
-                if self._undelivered != self._awaiting:
-                    self._undelivered = self._awaiting
-                    self.get_logger().info(
-                        f'the state for t={time_text(self._awaiting)} s is not acknowledged by all '
-                        f'{self.state_pub.get_subscription_count()} subscriber(s) of '
-                        f'{self.state_pub.topic_name} after {waited:.1f} s (discovery not '
-                        'finished on their side?): command_timeout counts from its delivery')
-                return
-            self._fail(EXIT_TIMEOUT,
-                       f'lockstep timeout: the state for t={time_text(self._awaiting)} s was not '
-                       f'acknowledged by the subscribers of {self.state_pub.topic_name} within '
-                       f'{waited:.1f} s (command_timeout={self.options.command_timeout:g} s + '
-                       f'{_DELIVERY_GRACE:g} s for delivery; command has {self.gate.peers()[1]} '
-                       'publisher(s))')
-            return
-        if self._undelivered == self._awaiting:
-            # delivered since the last check: the controller has its full timeout from now
-            self._undelivered = None
-            self._published_wall = now
-            return
-        if self._last_command_t is not None:
-            last = f'the last command answered t={time_text(self._last_command_t)} s'
-        elif self.received:
-            last = (f'{self.received} command(s) received, none answering a sample: empty or '
-                    'without a finite t')
-        else:
-            last = 'no command received at all'
-        self._fail(EXIT_TIMEOUT,
-                   f'lockstep timeout: the controller stalled: no command answering '
-                   f't={time_text(self._awaiting)} s within command_timeout='
-                   f'{self.options.command_timeout:g} s ({last}; command has '
-                   f'{self.gate.peers()[1]} publisher(s))')
+        self.command_wait.check(self._awaiting, self.options.command_timeout,
+                                self._timer.timer_period_ns, self._last_command_t,
+                                self.received)
 
     def _lockstep_command(self, data: Any, t: float | None) -> None:
         if self._awaiting is None or t != self._awaiting:
@@ -145,74 +248,19 @@ class Lockstep:
         """Lockstep: the period whose command was taken at ``begin`` is published: check
         for an overrun, pace to slow subscribers when asked, await the next command."""
         took = monotonic() - begin
-        if took > self.options.command_timeout and self._overrunning(took):
+        timeout = self.options.command_timeout
+        sim = self.sim
+        if took > timeout and self.command_wait.overrun(took, timeout, sim.samples, sim.hold,
+                                                        sim.t):
             return
         every = self.options.pace_to_subscribers
-        if every and self.sim.samples % every == 0:
-            self._keep_subscribers_up()
+        if every and sim.samples % every == 0:
+            self.reader_pacing.keep_up(sim.samples, every, sim.t)
             # that wait (up to _STALL_TIMEOUT, blocking the timer) was the plant's own: the
             # next lockstep check must not take the plant for stopped and grant the resume
             # grace (which hid a stopped controller's undelivered state for 5 s)
-            self._checked = monotonic()
+            self.command_wait.checked = monotonic()
         self._await_command()
-
-    def _overrunning(self, took: float) -> bool:
-        """A control period took ``took`` s of wall time, more than ``command_timeout``:
-        the plant's own work, or a wait outside it (a publish that DDS blocked: Fast DDS
-        spends up to 1 s checking the shared-memory port of a stopped subscriber's process; a
-        host that did not run the plant). The first such period is logged and its end marks
-        the process's CPU time; when the very next period is too long as well, the plant is
-        overrunning (exit 3) if it used more CPU than ``command_timeout`` since the mark
-        (one period's work and the wait for its command). Nothing is added to a period that
-        is not too long."""
-        cpu = time.process_time()
-        n = self.sim.samples
-        mark, self._slow = self._slow, (n, cpu)
-        timeout = self.options.command_timeout
-        if mark is not None and mark[0] == n - 1 and cpu - mark[1] > timeout:
-            self._fail(EXIT_TIMEOUT,
-                       f'lockstep timeout: the plant is overrunning: one control period '
-                       f'({self.sim.hold} steps) took {took:.3f} s > command_timeout='
-                       f'{timeout:g} s at t={time_text(self.sim.t)} s, using '
-                       f'{cpu - mark[1]:.3f} s of '
-                       'CPU with the wait for its command (the one before took too long '
-                       'as well)')
-            return True
-        self.get_logger().warning(
-            f'one control period ({self.sim.hold} steps) took {took:.3f} s > command_timeout='
-            f'{timeout:g} s of wall time at t={time_text(self.sim.t)} s: not an overrun unless the '
-            'next one takes as long in CPU time (a publish blocked by DDS, e.g. for a stopped '
-            'subscriber, or a stalled host)')
-        return False
-
-    def _keep_subscribers_up(self) -> None:
-        """Lockstep with ``pace_to_subscribers``: wait until every subscriber of the samples
-        has acknowledged them, so a subscriber slower than the loop (a recorder, whose keep-all
-        readers stop acknowledging when their queue is full) paces the run instead of losing
-        what falls out of the writer's queue. After _ACK_TIMEOUT the loop goes on only while
-        that cannot lose a sample: the samples since the subscriber last acknowledged
-        everything, plus those until the next wait, still fit the writer's queue. Otherwise it
-        waits on, up to _STALL_TIMEOUT; a subscriber silent that long (stalled) is left
-        behind with a warning, and from then on waited for only _ACK_TIMEOUT until it
-        catches up."""
-        n = self.sim.samples
-        every = self.options.pace_to_subscribers
-        for pub in self._paced_pubs:
-            topic = pub.topic_name
-            if pub.wait_for_all_acked(Duration(seconds=_ACK_TIMEOUT)):
-                self._all_acked[topic] = n
-                continue
-            behind = n - self._all_acked.get(topic, 0)
-            if behind + every <= pub.qos_profile.depth or self._all_acked.get(topic) == -1:
-                continue       # nothing can be lost before the next wait (or stalled before)
-            if pub.wait_for_all_acked(Duration(seconds=_STALL_TIMEOUT - _ACK_TIMEOUT)):
-                self._all_acked[topic] = n
-                continue
-            self._all_acked[topic] = -1
-            self.get_logger().warning(
-                f'{topic}: a subscriber has not acknowledged up to {behind} samples for '
-                f'{_STALL_TIMEOUT:g} s at t={time_text(self.sim.t)} s (the queue holds '
-                f'{pub.qos_profile.depth}); continuing (it may lose samples)')
 
     def _on_command_lockstep(self, raw: bytes) -> None:
         """Lockstep, external controller (the subscription's callback): the good command,

@@ -89,7 +89,7 @@ class Publishing:
             time.sleep(0.001)
             try:
                 send(payload)
-                self._checked = monotonic()   # that wait was the plant's own (see _next)
+                self.command_wait.checked = monotonic()   # the plant's own wait (see _next)
                 return
             except Exception as again:  # noqa: BLE001
                 exc = again

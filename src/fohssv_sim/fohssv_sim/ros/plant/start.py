@@ -252,7 +252,7 @@ class RunStart:
             self._publish()
             self._await_command()
             period = min(0.05, max(self.options.command_timeout / 4.0, 0.001))
-            self._checked = monotonic()
+            self.command_wait.checked = monotonic()
             self._timer = self.create_timer(period, self._check_lockstep_timeout)
         else:
             o = self.options

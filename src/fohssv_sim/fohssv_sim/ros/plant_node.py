@@ -54,7 +54,6 @@ run ends there with its summary and a ``run_end`` listing what was published,
 from __future__ import annotations
 
 import sys
-import threading
 from collections.abc import Mapping
 from time import monotonic
 from typing import Any
@@ -152,8 +151,6 @@ class PlantNode(RunStart, Publishing, HostedRoom, Lockstep, CompiledTaking, Real
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('plant', **NODE_OPTIONS, **kwargs)
         values = declare(self, PARAMETERS + NODE_PARAMETERS)
-        self._law_started = 0.0                   # hosted: perf_counter of the call in progress
-        self._law_watch_end = threading.Event()   # ends the hung-law watch (at the run's end)
         self.hosted = self._host(values['controller'])   # the hosted law, or None
         refuse_unknown(self)
         self.model, self.options, hold = build_config(values)

@@ -1,8 +1,10 @@
 """The hosted law (``controller:=NAME``): its parameters, the law at every sample, bursts of
 samples in one compiled call.
 
-A room of :class:`fohssv_sim.ros.plant_node.PlantNode`: a mixin whose methods run on the node
-(its attributes are set in ``PlantNode.__init__``).
+Rooms of :class:`fohssv_sim.ros.plant_node.PlantNode`: :class:`LawWatch`, an object that owns
+the watch for a law's call that does not return; :class:`HostedRoom`, a mixin over the
+node's attributes, as a burst of samples writes the node's messages, counters and model
+directly (the per-sample path).
 """
 
 from __future__ import annotations
@@ -10,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import threading
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from time import monotonic, perf_counter, sleep
 from typing import Any
 
@@ -38,6 +40,50 @@ BURST_ROWS = 64
 LAW_TIMEOUT = 1.0
 
 
+class LawWatch:
+    """A hosted law's call that has not returned for :data:`LAW_TIMEOUT` s: logged once per
+    call by a daemon thread, and said by the signal handler, which then ends the run (exit
+    10) instead of waiting for the call.
+
+    Given the law's ``name``, ``t()`` (the sample time of the call) and the node's logger.
+    The node sets :attr:`started` around each call of the law (per sample, inline) and calls
+    :meth:`end` at the run's end; it installs :meth:`stuck` as the signal handler's
+    :attr:`~fohssv_sim.ros.spin.StopSignal.stuck`."""
+
+    def __init__(self, name: str, t: Callable[[], float], log: Any) -> None:
+        self._name, self._t, self._log = name, t, log
+        self.started = 0.0                   # perf_counter of the call in progress, 0: none
+        self._end = threading.Event()        # ends the watch (at the run's end)
+        STOP.stuck = self.stuck
+        threading.Thread(target=self._watch, name='law-watch', daemon=True).start()
+
+    def end(self) -> None:
+        self._end.set()
+
+    def stuck(self) -> str | None:
+        """The call in progress when it has not returned for :data:`LAW_TIMEOUT` s (plugin,
+        sample time, how long), else None. Read by the signal handler and the watch
+        thread."""
+        start = self.started
+        if not start:
+            return None
+        late = perf_counter() - start
+        if late < LAW_TIMEOUT:
+            return None
+        return (f'hosted law {self._name}.command(t={time_text(self._t())}) has not '
+                f'returned for {late:.1f} s (LAW_TIMEOUT={LAW_TIMEOUT:g} s)')
+
+    def _watch(self) -> None:
+        """The daemon thread: log a hung law call once per call (the loop is stuck in it)."""
+        reported = 0.0
+        while not self._end.wait(LAW_TIMEOUT / 4):
+            start, why = self.started, self.stuck()
+            if why is not None and start != reported:
+                reported = start
+                self._log.error(f'{why}; SIGINT or SIGTERM now ends the run (exit '
+                                f'{EXIT_LAW_HUNG}) after closing its outputs')
+
+
 class HostedRoom:
     """The plant node with a hosted law (the module docstring)."""
 
@@ -59,32 +105,8 @@ class HostedRoom:
         law = HostedLaw(self._build_controller(declare(self, specs)))
         install_validation(self, tuple(s.name for s in specs), self._build_controller,
                            self._apply_controller)
-        STOP.stuck = self._law_stuck
-        threading.Thread(target=self._watch_law, name='law-watch', daemon=True).start()
+        self.law_watch = LawWatch(law.name, lambda: self.sim.plant.t, self.get_logger())
         return law
-
-    def _law_stuck(self) -> str | None:
-        """The hosted law's call in progress when it has not returned for
-        :data:`LAW_TIMEOUT` s (plugin, sample time, how long), else None. Read by the signal
-        handler (:attr:`~fohssv_sim.ros.spin.StopSignal.stuck`) and the watch thread."""
-        start = self._law_started
-        if not start:
-            return None
-        late = perf_counter() - start
-        if late < LAW_TIMEOUT:
-            return None
-        return (f'hosted law {self.hosted.name}.command(t={time_text(self.sim.plant.t)}) has not '
-                f'returned for {late:.1f} s (LAW_TIMEOUT={LAW_TIMEOUT:g} s)')
-
-    def _watch_law(self) -> None:
-        """A daemon thread: log a hung law call once per call (the loop is stuck in it)."""
-        reported = 0.0
-        while not self._law_watch_end.wait(LAW_TIMEOUT / 4):
-            start, why = self._law_started, self._law_stuck()
-            if why is not None and start != reported:
-                reported = start
-                self.get_logger().error(f'{why}; SIGINT or SIGTERM now ends the run (exit '
-                                        f'{EXIT_LAW_HUNG}) after closing its outputs')
 
     def _build_controller(self, values: Mapping[str, Any]) -> control.Controller:
         cls = self._controller_cls
@@ -197,7 +219,8 @@ class HostedRoom:
         stays held, and it is counted and logged."""
         sim = self.sim
         t = sim.plant.t
-        self._law_started = start = perf_counter()   # watched by _law_stuck
+        watch = self.law_watch
+        watch.started = start = perf_counter()   # watched by LawWatch.stuck
         try:
             df, dc = self.hosted.command(t, sim.plant.x)
         except PluginHung as exc:     # a signal after the call hung for LAW_TIMEOUT
@@ -207,7 +230,7 @@ class HostedRoom:
             self._law_failed(t, exc)
             return
         finally:
-            self._law_started = 0.0
+            watch.started = 0.0
             self.law_time += perf_counter() - start
         self._publish_command(t, df, dc)
         o = self.options

@@ -124,7 +124,8 @@ class RunEnd:
         if self.finished.done():
             return
         self.exit_code = code
-        self._law_watch_end.set()
+        if self.hosted is not None:
+            self.law_watch.end()
         self.flush_views()      # the summary counts a view's last messages too
         s = self._summarise(self.get_logger().info)
         verdict = self._real_time_verdict(s)

@@ -58,7 +58,6 @@ from collections.abc import Mapping
 from time import monotonic
 from typing import Any
 
-import numpy as np
 from rclpy.node import Node
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
@@ -67,7 +66,6 @@ from std_srvs.srv import Trigger
 
 from .. import control
 from ..contract import CLOCK, COMMAND, PLANING_FORCE, RUN_END, STATE
-from ..models import MAX_PITCH
 from ..params import PARAMETERS, ModelParameters
 from .faults import StateFault
 from .inplant_record import EXIT_RECORD_LOST
@@ -91,7 +89,6 @@ from .nodekit import (
     spin_until,
 )
 from .options import NODE_PARAMETERS, PlantOptions, check_options, clock_samples, view_samples
-from .pacing import BurstWait, Pacer
 from .plant.codes import (
     CONTROLLER_PREFIX,
     EXIT_BAD_PARAMETERS,
@@ -108,7 +105,7 @@ from .plant.codes import (
 from .plant.commands import LOG_EACH, CommandIntake
 from .plant.fastpath.taking import CompiledTaking
 from .plant.host_tuning import tune_host
-from .plant.hosted import BURST_ROWS, HostedRoom
+from .plant.hosted import HostedRoom
 from .plant.instrumentation import Profile
 from .plant.lockstep import CommandWait, Lockstep, ReaderPacing
 from .plant.publishing import Publishing
@@ -143,23 +140,67 @@ class PlantNode(RunStart, Publishing, HostedRoom, Lockstep, CompiledTaking, Real
                 CommandIntake, RunEnd, Node):
     """See the module docstring. Raises ParameterError from the constructor on bad values.
 
-    The node wires its rooms (:mod:`fohssv_sim.ros.plant`: the start gate, publishing, the
-    hosted law, lockstep, the compiled taking, real time, command intake, the run's end);
-    each is a mixin of methods over the attributes set here."""
+    The node wires its rooms (:mod:`fohssv_sim.ros.plant`). Objects that own their state,
+    each given what it reads and the calls back it makes: the start gate
+    (:class:`~.plant.start.PeerGate`), the lockstep command wait and reader pacing
+    (:class:`~.plant.lockstep.CommandWait`, :class:`~.plant.lockstep.ReaderPacing`), real
+    time's watchdog and lag stop (:class:`~.plant.realtime.Watchdog`,
+    :class:`~.plant.realtime.LagStop`), the hosted law's hang watch
+    (:class:`~.plant.hosted.LawWatch`), the in-plant recording, the views, host tuning (a
+    function). Mixins, each declaring its own counters and flags in its module, for the
+    per-sample paths, where an object's attribute hop would cost each sample: publishing,
+    lockstep, the compiled taking, real time's pacing, command intake, the hosted law's
+    bursts, the run's start and reset, the run's end (which reads every room's figures)."""
+
+    #: the ``cpu_dma_latency`` held (us), None when none: :func:`.plant.host_tuning.tune_host`'s
+    cpu_latency: int | None = None
 
     @destroy_on_error
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('plant', **NODE_OPTIONS, **kwargs)
         values = declare(self, PARAMETERS + NODE_PARAMETERS)
-        self.hosted = self._host(values['controller'])   # the hosted law, or None
+        self.hosted = self._host(values['controller'])   # the hosted law (hosted.py), or None
         refuse_unknown(self)
         self.model, self.options, hold = build_config(values)
         self.sim = SampledPlant(self.model, self.options.control_period,
                                 self.options.initial_state, self.options.duration)
         install_validation(self, _MODEL_NAMES + _NODE_NAMES, build_config, self._apply)
+        self.finished = Future()   # done with the exit code when the run ends (run_end.py)
+        self._lockstep = self.options.mode == 'lockstep'
+        self._free_run = self.hosted is not None and self._lockstep
+        self.profile: Profile | None = Profile() if self.options.profile else None
+        self._open_topics()
+        log = self.get_logger()
+        self._log_rejected = LogLimiter(log, LOG_EACH)             # commands.py
+        self._log_retry = LogLimiter(log, 5, level='warning')      # publishing.py
+        # record:=PATH: the plant writes its own bag (inplant_record.py); None when off
+        self.record = start_recording(self)
+        self._open_fast_path()
+        # pace_to_subscribers: the readers of the samples (and a hosted law's commands)
+        self.reader_pacing = ReaderPacing((self.state_pub, self.force_pub) + (
+            () if self.command_pub is None else (self.command_pub,)), log)
+        # real time, an external controller: its silence, and the lag of its commands
+        self.watchdog = Watchdog(log)
+        self.lag_stop = LagStop(self.options.max_command_lag, self.options.control_period)
+        # the start gate: the run starts once the peers matched (a second plant ends it)
+        self.gate = PeerGate(
+            self, lambda: self.options, None if self.hosted is None else self.hosted.name,
+            self.state_pub, self.clock_pub, self._sample_pubs, self.views, self.command_sub,
+            self.command_topic, self.finished, start=self._start, fail=self._fail)
+        # lockstep: the awaited command's timeout and graces, a period's overrun
+        self.command_wait = CommandWait(log, self.state_pub, self.gate.peers, self._fail)
+        log.info(
+            f'{self.sim.plant.describe()} (ready in {self.sim.compile_seconds:.2f} s); mode '
+            f'{self.options.mode}, control period '
+            f'{self.options.control_period:g} s = {hold} steps (zero-order hold), duration '
+            f'{self.options.duration:g} s; controller '
+            + ('external (a node publishing command)' if self.hosted is None
+               else self.hosted.describe()))
 
-        self.finished = Future()
-        self.exit_code = EXIT_OK
+    def _open_topics(self) -> None:
+        """The run's messages, publishers and publish calls, the views, the command
+        subscription (an external controller) or publisher (a hosted law), ``reset`` and
+        ``run_end`` (publishing.py sends the samples through them)."""
         # the messages of every sample, serialized once and written in place (wire.py)
         self._state_out = ArrayWriter(STATE)
         self._force_out = ArrayWriter(PLANING_FORCE)
@@ -167,11 +208,7 @@ class PlantNode(RunStart, Publishing, HostedRoom, Lockstep, CompiledTaking, Real
         self._force_data = self._force_out.values
         self._clock_out = ClockWriter()
         self._command_in = ArrayReader(COMMAND)
-        self._free_run = self.hosted is not None and self.options.mode == 'lockstep'
         self._clock_every = clock_samples(self.options)
-        self._lockstep = self.options.mode == 'lockstep'
-        self.profile: Profile | None = Profile() if self.options.profile else None
-        self._cpu_start = 0.0
         self.state_pub = self.create_publisher(Float64MultiArray, STATE.name, profile(STATE))
         self.force_pub = self.create_publisher(Float64MultiArray, PLANING_FORCE.name,
                                                profile(PLANING_FORCE))
@@ -185,11 +222,6 @@ class PlantNode(RunStart, Publishing, HostedRoom, Lockstep, CompiledTaking, Real
                 self.get_logger().warning(line)
         self._send_force = raw_publish(self.force_pub)
         self._send_clock = raw_publish(self.clock_pub)
-        # hosted: /clock and command (volatile) are published only while someone subscribes;
-        # the counts are looked at between chunks of samples (_refresh_matched). *_on: made
-        # at all (published, or with record:=PATH only put into the in-plant bag)
-        self._clock_wanted = self._clock_on = True
-        self._command_wanted = self._command_on = True
         # typed views for viewers, every view_period (views.py); None when off
         self._view_every = view_samples(self.options)
         self.views = ViewPublisher(
@@ -220,32 +252,14 @@ class PlantNode(RunStart, Publishing, HostedRoom, Lockstep, CompiledTaking, Real
             # its commands are the run's output like the samples: the start waits for their
             # listed readers, pace_to_subscribers for their acknowledgements, the linger too
             self._sample_pubs += (self.command_pub,)
-        # pace_to_subscribers: the readers of the samples (and a hosted law's commands)
-        self.reader_pacing = ReaderPacing((self.state_pub, self.force_pub) + (
-            () if self.command_pub is None else (self.command_pub,)), self.get_logger())
         self.reset_srv = self.create_service(Trigger, 'reset', self._on_reset)
         # once, when the run ends: what was published, for recorders to check (contract.py)
         self.end_pub = self.create_publisher(String, RUN_END.name, profile(RUN_END))
-        self.sent = 0                             # samples published (state, planing_force)
-        self.received = 0                         # commands received while running
-        self.commanded = 0                        # hosted: commands the law gave
-        self.commands_sent = 0                    # hosted: of those, published (subscribed)
-                                                  # or put into the in-plant bag
-        self.law_failures = 0                     # hosted: samples the law gave no command
-        self.law_time = 0.0                       # hosted, per sample: wall time in its calls
-        self._announced = False                   # run_end published
-        self.forces_lost = 0                      # planing_force samples not published
-        self._cut: tuple[float, int] | None = None  # (t, steps) where a burst ended the run
-        self.cpu_latency: int | None = None    # the cpu_dma_latency held (us): tune_host's
-        self.publish_retries = 0                  # publishes DDS refused at first
-        self.resets = 0
-        self._samples_before = 0                  # samples and steps before the last reset
-        self._steps_before = 0
-        self._log_rejected = LogLimiter(self.get_logger(), LOG_EACH)
-        self._log_law = LogLimiter(self.get_logger(), LOG_EACH)   # hosted: no command
-        self._log_retry = LogLimiter(self.get_logger(), 5, level='warning')
-        # record:=PATH: the plant writes its own bag (inplant_record.py); None when off
-        self.record = start_recording(self)
+
+    def _open_fast_path(self) -> None:
+        """Lockstep with an external controller: the short path of the awaited command's
+        sample and, where it can be built, the compiled sample (fastpath/); after the
+        in-plant recording, whose ring and publish calls they use."""
         # the state's publish call the compiled sample stands in for (publishing, and with
         # record:=PATH putting into the in-plant bag, as _send_state does; with fault
         # injection through the same faults); a call wrapped later (a bench's stamps) is not
@@ -258,42 +272,6 @@ class PlantNode(RunStart, Publishing, HostedRoom, Lockstep, CompiledTaking, Real
         # ... and that sample's check, kernel call, write and publish in one compiled call
         # (fastpath/sample.py), armed for each awaited sample; None: the interpreted path
         self._compiled = self._build_compiled() if self._quick is not None else None
-        self._taking = False    # its commands taken in compiled code (take_commands)
-
-        self.running = False
-        self.rejected = 0
-        self.stale = 0                            # realtime: of those, stale or future
-        self.ignored = 0
-        self.bursts: BurstWait | None = None      # hosted realtime: see _start_run
-        # hosted: the rows a burst of samples is computed into (SampledPlant.advance_burst)
-        # and [max |delta_f|, max |delta_c|, max |w|, max |theta|] (set at each burst: the
-        # options and the model may change at run time)
-        self._rows = np.zeros((BURST_ROWS, 7))
-        self._limits = np.array([0.0, 0.0, self.model.speed, MAX_PITCH])
-        self._awaiting: float | None = None       # lockstep: t of the state awaiting a command
-        self._last_command_t: float | None = None  # t of the last command with a finite t
-        # real time, an external controller: its silence, and the lag of its commands
-        self.watchdog = Watchdog(self.get_logger())
-        self.lag_stop = LagStop(self.options.max_command_lag, self.options.control_period)
-        self._slow_warn_at = 0.0                  # realtime: when "not keeping real time" may come
-        self._run_wall_start = 0.0
-        self._timer = None
-        self.pacer: Pacer | None = None
-        # the start gate: the run starts once the peers matched (a second plant ends it)
-        self.gate = PeerGate(
-            self, lambda: self.options, None if self.hosted is None else self.hosted.name,
-            self.state_pub, self.clock_pub, self._sample_pubs, self.views, self.command_sub,
-            self.command_topic, self.finished, start=self._start, fail=self._fail)
-        # lockstep: the awaited command's timeout and graces, a period's overrun
-        self.command_wait = CommandWait(self.get_logger(), self.state_pub, self.gate.peers,
-                                        self._fail)
-        self.get_logger().info(
-            f'{self.sim.plant.describe()} (ready in {self.sim.compile_seconds:.2f} s); mode '
-            f'{self.options.mode}, control period '
-            f'{self.options.control_period:g} s = {hold} steps (zero-order hold), duration '
-            f'{self.options.duration:g} s; controller '
-            + ('external (a node publishing command)' if self.hosted is None
-               else self.hosted.describe()))
 
     def _apply(self, config: tuple[ModelParameters, PlantOptions, int]) -> None:
         _, options, _ = config

@@ -21,7 +21,15 @@ LOG_EACH = 20
 
 
 class CommandIntake:
-    """The plant node's intake of an external controller's commands (the module docstring)."""
+    """The plant node's intake of an external controller's commands (the module docstring):
+    a mixin, as each command is checked on the per-sample path; its counters are declared
+    here (read by the run's summary and ``run_end``)."""
+
+    received = 0                          # commands received while running
+    rejected = 0                          # of those, rejected (the last good one held)
+    stale = 0                             # realtime: of the rejected, stale or future
+    ignored = 0                           # lockstep: answering another sample than awaited
+    _last_command_t: float | None = None  # t of the last command with a finite t
 
     def _on_command(self, raw: bytes) -> None:
         """A serialized ``command`` (the subscription is raw: see wire.py)."""

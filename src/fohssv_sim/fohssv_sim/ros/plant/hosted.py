@@ -16,14 +16,24 @@ from collections.abc import Callable, Mapping
 from time import monotonic, perf_counter, sleep
 from typing import Any
 
+import numpy as np
+
 from ... import control
 from ...control import NonFiniteCommand
-from ...models import check_state
+from ...models import MAX_PITCH, check_state
 from ...params import ParameterError, ParameterSpec, field_specs
 from ..loop import HostedLaw, time_text
-from ..nodekit import PLUGIN_FAULTS, STOP, build_plugin, declare, install_validation
+from ..nodekit import (
+    PLUGIN_FAULTS,
+    STOP,
+    LogLimiter,
+    build_plugin,
+    declare,
+    install_validation,
+)
 from ..spin import PluginHung
 from .codes import CONTROLLER_PREFIX, EXIT_LAW_HUNG, EXIT_PUBLISH_FAILED, PublishFailed
+from .commands import LOG_EACH
 
 #: With a hosted controller: the wall time (s) one chunk of samples runs before the executor
 #: is spun again (services, parameters, the graph checks, signals).
@@ -87,6 +97,11 @@ class LawWatch:
 class HostedRoom:
     """The plant node with a hosted law (the module docstring)."""
 
+    commanded = 0        # commands the law gave
+    commands_sent = 0    # of those, published (subscribed) or put into the in-plant bag
+    law_failures = 0     # samples the law gave no command for
+    law_time = 0.0       # wall time in the law's calls (s)
+
     def _host(self, name: str) -> HostedLaw | None:
         """The plugin ``name`` hosted in the loop, its parameters declared under
         :data:`CONTROLLER_PREFIX` from its table (the controller node's descriptors, ranges,
@@ -106,6 +121,12 @@ class HostedRoom:
         install_validation(self, tuple(s.name for s in specs), self._build_controller,
                            self._apply_controller)
         self.law_watch = LawWatch(law.name, lambda: self.sim.plant.t, self.get_logger())
+        self._log_law = LogLimiter(self.get_logger(), LOG_EACH)   # samples without a command
+        # the rows a burst of samples is computed into (SampledPlant.advance_burst) and
+        # [max |delta_f|, max |delta_c|, max |w|, max |theta|] (the first three set at each
+        # burst: the options and the model may change at run time)
+        self._rows = np.zeros((BURST_ROWS, 7))
+        self._limits = np.array([0.0, 0.0, 0.0, MAX_PITCH])
         return law
 
     def _build_controller(self, values: Mapping[str, Any]) -> control.Controller:

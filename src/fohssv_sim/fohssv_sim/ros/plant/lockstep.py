@@ -203,6 +203,8 @@ class Lockstep:
     """The plant node in lockstep (the module docstring): a mixin, as the per-sample path
     reads and writes the node's messages, model and counters directly."""
 
+    _awaiting: float | None = None    # t of the state awaiting its command
+
     def _await_command(self) -> None:
         self._awaiting = t = self.sim.t
         self.command_wait.published = time.monotonic()

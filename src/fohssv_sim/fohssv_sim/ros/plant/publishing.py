@@ -22,7 +22,17 @@ _PUBLISH_RETRY = 1.0
 
 
 class Publishing:
-    """How the plant node publishes a sample (the module docstring)."""
+    """How the plant node publishes a sample (the module docstring): a mixin, as every
+    sample path ends here; its counters and switches are declared here."""
+
+    sent = 0               # samples published (state, planing_force)
+    forces_lost = 0        # planing_force samples not published (their state was)
+    publish_retries = 0    # publishes DDS refused at first
+    # /clock and a hosted law's command (volatile) are published only while someone
+    # subscribes (_refresh_matched); *_on: made at all (published, or with record:=PATH only
+    # put into the in-plant bag)
+    _clock_wanted = _clock_on = True
+    _command_wanted = _command_on = True
 
     def _publish(self) -> None:
         self.sent += 1

@@ -126,6 +126,8 @@ class LagStop:
 class RealTime:
     """The plant node in real time (the module docstring)."""
 
+    _slow_warn_at = 0.0      # when "not keeping real time" may be warned again (monotonic s)
+
     def pacing_wait(self) -> float | None:
         """Seconds until the next real-time sample is due (<= 0: due now); None when no
         sample is paced (lockstep, not started, or ended). Called by the spin loop. Lockstep

@@ -27,7 +27,12 @@ _RUN_END_WAIT = 10.0
 
 
 class RunEnd:
-    """The plant node's end of a run (the module docstring)."""
+    """The plant node's end of a run (the module docstring): a mixin, as the summary reads
+    every room's figures; its own state is declared here."""
+
+    exit_code = EXIT_OK
+    _announced = False                    # run_end published
+    _cut: tuple[float, int] | None = None  # (t, steps) where a refused publish ended a burst
 
     #: the summary line not yet logged: (how it is logged, its lead, the figures); held back
     #: with ``record`` until the bag is closed (:meth:`say_summary`)

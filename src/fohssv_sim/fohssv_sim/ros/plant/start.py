@@ -225,6 +225,16 @@ class RunStart:
     """The start and the reset of a run (the module docstring): a mixin, as both drive every
     other room (publishing, lockstep, real time, the hosted law) over the node's attributes."""
 
+    running = False             # started and not ended (nor interrupted)
+    pacer: Pacer | None = None  # realtime: the wall-clock schedule, from the start
+    bursts: BurstWait | None = None   # hosted realtime: the wake-up per burst of samples
+    _timer: Any = None          # the run's check: lockstep timeout, or real time's watchdog
+    _run_wall_start = 0.0       # monotonic s at the start
+    _cpu_start = 0.0            # process CPU s at the start
+    resets = 0
+    _samples_before = 0         # samples and steps before the last reset
+    _steps_before = 0
+
     def _start(self) -> None:
         self.running = True
         self._run_wall_start = time.monotonic()

@@ -23,7 +23,10 @@ _TAKE_WAIT_MIN = 0.001
 
 
 class CompiledTaking:
-    """The plant node taking its commands in compiled code (the module docstring)."""
+    """The plant node taking its commands in compiled code (the module docstring): a mixin,
+    as it finishes each sample on the node's per-sample path."""
+
+    _taking = False    # the commands are taken in compiled code (take_commands)
 
     def _build_compiled(self) -> fastpath.CompiledSample | None:
         """The compiled sample of the node's held period (:attr:`_quick`), bound to its

@@ -1,7 +1,8 @@
 """An external controller's commands: received, checked, held or rejected.
 
-A room of :class:`fohssv_sim.ros.plant_node.PlantNode`: a mixin whose methods run on the node
-(its attributes are set in ``PlantNode.__init__``).
+A room of :class:`fohssv_sim.ros.plant_node.PlantNode`: a mixin whose methods run on the node,
+as every command passes here on the per-sample path; its counters are declared in its class
+body, the watchdog and lag stop it feeds are :mod:`.realtime`'s objects.
 """
 
 from __future__ import annotations

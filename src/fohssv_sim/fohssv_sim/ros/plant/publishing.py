@@ -2,8 +2,9 @@
 published while nobody subscribes. Every path a sample takes (interpreted, burst, the short and
 the compiled lockstep path) ends here.
 
-A room of :class:`fohssv_sim.ros.plant_node.PlantNode`: a mixin whose methods run on the node
-(its attributes are set in ``PlantNode.__init__``).
+A room of :class:`fohssv_sim.ros.plant_node.PlantNode`: a mixin whose methods run on the node,
+as every sample passes here; its counters and switches are declared in its class body, the
+messages and publishers are made by ``PlantNode._open_topics``.
 """
 
 from __future__ import annotations

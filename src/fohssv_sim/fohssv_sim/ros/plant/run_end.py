@@ -1,7 +1,8 @@
 """The run's end: the summary, run_end, the flush and the linger.
 
-A room of :class:`fohssv_sim.ros.plant_node.PlantNode`: a mixin whose methods run on the node
-(its attributes are set in ``PlantNode.__init__``).
+A room of :class:`fohssv_sim.ros.plant_node.PlantNode`: a mixin whose methods run on the node,
+as the summary and ``run_end`` read every room's figures; its own state is declared in its
+class body.
 """
 
 from __future__ import annotations

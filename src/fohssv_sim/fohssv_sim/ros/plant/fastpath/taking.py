@@ -1,8 +1,9 @@
 """Lockstep, the commands taken in compiled code (rcl's wait and take, then the compiled sample)
 and what the node does after the compiled sample.
 
-A room of :class:`fohssv_sim.ros.plant_node.PlantNode`: a mixin whose methods run on the node
-(its attributes are set in ``PlantNode.__init__``).
+A room of :class:`fohssv_sim.ros.plant_node.PlantNode`: a mixin whose methods run on the node,
+as it finishes each sample on the lockstep per-sample path (the node's messages, model and
+counters).
 """
 
 from __future__ import annotations

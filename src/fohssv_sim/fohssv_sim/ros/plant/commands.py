@@ -61,8 +61,8 @@ class CommandIntake:
             if stop.over(now, t, wall, prev):
                 self._lag_stop()
                 return
-            if self._take(data):
-                stop.held(lag)
+            if self._take(data) and lag > stop.worst:
+                stop.worst = lag
         else:
             self._take(data)    # rejected: no finite t
 

@@ -74,12 +74,14 @@ class LagStop:
     :class:`~fohssv_sim.ros.pacing.CommandLag` of ``max_command_lag`` and the control period)
     and whether it has stayed over the limit long enough to end the run (exit 6).
 
-    The command intake calls :meth:`over` for each command in time (after its own checks);
-    the node changes :attr:`lag`'s ``limit`` when ``max_command_lag`` changes, and a reset
-    forgets the span over it."""
+    The command intake calls :meth:`over` for each command in time (after its own checks)
+    and raises :attr:`worst` to the lag of each command it holds; the node changes
+    :attr:`lag`'s ``limit`` when ``max_command_lag`` changes, and a reset forgets the span
+    over it."""
 
     def __init__(self, limit: float, period: float) -> None:
         self.lag = CommandLag(limit, period)
+        self._add = self.lag.add          # (bound once: called per command)
         self.worst = 0.0                  # the largest lag of a command held (simulated s)
         self.gap = 0.0                    # the controller's silence before the lag span (s)
         self._wall: float | None = None   # wall time the span over the limit began
@@ -89,19 +91,21 @@ class LagStop:
         """The command answering ``t`` arrived at sample time ``now`` and wall time ``wall``
         (the one before at ``prev``): True when its lag has been over the limit for
         ``max_command_lag`` periods and, given the wall time :data:`LAG_WALL` to fall after
-        a stall, has not fallen: the run stops."""
-        lags = self.lag
-        over = lags.add(now, t)
+        a stall, has not fallen: the run stops. (The intake keeps :attr:`worst` itself, for
+        the commands it holds.)"""
+        over = self._add(now, t)
         # the longest silence since the lag went over the limit, the one before its first
         # command included (a stall that began it; the backlog answered after a stall
         # comes in quick succession)
-        silence = wall - prev if prev is not None else 0.0
-        self.gap = 0.0 if lags.over_since is None else max(self.gap, silence)
+        if self.lag.over_since is None:
+            self.gap = 0.0
+        elif prev is not None:
+            self.gap = max(self.gap, wall - prev)
         if not over:                 # under the limit, or not for max_command_lag periods
             self._wall = None
             return False
         if self._wall is None:
-            self._wall, self._from = wall, (now, lags.last)
+            self._wall, self._from = wall, (now, self.lag.last)
             return False
         return self._lost(now, wall)
 
@@ -112,11 +116,6 @@ class LagStop:
         lags, (t0, lag0) = self.lag, self._from
         return (wall - self._wall >= LAG_WALL
                 or (now - t0 >= lags.limit * lags.period and lags.last >= lag0))
-
-    def held(self, lag: float) -> None:
-        """A command ``lag`` s of simulated time behind the sample was held."""
-        if lag > self.worst:
-            self.worst = lag
 
     def rearm(self) -> None:
         """A reset: the span over the limit starts again."""

@@ -110,7 +110,7 @@ from .plant.instrumentation import Profile
 from .plant.lockstep import CommandWait, Lockstep, ReaderPacing
 from .plant.publishing import Publishing
 from .plant.realtime import LagStop, RealTime, Watchdog
-from .plant.run_end import RunEnd, on_interrupt, recorded, signals_that_ended
+from .plant.run_end import Departure, RunEnd, on_interrupt, recorded, signals_that_ended
 from .plant.start import PeerGate, RunStart
 from .views import ViewPublisher
 from .wire import raw_publish
@@ -146,7 +146,8 @@ class PlantNode(RunStart, Publishing, HostedRoom, Lockstep, CompiledTaking, Real
     (:class:`~.plant.lockstep.CommandWait`, :class:`~.plant.lockstep.ReaderPacing`), real
     time's watchdog and lag stop (:class:`~.plant.realtime.Watchdog`,
     :class:`~.plant.realtime.LagStop`), the hosted law's hang watch
-    (:class:`~.plant.hosted.LawWatch`), the in-plant recording, the views, host tuning (a
+    (:class:`~.plant.hosted.LawWatch`), the flush and linger after the run
+    (:class:`~.plant.run_end.Departure`), the in-plant recording, the views, host tuning (a
     function). Mixins, each declaring its own counters and flags in its module, for the
     per-sample paths, where an object's attribute hop would cost each sample: publishing,
     lockstep, the compiled taking, real time's pacing, command intake, the hosted law's
@@ -189,6 +190,8 @@ class PlantNode(RunStart, Publishing, HostedRoom, Lockstep, CompiledTaking, Real
             self.command_topic, self.finished, start=self._start, fail=self._fail)
         # lockstep: the awaited command's timeout and graces, a period's overrun
         self.command_wait = CommandWait(log, self.state_pub, self.gate.peers, self._fail)
+        # after the run: the readers' time to take what was published (flush, linger)
+        self.departure = Departure(self, self.end_pub, self._sample_pubs)
         log.info(
             f'{self.sim.plant.describe()} (ready in {self.sim.compile_seconds:.2f} s); mode '
             f'{self.options.mode}, control period '
@@ -352,11 +355,11 @@ def _run(node: PlantNode) -> int:
     # a reader loses what it has not taken when the writer goes away: after a signal too
     # (even one that came as the run ended by itself), the recorder gets the time to drain
     # what was published (bounded waits; a further signal ends it)
-    node.flush(STOP.count)
+    node.departure.flush(STOP.count)
     if node.record is not None:       # the controller's name for the bag, if still asked
         node.record.settle(executor)
     code = recorded(node, code)      # the bag closed before the linger (which may wait 1 s)
-    node.linger(executor, signals)
+    node.departure.linger(executor, signals, node.options.end_linger)
     if node.record is not None:       # the writer process ended meanwhile
         node.record.reap()
     return code

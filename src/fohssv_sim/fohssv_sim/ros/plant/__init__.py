@@ -17,8 +17,9 @@ body, as an object's attribute hop there would cost every sample.
   an external controller's silence and its commands' lag) and :class:`~.realtime.RealTime`
   (mixin: pacing, the real-time warnings and stops);
 * :mod:`.commands`: mixin, an external controller's commands checked, held or rejected;
-* :mod:`.run_end`: mixin (it reads every room's figures), the summary, ``run_end``, the
-  flush and the linger;
+* :mod:`.run_end`: :class:`~.run_end.RunEnd` (mixin: it reads every room's figures), the
+  summary and ``run_end``, and :class:`~.run_end.Departure` (object: the flush and the
+  linger);
 * :mod:`.host_tuning`: a function, affinity, CPU latency, SCHED_FIFO;
 * :mod:`.instrumentation`: ``profile:=1``, a hook over the node's own calls;
 * :mod:`.codes`: the exit codes;

@@ -1,8 +1,9 @@
 """The run's end: the summary, run_end, the flush and the linger.
 
-A room of :class:`fohssv_sim.ros.plant_node.PlantNode`: a mixin whose methods run on the node,
-as the summary and ``run_end`` read every room's figures; its own state is declared in its
-class body.
+Rooms of :class:`fohssv_sim.ros.plant_node.PlantNode`: :class:`RunEnd`, a mixin whose methods
+run on the node, as the summary and ``run_end`` read every room's figures (its own state is
+declared in its class body); :class:`Departure`, an object given the node's ``run_end`` and
+output writers: the flush and the linger after the run.
 """
 
 from __future__ import annotations
@@ -183,39 +184,52 @@ class RunEnd:
         self.get_logger().error(message)
         self._end(code)
 
+
+class Departure:
+    """After the run: the readers get the time to take what was published before the plant's
+    writers go away (a reader loses what it has not taken from a writer that leaves).
+
+    Given the node (its context and graph), the ``run_end`` publisher and the writers of the
+    run's output (the samples, the views, a hosted law's commands); offers :meth:`flush` and
+    :meth:`linger`, which the plant's run calls in that order once the run has ended."""
+
+    def __init__(self, node: Any, end_pub: Any, sample_pubs: tuple[Any, ...]) -> None:
+        self._node, self._end_pub, self._sample_pubs = node, end_pub, sample_pubs
+
     def flush(self, signals: int, timeout: float = 2.0) -> None:
         """Wait until subscribers acknowledged what was published (reliable topics): at most
         ``timeout`` s in all, and not after a signal beyond ``signals``."""
         deadline = time.monotonic() + timeout
         # run_end first: a recorder busy with a backlog must receive it before this writer
         # goes away (seen under load: the bag complete, the run_end never heard, exit 7)
-        for pub in (self.end_pub, *self._sample_pubs):
+        for pub in (self._end_pub, *self._sample_pubs):
             left = deadline - time.monotonic()
             if left <= 0 or STOP.count != signals:
                 return
             if pub.get_subscription_count() > 0:
                 pub.wait_for_all_acked(Duration(seconds=left))
 
-    def linger(self, executor: Any, signals: int) -> None:
-        """Keep the publishers (and services) up for ``end_linger`` s after the run ended, or
-        until nothing subscribes to the samples (or views) any more: a reader drops what it has not
-        taken yet from a writer that goes away, so a subscriber lagging behind a fast run
-        would lose its tail when the plant exits. Then, up to _RUN_END_WAIT s, while a reader
-        of ``run_end`` is still there (a recorder leaves once it took it). A signal beyond
-        the ``signals`` that ended the run (:func:`signals_that_ended`) ends it."""
-        deadline = time.monotonic() + self.options.end_linger
-        samples = self._sample_pubs
-        while (self.context.ok() and STOP.count == signals and time.monotonic() < deadline
+    def linger(self, executor: Any, signals: int, seconds: float) -> None:
+        """Keep the publishers (and services) up for ``seconds`` (``end_linger``) after the run
+        ended, or until nothing subscribes to the samples (or views) any more: a reader drops
+        what it has not taken yet from a writer that goes away, so a subscriber lagging behind
+        a fast run would lose its tail when the plant exits. Then, up to _RUN_END_WAIT s,
+        while a reader of ``run_end`` is still there (a recorder leaves once it took it). A
+        signal beyond the ``signals`` that ended the run (:func:`signals_that_ended`) ends
+        it."""
+        deadline = time.monotonic() + seconds
+        samples, ok = self._sample_pubs, self._node.context.ok
+        while (ok() and STOP.count == signals and time.monotonic() < deadline
                and any(p.get_subscription_count() > 0 for p in samples)):
             executor.spin_once(timeout_sec=0.05)
         # run_end too, as the player keeps its own: a recorder that has not taken it yet loses
         # it with this writer (seen under load: every sample in the bag, the run_end never
         # heard, exit 7); a recorder leaves once it has it. Bounded by _RUN_END_WAIT.
-        end = self.end_pub
+        end = self._end_pub
         deadline = time.monotonic() + _RUN_END_WAIT
-        while (self.context.ok() and STOP.count == signals and time.monotonic() < deadline
+        while (ok() and STOP.count == signals and time.monotonic() < deadline
                and (end.get_subscription_count() > 0
-                    or self.count_subscribers(end.topic_name) > 0)):
+                    or self._node.count_subscribers(end.topic_name) > 0)):
             executor.spin_once(timeout_sec=0.05)
 
 

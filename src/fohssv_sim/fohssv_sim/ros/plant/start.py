@@ -214,12 +214,13 @@ class PeerGate:
                         '`ros2 run fohssv_controller state_feedback`'
                         if pubs < o.min_command_publishers else '')
                 self._log.info(f'{self._waiting_for(subs, pubs)} (waited {waited:.0f} '
-                                       f's, {limit}){hint}')
+                               f's, {limit}){hint}')
             return
         self._fail(EXIT_NO_PEERS, f'start timeout: state has {subs}/{o.min_state_subscribers} '
                    f'subscriber(s), command has {pubs}/{o.min_command_publishers} '
                    f'publisher(s) after {waited:.1f} s (start_timeout={o.start_timeout:g} s); '
                    'is the controller running in the same ROS_DOMAIN_ID and namespace?')
+
 
 class RunStart:
     """The start and the reset of a run (the module docstring): a mixin, as both drive every

@@ -56,9 +56,10 @@ class LawWatch:
     10) instead of waiting for the call.
 
     Given the law's ``name``, ``t()`` (the sample time of the call) and the node's logger.
-    The node sets :attr:`started` around each call of the law (per sample, inline) and calls
-    :meth:`end` at the run's end; it installs :meth:`stuck` as the signal handler's
-    :attr:`~fohssv_sim.ros.spin.StopSignal.stuck`."""
+    Made, it installs :meth:`stuck` as the signal handler's
+    :attr:`~fohssv_sim.ros.spin.StopSignal.stuck` and starts its thread; the node sets
+    :attr:`started` around each call of the law (per sample, inline) and calls :meth:`end`
+    at the run's end."""
 
     def __init__(self, name: str, t: Callable[[], float], log: Any) -> None:
         self._name, self._t, self._log = name, t, log

@@ -124,6 +124,8 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
     upto = problem.first_horizon()
     min_step = max(5, m // 100)
     seen = np.zeros(len(spec.names), dtype=bool)     # which names the last stage could see
+    span = bounds[:, 1] - bounds[:, 0]
+    failed = None        # (horizon, warm start) of the last stage not reproduced after one was
     for s in range(spec.max_stages):
         started, cpu = time.monotonic(), time.process_time()
         # a Latin hypercube until a horizon is reproduced (a halved horizon searches afresh:
@@ -160,9 +162,19 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
             best = last
             if upto >= m:
                 break
-            # doubled, or the whole window when less than half a horizon would be left
-            upto = m if m - 2 * upto < upto // 2 else 2 * upto
+            # doubled, or the whole window when less than half a horizon would be left; a
+            # horizon already not reproduced from the same warm start (to 1e-3 of the
+            # bounds) would not be now: bisected towards it instead
+            nxt = m if m - 2 * upto < upto // 2 else 2 * upto
+            if failed is not None and nxt >= failed[0] and np.all(
+                    np.abs(best[0] - failed[1]) <= 1e-3 * span):
+                nxt = (upto + failed[0]) // 2
+                if nxt - upto < min_step:
+                    break
+            upto = nxt
             continue
+        if best is not None:
+            failed = (upto, best[0])
         growing = problem.mode == 'grow'
         if not growing:
             break

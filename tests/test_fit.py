@@ -12,7 +12,7 @@ it from the bag (noise-free), its intervals cover it with Gaussian noise on the 
 delay-free run gives alpha at the bound 1 inside its interval, the delayed run is reported as
 reproduced by no alpha, the params YAML it writes is loaded as is by a real plant, and the
 paper's question (--reference delayed) gives a finite alpha, residual and interval at two
-speeds. Runs are short (0.2 s, 0.1 s) and recorded once for the module, all at once on their
+speeds. Runs are short (0.2 s, 0.1 s, 0.05 s) and recorded once for the module, all at once on their
 own domains. The CLI cases run through the command's own entry point (``fohssv_sim.cli.main``,
 what the installed ``fohssv`` calls) in this process; the plant that loads the params file it
 wrote is a process of its own.
@@ -45,7 +45,7 @@ ALPHA, OFFSET = 0.81, 1.9
 RUNS = {'fom': ('state_feedback', {'model': 'fractional', 'fractional_order': ALPHA,
                                    'planing_offset': OFFSET}, 0.2),
         'delay_free': ('state_feedback', {'model': 'delay-free', 'planing_form': 'smooth'},
-                       0.1),
+                       0.05),
         'delayed': ('state_feedback', {'model': 'delayed'}, 0.2),
         'pid': ('fractional_pid', {'model': 'fractional', 'fractional_order': ALPHA}, 0.1)}
 
@@ -166,7 +166,7 @@ def _cli(*args: str) -> None:
 def test_cli_writes_fit_json_figures_and_a_params_file_the_plant_loads(bags, tmp_path):
     out = tmp_path / 'out'
     _cli(str(bags['fom']), '--fit', 'fractional_order', '--population', '8', '--starts', '1',
-         '--window', '0:0.1', '--profile-points', '5', '--workers', '1', '--no-step-check',
+         '--window', '0:0.05', '--profile-points', '5', '--workers', '1', '--no-step-check',
          '--out', str(out))
     d = json.loads((out / 'fit.json').read_text())
     assert abs(d['values']['fractional_order'] - ALPHA) <= 1e-3 and d['reproduces']

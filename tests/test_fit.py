@@ -3,19 +3,21 @@
 the period, the numbers of an external controller node) and its run recorded by the plant
 itself (``record:=PATH``: the bag the recorder node writes of the same run, message for
 message: tests/test_graph_inplant_record.py; a hosted plant records its `command` too): the
-FOM with alpha = 0.81 and planing_offset 1.9, the same FOM under the fractional PID (a law
-with memory, not affine), the delay-free model (smooth planing, the FOM's alpha = 1 limit,
-docs/model.md §5) and the delayed model.
+FOM with alpha = 0.81 and planing_offset 1.9 and the same FOM under the fractional PID (a law
+with memory, not affine). The two other models, whose runs the FOM is fitted to as a
+different model, are closed loops of the project's ``simulate`` written as bags (as the
+lockstep plant's recording would hold them): the delay-free model (smooth planing, the FOM's
+alpha = 1 limit, docs/model.md §5, its RK4 steps) and the delayed model.
 
 The truth is what the plant was started with, not anything the fit computed: the fit recovers
 it from the bag (noise-free), its intervals cover it with Gaussian noise on the states, the
 delay-free run gives alpha at the bound 1 inside its interval, the delayed run is reported as
 reproduced by no alpha, the params YAML it writes is loaded as is by a real plant, and the
 paper's question (--reference delayed) gives a finite alpha, residual and interval at two
-speeds. Runs are short (0.2 s, 0.1 s, 0.05 s) and recorded once for the module, all at once on their
-own domains. The CLI cases run through the command's own entry point (``fohssv_sim.cli.main``,
-what the installed ``fohssv`` calls) in this process; the plant that loads the params file it
-wrote is a process of its own.
+speeds. Runs are short (0.2 s, 0.1 s, 0.05 s) and recorded once for the module, the plants
+all at once on their own domains. The CLI cases run through the command's own entry point
+(``fohssv_sim.cli.main``, what the installed ``fohssv`` calls) in this process; the plant
+that loads the params file it wrote is a process of its own.
 """
 
 from __future__ import annotations
@@ -37,6 +39,10 @@ from fohssv_sim.analysis.fit import (
     run_fit,
 )
 from fohssv_sim.bag import load_run
+from fohssv_sim.bag.synthetic import write_simulation
+from fohssv_sim.control import make
+from fohssv_sim.params import ModelParameters
+from fohssv_sim.simulate import simulate
 
 import rosproc
 
@@ -44,10 +50,21 @@ ALPHA, OFFSET = 0.81, 1.9
 #: name: (the hosted law, plant parameters, duration in s)
 RUNS = {'fom': ('state_feedback', {'model': 'fractional', 'fractional_order': ALPHA,
                                    'planing_offset': OFFSET}, 0.2),
-        'delay_free': ('state_feedback', {'model': 'delay-free', 'planing_form': 'smooth'},
-                       0.05),
-        'delayed': ('state_feedback', {'model': 'delayed'}, 0.2),
         'pid': ('fractional_pid', {'model': 'fractional', 'fractional_order': ALPHA}, 0.1)}
+#: name: (model parameters, duration in s) of the runs of other models (``simulate``)
+OTHER_MODELS = {'delay_free': ({'model': 'delay-free', 'planing_form': 'smooth'}, 0.05),
+                'delayed': ({'model': 'delayed'}, 0.2)}
+CP = 1e-4
+
+
+def _simulated(path: Path, params: dict, duration: float) -> Path:
+    """The eq. 31 closed loop of ``params`` from x(0) = 0 as a bag of the lockstep plant at
+    the default control period (state, command and the plant's parameters)."""
+    p = ModelParameters(**params)
+    r = simulate(p, make('state_feedback'), duration, control_period=CP,
+                 sample_every=round(CP / p.step))
+    return write_simulation(path, r, {**p.to_dict(), 'control_period': CP,
+                                      'duration': duration, 'initial_state': [0.0] * 4})
 
 
 @pytest.fixture(scope='module')
@@ -63,9 +80,11 @@ def bags(tmp_path_factory):
             code, out = finish(plant, 180)
             assert code == 0, out
             assert 'every message of the run is in the bag' in out, out
+        for name, (params, duration) in OTHER_MODELS.items():
+            _simulated(tmp / name, params, duration)
     finally:
         stop_all(*plants.values())
-    return {name: tmp / name for name in RUNS}
+    return {name: tmp / name for name in [*RUNS, *OTHER_MODELS]}
 
 
 def _fit(bag: Path, names, tmp: Path, *, bounds=None, controller=None, noise=0.0, seed=1,
@@ -121,7 +140,7 @@ def test_delay_free_run_gives_alpha_at_the_bound_1_within_its_interval(bags, tmp
 
 
 def test_a_delayed_model_run_is_told_plainly_that_no_alpha_reproduces_it(bags, tmp_path):
-    """The delayed model's closed loop (tau = L/V, the real plant) against the FOM's closed
+    """The delayed model's closed loop (tau = L/V) against the FOM's closed
     loop over alpha's whole range: the FOM follows it for a while and then departs, and the
     fit says so in one sentence, with the residual over the whole window (recomputed here
     from the bag's states and the fitted states) rather than the part it follows. The FOM's

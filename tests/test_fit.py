@@ -99,7 +99,7 @@ def _fit(bag: Path, names, tmp: Path, *, bounds=None, controller=None, noise=0.0
     data = data_from_run(run, base)
     spec = FitSpec(names=names, bounds=resolve_bounds(names, bounds or {}, base),
                    base=base.to_dict(), controller=controller,
-                   **{'population': 16, 'profile_points': 5, 'fine_points': 7, **kw})
+                   **{'population': 16, 'profile_points': 5, 'fine_points': 3, **kw})
     return run_fit(spec, data, tmp)
 
 
@@ -131,8 +131,7 @@ def test_interval_covers_the_truth_with_noise_on_the_states(bags, tmp_path):
 def test_delay_free_run_gives_alpha_at_the_bound_1_within_its_interval(bags, tmp_path):
     # open loop (multiple shooting); 8 points and one start find the bound as 16 and two do
     # (the same estimate to 1e-6)
-    res = _fit(bags['delay_free'], ('fractional_order',), tmp_path, population=8, starts=1,
-               fine_points=3)
+    res = _fit(bags['delay_free'], ('fractional_order',), tmp_path, population=8, starts=1)
     assert res.reproduces, res.message
     lo, hi = res.intervals['fractional_order']
     assert hi == 1.0 and lo <= res.values['fractional_order'] <= 1.0, res.message

@@ -15,9 +15,9 @@ delay-free run gives alpha at the bound 1 inside its interval, the delayed run i
 reproduced by no alpha, the params YAML it writes is loaded as is by a real plant, and the
 paper's question (--reference delayed) gives a finite alpha, residual and interval at two
 speeds. Runs are short (0.2 s, 0.1 s, 0.05 s) and recorded once for the module, the plants
-all at once on their own domains. The CLI cases run through the command's own entry point
-(``fohssv_sim.cli.main``, what the installed ``fohssv`` calls) in this process; the plant
-that loads the params file it wrote is a process of its own.
+built in this process, each on its own domain. The CLI cases run through the command's own
+entry point (``fohssv_sim.cli.main``, what the installed ``fohssv`` calls) in this process;
+the plant that loads the params file it wrote is a process of its own.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_graph_support import finish, plant_args, stop_all
+from test_graph_support import finish
 
 from fohssv_sim.analysis.fit import (
     FitSpec,
@@ -69,21 +69,31 @@ def _simulated(path: Path, params: dict, duration: float) -> Path:
 
 @pytest.fixture(scope='module')
 def bags(tmp_path_factory):
+    """The plant runs built and run in this process (the plant's own ``_run``: spin, flush,
+    the bag closed, as its process does), one after another, each on its own domain; its
+    in-plant writer is a process of its own, as always."""
+    from inprocess import Graph, overrides
+
+    from fohssv_sim.ros.plant_node import PlantNode, _run
+
     tmp = tmp_path_factory.mktemp('fit')
-    plants = {}
-    try:
-        for name, (law, params, duration) in RUNS.items():
-            plants[name] = rosproc.start('fohssv_sim', 'plant', plant_args(
+    for name, (law, params, duration) in RUNS.items():
+        graph = Graph()
+        try:
+            plant = PlantNode(context=graph.context, parameter_overrides=overrides(dict(
                 mode='lockstep', duration=duration, controller=law, min_state_subscribers=0,
-                end_linger=0.0, record=str(tmp / name), **params), env=rosproc.ros_env())
-        for plant in plants.values():
-            code, out = finish(plant, 180)
-            assert code == 0, out
-            assert 'every message of the run is in the bag' in out, out
-        for name, (params, duration) in OTHER_MODELS.items():
-            _simulated(tmp / name, params, duration)
-    finally:
-        stop_all(*plants.values())
+                end_linger=0.0, record=str(tmp / name), **params)))
+            try:
+                assert _run(plant) == 0        # 8: the bag lost messages or was not closed
+            finally:
+                plant.destroy_node()
+        finally:
+            graph.close()
+        run = load_run(tmp / name)              # every sample of the run, each answered
+        n = round(duration / CP)
+        assert (run.t.size, run.command_t.size, run.truncated) == (n + 1, n, False)
+    for name, (params, duration) in OTHER_MODELS.items():
+        _simulated(tmp / name, params, duration)
     return {name: tmp / name for name in [*RUNS, *OTHER_MODELS]}
 
 

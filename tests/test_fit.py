@@ -17,7 +17,8 @@ paper's question (--reference delayed) gives a finite alpha, residual and interv
 speeds. Runs are short (0.2 s, 0.1 s, 0.05 s) and recorded once for the module, the plants
 built in this process, each on its own domain. The CLI cases run through the command's own
 entry point (``fohssv_sim.cli.main``, what the installed ``fohssv`` calls) in this process;
-the plant that loads the params file it wrote is a process of its own.
+the plant that loads the params file it wrote is built in this process from the same
+``--ros-args`` its process would be given.
 """
 
 from __future__ import annotations
@@ -29,7 +30,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_graph_support import finish
 
 from fohssv_sim.analysis.fit import (
     FitSpec,
@@ -43,8 +43,6 @@ from fohssv_sim.bag.synthetic import write_simulation
 from fohssv_sim.control import make
 from fohssv_sim.params import ModelParameters
 from fohssv_sim.simulate import simulate
-
-import rosproc
 
 ALPHA, OFFSET = 0.81, 1.9
 #: name: (the hosted law, plant parameters, duration in s)
@@ -67,28 +65,37 @@ def _simulated(path: Path, params: dict, duration: float) -> Path:
                                       'duration': duration, 'initial_state': [0.0] * 4})
 
 
-@pytest.fixture(scope='module')
-def bags(tmp_path_factory):
-    """The plant runs built and run in this process (the plant's own ``_run``: spin, flush,
-    the bag closed, as its process does), one after another, each on its own domain; its
-    in-plant writer is a process of its own, as always."""
-    from inprocess import Graph, overrides
+def _plant(**options) -> int:
+    """The plant node built in this process with ``options`` (``parameter_overrides`` or
+    ``cli_args``, as ``--ros-args`` give them) on its own domain and run by the plant's own
+    ``_run`` (spin, flush, the bag closed, as its process does); its exit code."""
+    from inprocess import Graph
 
     from fohssv_sim.ros.plant_node import PlantNode, _run
 
+    graph = Graph()
+    try:
+        plant = PlantNode(context=graph.context, **options)
+        try:
+            return _run(plant)
+        finally:
+            plant.destroy_node()
+    finally:
+        graph.close()
+
+
+@pytest.fixture(scope='module')
+def bags(tmp_path_factory):
+    """The plant runs one after another in this process (:func:`_plant`; the in-plant writer
+    is a process of its own, as always)."""
+    from inprocess import overrides
+
     tmp = tmp_path_factory.mktemp('fit')
     for name, (law, params, duration) in RUNS.items():
-        graph = Graph()
-        try:
-            plant = PlantNode(context=graph.context, parameter_overrides=overrides(dict(
-                mode='lockstep', duration=duration, controller=law, min_state_subscribers=0,
-                end_linger=0.0, record=str(tmp / name), **params)))
-            try:
-                assert _run(plant) == 0        # 8: the bag lost messages or was not closed
-            finally:
-                plant.destroy_node()
-        finally:
-            graph.close()
+        code = _plant(parameter_overrides=overrides(dict(
+            mode='lockstep', duration=duration, controller=law, min_state_subscribers=0,
+            end_linger=0.0, record=str(tmp / name), **params)))
+        assert code == 0                        # 8: the bag lost messages or was not closed
         run = load_run(tmp / name)              # every sample of the run, each answered
         n = round(duration / CP)
         assert (run.t.size, run.command_t.size, run.truncated) == (n + 1, n, False)
@@ -191,7 +198,7 @@ def _cli(*args: str) -> None:
     assert code == 0, out.getvalue()
 
 
-def test_cli_writes_fit_json_figures_and_a_params_file_the_plant_loads(bags, tmp_path):
+def test_cli_writes_fit_json_figures_and_a_params_file_the_plant_loads(bags, tmp_path, capfd):
     out = tmp_path / 'out'
     _cli(str(bags['fom']), '--fit', 'fractional_order', '--population', '8', '--starts', '1',
          '--window', '0:0.05', '--profile-points', '5', '--workers', '1', '--no-step-check',
@@ -201,12 +208,12 @@ def test_cli_writes_fit_json_figures_and_a_params_file_the_plant_loads(bags, tmp
     assert len(d['bag_sha256']) == 64 and d['objective'] == 'trajectory'
     for name in ('fit_overlay.png', 'fit_profile.png', 'fit_overlay.svg'):
         assert (out / name).stat().st_size > 5000
-    env = rosproc.ros_env()
-    plant = rosproc.start('fohssv_sim', 'plant', [
+    capfd.readouterr()
+    code = _plant(cli_args=[
         '--ros-args', '--params-file', str(out / 'fit_params.yaml'), '-p', 'mode:=realtime',
         '-p', 'duration:=0.01', '-p', 'min_state_subscribers:=0',
-        '-p', 'min_command_publishers:=0'], env=env)
-    code, text = finish(plant, 120)
+        '-p', 'min_command_publishers:=0'])
+    text = ''.join(capfd.readouterr())        # the plant logs as in its process (stderr)
     assert code == 0, text
     alpha = d['values']['fractional_order']
     assert f'alpha={alpha:g}' in text and 'V=75 m/s' in text, text

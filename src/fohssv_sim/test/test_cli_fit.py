@@ -168,8 +168,10 @@ def test_default_output_folder_is_named_after_the_job_and_claimed(tmp_path, monk
     """Like every command: reports/fit/<bag>-<hash of the job>, with job.json naming the
     bag's sha256; a folder holding another fit job is refused (exit 2), not overwritten."""
     bag = _bag(tmp_path / 'run')
-    fast = ('--population', '8', '--profile-points', '5', '--no-step-check', '--workers', '1',
-            '--controller', 'state_feedback')           # the folder is the point, not the fit
+    # the folder is the point, not the fit; the default --workers (one per core): the fit
+    # cases' one case of the local stage on threads (its speculative Jacobian)
+    fast = ('--population', '8', '--profile-points', '5', '--no-step-check',
+            '--controller', 'state_feedback')
     monkeypatch.chdir(tmp_path)
     printed: list[str] = []
     code, err = run_main('fit', str(bag), '--fit', 'fractional_order', *fast, stdout=printed)

@@ -3,19 +3,22 @@
 the period, the numbers of an external controller node) and its run recorded by the plant
 itself (``record:=PATH``: the bag the recorder node writes of the same run, message for
 message: tests/test_graph_inplant_record.py; a hosted plant records its `command` too): the
-FOM with alpha = 0.81 and planing_offset 1.9, the same FOM under the fractional PID (a law
-with memory, not affine), the delay-free model (smooth planing, the FOM's alpha = 1 limit,
-docs/model.md §5) and the delayed model.
+FOM with alpha = 0.81 and planing_offset 1.9 and the same FOM under the fractional PID (a law
+with memory, not affine). The two other models, whose runs the FOM is fitted to as a
+different model, are closed loops of the project's ``simulate`` written as bags (as the
+lockstep plant's recording would hold them): the delay-free model (smooth planing, the FOM's
+alpha = 1 limit, docs/model.md §5, its RK4 steps) and the delayed model.
 
 The truth is what the plant was started with, not anything the fit computed: the fit recovers
 it from the bag (noise-free), its intervals cover it with Gaussian noise on the states, the
 delay-free run gives alpha at the bound 1 inside its interval, the delayed run is reported as
 reproduced by no alpha, the params YAML it writes is loaded as is by a real plant, and the
 paper's question (--reference delayed) gives a finite alpha, residual and interval at two
-speeds. Runs are short (0.2 s, 0.1 s) and recorded once for the module, all at once on their
-own domains. The CLI cases run through the command's own entry point (``fohssv_sim.cli.main``,
-what the installed ``fohssv`` calls) in this process; the plant that loads the params file it
-wrote is a process of its own.
+speeds. Runs are short (0.2 s, 0.1 s, 0.05 s) and recorded once for the module, the plants
+built in this process, each on its own domain. The CLI cases run through the command's own
+entry point (``fohssv_sim.cli.main``, what the installed ``fohssv`` calls) in this process;
+the plant that loads the params file it wrote is built in this process from the same
+``--ros-args`` its process would be given.
 """
 
 from __future__ import annotations
@@ -27,7 +30,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_graph_support import finish, plant_args, stop_all
 
 from fohssv_sim.analysis.fit import (
     FitSpec,
@@ -37,35 +39,69 @@ from fohssv_sim.analysis.fit import (
     run_fit,
 )
 from fohssv_sim.bag import load_run
-
-import rosproc
+from fohssv_sim.bag.synthetic import write_simulation
+from fohssv_sim.control import make
+from fohssv_sim.params import ModelParameters
+from fohssv_sim.simulate import simulate
 
 ALPHA, OFFSET = 0.81, 1.9
 #: name: (the hosted law, plant parameters, duration in s)
 RUNS = {'fom': ('state_feedback', {'model': 'fractional', 'fractional_order': ALPHA,
                                    'planing_offset': OFFSET}, 0.2),
-        'delay_free': ('state_feedback', {'model': 'delay-free', 'planing_form': 'smooth'},
-                       0.1),
-        'delayed': ('state_feedback', {'model': 'delayed'}, 0.2),
         'pid': ('fractional_pid', {'model': 'fractional', 'fractional_order': ALPHA}, 0.1)}
+#: name: (model parameters, duration in s) of the runs of other models (``simulate``)
+OTHER_MODELS = {'delay_free': ({'model': 'delay-free', 'planing_form': 'smooth'}, 0.05),
+                'delayed': ({'model': 'delayed'}, 0.2)}
+CP = 1e-4
+
+
+def _simulated(path: Path, params: dict, duration: float) -> Path:
+    """The eq. 31 closed loop of ``params`` from x(0) = 0 as a bag of the lockstep plant at
+    the default control period (state, command and the plant's parameters)."""
+    p = ModelParameters(**params)
+    r = simulate(p, make('state_feedback'), duration, control_period=CP,
+                 sample_every=round(CP / p.step))
+    return write_simulation(path, r, {**p.to_dict(), 'control_period': CP,
+                                      'duration': duration, 'initial_state': [0.0] * 4})
+
+
+def _plant(**options) -> int:
+    """The plant node built in this process with ``options`` (``parameter_overrides`` or
+    ``cli_args``, as ``--ros-args`` give them) on its own domain and run by the plant's own
+    ``_run`` (spin, flush, the bag closed, as its process does); its exit code."""
+    from inprocess import Graph
+
+    from fohssv_sim.ros.plant_node import PlantNode, _run
+
+    graph = Graph()
+    try:
+        plant = PlantNode(context=graph.context, **options)
+        try:
+            return _run(plant)
+        finally:
+            plant.destroy_node()
+    finally:
+        graph.close()
 
 
 @pytest.fixture(scope='module')
 def bags(tmp_path_factory):
+    """The plant runs one after another in this process (:func:`_plant`; the in-plant writer
+    is a process of its own, as always)."""
+    from inprocess import overrides
+
     tmp = tmp_path_factory.mktemp('fit')
-    plants = {}
-    try:
-        for name, (law, params, duration) in RUNS.items():
-            plants[name] = rosproc.start('fohssv_sim', 'plant', plant_args(
-                mode='lockstep', duration=duration, controller=law, min_state_subscribers=0,
-                end_linger=0.0, record=str(tmp / name), **params), env=rosproc.ros_env())
-        for plant in plants.values():
-            code, out = finish(plant, 180)
-            assert code == 0, out
-            assert 'every message of the run is in the bag' in out, out
-    finally:
-        stop_all(*plants.values())
-    return {name: tmp / name for name in RUNS}
+    for name, (law, params, duration) in RUNS.items():
+        code = _plant(parameter_overrides=overrides(dict(
+            mode='lockstep', duration=duration, controller=law, min_state_subscribers=0,
+            end_linger=0.0, record=str(tmp / name), **params)))
+        assert code == 0                        # 8: the bag lost messages or was not closed
+        run = load_run(tmp / name)              # every sample of the run, each answered
+        n = round(duration / CP)
+        assert (run.t.size, run.command_t.size, run.truncated) == (n + 1, n, False)
+    for name, (params, duration) in OTHER_MODELS.items():
+        _simulated(tmp / name, params, duration)
+    return {name: tmp / name for name in [*RUNS, *OTHER_MODELS]}
 
 
 def _fit(bag: Path, names, tmp: Path, *, bounds=None, controller=None, noise=0.0, seed=1,
@@ -80,8 +116,10 @@ def _fit(bag: Path, names, tmp: Path, *, bounds=None, controller=None, noise=0.0
     data = data_from_run(run, base)
     spec = FitSpec(names=names, bounds=resolve_bounds(names, bounds or {}, base),
                    base=base.to_dict(), controller=controller,
-                   **{'population': 16, 'profile_points': 5, 'fine_points': 7, **kw})
-    return run_fit(spec, data, tmp)
+                   **{'population': 16, 'profile_points': 5, 'fine_points': 3, **kw})
+    # one thread: the test workers fill the cores (the threaded local stage, whose numbers
+    # are the same, is the CLI cases')
+    return run_fit(spec, data, tmp, threads=1)
 
 
 def _covers(result, name, truth):
@@ -112,8 +150,7 @@ def test_interval_covers_the_truth_with_noise_on_the_states(bags, tmp_path):
 def test_delay_free_run_gives_alpha_at_the_bound_1_within_its_interval(bags, tmp_path):
     # open loop (multiple shooting); 8 points and one start find the bound as 16 and two do
     # (the same estimate to 1e-6)
-    res = _fit(bags['delay_free'], ('fractional_order',), tmp_path, population=8, starts=1,
-               fine_points=3)
+    res = _fit(bags['delay_free'], ('fractional_order',), tmp_path, population=8, starts=1)
     assert res.reproduces, res.message
     lo, hi = res.intervals['fractional_order']
     assert hi == 1.0 and lo <= res.values['fractional_order'] <= 1.0, res.message
@@ -121,7 +158,7 @@ def test_delay_free_run_gives_alpha_at_the_bound_1_within_its_interval(bags, tmp
 
 
 def test_a_delayed_model_run_is_told_plainly_that_no_alpha_reproduces_it(bags, tmp_path):
-    """The delayed model's closed loop (tau = L/V, the real plant) against the FOM's closed
+    """The delayed model's closed loop (tau = L/V) against the FOM's closed
     loop over alpha's whole range: the FOM follows it for a while and then departs, and the
     fit says so in one sentence, with the residual over the whole window (recomputed here
     from the bag's states and the fitted states) rather than the part it follows. The FOM's
@@ -163,22 +200,22 @@ def _cli(*args: str) -> None:
     assert code == 0, out.getvalue()
 
 
-def test_cli_writes_fit_json_figures_and_a_params_file_the_plant_loads(bags, tmp_path):
+def test_cli_writes_fit_json_figures_and_a_params_file_the_plant_loads(bags, tmp_path, capfd):
     out = tmp_path / 'out'
     _cli(str(bags['fom']), '--fit', 'fractional_order', '--population', '8', '--starts', '1',
-         '--window', '0:0.1', '--profile-points', '5', '--workers', '1', '--no-step-check',
+         '--window', '0:0.05', '--profile-points', '5', '--workers', '1', '--no-step-check',
          '--out', str(out))
     d = json.loads((out / 'fit.json').read_text())
     assert abs(d['values']['fractional_order'] - ALPHA) <= 1e-3 and d['reproduces']
     assert len(d['bag_sha256']) == 64 and d['objective'] == 'trajectory'
     for name in ('fit_overlay.png', 'fit_profile.png', 'fit_overlay.svg'):
         assert (out / name).stat().st_size > 5000
-    env = rosproc.ros_env()
-    plant = rosproc.start('fohssv_sim', 'plant', [
+    capfd.readouterr()
+    code = _plant(cli_args=[
         '--ros-args', '--params-file', str(out / 'fit_params.yaml'), '-p', 'mode:=realtime',
         '-p', 'duration:=0.01', '-p', 'min_state_subscribers:=0',
-        '-p', 'min_command_publishers:=0'], env=env)
-    code, text = finish(plant, 120)
+        '-p', 'min_command_publishers:=0'])
+    text = ''.join(capfd.readouterr())        # the plant logs as in its process (stderr)
     assert code == 0, text
     alpha = d['values']['fractional_order']
     assert f'alpha={alpha:g}' in text and 'V=75 m/s' in text, text

@@ -300,7 +300,8 @@ class _Dask:
             self.cluster.close()
 
 
-def _run(spec, data, out: Path, client, sidecar: dict[str, Any]):
+def _run(spec, data, out: Path, client, sidecar: dict[str, Any], threads: int):
+    """run_fit, its local stage on ``threads`` threads (--workers: 0, one per core)."""
     from ..analysis.fit import FitError, run_fit
     from ..analysis.sweep import ProgressPrinter
 
@@ -308,7 +309,7 @@ def _run(spec, data, out: Path, client, sidecar: dict[str, Any]):
     try:
         result = run_fit(spec, data, out, client=client, progress=progress,
                          log=lambda s: (progress.end(), print(s, flush=True)),
-                         sidecar=sidecar)
+                         sidecar=sidecar, threads=threads)
     except FitError as e:
         raise CliError(str(e)) from None
     except ValueError as e:          # a folder holding another job (run_chunks)
@@ -376,7 +377,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
           f"{'closed loop: ' + args.controller if args.controller else 'open loop'}, "
           f'{spec.objective} objective) -> {out}', flush=True)
     with _Dask(args) as client:
-        result = _run(spec, data, out, client, {'bag_sha256': sha})
+        result = _run(spec, data, out, client, {'bag_sha256': sha}, args.workers)
     paths = write_outputs(result, out, {'bag': str(args.bag), 'bag_sha256': sha})
     print(result.message)
     print('wrote ' + ', '.join(str(p) for p in paths if p.suffix != '.svg'))
@@ -437,7 +438,8 @@ def _cmd_reference(args: argparse.Namespace) -> int:
         for v, spec, data in jobs:
             print(f'V = {v:g} m/s (tau = L/V = {data.source["tau"]:.6g} s)', flush=True)
             sub = output_dir(out / f'V{v:g}')
-            result = _run(spec, data, sub, client, {'reference': 'delayed', 'speed': v})
+            result = _run(spec, data, sub, client, {'reference': 'delayed', 'speed': v},
+                          args.workers)
             results.append((v, result, data))
             print('  ' + result.message, flush=True)
     paths = write_reference(results, out)

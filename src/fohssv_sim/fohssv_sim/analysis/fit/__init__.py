@@ -38,9 +38,10 @@ segment that of the measured trajectory from t = 0). ``horizon='grow'`` (the def
 closed loop) instead grows the horizon: stage 0 fits the first 1/2^S of the window (halved
 while even that is not reproduced, down to 20 samples), each later stage doubles it,
 warm-started from the previous stage, and bisects back towards the last reproduced horizon
-where a stage is not reproduced; it reports the last reproduced horizon with its fit
-(``horizon_end``). ``horizon='full'`` fits the whole window with one trajectory. A closed loop
-is judged over the whole window (``window_residual``).
+where a stage is not reproduced (a horizon not reproduced is not tried again from the same
+warm start, to 1e-3 of the bounds: bisected towards instead); it reports the last reproduced
+horizon with its fit (``horizon_end``). ``horizon='full'`` fits the whole window with one
+trajectory. A closed loop is judged over the whole window (``window_residual``).
 
 **Global, then local.** Each stage evaluates a population (until a horizon is reproduced: a
 Latin hypercube over the bounds; later stages: the current estimate and, per parameter the last

@@ -152,9 +152,16 @@ class Problem:
         self.noise = (estimate_noise(span, scale, spec.noise, spec.noise_floor, m)
                       if spec.objective == 'trajectory' else None)
         self.law = None
+        self.plugin = None
         if spec.controller is not None:
             # None: a plugin that is not affine, run point by point (see simulate)
             self.law = _packed_law(spec.controller, spec.gains)
+            if self.law is None:
+                from ...control import load
+
+                # its class, looked up once: a fresh law per point is then only its
+                # construction (the entry-point scan cost more than the point's run)
+                self.plugin = load(spec.controller)
         elif data.inputs is None:
             raise FitError(f"{data.source.get('bag', 'the run')}: no command messages, so the "
                            'recorded commands cannot drive the model; give --controller NAME '
@@ -218,15 +225,13 @@ class Problem:
         d = self.data
         if self.segments is not None:
             return self.segments.shoot(ok, upto, threads), valid
-        if self.spec.controller is not None and self.law is None:
+        if self.plugin is not None:
             # no compiled form (a law with memory, e.g. fractional_pid): each point through
             # the plant contract with a fresh controller, its command held per period
-            from ...control import make
-
-            spec = self.spec
+            spec, plugin = self.spec, self.plugin
             try:
                 return run_population_reference(
-                    ok, n, self.hold, controller=lambda: make(spec.controller, spec.gains),
+                    ok, n, self.hold, controller=lambda: plugin(**spec.gains),
                     initial_state=d.initial_state, duration=d.duration), valid
             except Exception as e:      # a plugin's own defect: named, not ours
                 raise FitError(f'--controller {spec.controller}: the plugin raised '

@@ -124,6 +124,8 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
     upto = problem.first_horizon()
     min_step = max(5, m // 100)
     seen = np.zeros(len(spec.names), dtype=bool)     # which names the last stage could see
+    span = bounds[:, 1] - bounds[:, 0]
+    failed = None        # (horizon, warm start) of the last stage not reproduced after one was
     for s in range(spec.max_stages):
         started, cpu = time.monotonic(), time.process_time()
         # a Latin hypercube until a horizon is reproduced (a halved horizon searches afresh:
@@ -158,23 +160,11 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
         last = (sol.x, r, upto)
         if ok:
             best = last
-            if upto >= m:
-                break
-            # doubled, or the whole window when less than half a horizon would be left
-            upto = m if m - 2 * upto < upto // 2 else 2 * upto
-            continue
-        growing = problem.mode == 'grow'
-        if not growing:
+        elif best is not None:
+            failed = (upto, best[0])
+        upto = _next_horizon(problem, ok, upto, best, failed, span, min_step)
+        if upto is None:
             break
-        if best is None:                     # not even the first horizon: halve it
-            if upto <= min(m, 20):
-                break
-            upto = max(min(m, 20), upto // 2)
-            continue
-        nxt = (best[2] + upto) // 2          # bisect towards the last reproduced horizon
-        if nxt - best[2] < min_step:
-            break
-        upto = nxt
     reproduced = best is not None
     x, r, upto = best if reproduced else last
     local = Local(problem, bounds, upto, threads)
@@ -266,6 +256,33 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
                         if np.isfinite(fitted[sel, 1]).all() else None}
     result.message = summary_line(result)
     return result
+
+
+def _next_horizon(problem: Problem, ok: bool, upto: int, best: tuple | None,
+                  failed: tuple | None, span: np.ndarray, min_step: int) -> int | None:
+    """The samples of the next stage after one of ``upto`` samples (``ok``: reproduced), or
+    None to stop. Reproduced: doubled, or the whole window when less than half a horizon
+    would be left; but a horizon already not reproduced (``failed``: horizon, warm start)
+    from the same warm start (to 1e-3 of the bounds' ``span``) would not be now: bisected
+    towards it instead. Not reproduced (growing only): halved while no horizon was, else
+    bisected back towards the last reproduced one (``best``: x, r, samples); stopped where
+    the step would be below ``min_step``."""
+    m = problem.index.size
+    if ok:
+        if upto >= m:
+            return None
+        nxt = m if m - 2 * upto < upto // 2 else 2 * upto
+        if failed is None or nxt < failed[0] or np.any(
+                np.abs(best[0] - failed[1]) > 1e-3 * span):
+            return nxt
+        nxt = (upto + failed[0]) // 2
+        return nxt if nxt - upto >= min_step else None
+    if problem.mode != 'grow':
+        return None
+    if best is None:                     # not even the first horizon: halve it
+        return None if upto <= min(m, 20) else max(min(m, 20), upto // 2)
+    nxt = (best[2] + upto) // 2          # bisect towards the last reproduced horizon
+    return nxt if nxt - best[2] >= min_step else None
 
 
 def _fitted_states(problem: Problem, x: np.ndarray) -> np.ndarray:

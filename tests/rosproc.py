@@ -1,8 +1,9 @@
 """Helpers for tests that start real ROS 2 processes over DDS (no mocks).
 
 Every test gets its own ROS_DOMAIN_ID (so concurrent runs on one machine do not see each
-other) and localhost-only discovery. Processes are the colcon-installed executables, started
-exactly as ``ros2 run <pkg> <exe>`` would resolve them.
+other) and localhost-only discovery. Processes are the colcon-installed executables'
+entry points, forked from this worker's server (:mod:`zygote`) or, with ``fork=False``,
+started exactly as ``ros2 run <pkg> <exe>`` would resolve them.
 
 The domains come from 1-200 unless ``FOHSSV_TEST_DOMAINS=LO-HI`` confines them (inclusive,
 within 0-232, Fast DDS's limit), e.g. on a host where other ROS 2 users or another run hold
@@ -24,6 +25,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import NoReturn
 
+import zygote
 from ament_index_python.packages import get_package_prefix
 
 _counter = itertools.count()
@@ -133,15 +135,26 @@ def executable(package: str, name: str) -> Path:
 
 
 def start(package: str, name: str, args: Sequence[str] = (), *, env: dict[str, str],
-          log: Path | None = None) -> subprocess.Popen:
-    """Start ``package``/``name`` with ``args`` (e.g. ``['--ros-args', '-p', 'x:=1']``).
+          log: Path | None = None, fork: bool = True):
+    """Start ``package``/``name`` with ``args`` (e.g. ``['--ros-args', '-p', 'x:=1']``); a
+    ``subprocess.Popen`` or, forked from this worker's server (:mod:`zygote`: the same
+    process without the interpreter's start and imports), a :class:`zygote.Forked` used the
+    same way. ``fork=False`` (or ``FOHSSV_TEST_FORK=0``, or an environment that starts Python
+    differently) runs the executable as ``ros2 run`` does.
 
     Output goes to ``log`` (a file) if given, else to a pipe.
     """
-    cmd = [str(executable(package, name)), *args]
+    path = executable(package, name)
     out = open(log, 'w') if log is not None else subprocess.PIPE  # noqa: SIM115
-    proc = subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True)
+    server = (zygote.Server.get(env) if fork and os.environ.get('FOHSSV_TEST_FORK', '1') != '0'
+              else None)
+    if server is not None:
+        proc = server.start(path, list(args), env, None if log is None else out.fileno())
+        if log is not None:
+            out.close()
+    else:
+        proc = subprocess.Popen([str(path), *args], env=env, stdout=out,
+                                stderr=subprocess.STDOUT, text=True, start_new_session=True)
     proc.log = log          # where a failure reads its output (:func:`_abort`)
     STARTED.append(proc)
     return proc

@@ -343,7 +343,8 @@ def test_a_signal_while_a_node_still_imports_ends_it_quietly(tmp_path, executabl
     import signal
 
     proc = rosproc.start(*executable, ['--ros-args', '-p', 'duration:=0.01']
-                         if executable[1] == 'plant' else [], env=rosproc.ros_env())
+                         if executable[1] == 'plant' else [], env=rosproc.ros_env(),
+                         fork=False)     # the imports are what this is about
     maps = Path(f'/proc/{proc.pid}/maps')
     # rclpy's extension is loaded by the node's module, which the entry point imports: the
     # imports are under way (numba, the node's modules) when it appears

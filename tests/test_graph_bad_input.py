@@ -147,17 +147,19 @@ def test_lockstep_timeout_counts_from_the_delivery_of_the_state(tmp_path):
         assert 'stopping cleanly at t=0.05 s: duration 0.05 s reached' in text, text
         found = re.search(r'the state for t=[0-9.e-]+ s is not acknowledged by all 2 '
                           r'subscriber\(s\) of /state after ([0-9.]+) s', text)
-        assert found, text
         # command_timeout (0.5 s) when the plant's check runs on time. A state publish that
         # Fast DDS blocks (up to 1 s: its check of the stopped reader's shared-memory port)
         # makes that check late, which the plant takes for a plant that did not run: the
         # controller then gets the resume grace (5 s) before the plant looks again, and the
-        # plant has said why (the long period, in its log)
-        waited = float(found.group(1))
-        assert 0.5 <= waited <= 0.5 + 5.0 + 1.0, text
-        if waited > 0.7:
-            assert re.search(r'one control period \(10 steps\) took [0-9.]+ s > '
-                             r'command_timeout=0.5 s', text), text
+        # plant has said why (the long period, in its log); a grace that outlasts the rest of
+        # the 4 s stop sees the controller answer again and says nothing more
+        late = re.search(r'one control period \(10 steps\) took [0-9.]+ s > '
+                         r'command_timeout=0.5 s', text)
+        assert found or late, text
+        if found:
+            waited = float(found.group(1))
+            assert 0.5 <= waited <= 0.5 + 5.0 + 1.0, text
+            assert waited <= 0.7 or late, text
         assert len(probe.states) == 501
     finally:
         stop_all(plant, ctl)

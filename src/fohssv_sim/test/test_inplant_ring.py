@@ -231,7 +231,7 @@ def test_compiled_writer_writes_the_bytes_the_interpreted_one_does(tmp_path):
               TopicSpec('/command', contract.FLOAT64_ARRAY, (QOS,), 'array'))
     rng = random.Random(7)
     records = []
-    for k in range(6000):
+    for k in range(3000):
         t = k * 1e-4
         label = 't_z_w_theta_q' if k < 2500 else 'state'
         values = [t, 0.1, 0.2, 0.3, 0.4] if k % 997 else rng.choice(

@@ -47,10 +47,10 @@ def record(path, run, params):
 
 def test_plot_overlays_bags_and_summarises_them(tmp_path, capfd):
     p = ModelParameters(model='delay-free')
-    run = simulate(p, StateFeedback(), 1.0, sample_every=10)
+    run = simulate(p, StateFeedback(), 1.0, sample_every=20)
     record(tmp_path / 'a', run, p)
     q = ModelParameters(model='delayed')
-    run2 = simulate(q, StateFeedback(), 1.0, sample_every=10)
+    run2 = simulate(q, StateFeedback(), 1.0, sample_every=20)
     record(tmp_path / 'b', run2, q)
     code, err = fohssv(['plot', tmp_path / 'a', tmp_path / 'b', '--out', tmp_path / 'fig',
                         '--skip', '0.5'], capfd)
@@ -89,7 +89,7 @@ def test_plot_bad_bags_exit_1_like_check_without_traceback(tmp_path, capfd):
 
 def test_plot_out_an_existing_file_is_one_line_and_exit_2(tmp_path, capfd):
     p = ModelParameters(model='delay-free')
-    record(tmp_path / 'a', simulate(p, StateFeedback(), 0.05, sample_every=10), p)
+    record(tmp_path / 'a', simulate(p, StateFeedback(), 0.05, sample_every=20), p)
     (tmp_path / 'taken.png').write_bytes(b'mine')
     code, err = fohssv(['plot', tmp_path / 'a', '--out', tmp_path / 'taken.png'], capfd)
     assert code == 2, err
@@ -105,7 +105,7 @@ def test_plot_a_bag_with_two_namespaces_by_namespace(tmp_path, capfd):
     w = RunWriter(tmp_path / 'two').open()
     for ns, model in (('/v1', 'delay-free'), ('/v2', 'delayed')):
         runs[ns] = simulate(ModelParameters(model=model), StateFeedback(), 0.3,
-                            sample_every=10)
+                            sample_every=20)
         for topic in (contract.STATE, contract.PLANING_FORCE, contract.COMMAND):
             w.add_topic(f'{ns}/{topic.name}', topic.type)
     for ns, run in runs.items():
@@ -139,7 +139,7 @@ def test_plot_titles_name_the_controller_and_step_zoom_the_last_cycles(tmp_path)
     from fohssv_sim.bag import load_run
 
     p = ModelParameters(model='delay-free')
-    run = simulate(p, StateFeedback(), 1.0, sample_every=10)
+    run = simulate(p, StateFeedback(), 1.0, sample_every=20)
     w = RunWriter(tmp_path / 'a').open()
     for topic in contract.TOPICS:
         w.add_topic(topic.name if topic.name.startswith('/') else '/' + topic.name, topic.type)

@@ -114,14 +114,31 @@ def run_in_process(capfd, *args) -> tuple[int, str, str]:
     return fohssv(capfd, 'gainmap', *args)
 
 
-def test_cli_draws_valid_figures_and_rejects_bad_input(tmp_path, capfd, dask_cluster):
-    out = tmp_path / 'map'
-    code, stdout, err = run_in_process(
-        capfd, '--x', 'pitch_rate_gain=-0.6,-0.1', '--y', 'vertical_velocity_gain=0:0.2:0.2',
-        '--duration', '0.1', '--transient', '0.05', '--envelope-speeds', '75,90',
-        '--envelope-alphas', '0.85', '--scheduler', dask_cluster.scheduler_address,
-        '--check-step', '3', '--out', str(out))
-    assert code == 0, err
+@pytest.fixture(scope='module')
+def cli_map(tmp_path_factory, dask_cluster):
+    """``fohssv gainmap`` run once through the CLI's main in this process, its SVG text kept
+    as text (``svg.fonttype`` none) for the figure tests: (exit code, stdout, folder)."""
+    import contextlib
+    import io
+
+    import matplotlib
+
+    from fohssv_sim.cli import main
+
+    out = tmp_path_factory.mktemp('gainmap') / 'map'
+    stdout = io.StringIO()
+    with matplotlib.rc_context({'svg.fonttype': 'none'}), contextlib.redirect_stdout(stdout):
+        code = main(['gainmap', '--x', 'pitch_rate_gain=-0.6,-0.1', '--y',
+                     'vertical_velocity_gain=0:0.2:0.2', '--duration', '0.1', '--transient',
+                     '0.05', '--envelope-speeds', '75,90', '--envelope-alphas', '0.85',
+                     '--scheduler', dask_cluster.scheduler_address, '--check-step', '3',
+                     '--out', str(out)])
+    return code, stdout.getvalue(), out
+
+
+def test_cli_draws_valid_figures_and_rejects_bad_input(tmp_path, capfd, cli_map):
+    code, stdout, out = cli_map
+    assert code == 0, stdout
     assert 'step check: 3 points re-run at half step' in stdout
     checks = json.loads((out / 'step_check.json').read_text())
     assert sorted(checks) == ['0', '3', '6']           # every 3rd of the 8 points
@@ -156,25 +173,21 @@ def test_cli_draws_valid_figures_and_rejects_bad_input(tmp_path, capfd, dask_clu
     assert np.isfinite(side['n_points'])
 
 
-def test_map_figures_carry_units_the_unstable_side_and_the_papers_gains(tmp_path, grid_rows):
-    """The class map as saved (SVG with text kept as text): axes named with the gains' units
-    from the controller's parameter table, the Matignon-unstable cells labelled α_c < α (the
-    side where the linearisation is unstable), and the paper's gains (eq. 31: pitch-rate gain
-    -0.3, w gain 0) marked where the grid holds them."""
-    import matplotlib
+def test_map_figures_carry_units_the_unstable_side_and_the_papers_gains(cli_map):
+    """The class map as saved (the CLI's, an SVG with text kept as text): axes named with the
+    gains' units from the controller's parameter table, the Matignon-unstable cells labelled
+    α_c < α (the side where the linearisation is unstable), and the paper's gains (eq. 31:
+    pitch-rate gain -0.3, w gain 0) marked where the grid spans them."""
+    import csv
 
-    from fohssv_sim.analysis.gainmap import GainMapResult, plot_gain_map
-    from fohssv_sim.analysis.gainmap.result import _sidecar
-
-    spec, rows = grid_rows
-    result = GainMapResult([dict(r) for r in rows], _sidecar(spec, [list(range(len(rows)))]))
-    with matplotlib.rc_context({'svg.fonttype': 'none'}):
-        paths = plot_gain_map(result, tmp_path / 'g')
-    svg = (tmp_path / 'g_classes.svg').read_text()
-    assert tmp_path / 'g_classes.svg' in paths
+    _, stdout, out = cli_map
+    svg = (out / 'gainmap_classes.svg').read_text()
+    assert str(out / 'gainmap_classes.png') in stdout       # the figures it says it wrote
     assert 'pitch_rate_gain (rad s/rad)' in svg and 'vertical_velocity_gain (rad s/m)' in svg
     assert 'linearisation unstable (α_c &lt; α)' in svg and 'α_c − α)' not in svg
     assert "the paper's gains (eq. 31: -0.3, 0)" in svg.replace('&#39;', "'")
     # every unstable mark is a pair whose alpha_c is below alpha (independent: the rows'
     # alpha_c comes from the Jacobian's eigenvalues)
-    assert any(r['alpha_c'] < r['alpha'] for r in rows)
+    rows = [r for f in sorted((out / 'chunks').glob('chunk_*.csv'))
+            for r in csv.DictReader(f.read_text().splitlines())]
+    assert any(float(r['alpha_c']) < float(r['alpha']) for r in rows if r['speed'] == '75.0')

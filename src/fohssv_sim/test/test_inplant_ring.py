@@ -231,7 +231,7 @@ def test_compiled_writer_writes_the_bytes_the_interpreted_one_does(tmp_path):
               TopicSpec('/command', contract.FLOAT64_ARRAY, (QOS,), 'array'))
     rng = random.Random(7)
     records = []
-    for k in range(6000):
+    for k in range(3000):
         t = k * 1e-4
         label = 't_z_w_theta_q' if k < 2500 else 'state'
         values = [t, 0.1, 0.2, 0.3, 0.4] if k % 997 else rng.choice(
@@ -325,8 +325,8 @@ def test_a_writer_stopped_by_a_full_disk_leaves_a_shortfall_the_ring_counts_exac
     assert 'opened' in read_reply(proc.stdout)
     assert read_reply(proc.stdout)['compiled'] is compiled
     offered = failed = 0
-    for k in range(40000):                # about 4 MB of records: the file stops at limit
-        if k == 15000 and limit is None:
+    for k in range(40000):                # up to 4 MB of records: the file stops at limit
+        if k == 5000 and limit is None:
             proc.kill()
         for index, raw in ((0, _array([k * 1e-4, 0.0, float(k), 0.0, 0.0])),
                            (1, _clock(round(k * 1e-4 * 1e9)))):
@@ -336,6 +336,8 @@ def test_a_writer_stopped_by_a_full_disk_leaves_a_shortfall_the_ring_counts_exac
                     failed += 1
                     break
                 time.sleep(0.001)              # full: the writer's turn
+        if failed >= 100:     # the ring full behind a dead writer: more puts fail alike
+            break
     reply = read_reply(proc.stdout)
     if limit is None:
         assert proc.wait(timeout=60) == -signal.SIGKILL and reply is None
@@ -347,4 +349,4 @@ def test_a_writer_stopped_by_a_full_disk_leaves_a_shortfall_the_ring_counts_exac
     report = repair(bag)
     held = sum(load_run(bag).topics.values())
     assert report.repaired and 0 < held == report.messages < offered
-    assert lacked == offered - held, (lacked, offered, held, failed)
+    assert failed >= 100 and lacked == offered - held, (lacked, offered, held, failed)

@@ -187,13 +187,13 @@ def test_interrupted_sweep_resumes_without_recomputing_finished_chunks(tmp_path,
 
 def test_same_results_with_the_local_default_and_an_explicit_cluster(tmp_path, dask_cluster,
                                                                      capfd):
-    """The installed script with the sweep's own local cluster (``--workers 1``: a worker
-    process) and an explicit one (``--scheduler``: the session's cluster of threads, the
-    command run in this process) give the same rows."""
+    """The sweep's own local cluster (``--workers 1``: a worker process) and an explicit one
+    (``--scheduler``: the session's cluster of threads) give the same rows; both commands run
+    in this process (the installed script, with its own local cluster, is run by the
+    interrupted sweep above)."""
     a, b = tmp_path / 'local', tmp_path / 'cluster'
-    r = subprocess.run([str(FOHSSV), *SWEEP, '--workers', '1', '--out', str(a)],
-                       capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
+    code, _, err = fohssv([*SWEEP, '--workers', '1', '--out', a], capfd)
+    assert code == 0, err
     code, _, err = fohssv([*SWEEP, '--out', b, '--scheduler', dask_cluster.scheduler_address],
                           capfd)
     assert code == 0, err

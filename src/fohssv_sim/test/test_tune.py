@@ -34,8 +34,9 @@ SMALL = dict(controller='state_feedback', bounds=(Bound('pitch_rate_gain', -1.0,
 # (one V: the scenarios share each candidate's equilibrium; 0.04 s runs: resume is about the
 # chunks and the optimiser's sequence, not the classes. Its search scores the RMS effort,
 # which differs between candidates from the first sample: the peak |Fp| of so short a run is
-# the gains' common start, every candidate ties, and differential evolution stops, converged)
-RESUME = {**SMALL, 'objective': 'effort'}
+# the gains' common start, every candidate ties, and differential evolution stops, converged.
+# Seed 3: continued to a third generation, the search finds a new winner there)
+RESUME = {**SMALL, 'objective': 'effort', 'seed': 3}
 #: the FOM's default step (docs/model.md), the step of these searches
 RESUME_STEP = 2e-5
 
@@ -177,13 +178,17 @@ def test_interrupted_search_resumes_to_the_same_winner(tmp_path, client, resume_
         run_tune(TuneSpec(**{**RESUME, 'seed': 8}), part, client=client)
 
 
-def test_continued_search_with_a_new_winner_checks_the_new_winner(tmp_path, client):
+def test_continued_search_with_a_new_winner_checks_the_new_winner(tmp_path, client,
+                                                                  resume_search):
     """--check-step on a search continued with a larger budget whose winner changed: the new
     winner is re-run at half the step (its own folder; the old winner's check was refused as
     'a different job' before), with the same record as an uninterrupted search of that
-    budget."""
-    spec = {**RESUME, 'seed': 3, 'check_step': True}
+    budget. The first search is the module's (its two generations read back, its winner
+    checked here)."""
+    spec = {**RESUME, 'check_step': True}
+    shutil.copytree(resume_search[1], tmp_path / 'cont')
     first = run_tune(TuneSpec(**{**spec, 'budget': 10}), tmp_path / 'cont', client=client)
+    assert first.computed_chunks == 0 and 'check_step' in first.record
     more = run_tune(TuneSpec(**{**spec, 'budget': 15}), tmp_path / 'cont', client=client)
     assert first.record['winner']['generation'] < 2 == more.record['winner']['generation']
     fresh = run_tune(TuneSpec(**{**spec, 'budget': 15}), tmp_path / 'fresh', client=client)

@@ -33,7 +33,7 @@ try:
 except ImportError:  # pragma: no cover - numba is pinned in requirements.txt
     numba = None
 
-__all__ = ['flow', 'pack_coefficients', 'planing_delayed_many']
+__all__ = ['flow', 'pack_coefficients', 'planing_delayed_many', 'warm_up']
 
 
 def _njit(fn):
@@ -224,3 +224,18 @@ def planing_delayed_many(X, Xd, cv, form):
     for i in range(X.shape[1]):
         out[i] = planing_delayed(X[0, i], X[2, i], Xd[0, i], Xd[1, i], Xd[2, i], c, form)
     return out
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) :func:`flow` and :func:`planing_delayed_many` with
+    the argument types the continuation passes (``make test`` calls it once, before the test
+    workers start: each worker whose first branch came before another had written the cache
+    compiled them again)."""
+    from ..coefficients import coefficients
+    from ..kernels import pack_law
+    from ..params import ModelParameters
+
+    cv = pack_coefficients(coefficients(ModelParameters(model='delay-free')))
+    flow(np.zeros(4), 1e-3, 4, cv, pack_law(), True, 2, np.empty((3, 4)))
+    X = np.zeros((4, 2))
+    planing_delayed_many(X, X.copy(), cv, 'paper')

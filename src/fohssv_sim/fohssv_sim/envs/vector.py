@@ -45,7 +45,7 @@ from . import stepping
 from .single import spaces_of
 from .task import make_task
 
-__all__ = ['HSSVVectorEnv']
+__all__ = ['HSSVVectorEnv', 'warm_up']
 
 #: The vehicles step each its own plant in turn (an interpreted solver, or mixed models).
 _PLANTS = -1
@@ -359,3 +359,14 @@ class HSSVVectorEnv(VectorEnv):
     def vehicle_parameters(self, i: int) -> dict[str, Any]:
         """Vehicle ``i``'s model parameters in its current episode (after the draw)."""
         return self._params[i].to_dict()
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the compiled step (:mod:`.stepping`, and the
+    plant kernels it calls from compiled code): one vehicle reset and stepped once; the
+    arrays have the same types for every model, so one step compiles every kind's path
+    (``make test`` calls it once, before the test workers start)."""
+    env = HSSVVectorEnv(1)
+    env.reset(seed=0)
+    env.step(np.zeros((1, *env.single_action_space.shape), dtype=np.float32))
+    env.close()

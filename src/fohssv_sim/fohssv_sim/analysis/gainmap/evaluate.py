@@ -87,13 +87,12 @@ def _settle_time(t: np.ndarray, w: np.ndarray, w_eq: float, band: float,
 SIM_SHARE = 0.6
 
 
-def scheduled_gains(controller: str, gains: dict[str, Any], params: ModelParameters
+def scheduled_gains(law: type, gains: dict[str, Any], params: ModelParameters
                     ) -> dict[str, Any]:
-    """``gains`` with the controller's :attr:`~fohssv_sim.control.Controller.scheduling`
-    parameters (e.g. the ``scheduled`` law's ``speed``) set from the scenario's ``params``."""
-    from ...control import load
-
-    follow = getattr(load(controller), 'scheduling', {})
+    """``gains`` with the :attr:`~fohssv_sim.control.Controller.scheduling` parameters of
+    the controller class ``law`` (e.g. the ``scheduled`` law's ``speed``) set from the
+    scenario's ``params``."""
+    follow = getattr(law, 'scheduling', {})
     if not follow:
         return gains
     return {**gains, **{c: getattr(params, m) for c, m in follow.items()}}
@@ -174,8 +173,7 @@ def run_points(spec_dict: dict[str, Any], indices: Sequence[int], *,
     spec = GainMapSpec.from_dict(spec_dict)
     info = [spec.point(i) for i in indices]
     params = [spec.params_for(a, v, step_factor) for _, _, _, a, v in info]
-    ctls = [_controller(spec.controller, scheduled_gains(spec.controller,
-                                                         spec.gains_for(ix, iy), p))
+    ctls = [_controller(spec.law, scheduled_gains(spec.law, spec.gains_for(ix, iy), p))
             for (_, ix, iy, _, _), p in zip(info, params)]
     scored = evaluate_points(spec, params, ctls, [(pair, v) for pair, _, _, _, v in info],
                              batched=batched, progress=progress)

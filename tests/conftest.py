@@ -41,41 +41,41 @@ def pytest_configure(config):
 
 
 # The files whose longest test is among the suite's slowest (`--durations=0` of a full run on
-# four workers: each of them 6 s or more), longest first. The workers of `make test` (--dist
+# four workers: each of them about 5 s or more), longest first. The workers of `make test` (--dist
 # worksteal) take the tests in collection order and steal from each other's end: a long test
 # collected last leaves the other workers idle while one runs it. Whole files move (in their
 # own order), so a module fixture is built once per worker, as before.
 SLOW_FILES_FIRST = (
-    'tests/test_graph_run_end.py',
-    'tests/test_fit.py',
     'src/fohssv_sim/test/test_fit_shooting.py',
-    'tests/test_graph_bad_input.py',
-    'tests/test_graph_inplant_record.py',
-    'tests/test_player.py',
-    'tests/test_graph_startup.py',
-    'tests/test_record_process.py',
-    'src/fohssv_sim/test/test_fit_noise.py',
-    'tests/test_graph_viewer.py',
+    'tests/test_graph_env_ros.py',
     'tests/test_launch.py',
     'tests/test_graph_tune.py',
-    'tests/test_graph_env_ros.py',
+    'tests/test_graph_run_end.py',
+    'tests/test_player.py',
+    'tests/test_record_process.py',
+    'tests/test_graph_bad_input.py',
     'tests/test_graph_publish_failure.py',
-    'src/fohssv_sim/test/test_continuation_vehicle.py',
-    'src/fohssv_sim/test/test_chunks_workers_lost.py',
-    'tests/test_graph_realtime.py',
-    'tests/test_record_plot.py',
-    'src/fohssv_sim/test/test_sweep.py',
-    'src/fohssv_sim/test/test_tune.py',
-    'tests/test_readme.py',
-    'tests/test_graph_lockstep.py',
     'tests/test_graph_controller_package.py',
+    'tests/test_graph_viewer.py',
+    'tests/test_recorder_drain.py',
+    'tests/test_readme.py',
+    'tests/test_fit.py',
+    'tests/test_graph_startup.py',
+    'tests/test_graph_inplant_record.py',
+    'tests/test_record_plot.py',
+    'tests/test_graph_realtime.py',
+    'tests/test_graph_hosted.py',
     'tests/test_graph_command_stall.py',
     'tests/node/test_plant_start.py',
-    'tests/test_recorder_drain.py',
+    'tests/test_graph_full_disk.py',
+    'src/fohssv_sim/test/test_continuation_cli.py',
+    'tests/test_graph_recorder_sources.py',
+    'tests/test_graph_plugin_faults.py',
+    'src/fohssv_sim/test/test_chunks_workers_lost.py',
+    'tests/node/test_plant_realtime.py',
+    'src/fohssv_sim/test/test_inplant_ring.py',
     'src/fohssv_sim/test/test_gainmap.py',
-    'src/fohssv_sim/test/test_cli_report.py',
-    'src/fohssv_sim/test/test_cli_fit.py',
-    'src/fohssv_sim/test/test_cli_plot.py',
+    'tests/test_example_fft.py',
 )
 
 

@@ -25,8 +25,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import NoReturn
 
-import zygote
 from ament_index_python.packages import get_package_prefix
+
+import zygote
 
 _counter = itertools.count()
 #: The environment variable that confines the tests' ROS_DOMAIN_IDs, and its default.
@@ -146,9 +147,9 @@ def start(package: str, name: str, args: Sequence[str] = (), *, env: dict[str, s
     """
     path = executable(package, name)
     out = open(log, 'w') if log is not None else subprocess.PIPE  # noqa: SIM115
-    server = (zygote.Server.get(env) if fork and os.environ.get('FOHSSV_TEST_FORK', '1') != '0'
-              else None)
-    if server is not None:
+    server = (zygote.Server.get(ros_env(0)) if fork
+              and os.environ.get('FOHSSV_TEST_FORK', '1') != '0' else None)
+    if server is not None and server.fits(env):
         proc = server.start(path, list(args), env, None if log is None else out.fileno())
         if log is not None:
             out.close()

@@ -197,13 +197,16 @@ class Server:
             self.proc.wait()
 
     @classmethod
-    def get(cls, env: dict[str, str]) -> Server | None:
-        """The running server if ``env`` starts a process as it does (else None), started
-        with ``env`` when there is none yet."""
+    def get(cls, base: dict[str, str]) -> Server:
+        """This worker's server, started with the environment ``base`` if none runs."""
         with cls._lock:
             if cls._running is None or cls._running.proc.poll() is not None:
-                cls._running = cls(env)
-            return cls._running if cls._running.key == start_key(env) else None
+                cls._running = cls(base)
+            return cls._running
+
+    def fits(self, env: dict[str, str]) -> bool:
+        """Whether a process with ``env`` starts as this server did (:data:`START_VARS`)."""
+        return self.key == start_key(env)
 
     def start(self, executable: Path, args: list[str], env: dict[str, str],
               out_fd: int | None) -> Forked:

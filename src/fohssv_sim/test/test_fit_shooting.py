@@ -88,11 +88,12 @@ def clean_open():
 
 
 def test_whole_record_open_loop_fit_with_noise(clean_open, tmp_path):
-    """1 % noise on every state: alpha inside its interval, the run reproduced over the whole
-    record (not a horizon of its first tens of milliseconds), at the noise floor. (The
-    half-step check stays on: the fit's step alone moves alpha by about 6e-4 here, more than
-    the noise's share of the interval.)"""
-    bag = _bag(tmp_path / 'run', clean_open, 0.01, 7)
+    """5 % noise on every state: alpha inside its interval, the run reproduced over the whole
+    record (not a horizon of its first tens of milliseconds), at the noise floor. With the
+    follower restarted from the raw samples its memory carried the noise through the planing
+    force, and this seed gave alpha = 0.8166 [0.8151, 0.8180]. (The half-step check stays on:
+    the fit's step alone moves alpha by about 6e-4 here.)"""
+    bag = _bag(tmp_path / 'run', clean_open, 0.05, 7)
     res = _open_fit(bag, tmp_path)
     lo, hi = res.intervals['fractional_order']
     assert res.reproduces, res.message

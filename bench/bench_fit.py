@@ -136,6 +136,8 @@ def noise_table(seeds: int, open_loop: bool = False, levels=(0.01, 0.05, 0.10),
                     alphas.append(res.values['fractional_order'])
                     covered += lo <= ALPHA <= hi
                     reproduced += res.reproduces
+                    print(f'  seed {seed}: alpha {alphas[-1]:.5f} [{lo:.5f}, {hi:.5f}], '
+                          f'reproduced {res.reproduces}, {cpu[-1]:.1f} s CPU', flush=True)
                     sig = np.array(res.settings['noise']['sigma'])
                     ratios.append(float(np.mean([sig[j] / (level * std[j]) for j in measured])))
                 need = math.ceil(0.9 * seeds)

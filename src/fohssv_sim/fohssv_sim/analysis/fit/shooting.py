@@ -24,7 +24,10 @@ in the noise test as samples do (a right model's jumps are its node errors, abou
 
 **The fractional memory: the measured trajectory.** Beside each point runs its follower: the
 same model (same parameters, same commands) restarted at every control instant from the
-sample (measured states; the point's own values for the unmeasured ones). The follower's
+sample (measured states; the point's own values for the unmeasured ones). A state whose noise
+is at least 2 % of its spread restarts from its samples smoothed (:func:`.noise.smooth`): a
+memory of f at noisy states, f nonlinear through the planing force, biased alpha as the noise
+squared (the follower fed the noise-free truth removed that bias; docs/fit.md). The follower's
 history of f is therefore f along the measured trajectory, period by period, from t = 0.
 At a node the point takes the follower's whole history (its SOE arrays) and its Volterra
 constant (x(t) = x0 + I^alpha f(x, u)(t), x0 shifted by each restart), so every segment

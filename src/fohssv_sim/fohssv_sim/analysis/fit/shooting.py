@@ -24,7 +24,10 @@ in the noise test as samples do (a right model's jumps are its node errors, abou
 
 **The fractional memory: the measured trajectory.** Beside each point runs its follower: the
 same model (same parameters, same commands) restarted at every control instant from the
-sample (measured states; the point's own values for the unmeasured ones). The follower's
+sample (measured states; the point's own values for the unmeasured ones). A state whose noise
+is at least 2 % of its spread restarts from its samples smoothed (:func:`.noise.smooth`): a
+memory of f at noisy states, f nonlinear through the planing force, biased alpha as the noise
+squared (the follower fed the noise-free truth removed that bias; docs/fit.md). The follower's
 history of f is therefore f along the measured trajectory, period by period, from t = 0.
 At a node the point takes the follower's whole history (its SOE arrays) and its Volterra
 constant (x(t) = x0 + I^alpha f(x, u)(t), x0 shifted by each restart), so every segment
@@ -57,6 +60,7 @@ from ...coefficients import coefficients
 from ...params import ModelParameters
 from ..population import _soe_arrays, check_population
 from .data import CLIP
+from .noise import smooth
 
 #: Default segment length (s): ten control periods of 1e-4 s. Not the unstable mode's
 #: e-folding time (65 ms at V = 75): through tail-slap contacts a replay of the FOM at
@@ -332,6 +336,10 @@ class Segments:
         c = np.where(self.reset, problem.w / problem.scale, 0.0)
         self.c = c                                   # a jump's weight per state (as a sample)
         self.h = 1e-6 * np.where(self.reset, problem.scale, 1.0)
+        #: what the follower restarts from at each control instant (NaN: not measured): the
+        #: samples smoothed where noisy, and the window of each state (1: as measured)
+        self.follow, self.windows = smooth(np.where(self.reset, problem.states, np.nan),
+                                           problem.noise)
 
     def starts(self, n: int) -> np.ndarray:
         """The node periods of a replay over ``n`` periods."""
@@ -361,7 +369,6 @@ class Segments:
         n = int(pr.index[upto - 1])
         starts = self.starts(n)
         S, P = starts.size, len(params)
-        data_all = np.where(self.reset, pr.states, np.nan)
         sel = pr.index[:upto]
         seg = np.searchsorted(starts, sel, side='right') - 1       # -1: from x(0), no node
         free = np.zeros(S, dtype=bool)
@@ -372,7 +379,7 @@ class Segments:
             D = np.repeat(delta, 5, axis=1)           # the point and its 4 perturbed copies
             for j in range(4):
                 D[:, j + 1, :, j] += self.h[j]
-            out, jumps, failed = run_segments(params, n, pr.hold, d.inputs, starts, data_all,
+            out, jumps, failed = run_segments(params, n, pr.hold, d.inputs, starts, self.follow,
                                               self.reset, D, initial_state=d.initial_state,
                                               duration=d.duration, threads=threads, memo=memo)
             for p in np.flatnonzero(~failed):
@@ -382,7 +389,7 @@ class Segments:
                               axis=-1)                              # (S, 4, 4): d jump / d all
                 r = (out[p, 0, sel] - pr.states[sel]) * wr
                 delta[p, 0] += _node_step(J, r, seg, dj, jumps[p, 0], free, self.c ** 2)
-        out, jumps, failed = run_segments(params, n, pr.hold, d.inputs, starts, data_all,
+        out, jumps, failed = run_segments(params, n, pr.hold, d.inputs, starts, self.follow,
                                           self.reset, delta, initial_state=d.initial_state,
                                           duration=d.duration, threads=threads, memo=memo)
         jumps = jumps[:, 0]

@@ -16,7 +16,10 @@ The server (``python zygote.py FD``) reads requests on the socket FD: JSON (the 
 argv, cwd, env) with two file descriptors (the process's output and a pipe for its exit
 status); it forks, answers the pid, reaps each child and writes its wait status to that
 child's pipe. The child leaves the server's loop and runs the entry point at the top of this
-module, so the interpreter ends it as it ends a script (atexit, threads, exit code).
+module, and ends as multiprocessing's forked children do: its other threads joined, the
+atexit functions run, the output flushed, then ``os._exit`` with the exit code (the
+interpreter's finalization of a forked plant that had published through the fault sink,
+faults.py, crashed with SIGSEGV; an executable never does).
 """
 
 from __future__ import annotations
@@ -242,6 +245,7 @@ if __name__ == '__main__':
         code = _become(*child)
     except SystemExit as exc:
         code = exc.code
+    threading._shutdown()
     atexit._run_exitfuncs()
     sys.stdout.flush()
     sys.stderr.flush()

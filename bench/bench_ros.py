@@ -91,6 +91,7 @@ from ament_index_python.packages import get_package_prefix
 from benchutil import host_cpu_ticks, steal_seconds, steal_share
 
 from fohssv_sim.ros.host import kernel_preemption
+from fohssv_sim.ros.options import NODE_PARAMETERS
 from fohssv_sim.ros.pacing import BurstWait
 
 HERE = Path(__file__).resolve().parent
@@ -326,13 +327,18 @@ def _attempt_text(s: dict) -> str:
     return f" [attempt {s['attempt']}; before: {before}]"
 
 
+#: The CPU wake-up latency limit the nodes hold by default (``cpu_dma_latency``; -1: none):
+#: the echo and the floor loop hold the same, so that each ratio compares like with like.
+NODE_LATENCY = next(s.default for s in NODE_PARAMETERS if s.name == 'cpu_dma_latency')
+
+
 def run_echo(domains: Domains, count: int, profile: str | None = None,
-             cpus: tuple[int, int] | None = None, latency: int = 0) -> dict:
+             cpus: tuple[int, int] | None = None, latency: int = NODE_LATENCY) -> dict:
     """The bare round-trip loop (bench/ros_echo.py) for ``count`` round trips; ``profile``: a
     Fast DDS profile file instead of the package's (``FASTDDS_DEFAULT_PROFILES_FILE``);
     ``cpus``: the ping's and the pong's CPU (each process pinned, ``--cpu``); ``latency``:
-    the CPU wake-up latency limit both hold (``--cpu-dma-latency``, 0 as the nodes' default;
-    -1 none)."""
+    the CPU wake-up latency limit both hold (``--cpu-dma-latency``; by default the nodes'
+    default, :data:`NODE_LATENCY`)."""
     env = domains.env()
     if profile is not None:
         env['FASTDDS_DEFAULT_PROFILES_FILE'] = profile
@@ -896,8 +902,9 @@ ctypes.CDLL(None).prctl(29, 1, 0, 0, 0)            # 1 ns timer slack, as the pl
 if sys.argv[1] == 'fifo':
     os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))
 from fohssv_sim.ros.host import hold_cpu_latency
-try:       # the CPU wake-up latency limit the plant holds by default (cpu_dma_latency 0)
-    hold_cpu_latency(0)
+try:       # the CPU wake-up latency limit the plant holds by default (NODE_LATENCY)
+    if int(sys.argv[6]) >= 0:
+        hold_cpu_latency(int(sys.argv[6]))
 except OSError:
     pass
 period, burst, tol, n = float(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4]), int(sys.argv[5])
@@ -938,11 +945,11 @@ def case_wake(sim_time: float, when: str) -> dict:
     """The machine's floor: a loop with the hosted plant's schedule that computes and publishes
     nothing (woken every 0.5 ms, when a burst of 5 samples of 1e-4 s is due, its samples counted
     as published at the wake-up), for ``sim_time`` of wall time, under the normal scheduler and
-    SCHED_FIFO 50, holding the CPU wake-up latency limit the plant holds (0): the CPU time per
-    wake-up, how late the wake-ups come, and the deadline misses a plant doing no work would
-    have had. A hosted plant's misses are these plus what its own work adds. Run at the start
-    and at the end of the benchmark (the machine drifts), with the hypervisor's steal over each
-    loop."""
+    SCHED_FIFO 50, holding the CPU wake-up latency limit the plant holds
+    (:data:`NODE_LATENCY`): the CPU time per wake-up, how late the wake-ups come, and the
+    deadline misses a plant doing no work would have had. A hosted plant's misses are these
+    plus what its own work adds. Run at the start and at the end of the benchmark (the machine
+    drifts), with the hypervisor's steal over each loop."""
     out = {}
     n = round(sim_time / FLOOR_PERIOD)
     for sched in ('normal', 'fifo'):
@@ -950,7 +957,8 @@ def case_wake(sim_time: float, when: str) -> dict:
             continue
         before = host_cpu_ticks()
         res = subprocess.run([sys.executable, '-c', _WAKE_LOOP, sched, str(FLOOR_PERIOD),
-                              str(FLOOR_BURST), str(FLOOR_TOLERANCE), str(n)],
+                              str(FLOOR_BURST), str(FLOOR_TOLERANCE), str(n),
+                              str(NODE_LATENCY)],
                              capture_output=True, text=True, timeout=60 + 3 * sim_time)
         if res.returncode != 0:
             print(f'floor     {sched}: failed: {res.stderr.strip()[-300:]}', flush=True)

@@ -12,7 +12,7 @@ Two processes, each one rclpy node on the executor the product's nodes use
   harness that samples the processes meanwhile, bench_ros.py's threads case);
   with ``--cpu N`` either role pins its process's threads to CPU N once its node, publisher
   and subscription exist, as a node's ``cpu_affinity`` does (bench_ros.py's pinned case);
-  with ``--cpu-dma-latency US`` (0 by default, as the product's nodes; -1: no request)
+  with ``--cpu-dma-latency US`` (-1 by default, no request, as the product's nodes)
   either role holds Linux's CPU wake-up latency limit while it runs, as a node's
   ``cpu_dma_latency`` does, where it may (bench_ros.py's latency case compares the two);
   with ``--hops DIR`` it times each round trip as ``bench/hops.py`` times the product's nodes
@@ -163,9 +163,9 @@ def main() -> int:
                     help="ping: print a line 'timing' when the timed round trips begin")
     ap.add_argument('--cpu', type=int, default=None,
                     help="pin the process's threads to this CPU (as cpu_affinity does)")
-    ap.add_argument('--cpu-dma-latency', type=int, default=0, metavar='US',
+    ap.add_argument('--cpu-dma-latency', type=int, default=-1, metavar='US',
                     help="hold this CPU wake-up latency limit (us) while the process runs, as "
-                         "a node's cpu_dma_latency does (default 0, as theirs); -1: none")
+                         "a node's cpu_dma_latency does; -1 (the default, as theirs): none")
     ap.add_argument('--busy-before', type=float, default=0.0, metavar='US',
                     help='ping: spin this long before each publish (work on the round trip)')
     ap.add_argument('--busy-after', type=float, default=0.0, metavar='US',

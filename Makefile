@@ -60,15 +60,9 @@ test: setup
 	@# byte-compile the sources once: hundreds of node and CLI processes start in the tests, and
 	@# where PYTHONDONTWRITEBYTECODE is set each would compile every module it imports again
 	@$(IN_ENV) python -m compileall -q -j 0 src > /dev/null
-	@# and fill numba's on-disk cache once (about 70 CPU s in a clean clone, in two processes,
-	@# one per core: the plants' kernels, the recording ring, the sweeps' and the fits'
-	@# kernels, the vector env's step; the plant's compiled sample path, simulate()'s drivers
-	@# and the continuation's flow. Under 3 s when it is there): otherwise every plant and test
-	@# process that starts before the first one wrote the cache compiles the kernels (the
-	@# in-plant writer and the lockstep plant their compiled paths, each test worker the
-	@# drivers, the fit's, the env's and the continuation's) again
-	@$(IN_ENV) python -c 'from fohssv_sim import models; models.warm_up(); from fohssv_sim.bag import ringpack; ringpack.warm_up(); from fohssv_sim.analysis import population; population.warm_up(); from fohssv_sim.analysis.fit import shooting; shooting.warm_up(); from fohssv_sim.envs import vector; vector.warm_up()' & warm=$$!; \
-	  $(IN_ENV) python -c 'from fohssv_sim.ros.plant.fastpath import sample; sample.warm_up(); from fohssv_sim import simulate; simulate.warm_up(); from fohssv_sim.continuation import flow; flow.warm_up()'; wait $$warm
+	@# and fill numba's on-disk cache once, so the hundreds of processes the tests start compile
+	@# nothing (scripts/warm_up.py: which kernels, and why two processes side by side)
+	@$(IN_ENV) python scripts/warm_up.py
 	@# one BLAS thread per process: the test workers already fill the cores, and OpenBLAS's
 	@# threads spin while they wait (a 261 x 261 solve, as in harmonic balance, cost 50 ms of
 	@# CPU instead of 1 ms on two busy cores; test_continuation_vehicle 27 CPU s instead of 11)

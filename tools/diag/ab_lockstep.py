@@ -14,7 +14,7 @@ change of either node's per-sample path is measured so on a machine whose speed 
 between runs.
 
 ``--demo`` compares instead the demo's loop recorded in-plant and unrecorded (plant and
-controller placed as ``make demo`` places them, ``bench_ros.demo_cpus``) for both trees,
+controller placed as ``make demo`` places them, ``ros_runs.demo_cpus``) for both trees,
 beside the bare echo (:func:`demo`).
 """
 
@@ -28,7 +28,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / 'bench'))
-import bench_ros as b  # noqa: E402  (bench/bench_ros.py)
+import ros_runs as b  # noqa: E402  (bench/ros_runs.py: bench_ros.py's processes)
 
 
 def _env(domains: b.Domains, old_src: str | None) -> dict:
@@ -59,7 +59,7 @@ def _loop(domains: b.Domains, old_src: str | None) -> float:
 
 
 def demo(domains: b.Domains, old_src: str, rounds: int) -> None:
-    """``--demo``: the demo's loop (``bench_ros.run_inplant_recording``'s: FOM, lockstep, 2 s,
+    """``--demo``: the demo's loop (``ros_realtime.run_inplant_recording``'s: FOM, lockstep, 2 s,
     placed as the demo places it) recorded in-plant and unrecorded, for both trees, each
     round in alternated order, the bare echo before and after it; per tree the mean loop
     times and the median of the rounds' recorded / unrecorded ratios (the ``make demo``

@@ -27,8 +27,8 @@ import numpy as np
 import rclpy
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / 'bench'))
-from bench_ros import MODEL_PARAMS  # noqa: E402  (bench/bench_ros.py)
 from rclpy.parameter import Parameter
+from ros_runs import MODEL_PARAMS  # noqa: E402  (bench/ros_runs.py)
 
 from fohssv_sim.contract import COMMAND
 from fohssv_sim.ros.plant_node import PlantNode

@@ -301,7 +301,7 @@ def main() -> int:
               file=sys.stderr)
         return 2
     sys.path.insert(0, str(Path(__file__).resolve().parents[2] / 'bench'))
-    import bench_ros as b  # bench/bench_ros.py
+    import ros_runs as b  # bench/ros_runs.py: bench_ros.py's processes
 
     saved = _saved()
     domains, runs = b.Domains(), []

@@ -18,6 +18,7 @@ import numpy as np
 from ...params import ParameterError
 from .data import FitData, FitError
 from .noise import effective_fraction
+from .observer import PROCESS_NOISE
 from .problem import FitSpec, Problem, cycle_features
 from .result import FitResult, summary_line
 from .search import Evaluator, Local, latin, lines
@@ -319,7 +320,9 @@ def _loop_text(problem: Problem) -> str:
         if problem.segments is not None:
             n = problem.nodes(problem.index.size)
             return (f'open (recorded commands, held; multiple shooting: {n + 1} segments of '
-                    f'{problem.segments.periods} control periods, memory from the data)')
+                    f'{problem.segments.periods} control periods, memory from the data through '
+                    f'an extended Kalman filter, process noise {PROCESS_NOISE:g} of each '
+                    "state's spread per period)")
         return 'open (recorded commands, held)'
     how = ('compiled' if problem.law is not None
            else 'not affine: point by point through the plant')

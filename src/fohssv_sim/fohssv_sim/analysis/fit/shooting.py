@@ -5,9 +5,8 @@ error, so a single trajectory cannot be fitted to a long record. Here the record
 segments of ``segment`` seconds; each segment starts from its own *node*, the state at its
 first sample, estimated from the data, and runs the FOM on the recorded commands to the next.
 
-**The nodes.** At a segment's start the point takes the state of its *follower* (below): the
-measured states as sampled, the unmeasured ones as the previous segment left them, plus a
-correction; the corrections (4 per segment, nuisance unknowns) are fitted for every parameter
+**The nodes.** At a segment's start the point takes the state of its *follower* (below), plus
+a correction; the corrections (4 per segment, nuisance unknowns) are fitted for every parameter
 point by Gauss-Newton (``iterations`` steps from zero; each step one batched call of the point
 and its 4 perturbed copies, every segment perturbed at once), all of them together: a
 segment's samples depend on its own node's correction, a jump (below) on its node's and,
@@ -23,25 +22,24 @@ only): a model that cannot continue its own segments pays for every jump, and th
 in the noise test as samples do (a right model's jumps are its node errors, about the noise).
 
 **The fractional memory: the measured trajectory.** Beside each point runs its follower: the
-same model (same parameters, same commands) restarted at every control instant from the
-sample (measured states; the point's own values for the unmeasured ones). A state whose noise
-is at least 2 % of its spread restarts from its samples smoothed (:func:`.noise.smooth`): a
-memory of f at noisy states, f nonlinear through the planing force, biased alpha as the noise
-squared (the follower fed the noise-free truth removed that bias; docs/fit.md). The follower's
-history of f is therefore f along the measured trajectory, period by period, from t = 0.
-At a node the point takes the follower's whole history (its SOE arrays) and its Volterra
-constant (x(t) = x0 + I^alpha f(x, u)(t), x0 shifted by each restart), so every segment
-continues a memory that reaches back to t = 0 over the data, untruncated, and no segment's
-error enters a later one through the memory (with the memory of the model's own pieced
-trajectory instead, one segment thrown off by a contact spoils every later one). A restart
-adds the difference to x0 from its instant on: the restarts stay outside the fractional
-dynamics (D^alpha (x - sum of the restarts) = f(x, u)). Checked against an exact solver:
+same model (same parameters, same commands) over the whole record, corrected at every control
+instant towards the sample by an extended Kalman filter (:mod:`.observer`), which weighs each
+sample against the model's prediction and estimates the unmeasured states from the measured
+ones. Taking the samples whole instead put their noise into the memory, where f, nonlinear
+through the planing force, biased alpha as the noise squared (docs/fit.md). The follower's
+history of f is therefore f along the filtered measured trajectory, period by period, from
+t = 0. At a node the point takes the follower's whole history (its SOE arrays) and its
+Volterra constant (x(t) = x0 + I^alpha f(x, u)(t), x0 shifted by each correction), so every
+segment continues a memory that reaches back to t = 0 over the data, untruncated, and no
+segment's error enters a later one through the memory (with the memory of the model's own
+pieced trajectory instead, one segment thrown off by a contact spoils every later one). A
+correction is added to x0 from its instant on: the corrections stay outside the fractional
+dynamics (D^alpha (x - sum of the corrections) = f(x, u)). Checked against an exact solver:
 test/test_fit_shooting.py. The point and its perturbed copies (``C`` in all) share one
-follower; with every state measured its history does not depend on their corrections (an
-unmeasured state follows copy 0, the point itself), so it runs in the first call only and
+follower, which does not depend on their corrections, so it runs in the first call only and
 its state at each node is kept for the later calls (:class:`Memo`). Cost per parameter
-value: ``5 iterations + 1`` replays of the record and one of the follower (17 at the default
-3; with a state unmeasured, ``6 iterations + 2``).
+value: ``5 iterations + 1`` replays of the record and one of the follower (17 in all at the
+default 3).
 
 Pure: numpy, numba; never imports rclpy or the CLI.
 """
@@ -59,8 +57,8 @@ from ... import kernels
 from ...coefficients import coefficients
 from ...params import ModelParameters
 from ..population import _soe_arrays, check_population
+from . import observer
 from .data import CLIP
-from .noise import smooth
 
 #: Default segment length (s): ten control periods of 1e-4 s. Not the unstable mode's
 #: e-folding time (65 ms at V = 75): through tail-slap contacts a replay of the FOM at
@@ -83,8 +81,9 @@ else:  # pragma: no cover - numba is pinned
 
 class Memo(NamedTuple):
     """The followers of P points at their S nodes (SOE history ``H``, its ``fill``, state
-    ``y`` and Volterra constant ``y0``), ``have``: complete; kept only when ``keep`` (every
-    state measured: the follower is then the same in every call for the same points)."""
+    ``y`` and Volterra constant ``y0``), ``have``: complete; kept only when ``keep`` (the
+    follower is the same in every call for the same points; not kept where it would take
+    more than :data:`MEMO_BYTES`)."""
 
     H: np.ndarray
     fill: np.ndarray
@@ -143,18 +142,19 @@ def _take_node(p, b, k, gf, x, x0, y, y0, delta, jumps, out, H, fill):
 
 
 @_njit
-def _shooting_kernel(X0, CV, smooth, inputs, hold, n_periods, starts, data, reset, delta,
+def _shooting_kernel(X0, CV, smooth, inputs, hold, n_periods, starts, data, kf, delta,
                      H, W, fill, eps_k, ET, a0_coef, a0_small, alphas, cp, cc, speeds,
                      out, jumps, failed, memo):
     """Every point p's C copies (SOE groups (C + 1) p + 1 + c) over ``n_periods`` periods on
     the held ``inputs``, beside the point's one *follower* (group (C + 1) p): the same model
-    restarted every period from the sample ``data[k]`` (where ``reset`` and finite; elsewhere
-    from copy 0's state). At period ``starts[b]`` each copy c takes the follower's memory and
-    state plus ``delta[p, c, b]`` (the jump, node minus the state the copy reached, kept in
-    ``jumps[p, c, b]``); see the module docstring. A copy that leaves the domain stops its
-    point (``failed[p]``, NaN from there on). ``memo`` (:class:`Memo`): the follower at each
-    node, kept where it ran to the last node and taken from there in a later call (it does
-    not depend on the copies' corrections when every state is measured)."""
+    corrected every period towards the sample ``data[k]`` (NaN: none) by the filter ``kf``
+    (:func:`.observer.settings`: per point c, Q, R, the measured states). At period
+    ``starts[b]`` each copy c takes the follower's memory and state plus ``delta[p, c, b]``
+    (the jump, node minus the state the copy reached, kept in ``jumps[p, c, b]``); see the
+    module docstring. A copy that leaves the domain stops its point (``failed[p]``, NaN from
+    there on). ``memo`` (:class:`Memo`): the follower at each node, kept where it ran to the
+    last node and taken from there in a later call (it does not depend on the copies'
+    corrections)."""
     P, C = delta.shape[0], delta.shape[1]
     S = starts.shape[0]
     x = np.empty((C, 4))
@@ -163,6 +163,10 @@ def _shooting_kernel(X0, CV, smooth, inputs, hold, n_periods, starts, data, rese
     y0 = np.empty(4)
     last_f = np.empty(4)
     bad = np.empty(4)
+    e = np.empty(4)
+    m = np.empty(4, dtype=np.bool_)
+    Pk = np.empty((4, 4))
+    kf_c, Q, R, measured = kf
     held = np.zeros(12)
     held[10] = math.inf
     held[11] = math.inf
@@ -177,6 +181,7 @@ def _shooting_kernel(X0, CV, smooth, inputs, hold, n_periods, starts, data, rese
                 out[p, c, 0, i] = X0[p, i]
         n = 0
         b = 0
+        Pk[:, :] = np.diag(Q)                  # the initial state is known
         follow = not memo.have[p]
         for k in range(n_periods):
             if b < S and k == starts[b]:
@@ -204,12 +209,11 @@ def _shooting_kernel(X0, CV, smooth, inputs, hold, n_periods, starts, data, rese
                     a0_coef[gf:gf + 1], a0_small[gf:gf + 1], alphas[gf], cp[gf], cc[gf],
                     last_f, bad)
                 ok = taken == hold
-                for i in range(4):             # restarted from the sample (its memory kept)
-                    target = x[0, i]
-                    if reset[i] and math.isfinite(data[k + 1, i]):
-                        target = data[k + 1, i]
-                    y0[i] += target - y[i]
-                    y[i] = target
+                for i in range(4):             # corrected towards the sample (memory kept)
+                    m[i] = measured[i] and math.isfinite(data[k + 1, i])
+                    e[i] = data[k + 1, i] - y[i] if m[i] else 0.0
+                observer.update(Pk, y, y0, e, kf_c[p], kernels.unpack_coefficients(CV[p]),
+                                smooth, Q, R, m)
             if not ok:
                 failed[p] = True
                 out[p, :, k + 1:] = np.nan
@@ -225,7 +229,7 @@ def _shooting_kernel(X0, CV, smooth, inputs, hold, n_periods, starts, data, rese
 
 def run_segments(params: Sequence[ModelParameters], n_periods: int, hold: int,
                  inputs: np.ndarray, starts: np.ndarray, data: np.ndarray,
-                 reset: np.ndarray, delta: np.ndarray, *, initial_state: Sequence[float],
+                 kf: tuple, delta: np.ndarray, *, initial_state: Sequence[float],
                  duration: float | None, threads: int = 1, memo: Memo | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(states (P, C, n_periods + 1, 4), jumps (P, C, S, 4), failed (P,)) of the points
@@ -242,7 +246,8 @@ def run_segments(params: Sequence[ModelParameters], n_periods: int, hold: int,
         cuts = np.linspace(0, len(params), m + 1).round().astype(int)
         with ThreadPoolExecutor(m) as pool:
             parts = list(pool.map(lambda ab: run_segments(
-                params[ab[0]:ab[1]], n_periods, hold, inputs, starts, data, reset,
+                params[ab[0]:ab[1]], n_periods, hold, inputs, starts, data,
+                (kf[0][ab[0]:ab[1]], *kf[1:]),
                 delta[ab[0]:ab[1]], initial_state=initial_state, duration=duration,
                 memo=None if memo is None else memo.part(*ab)), zip(cuts[:-1], cuts[1:])))
         return tuple(np.concatenate([q[i] for q in parts]) for i in range(3))
@@ -267,7 +272,8 @@ def run_segments(params: Sequence[ModelParameters], n_periods: int, hold: int,
                      np.ascontiguousarray(inputs[:n_periods], dtype=float), int(hold),
                      int(n_periods), np.ascontiguousarray(starts, dtype=np.int64),
                      np.ascontiguousarray(data[:n_periods + 1], dtype=float),
-                     np.ascontiguousarray(reset, dtype=np.bool_),
+                     tuple(np.ascontiguousarray(a, dtype=t)
+                           for a, t in zip(kf, (float, float, float, np.bool_))),
                      np.ascontiguousarray(delta, dtype=float), H, W,
                      np.zeros((C + 1) * P, dtype=np.int64), eps_k, ET, a0_coef, a0_small,
                      alphas, cp, cc, speeds, out, jumps, failed, memo)
@@ -332,14 +338,12 @@ class Segments:
         d = problem.data
         self.periods = max(2, int(round(segment / d.control_period)))
         self.iterations = int(iterations)
-        self.reset = problem.spec.measured.copy()
-        c = np.where(self.reset, problem.w / problem.scale, 0.0)
+        self.measured = problem.spec.measured.copy()
+        c = np.where(self.measured, problem.w / problem.scale, 0.0)
         self.c = c                                   # a jump's weight per state (as a sample)
-        self.h = 1e-6 * np.where(self.reset, problem.scale, 1.0)
-        #: what the follower restarts from at each control instant (NaN: not measured): the
-        #: samples smoothed where noisy, and the window of each state (1: as measured)
-        self.follow, self.windows = smooth(np.where(self.reset, problem.states, np.nan),
-                                           problem.noise)
+        self.h = 1e-6 * np.where(self.measured, problem.scale, 1.0)
+        #: what the follower's filter is given at each control instant (NaN: not measured)
+        self.follow = np.where(self.measured, problem.states, np.nan)
 
     def starts(self, n: int) -> np.ndarray:
         """The node periods of a replay over ``n`` periods."""
@@ -353,7 +357,7 @@ class Segments:
         S = self.starts(int(pr.index[upto - 1])).size
         rows = _soe_arrays(params, pr.data.duration)[0].H.shape[2]
         per_point = max(1, S * rows * 4 * 8)
-        keep = bool(self.reset.all()) and per_point <= MEMO_BYTES
+        keep = per_point <= MEMO_BYTES
         size = max(1, MEMO_BYTES // per_point) if keep else len(params)
         shots = [self._shoot(params[i:i + size], upto, threads,
                              Memo.make(len(params[i:i + size]), S, rows, keep))
@@ -374,13 +378,15 @@ class Segments:
         free = np.zeros(S, dtype=bool)
         free[np.unique(seg[seg >= 0])] = True         # nodes with samples to fit them
         wr = pr.w / pr.scale
+        kf = observer.settings(params, d.control_period, pr.scale, pr.noise.sigma,
+                               self.measured)
         delta = np.zeros((P, 1, S, 4))
         for _ in range(self.iterations if S else 0):
             D = np.repeat(delta, 5, axis=1)           # the point and its 4 perturbed copies
             for j in range(4):
                 D[:, j + 1, :, j] += self.h[j]
             out, jumps, failed = run_segments(params, n, pr.hold, d.inputs, starts, self.follow,
-                                              self.reset, D, initial_state=d.initial_state,
+                                              kf, D, initial_state=d.initial_state,
                                               duration=d.duration, threads=threads, memo=memo)
             for p in np.flatnonzero(~failed):
                 J = np.stack([(out[p, j + 1, sel] - out[p, 0, sel]) * wr / self.h[j]
@@ -390,7 +396,7 @@ class Segments:
                 r = (out[p, 0, sel] - pr.states[sel]) * wr
                 delta[p, 0] += _node_step(J, r, seg, dj, jumps[p, 0], free, self.c ** 2)
         out, jumps, failed = run_segments(params, n, pr.hold, d.inputs, starts, self.follow,
-                                          self.reset, delta, initial_state=d.initial_state,
+                                          kf, delta, initial_state=d.initial_state,
                                           duration=d.duration, threads=threads, memo=memo)
         jumps = jumps[:, 0]
         jumps[:, ~free] = 0.0                     # a node before the window is not judged
@@ -408,5 +414,6 @@ def warm_up() -> None:
     a fit passes (``make test`` calls it once, before the test workers start)."""
     n, hold = 4, 5
     run_segments([ModelParameters(model='fractional')], n, hold, np.zeros((n, 2)),
-                 np.array([2], dtype=np.int64), np.zeros((n + 1, 4)), np.ones(4, dtype=bool),
+                 np.array([2], dtype=np.int64), np.zeros((n + 1, 4)),
+                 (np.ones(1), np.ones(4), np.ones(4), np.ones(4, dtype=bool)),
                  np.zeros((1, 2, 1, 4)), initial_state=(0.0, 0.0, 0.0, 0.0), duration=None)

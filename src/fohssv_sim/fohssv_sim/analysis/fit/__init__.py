@@ -71,9 +71,10 @@ half its bounds. With a model that cannot reproduce the run the intervals are no
 intervals and the result says so (``reproduces`` false).
 
 The package: :mod:`.data` (names, default bounds, the run), :mod:`.noise` (the noise and the
-test), :mod:`.problem` (the objective), :mod:`.shooting` (multiple shooting), :mod:`.search`
-(populations, the local stage), :mod:`.run` (:func:`run_fit`), :mod:`.result` (what it
-found, the verdict), :mod:`.report` (files and figures).
+test), :mod:`.problem` (the objective), :mod:`.shooting` (multiple shooting), :mod:`.observer`
+(its follower's Kalman filter), :mod:`.search` (populations, the local stage), :mod:`.run`
+(:func:`run_fit`), :mod:`.result` (what it found, the verdict), :mod:`.report` (files and
+figures).
 
 Pure: numpy, scipy, dask, matplotlib (Agg); never imports rclpy or the CLI.
 """

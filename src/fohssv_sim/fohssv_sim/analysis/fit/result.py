@@ -95,8 +95,10 @@ def summary_line(result: FitResult) -> str:
     span = f'[{w0:g}, {w1 if closed else result.horizon_end:g}] s'
     how = judged(st['verdict'], st['noise'], s.threshold)
     blind = [n for n, ok in result.identifiable.items() if not ok]
-    blind_text = (f"; {' and '.join(blind)} not identifiable from these data (the interval "
-                  'spans the bounds or the residual does not depend on it)' if blind else '')
+    why = st.get('blind_reason') or ('the interval spans the bounds or the residual does not '
+                                      'depend on it')
+    blind_text = (f"; {' and '.join(blind)} not identifiable from these data ({why})"
+                  if blind else '')
     if not result.reproduces:
         names = ' and '.join(s.names)
         rng = ' x '.join(f'[{lo:g}, {hi:g}]' for lo, hi in s.bounds)

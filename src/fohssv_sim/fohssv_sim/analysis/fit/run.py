@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from ...params import ParameterError
-from .data import FitData, FitError
+from .data import STATE_NAMES, FitData, FitError
 from .noise import effective_fraction
 from .observer import PROCESS_NOISE
 from .problem import FitSpec, Problem, cycle_features
@@ -213,6 +213,15 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
     span = bounds[:, 1] - bounds[:, 0]
     identifiable = {n: bool(math.isfinite(half[j]) and intervals[n][1] - intervals[n][0]
                             < 0.5 * span[j]) for j, n in enumerate(spec.names)}
+    blind_reason = None
+    if problem.segments is not None and not spec.measured.all():
+        # measured: over ten seeds the interval held the truth in half of them at 1 % noise
+        # and in none at 5 % (docs/fit.md, Limits): no interval of this method is trusted
+        off = ', '.join(n for n, m in zip(STATE_NAMES, spec.measured) if not m)
+        blind_reason = (f'open loop with {off} not measured, the nodes of the unmeasured '
+                        'states absorb what the parameters do; close the loop with '
+                        '--controller NAME')
+        identifiable = dict.fromkeys(spec.names, False)
     horizon_verdict, window_verdict, verdict = _verdicts(problem, x, r, upto, check)
     res, window_res = horizon_verdict['residual'], window_verdict['residual']
     reproduced = verdict['reproduced']
@@ -242,7 +251,7 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
                                  'initial_state': list(data.initial_state),
                                  'verdict': verdict, 'window_verdict': window_verdict,
                                  'horizon_verdict': horizon_verdict,
-                                 'effective_fraction': frac,
+                                 'effective_fraction': frac, 'blind_reason': blind_reason,
                                  'fisher_std': None if fisher is None else
                                  {n: float(v) if math.isfinite(v) else None
                                                     for n, v in zip(spec.names, fisher)},

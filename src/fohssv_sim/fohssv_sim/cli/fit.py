@@ -64,13 +64,15 @@ def register(sub) -> None:
                    'frequency, amplitude, mean and class of w (periodic or chaotic runs)')
     p.add_argument('--window', metavar='T0:T1', help='time window in s (default: the whole '
                    'run; the second half for --objective cycle)')
-    p.add_argument('--horizon', choices=('auto', 'segments', 'grow', 'full'), default=None,
-                   help='segments: multiple shooting over the whole window, each segment '
-                   'started from the state estimated from the data (an open-loop replay); '
-                   'grow: the fitted horizon grown from 1/16 of the window, doubling, '
+    p.add_argument('--horizon', choices=('auto', 'filter', 'segments', 'grow', 'full'),
+                   default=None,
+                   help='filter: the prediction errors of the model\'s Kalman filter over the '
+                   'whole window (an open-loop replay); segments: multiple shooting over the '
+                   'whole window, each segment started from the filtered state (an open-loop '
+                   'replay); grow: the fitted horizon grown from 1/16 of the window, doubling, '
                    'bisected where the model departs; full: one trajectory over the whole '
-                   'window (default with --reference); auto (default for bags): segments '
-                   'open loop, grow with --controller')
+                   'window (default with --reference); auto (default for bags): filter open '
+                   'loop, grow with --controller')
     p.add_argument('--segment', type=bounded('--segment', unit='s', low=0, low_open=True),
                    default=None, metavar='SECONDS',
                    help='--horizon segments: segment length in s (default 0.001: ten control '

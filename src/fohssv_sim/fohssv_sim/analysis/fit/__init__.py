@@ -31,10 +31,13 @@ misfit). States of weight 0 are not measured: never compared, never read.
 **Open-loop replays diverge.** The vehicle is open-loop unstable (eigenvalue +15.5 1/s at
 V = 75, far faster through planing contacts): replaying recorded commands through a model
 whose parameters differ by 1e-6 departs from the data within tens of milliseconds. So an
-open-loop replay is fitted over the whole window by multiple shooting (``horizon='auto'`` or
-``'segments'``, :mod:`.shooting`: segments of ``segment`` s, each started from a node
-estimated from the data, the jumps as soft continuity rows, the fractional memory of every
-segment that of the measured trajectory from t = 0). ``horizon='grow'`` (the default of a
+open-loop replay is fitted over the whole window through an extended Kalman filter of the
+model (``horizon='auto'`` or ``'filter'``, :mod:`.observer`: the residual is the filter's
+prediction errors, each sample against the model's one-period prediction, white noise when
+the model is right), or by multiple shooting (``'segments'``, :mod:`.shooting`: segments of
+``segment`` s, each started from a node, the filtered state plus a fitted correction, the
+jumps as soft continuity rows, the fractional memory of every segment that of the filtered
+trajectory from t = 0). ``horizon='grow'`` (the default of a
 closed loop) instead grows the horizon: stage 0 fits the first 1/2^S of the window (halved
 while even that is not reproduced, down to 20 samples), each later stage doubles it,
 warm-started from the previous stage, and bisects back towards the last reproduced horizon

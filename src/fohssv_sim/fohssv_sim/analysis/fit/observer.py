@@ -1,9 +1,12 @@
 """The follower's filter: an extended Kalman filter of the FOM, one control period at a time.
 
-Multiple shooting (:mod:`.shooting`) starts every segment with the memory of the measured
-trajectory, which a *follower* builds: the model run beside the segments over the whole
-record, corrected at every control instant towards the sample. How much of each sample it
-takes is this filter's gain. Taking the sample whole (the follower restarted from it) puts the
+An open-loop replay is fitted through a *follower*: the model run over the whole record,
+corrected at every control instant towards the sample. Its prediction errors are the residual
+of the default open-loop fit (:func:`run_filter`, the prediction-error method: each sample
+against the model's one-period prediction, over the standard deviation the filter predicts
+for it, white noise of unit variance when the model is right); multiple shooting
+(:mod:`.shooting`) starts every segment with its state and memory. How much of each sample
+it takes is this filter's gain. Taking the sample whole (the follower restarted from it) puts the
 measurement noise into the memory, where f, nonlinear through the planing force, turns it into
 a bias of alpha growing as the noise squared; an unmeasured state (w and q of a vehicle that
 measures depth and pitch) cannot be taken from a sample at all. The filter answers both: it
@@ -40,8 +43,16 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ... import kernels
+from ...coefficients import coefficients
 from ...params import ModelParameters
 from ...physics import jitable, planing_exact, planing_smooth
+
+if kernels.numba is not None:
+    _njit = kernels.numba.njit(cache=True, nogil=True, error_model='numpy')
+else:  # pragma: no cover - numba is pinned
+    def _njit(fn):
+        return fn
 
 #: The model's error per control period the filter allows, as a fraction of each measured
 #: state's standard deviation over the window.
@@ -63,11 +74,12 @@ def settings(params: Sequence[ModelParameters], period: float, scale: np.ndarray
 
 
 @jitable
-def update(P, y, y0, e, c, co, smooth, Q, R, m):
+def update(P, y, y0, e, c, co, smooth, Q, R, m, white):
     """One period of the filter, in place: P (4, 4) propagated through I + c J(y) (``co``
     the model's coefficients, ``smooth`` its planing form) and corrected by the innovations
     ``e`` of the states ``m`` (this sample's measured ones); the state ``y`` and its Volterra
-    constant ``y0`` moved by K e."""
+    constant ``y0`` moved by K e; ``white``: each innovation over its predicted standard
+    deviation sqrt(S_ii) (0 where not measured)."""
     w = y[1]
     dw = 1e-7 * max(abs(w), 1.0)
     if smooth:
@@ -93,9 +105,109 @@ def update(P, y, y0, e, c, co, smooth, Q, R, m):
                 PH[i, j] = P[i, j]
                 if m[i]:
                     S[i, j] = P[i, j] + (R[i] if i == j else 0.0)
+    for i in range(4):
+        white[i] = e[i] / math.sqrt(S[i, i]) if m[i] else 0.0
     K = PH @ np.linalg.inv(S)
     d = K @ e
     for i in range(4):
         y[i] += d[i]
         y0[i] += d[i]
     P[:, :] = P - K @ P
+
+
+@_njit
+def _filter_kernel(X0, CV, smooth, inputs, hold, n_periods, data, kf, H, W, fill, eps_k, ET,
+                   a0_coef, a0_small, alphas, cp, cc, speeds, out, white, failed):
+    """The follower of every point p alone over ``n_periods`` periods on the held
+    ``inputs``: its prediction of each sample (``out[p, k]``, before the correction) and the
+    whitened innovation (``white[p, k]``); a point whose prediction leaves the domain stops
+    (``failed[p]``, NaN from there on)."""
+    y = np.empty(4)
+    y0 = np.empty(4)
+    e = np.empty(4)
+    m = np.empty(4, dtype=np.bool_)
+    Pk = np.empty((4, 4))
+    last_f = np.empty(4)
+    bad = np.empty(4)
+    held = np.zeros(12)
+    held[10] = math.inf
+    held[11] = math.inf
+    kf_c, Q, R, measured = kf
+    for p in range(X0.shape[0]):
+        co = kernels.unpack_coefficients(CV[p])
+        for i in range(4):
+            y[i] = X0[p, i]
+            y0[i] = X0[p, i]
+            out[p, 0, i] = X0[p, i]
+            white[p, 0, i] = 0.0
+        Pk[:, :] = np.diag(Q)
+        n = 0
+        v = speeds[p]
+        for k in range(n_periods):
+            held[8] = inputs[k, 0]
+            held[9] = inputs[k, 1]
+            taken = kernels.fom_soe_run(
+                y, y0, n, hold, CV[p], smooth, held, False, H[p:p + 1], W[:, p:p + 1],
+                fill[p:p + 1], eps_k[p:p + 1], ET[p:p + 1], a0_coef[p:p + 1],
+                a0_small[p:p + 1], alphas[p], cp[p], cc[p], last_f, bad)
+            if taken < hold or not (-v <= y[1] <= v and -1.5707963267948966 <= y[2]
+                                    <= 1.5707963267948966):
+                failed[p] = True
+                out[p, k + 1:] = np.nan
+                white[p, k + 1:] = np.nan
+                break
+            n += hold
+            for i in range(4):
+                out[p, k + 1, i] = y[i]
+                m[i] = measured[i] and math.isfinite(data[k + 1, i])
+                e[i] = data[k + 1, i] - y[i] if m[i] else 0.0
+            update(Pk, y, y0, e, kf_c[p], co, smooth, Q, R, m, white[p, k + 1])
+
+
+def run_filter(params: Sequence[ModelParameters], n_periods: int, hold: int,
+               inputs: np.ndarray, data: np.ndarray, kf: tuple, *,
+               initial_state: Sequence[float], duration: float | None, threads: int = 1
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(predictions (P, n_periods + 1, 4), whitened innovations (same), failed (P,)) of the
+    points ``params``' followers on ``inputs``, filtering ``data`` (NaN: not measured) with
+    ``kf`` (:func:`settings`); ``threads`` > 1 splits the points over threads."""
+    from ..population import _soe_arrays, check_population
+
+    params = list(params)
+    if threads > 1 and len(params) > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        m = min(int(threads), len(params))
+        cuts = np.linspace(0, len(params), m + 1).round().astype(int)
+        with ThreadPoolExecutor(m) as pool:
+            parts = list(pool.map(lambda ab: run_filter(
+                params[ab[0]:ab[1]], n_periods, hold, inputs, data,
+                (kf[0][ab[0]:ab[1]], *kf[1:]), initial_state=initial_state,
+                duration=duration), zip(cuts[:-1], cuts[1:])))
+        return tuple(np.concatenate([q[i] for q in parts]) for i in range(3))
+    check_population(params)
+    P = len(params)
+    hist, alphas, cp, cc = _soe_arrays(params, duration)
+    out = np.empty((P, n_periods + 1, 4))
+    white = np.empty((P, n_periods + 1, 4))
+    failed = np.zeros(P, dtype=np.bool_)
+    _filter_kernel(np.tile(np.asarray(initial_state, dtype=float), (P, 1)),
+                   np.array([coefficients(p).kernel for p in params], dtype=float),
+                   params[0].planing_form == 'smooth',
+                   np.ascontiguousarray(inputs[:n_periods], dtype=float), int(hold),
+                   int(n_periods), np.ascontiguousarray(data[:n_periods + 1], dtype=float),
+                   tuple(np.ascontiguousarray(a, dtype=t)
+                         for a, t in zip(kf, (float, float, float, np.bool_))),
+                   np.zeros_like(hist.H), hist.W, np.zeros(P, dtype=np.int64), hist.eps_k,
+                   hist.ET, hist.a0_coef, hist.a0_small, alphas, cp, cc,
+                   np.array([p.speed for p in params], dtype=float), out, white, failed)
+    return out, white, failed
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) :func:`_filter_kernel` with the argument types a
+    fit passes (``make test`` calls it once, before the test workers start)."""
+    n, hold = 4, 5
+    run_filter([ModelParameters(model='fractional')], n, hold, np.zeros((n, 2)),
+               np.zeros((n + 1, 4)), (np.ones(1), np.ones(4), np.ones(4), np.ones(4, dtype=bool)),
+               initial_state=(0.0, 0.0, 0.0, 0.0), duration=None)

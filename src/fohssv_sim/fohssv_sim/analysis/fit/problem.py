@@ -17,6 +17,7 @@ import numpy as np
 from ...params import ModelParameters, ParameterError
 from ..orbits import classify
 from ..population import run_population, run_population_reference
+from . import observer
 from .data import CLIP, DEFAULT_THRESHOLD, OBJECTIVES, STATE_NAMES, FitData, FitError
 from .noise import DEFAULT_NOISE_FLOOR
 from .noise import estimate as estimate_noise
@@ -24,7 +25,7 @@ from .noise import judge as judge_noise
 from .shooting import SEGMENT, Segments
 
 #: How the model covers the window (FitSpec.horizon).
-HORIZONS = ('auto', 'segments', 'grow', 'full')
+HORIZONS = ('auto', 'filter', 'segments', 'grow', 'full')
 
 
 # -- the problem ---------------------------------------------------------------------------
@@ -37,10 +38,11 @@ class FitSpec:
     state (z, w, theta, q; a weight of 0: the state is not measured, never compared and may be
     missing from the data); ``noise`` per state in its unit (None: estimated from the data,
     :mod:`.noise`), never below ``noise_floor`` x the state's standard deviation;
-    ``horizon``: 'segments' (multiple shooting over the whole window, segments of
-    ``segment`` s: :mod:`.shooting`), 'grow' (a growing horizon, ``stages`` doublings),
-    'full' (one trajectory over the whole window) or 'auto' (segments for an open-loop
-    replay, grow for a closed loop). ``threshold``: the cycle objective's
+    ``horizon``: 'filter' (the prediction errors of the model's Kalman filter over the whole
+    window: :mod:`.observer`), 'segments' (multiple shooting over the whole window, segments
+    of ``segment`` s: :mod:`.shooting`), 'grow' (a growing horizon, ``stages`` doublings),
+    'full' (one trajectory over the whole window) or 'auto' (filter for an open-loop replay,
+    grow for a closed loop). ``threshold``: the cycle objective's
     acceptance (the trajectory objective is judged against the noise).
     """
 
@@ -108,6 +110,16 @@ class FitSpec:
         return np.asarray(self.weights, dtype=float) > 0
 
 
+@dataclass
+class Filtered:
+    """The filter's run of some points (:func:`.observer.run_filter`): ``states`` (P, n + 1,
+    4) its predictions of the samples, ``white`` its whitened innovations, ``failed`` (P,)."""
+
+    states: np.ndarray
+    white: np.ndarray
+    failed: np.ndarray
+
+
 class Problem:
     """The objective of one fit: the data in the window, the base parameters, the drive.
     Picklable (it travels to the Dask workers)."""
@@ -169,20 +181,22 @@ class Problem:
         if spec.objective == 'cycle':
             self.features = cycle_features(t[self.index], x[:, 1])
         self.segments = Segments(self, spec.segment) if self.mode == 'segments' else None
+        #: what the filter is given (NaN: not measured), for the 'filter' mode
+        self.follow = np.where(m, self.states, np.nan)
 
     @property
     def mode(self) -> str:
-        """How the model covers the window: 'segments', 'grow' or 'full' (FitSpec.horizon,
-        'auto' resolved: segments for an open-loop replay, grow for a closed loop; the cycle
-        objective always 'full')."""
+        """How the model covers the window: 'filter', 'segments', 'grow' or 'full'
+        (FitSpec.horizon, 'auto' resolved: filter for an open-loop replay, grow for a closed
+        loop; the cycle objective always 'full')."""
         h = self.spec.horizon
         if self.spec.objective == 'cycle':
             return 'full'
         if h == 'auto':
-            return 'segments' if self.spec.controller is None else 'grow'
-        if h == 'segments' and self.spec.controller is not None:
-            raise FitError('--horizon segments: multiple shooting is for an open-loop replay; '
-                           'a closed loop (--controller) is judged over the whole window as is')
+            return 'filter' if self.spec.controller is None else 'grow'
+        if h in ('filter', 'segments') and self.spec.controller is not None:
+            raise FitError(f'--horizon {h}: for an open-loop replay; a closed loop '
+                           '(--controller) is judged over the whole window as is')
         return h
 
     def nodes(self, upto: int) -> int:
@@ -225,6 +239,12 @@ class Problem:
         d = self.data
         if self.segments is not None:
             return self.segments.shoot(ok, upto, threads), valid
+        if self.mode == 'filter':
+            kf = observer.settings(ok, d.control_period, self.scale, self.noise.sigma,
+                                   self.spec.measured)
+            return Filtered(*observer.run_filter(
+                ok, n, self.hold, d.inputs, self.follow, kf, initial_state=d.initial_state,
+                duration=d.duration, threads=threads)), valid
         if self.plugin is not None:
             # no compiled form (a law with memory, e.g. fractional_pid): each point through
             # the plant contract with a fresh controller, its command held per period
@@ -255,8 +275,10 @@ class Problem:
             out = np.full((len(values), M + 4 * self.nodes(upto)), CLIP)
             if res is None:
                 return out
-            data = self.states[sel]
-            r = (res.states[:, sel] - data[None]) * (self.w / self.scale)
+            if isinstance(res, Filtered):      # the innovations, in the samples' units
+                r = res.white[:, sel] * (self.w * self.noise.sigma / self.scale)
+            else:
+                r = (res.states[:, sel] - self.states[sel][None]) * (self.w / self.scale)
             r = np.where(np.isfinite(r), np.clip(r, -CLIP, CLIP), CLIP).reshape(len(r), M)
             if self.segments is not None:        # the jumps at the nodes: soft continuity
                 r = np.concatenate([r, self.segments.rows(res)], axis=1)

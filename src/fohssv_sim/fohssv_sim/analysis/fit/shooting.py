@@ -164,6 +164,7 @@ def _shooting_kernel(X0, CV, smooth, inputs, hold, n_periods, starts, data, kf, 
     last_f = np.empty(4)
     bad = np.empty(4)
     e = np.empty(4)
+    white = np.empty(4)
     m = np.empty(4, dtype=np.bool_)
     Pk = np.empty((4, 4))
     kf_c, Q, R, measured = kf
@@ -213,7 +214,7 @@ def _shooting_kernel(X0, CV, smooth, inputs, hold, n_periods, starts, data, kf, 
                     m[i] = measured[i] and math.isfinite(data[k + 1, i])
                     e[i] = data[k + 1, i] - y[i] if m[i] else 0.0
                 observer.update(Pk, y, y0, e, kf_c[p], kernels.unpack_coefficients(CV[p]),
-                                smooth, Q, R, m)
+                                smooth, Q, R, m, white)
             if not ok:
                 failed[p] = True
                 out[p, :, k + 1:] = np.nan

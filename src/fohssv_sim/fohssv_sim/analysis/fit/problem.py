@@ -180,9 +180,9 @@ class Problem:
                            'to close the loop with a plugin')
         if spec.objective == 'cycle':
             self.features = cycle_features(t[self.index], x[:, 1])
-        self.segments = Segments(self, spec.segment) if self.mode == 'segments' else None
-        #: what the filter is given (NaN: not measured), for the 'filter' mode
+        #: what an open-loop replay's filter is given (NaN: not measured)
         self.follow = np.where(m, self.states, np.nan)
+        self.segments = Segments(self, spec.segment) if self.mode == 'segments' else None
 
     @property
     def mode(self) -> str:
@@ -240,11 +240,9 @@ class Problem:
         if self.segments is not None:
             return self.segments.shoot(ok, upto, threads), valid
         if self.mode == 'filter':
-            kf = observer.settings(ok, d.control_period, self.scale, self.noise.sigma,
-                                   self.spec.measured)
             return Filtered(*observer.run_filter(
-                ok, n, self.hold, d.inputs, self.follow, kf, initial_state=d.initial_state,
-                duration=d.duration, threads=threads)), valid
+                ok, n, self.hold, d.inputs, self.follow, self.filter_settings(ok),
+                initial_state=d.initial_state, duration=d.duration, threads=threads)), valid
         if self.plugin is not None:
             # no compiled form (a law with memory, e.g. fractional_pid): each point through
             # the plant contract with a fresh controller, its command held per period
@@ -263,6 +261,12 @@ class Problem:
         else:
             kwargs['inputs'] = d.inputs[:n]
         return run_population(ok, n, self.hold, **kwargs), valid
+
+    def filter_settings(self, params: Sequence[ModelParameters]) -> tuple:
+        """The open-loop filter of the points ``params`` (:func:`.observer.settings`): the
+        window's spread and the measured states' noise."""
+        return observer.settings(params, self.data.control_period, self.scale,
+                                 self.noise.sigma, self.spec.measured)
 
     def residuals(self, values: Sequence[Sequence[float]], upto: int | None = None,
                   threads: int = 1) -> np.ndarray:

@@ -343,8 +343,6 @@ class Segments:
         c = np.where(self.measured, problem.w / problem.scale, 0.0)
         self.c = c                                   # a jump's weight per state (as a sample)
         self.h = 1e-6 * np.where(self.measured, problem.scale, 1.0)
-        #: what the follower's filter is given at each control instant (NaN: not measured)
-        self.follow = np.where(self.measured, problem.states, np.nan)
 
     def starts(self, n: int) -> np.ndarray:
         """The node periods of a replay over ``n`` periods."""
@@ -379,14 +377,13 @@ class Segments:
         free = np.zeros(S, dtype=bool)
         free[np.unique(seg[seg >= 0])] = True         # nodes with samples to fit them
         wr = pr.w / pr.scale
-        kf = observer.settings(params, d.control_period, pr.scale, pr.noise.sigma,
-                               self.measured)
+        kf = pr.filter_settings(params)
         delta = np.zeros((P, 1, S, 4))
         for _ in range(self.iterations if S else 0):
             D = np.repeat(delta, 5, axis=1)           # the point and its 4 perturbed copies
             for j in range(4):
                 D[:, j + 1, :, j] += self.h[j]
-            out, jumps, failed = run_segments(params, n, pr.hold, d.inputs, starts, self.follow,
+            out, jumps, failed = run_segments(params, n, pr.hold, d.inputs, starts, pr.follow,
                                               kf, D, initial_state=d.initial_state,
                                               duration=d.duration, threads=threads, memo=memo)
             for p in np.flatnonzero(~failed):
@@ -396,7 +393,7 @@ class Segments:
                               axis=-1)                              # (S, 4, 4): d jump / d all
                 r = (out[p, 0, sel] - pr.states[sel]) * wr
                 delta[p, 0] += _node_step(J, r, seg, dj, jumps[p, 0], free, self.c ** 2)
-        out, jumps, failed = run_segments(params, n, pr.hold, d.inputs, starts, self.follow,
+        out, jumps, failed = run_segments(params, n, pr.hold, d.inputs, starts, pr.follow,
                                           kf, delta, initial_state=d.initial_state,
                                           duration=d.duration, threads=threads, memo=memo)
         jumps = jumps[:, 0]

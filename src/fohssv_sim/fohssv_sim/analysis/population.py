@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -42,6 +42,8 @@ from ..fractional.soe import SOEHistory
 from ..fractional.soe_kernel import soe_modes
 from ..params import ModelParameters
 from ..solvers import soe_options
+
+T = TypeVar('T')
 
 __all__ = ['PopulationResult', 'run_population', 'run_population_reference',
            'check_population']
@@ -151,6 +153,18 @@ def _soe_arrays(params: Sequence[ModelParameters], duration: float | None):
     return hist, alphas, cp, cc
 
 
+def over_threads(run: Callable[[int, int], T], points: int, threads: int) -> list[T]:
+    """``run(a, b)`` of contiguous slices of ``points`` points, one slice per thread (at most
+    ``threads``), in order: the compiled kernels release the GIL, and the points are
+    independent, so the numbers are those of one call."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    m = max(1, min(int(threads), points))
+    cuts = np.linspace(0, points, m + 1).round().astype(int)
+    with ThreadPoolExecutor(m) as pool:
+        return list(pool.map(lambda ab: run(*ab), zip(cuts[:-1].tolist(), cuts[1:].tolist())))
+
+
 def run_population(params: Sequence[ModelParameters], n_periods: int, hold: int, *,
                    inputs: np.ndarray | None = None, law: np.ndarray | None = None,
                    continuous: bool = False, initial_state: Sequence[float] = (0, 0, 0, 0),
@@ -177,13 +191,8 @@ def run_population(params: Sequence[ModelParameters], n_periods: int, hold: int,
     kw = {'inputs': inputs, 'law': law, 'continuous': continuous,
           'initial_state': initial_state, 'duration': duration}
     if threads > 1 and len(params) > 1:
-        from concurrent.futures import ThreadPoolExecutor
-
-        n = min(int(threads), len(params))
-        cuts = np.linspace(0, len(params), n + 1).round().astype(int)
-        with ThreadPoolExecutor(n) as pool:
-            parts = list(pool.map(lambda ab: run_population(
-                params[ab[0]:ab[1]], n_periods, hold, **kw), zip(cuts[:-1], cuts[1:])))
+        parts = over_threads(lambda a, b: run_population(params[a:b], n_periods, hold, **kw),
+                             len(params), threads)
         return PopulationResult(t=parts[0].t,
                                 states=np.concatenate([r.states for r in parts]),
                                 inputs=np.concatenate([r.inputs for r in parts]),

@@ -171,19 +171,13 @@ def run_filter(params: Sequence[ModelParameters], n_periods: int, hold: int,
     """(predictions (P, n_periods + 1, 4), whitened innovations (same), failed (P,)) of the
     points ``params``' followers on ``inputs``, filtering ``data`` (NaN: not measured) with
     ``kf`` (:func:`settings`); ``threads`` > 1 splits the points over threads."""
-    from ..population import _soe_arrays, check_population
+    from ..population import _soe_arrays, check_population, over_threads
 
     params = list(params)
     if threads > 1 and len(params) > 1:
-        from concurrent.futures import ThreadPoolExecutor
-
-        m = min(int(threads), len(params))
-        cuts = np.linspace(0, len(params), m + 1).round().astype(int)
-        with ThreadPoolExecutor(m) as pool:
-            parts = list(pool.map(lambda ab: run_filter(
-                params[ab[0]:ab[1]], n_periods, hold, inputs, data,
-                (kf[0][ab[0]:ab[1]], *kf[1:]), initial_state=initial_state,
-                duration=duration), zip(cuts[:-1], cuts[1:])))
+        parts = over_threads(lambda a, b: run_filter(
+            params[a:b], n_periods, hold, inputs, data, (kf[0][a:b], *kf[1:]),
+            initial_state=initial_state, duration=duration), len(params), threads)
         return tuple(np.concatenate([q[i] for q in parts]) for i in range(3))
     check_population(params)
     P = len(params)

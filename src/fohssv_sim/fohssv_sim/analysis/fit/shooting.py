@@ -56,7 +56,7 @@ import numpy as np
 from ... import kernels
 from ...coefficients import coefficients
 from ...params import ModelParameters
-from ..population import _soe_arrays, check_population
+from ..population import _soe_arrays, check_population, over_threads
 from . import observer
 from .data import CLIP
 
@@ -235,22 +235,17 @@ def run_segments(params: Sequence[ModelParameters], n_periods: int, hold: int,
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(states (P, C, n_periods + 1, 4), jumps (P, C, S, 4), failed (P,)) of the points
     ``params``, C copies each (their node corrections ``delta`` (P, C, S, 4)), replayed on
-    ``inputs`` with nodes at the periods ``starts``, each point's follower restarted from
-    ``data`` (n_periods + 1, 4; NaN: not measured) (:func:`_shooting_kernel`); ``threads``
+    ``inputs`` with nodes at the periods ``starts``, each point's follower corrected towards
+    ``data`` (n_periods + 1, 4; NaN: not measured) by the filter ``kf``
+    (:func:`.observer.settings`; :func:`_shooting_kernel`); ``threads``
     > 1 splits the points over threads (the same numbers); ``memo``: the followers kept
     between calls for the same points (:class:`Memo`; None: not kept)."""
     params = list(params)
     if threads > 1 and len(params) > 1:
-        from concurrent.futures import ThreadPoolExecutor
-
-        m = min(int(threads), len(params))
-        cuts = np.linspace(0, len(params), m + 1).round().astype(int)
-        with ThreadPoolExecutor(m) as pool:
-            parts = list(pool.map(lambda ab: run_segments(
-                params[ab[0]:ab[1]], n_periods, hold, inputs, starts, data,
-                (kf[0][ab[0]:ab[1]], *kf[1:]),
-                delta[ab[0]:ab[1]], initial_state=initial_state, duration=duration,
-                memo=None if memo is None else memo.part(*ab)), zip(cuts[:-1], cuts[1:])))
+        parts = over_threads(lambda a, b: run_segments(
+            params[a:b], n_periods, hold, inputs, starts, data, (kf[0][a:b], *kf[1:]),
+            delta[a:b], initial_state=initial_state, duration=duration,
+            memo=None if memo is None else memo.part(a, b)), len(params), threads)
         return tuple(np.concatenate([q[i] for q in parts]) for i in range(3))
     check_population(params)
     P, C, S = len(params), delta.shape[1], int(starts.size)

@@ -36,11 +36,10 @@ reproduced (exit 1 otherwise).
 metadata saying alpha = 0.85 (the truth withheld); per noise level (1, 5, 10 % of each state's
 standard deviation) and measured set (all four states; z and theta only) ``--seeds`` seeds of
 noise; each fitted in this process (closed loop, defaults, step check; with ``--open-loop``
-the recorded commands replayed instead: the prediction errors of the model's Kalman filter,
-or with ``--horizon segments`` multiple shooting from its filtered follower). Printed: per
-row, in how many seeds the interval holds 0.81 and the run is reproduced (the issue asks >= 9
-of 10), the noise estimated against the generator's, the median and spread of alpha, and the
-CPU seconds per fit.
+the recorded commands replayed instead: the prediction errors of the model's Kalman filter).
+Printed: per row, in how many seeds the interval holds 0.81 and the run is reproduced (the
+issue asks >= 9 of 10), the noise estimated against the generator's, the median and spread
+of alpha, and the CPU seconds per fit.
 """
 
 from __future__ import annotations
@@ -80,10 +79,9 @@ def _children_cpu() -> float:
 
 
 def noise_table(seeds: int, open_loop: bool = False, levels=(0.01, 0.05, 0.10),
-                measured_sets=((0, 1, 2, 3), (0, 2)), horizon: str = 'auto') -> int:
+                measured_sets=((0, 1, 2, 3), (0, 2))) -> int:
     """The table of ``--noise-table`` (see the module docstring), closed loop or
-    ``open_loop`` (``horizon``: how, FitSpec.horizon); exit 1 when a row falls below 9 of 10
-    (scaled to ``seeds``)."""
+    ``open_loop``; exit 1 when a row falls below 9 of 10 (scaled to ``seeds``)."""
     import copy
 
     import numpy as np
@@ -132,7 +130,6 @@ def noise_table(seeds: int, open_loop: bool = False, levels=(0.01, 0.05, 0.10),
                     spec = FitSpec(names=names, bounds=resolve_bounds(names, {}, base),
                                    base=base.to_dict(),
                                    controller=None if open_loop else 'state_feedback',
-                                   horizon=horizon,
                                    weights=tuple(float(j in measured) for j in range(4)))
                     c0 = time.process_time()
                     res = run_fit(spec, data_from_run(run, base), bag.with_suffix('.out'))
@@ -170,9 +167,6 @@ def main(argv: list[str] | None = None) -> int:
                     help='--noise-table: fit open loop (the recorded commands replayed)')
     ap.add_argument('--levels', default='1,5,10',
                     help='--noise-table: the noise levels, %% of each state\'s standard deviation')
-    ap.add_argument('--horizon', choices=('auto', 'filter', 'segments'), default='auto',
-                    help='--noise-table --open-loop: the Kalman filter\'s prediction errors '
-                    '(auto) or multiple shooting (segments)')
     ap.add_argument('--measured', choices=('both', 'all', 'z,theta'), default='both',
                     help='--noise-table: the measured sets (all states, z and theta, or both)')
     args = ap.parse_args(argv)
@@ -180,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
         sets = {'both': ((0, 1, 2, 3), (0, 2)), 'all': ((0, 1, 2, 3),),
                 'z,theta': ((0, 2),)}[args.measured]
         levels = tuple(float(v) / 100 for v in args.levels.split(','))
-        return noise_table(args.seeds, args.open_loop, levels, sets, args.horizon)
+        return noise_table(args.seeds, args.open_loop, levels, sets)
 
     import numpy as np
     from ament_index_python.packages import get_package_prefix

@@ -11,8 +11,8 @@ of about equal compile time, run as two processes side by side (one per core of 
 machine, which halves the wall time):
 
   kernels  the plants' kernels (models), the recording ring (bag.ringpack), the sweeps'
-           and the fits' kernels (analysis.population, analysis.fit.shooting and .observer),
-           the vector env's step (envs.vector)
+           and the fits' kernels (analysis.population, analysis.fit.observer), the vector
+           env's step (envs.vector)
   drivers  the plant's compiled sample path (ros.plant.fastpath.sample), simulate()'s
            drivers (simulate), the continuation's flow (continuation.flow)
 
@@ -32,8 +32,7 @@ import sys
 #: The modules whose ``warm_up()`` compiles their kernels, by group (one process each).
 GROUPS = {
     'kernels': ('fohssv_sim.models', 'fohssv_sim.bag.ringpack',
-                'fohssv_sim.analysis.population', 'fohssv_sim.analysis.fit.shooting',
-                'fohssv_sim.analysis.fit.observer',
+                'fohssv_sim.analysis.population', 'fohssv_sim.analysis.fit.observer',
                 'fohssv_sim.envs.vector'),
     'drivers': ('fohssv_sim.ros.plant.fastpath.sample', 'fohssv_sim.simulate',
                 'fohssv_sim.continuation.flow'),

@@ -46,7 +46,7 @@ def pytest_configure(config):
 # collected last leaves the other workers idle while one runs it. Whole files move (in their
 # own order), so a module fixture is built once per worker, as before.
 SLOW_FILES_FIRST = (
-    'src/fohssv_sim/test/test_fit_shooting.py',
+    'src/fohssv_sim/test/test_fit_filter.py',
     'tests/test_graph_env_ros.py',
     'tests/test_launch.py',
     'tests/test_graph_tune.py',

@@ -148,7 +148,7 @@ def test_interval_covers_the_truth_with_noise_on_the_states(bags, tmp_path):
 
 
 def test_delay_free_run_gives_alpha_at_the_bound_1_within_its_interval(bags, tmp_path):
-    # open loop (multiple shooting); 8 points and one start find the bound as 16 and two do
+    # open loop (the Kalman filter); 8 points and one start find the bound as 16 and two do
     # (the same estimate to 1e-6)
     res = _fit(bags['delay_free'], ('fractional_order',), tmp_path, population=8, starts=1)
     assert res.reproduces, res.message

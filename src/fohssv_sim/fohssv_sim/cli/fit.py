@@ -64,19 +64,12 @@ def register(sub) -> None:
                    'frequency, amplitude, mean and class of w (periodic or chaotic runs)')
     p.add_argument('--window', metavar='T0:T1', help='time window in s (default: the whole '
                    'run; the second half for --objective cycle)')
-    p.add_argument('--horizon', choices=('auto', 'filter', 'segments', 'grow', 'full'),
-                   default=None,
+    p.add_argument('--horizon', choices=('auto', 'filter', 'grow', 'full'), default=None,
                    help='filter: the prediction errors of the model\'s Kalman filter over the '
-                   'whole window (an open-loop replay); segments: multiple shooting over the '
-                   'whole window, each segment started from the filtered state (an open-loop '
-                   'replay); grow: the fitted horizon grown from 1/16 of the window, doubling, '
-                   'bisected where the model departs; full: one trajectory over the whole '
-                   'window (default with --reference); auto (default for bags): filter open '
-                   'loop, grow with --controller')
-    p.add_argument('--segment', type=bounded('--segment', unit='s', low=0, low_open=True),
-                   default=None, metavar='SECONDS',
-                   help='--horizon segments: segment length in s (default 0.001: ten control '
-                   'periods of 1e-4 s)')
+                   'whole window (an open-loop replay); grow: the fitted horizon grown from '
+                   '1/16 of the window, doubling, bisected where the model departs; full: one '
+                   'trajectory over the whole window (default with --reference); auto (default '
+                   'for bags): filter open loop, grow with --controller')
     p.add_argument('--controller', help='close the loop with this controller plugin instead '
                    'of replaying the recorded commands (an affine law runs compiled, any other '
                    'point by point; the fit is then judged over the whole window; default with '
@@ -256,7 +249,6 @@ def _spec(args: argparse.Namespace, names, base, window, controller, horizon):
                        **({} if args.noise_floor is None else {'noise_floor': args.noise_floor}),
                        threshold=args.threshold,
                        horizon=horizon, population=args.population, starts=args.starts,
-                       **({} if args.segment is None else {'segment': args.segment}),
                        seed=args.seed, profile_points=args.profile_points,
                        chunk_size=args.chunk_size, step_check=args.step_check)
         spec.validate()

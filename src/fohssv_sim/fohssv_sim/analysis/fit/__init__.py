@@ -34,10 +34,8 @@ whose parameters differ by 1e-6 departs from the data within tens of millisecond
 open-loop replay is fitted over the whole window through an extended Kalman filter of the
 model (``horizon='auto'`` or ``'filter'``, :mod:`.observer`: the residual is the filter's
 prediction errors, each sample against the model's one-period prediction, white noise when
-the model is right), or by multiple shooting (``'segments'``, :mod:`.shooting`: segments of
-``segment`` s, each started from a node, the filtered state plus a fitted correction, the
-jumps as soft continuity rows, the fractional memory of every segment that of the filtered
-trajectory from t = 0). ``horizon='grow'`` (the default of a
+the model is right; the model's fractional memory is that of the filtered trajectory from
+t = 0). ``horizon='grow'`` (the default of a
 closed loop) instead grows the horizon: stage 0 fits the first 1/2^S of the window (halved
 while even that is not reproduced, down to 20 samples), each later stage doubles it,
 warm-started from the previous stage, and bisects back towards the last reproduced horizon
@@ -74,10 +72,9 @@ half its bounds. With a model that cannot reproduce the run the intervals are no
 intervals and the result says so (``reproduces`` false).
 
 The package: :mod:`.data` (names, default bounds, the run), :mod:`.noise` (the noise and the
-test), :mod:`.problem` (the objective), :mod:`.shooting` (multiple shooting), :mod:`.observer`
-(its follower's Kalman filter), :mod:`.search` (populations, the local stage), :mod:`.run`
-(:func:`run_fit`), :mod:`.result` (what it found, the verdict), :mod:`.report` (files and
-figures).
+test), :mod:`.problem` (the objective), :mod:`.observer` (the Kalman filter of an open-loop
+replay), :mod:`.search` (populations, the local stage), :mod:`.run` (:func:`run_fit`),
+:mod:`.result` (what it found, the verdict), :mod:`.report` (files and figures).
 
 Pure: numpy, scipy, dask, matplotlib (Agg); never imports rclpy or the CLI.
 """

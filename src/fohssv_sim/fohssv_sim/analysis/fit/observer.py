@@ -1,39 +1,40 @@
-"""The follower's filter: an extended Kalman filter of the FOM, one control period at a time.
+"""An open-loop replay fitted through an extended Kalman filter of the FOM, one control period
+at a time (the prediction-error method).
 
-An open-loop replay is fitted through a *follower*: the model run over the whole record,
-corrected at every control instant towards the sample. Its prediction errors are the residual
-of the default open-loop fit (:func:`run_filter`, the prediction-error method: each sample
-against the model's one-period prediction, over the standard deviation the filter predicts
-for it, white noise of unit variance when the model is right); multiple shooting
-(:mod:`.shooting`) starts every segment with its state and memory. How much of each sample
-it takes is this filter's gain. Taking the sample whole (the follower restarted from it) puts the
-measurement noise into the memory, where f, nonlinear through the planing force, turns it into
-a bias of alpha growing as the noise squared; an unmeasured state (w and q of a vehicle that
-measures depth and pitch) cannot be taken from a sample at all. The filter answers both: it
-weighs each sample against the model's one-period prediction and corrects all four states
-from the measured ones.
+The vehicle is open-loop unstable, so a replay of the recorded commands leaves the data
+within tens of milliseconds of any error. Instead the model runs over the whole record
+corrected at every control instant towards the sample by this filter, and the fit's residual
+is its *prediction errors*: each sample against the model's one-period prediction, over the
+standard deviation the filter predicts for it (:func:`run_filter`): white noise of unit
+variance when the model is right, so the test of "reproduces" (:mod:`.noise`) applies as to
+any residual. Taking each sample whole instead (the model restarted from it) puts the
+measurement noise into the fractional memory, where f, nonlinear through the planing force,
+turns it into a bias of alpha growing as the noise squared; and an unmeasured state (w and q
+of a vehicle that measures depth and pitch) cannot be taken from a sample at all. The filter
+answers both: it weighs each sample against the prediction and corrects all four states from
+the measured ones.
 
 **The filter.** Over one period the FOM moves a correction d of its state by about
 (I + c J) d, J the Jacobian of f (eq. 17's A, with the planing force's slope dFp/dw at the
-follower's w in the w column) and c = h^alpha / Gamma(alpha + 1) (the weight of the last
-period in the Caputo integral, h the control period): the one-period map the covariance P is
+model's w in the w column) and c = h^alpha / Gamma(alpha + 1) (the weight of the last period
+in the Caputo integral, h the control period): the one-period map the covariance P is
 propagated through, P <- F P F^T + Q. The measured states (rows H) of noise R = sigma^2
-(:mod:`.noise`, the estimate the test of "reproduces" uses) give the gain K = P H^T (H P H^T +
-R)^-1, the correction K e of the innovation e = sample - follower, and P <- (I - K H) P. The
-correction shifts the follower's state and its Volterra constant x0 (x = x0 + I^alpha f), so
-it stays outside the fractional dynamics, and its history of f is kept. The initial state is
-known (P starts at Q).
+(:mod:`.noise`, the estimate the test of "reproduces" uses) give S = H P H^T + R, the gain
+K = P H^T S^-1, the correction K e of the innovation e = sample - prediction, and
+P <- (I - K H) P. The correction shifts the state and its Volterra constant x0 (x = x0 +
+I^alpha f), so it stays outside the fractional dynamics, and the history of f is kept: the
+memory is that of the filtered trajectory from t = 0. The initial state is known (P starts
+at Q). Each innovation is whitened by its own sqrt(S_ii) (S is diagonal to within P's small
+share).
 
 **Q**, the model's error per period the filter allows: :data:`PROCESS_NOISE` of each state's
 standard deviation over the window (1 in the state's unit for a state not measured, whose
 samples the fit never reads). Small against the noise of a measured run, so the filter follows
 the model between samples and averages the noise over many of them; with noise-free data
 (the noise at its floor, 1e-3 of the spread) it takes most of each sample. At the truth the
-innovations are the noise and the filter is unbiased; at a wrong alpha the prediction errs
-and the follower, hence each segment's memory, departs from the data, which the segments'
-residual sees.
+prediction errors are the noise; at a wrong alpha the prediction errs by more.
 
-Pure: numpy, numba (the update is compiled into the shooting kernel).
+Pure: numpy, numba.
 """
 
 from __future__ import annotations

@@ -22,10 +22,9 @@ from .data import CLIP, DEFAULT_THRESHOLD, OBJECTIVES, STATE_NAMES, FitData, Fit
 from .noise import DEFAULT_NOISE_FLOOR
 from .noise import estimate as estimate_noise
 from .noise import judge as judge_noise
-from .shooting import SEGMENT, Segments
 
 #: How the model covers the window (FitSpec.horizon).
-HORIZONS = ('auto', 'filter', 'segments', 'grow', 'full')
+HORIZONS = ('auto', 'filter', 'grow', 'full')
 
 
 # -- the problem ---------------------------------------------------------------------------
@@ -39,10 +38,9 @@ class FitSpec:
     missing from the data); ``noise`` per state in its unit (None: estimated from the data,
     :mod:`.noise`), never below ``noise_floor`` x the state's standard deviation;
     ``horizon``: 'filter' (the prediction errors of the model's Kalman filter over the whole
-    window: :mod:`.observer`), 'segments' (multiple shooting over the whole window, segments
-    of ``segment`` s: :mod:`.shooting`), 'grow' (a growing horizon, ``stages`` doublings),
-    'full' (one trajectory over the whole window) or 'auto' (filter for an open-loop replay,
-    grow for a closed loop). ``threshold``: the cycle objective's
+    window: :mod:`.observer`), 'grow' (a growing horizon, ``stages`` doublings), 'full' (one
+    trajectory over the whole window) or 'auto' (filter for an open-loop replay, grow for a
+    closed loop). ``threshold``: the cycle objective's
     acceptance (the trajectory objective is judged against the noise).
     """
 
@@ -58,7 +56,6 @@ class FitSpec:
     noise: tuple[float | None, float | None, float | None, float | None] = (None,) * 4
     noise_floor: float = DEFAULT_NOISE_FLOOR
     horizon: str = 'auto'
-    segment: float = SEGMENT
     stages: int = 4
     max_stages: int = 16
     population: int = 64
@@ -86,8 +83,6 @@ class FitSpec:
                            f"{' | '.join(OBJECTIVES)}")
         if self.horizon not in HORIZONS:
             raise FitError(f"--horizon {self.horizon!r}: choose one of {' | '.join(HORIZONS)}")
-        if not (self.segment > 0 and math.isfinite(self.segment)):
-            raise FitError(f'--segment {self.segment!r}: need a finite number of seconds > 0')
         if not (self.threshold > 0 and math.isfinite(self.threshold)):
             raise FitError(f'--threshold {self.threshold:g} must be a positive number')
         for name, v, low in (('--population', self.population, 2), ('--starts', self.starts, 1),
@@ -182,28 +177,21 @@ class Problem:
             self.features = cycle_features(t[self.index], x[:, 1])
         #: what an open-loop replay's filter is given (NaN: not measured)
         self.follow = np.where(m, self.states, np.nan)
-        self.segments = Segments(self, spec.segment) if self.mode == 'segments' else None
 
     @property
     def mode(self) -> str:
-        """How the model covers the window: 'filter', 'segments', 'grow' or 'full'
-        (FitSpec.horizon, 'auto' resolved: filter for an open-loop replay, grow for a closed
-        loop; the cycle objective always 'full')."""
+        """How the model covers the window: 'filter', 'grow' or 'full' (FitSpec.horizon,
+        'auto' resolved: filter for an open-loop replay, grow for a closed loop; the cycle
+        objective always 'full')."""
         h = self.spec.horizon
         if self.spec.objective == 'cycle':
             return 'full'
         if h == 'auto':
             return 'filter' if self.spec.controller is None else 'grow'
-        if h in ('filter', 'segments') and self.spec.controller is not None:
+        if h == 'filter' and self.spec.controller is not None:
             raise FitError(f'--horizon {h}: for an open-loop replay; a closed loop '
                            '(--controller) is judged over the whole window as is')
         return h
-
-    def nodes(self, upto: int) -> int:
-        """How many segment starts (4 fitted unknowns each) the first ``upto`` samples have."""
-        if self.segments is None:
-            return 0
-        return int(self.segments.starts(int(self.index[upto - 1])).size)
 
     # -- evaluation ------------------------------------------------------------------------
     def params_for(self, values: Sequence[float]) -> ModelParameters | None:
@@ -237,12 +225,12 @@ class Problem:
         if not ok:
             return None, valid
         d = self.data
-        if self.segments is not None:
-            return self.segments.shoot(ok, upto, threads), valid
         if self.mode == 'filter':
+            kf = observer.settings(ok, d.control_period, self.scale, self.noise.sigma,
+                                   self.spec.measured)
             return Filtered(*observer.run_filter(
-                ok, n, self.hold, d.inputs, self.follow, self.filter_settings(ok),
-                initial_state=d.initial_state, duration=d.duration, threads=threads)), valid
+                ok, n, self.hold, d.inputs, self.follow, kf, initial_state=d.initial_state,
+                duration=d.duration, threads=threads)), valid
         if self.plugin is not None:
             # no compiled form (a law with memory, e.g. fractional_pid): each point through
             # the plant contract with a fresh controller, its command held per period
@@ -262,12 +250,6 @@ class Problem:
             kwargs['inputs'] = d.inputs[:n]
         return run_population(ok, n, self.hold, **kwargs), valid
 
-    def filter_settings(self, params: Sequence[ModelParameters]) -> tuple:
-        """The open-loop filter of the points ``params`` (:func:`.observer.settings`): the
-        window's spread and the measured states' noise."""
-        return observer.settings(params, self.data.control_period, self.scale,
-                                 self.noise.sigma, self.spec.measured)
-
     def residuals(self, values: Sequence[Sequence[float]], upto: int | None = None,
                   threads: int = 1) -> np.ndarray:
         """(P, M) residual rows of the points ``values`` over the first ``upto`` samples."""
@@ -276,7 +258,7 @@ class Problem:
         sel = self.index[:upto]
         if self.spec.objective == 'trajectory':
             M = sel.size * 4
-            out = np.full((len(values), M + 4 * self.nodes(upto)), CLIP)
+            out = np.full((len(values), M), CLIP)
             if res is None:
                 return out
             if isinstance(res, Filtered):      # the innovations, in the samples' units
@@ -284,8 +266,6 @@ class Problem:
             else:
                 r = (res.states[:, sel] - self.states[sel][None]) * (self.w / self.scale)
             r = np.where(np.isfinite(r), np.clip(r, -CLIP, CLIP), CLIP).reshape(len(r), M)
-            if self.segments is not None:        # the jumps at the nodes: soft continuity
-                r = np.concatenate([r, self.segments.rows(res)], axis=1)
             out[valid] = r
             return out
         out = np.full((len(values), 4), CLIP)
@@ -316,9 +296,7 @@ class Problem:
         if self.noise is None:
             return {'residual': res, 'reproduced': bool(res <= self.spec.threshold)}
         T = self.noise_ratio(r)
-        nodes = self.nodes(self.index.size)     # a shot always covers the whole window
-        # every compared value, less the fitted names and the 4 unknowns of each node
-        nu = r.size // 4 * int((self.w > 0).sum()) - len(self.spec.names) - 4 * nodes
+        nu = r.size // 4 * int((self.w > 0).sum()) - len(self.spec.names)   # compared, free
         ok, crit = judge_noise(T, nu, self.noise)
         m = self.w > 0
         per = (self.w[m] * self.noise.sigma[m] / self.scale[m]) ** 2     # noise in r's units

@@ -214,9 +214,9 @@ def run_fit(spec: FitSpec, data: FitData, out: Path, *, client: Any = None,
     identifiable = {n: bool(math.isfinite(half[j]) and intervals[n][1] - intervals[n][0]
                             < 0.5 * span[j]) for j, n in enumerate(spec.names)}
     blind_reason = None
-    if problem.mode in ('filter', 'segments') and not spec.measured.all():
-        # measured over ten seeds of depth and pitch alone: the interval held the truth in
-        # 3 (filter) and 5 (segments) at 1 % noise, in none at 5 % (docs/fit.md, Limits)
+    if problem.mode == 'filter' and not spec.measured.all():
+        # measured over ten seeds of depth and pitch alone: the interval held the truth in 3
+        # at 1 % noise, in none at 5 % (docs/fit.md, Limits)
         off = ', '.join(n for n, m in zip(STATE_NAMES, spec.measured) if not m)
         blind_reason = (f'open loop with {off} not measured, what the parameters do is taken '
                         'up by the estimates of the unmeasured states; close the loop with '
@@ -326,12 +326,6 @@ def _verdicts(problem: Problem, x: np.ndarray, r: np.ndarray, upto: int,
 def _loop_text(problem: Problem) -> str:
     """How the fitted model is driven (fit.json's settings, the figures' captions)."""
     if problem.spec.controller is None:
-        if problem.segments is not None:
-            n = problem.nodes(problem.index.size)
-            return (f'open (recorded commands, held; multiple shooting: {n + 1} segments of '
-                    f'{problem.segments.periods} control periods, memory from the data through '
-                    f'an extended Kalman filter, process noise {PROCESS_NOISE:g} of each '
-                    "state's spread per period)")
         if problem.mode == 'filter':
             return ('open (recorded commands, held; the prediction errors of an extended '
                     f'Kalman filter of the model, process noise {PROCESS_NOISE:g} of each '
@@ -459,8 +453,7 @@ def _profile(problem: Problem, ev: Evaluator, local: Local, spec: FitSpec,
         g = grid[order][inside]
         interval = [min(float(g[0]), *(interval or [g[0]])),
                     max(float(g[-1]), *(interval or [g[-1]]))]
-    # entries of a residual row (a shot's: its samples, then its jumps)
-    scale = 4 * (upto + problem.nodes(upto)) if spec.objective == 'trajectory' else 4
+    scale = 4 * upto if spec.objective == 'trajectory' else 4   # entries of a residual row
     return {'name': spec.names[j], 'index': j, 'coarse': coarse.tolist(),
             'coarse_residual': np.sqrt(2 * coarse_cost / scale).tolist(),
             'fine': fine.tolist(), 'fine_residual': np.sqrt(2 * fine_cost / scale).tolist(),

@@ -1,13 +1,13 @@
-"""Open-loop replays fitted over the whole record by multiple shooting (issue 49,
-:mod:`fohssv_sim.analysis.fit.shooting`).
+"""Open-loop replays fitted over the whole record through the model's Kalman filter (issue 49,
+:mod:`fohssv_sim.analysis.fit.observer`).
 
 The data are independent of the fit (as in test_fit_noise.py): closed-loop runs of the exact
 predictor-corrector ('abm') at half the fit's step, the delayed model by RK4, written as a
 bag with plain rosbags whose metadata say alpha = 0.85 (never the truth, 0.81); the fit
 replays the recorded commands without the controller (open loop), so the unstable vehicle
 departs from the data within tens of milliseconds of any error. The memory is checked against
-an exact run: a segment that starts from the data with the data's history reproduces the
-exact solver to rounding; the same segment started afresh (its memory cut) does not.
+an exact run: the filter's predictions at the truth reproduce the exact solver to rounding; a
+replay started afresh from the data (its memory cut) does not.
 """
 
 from __future__ import annotations
@@ -50,32 +50,32 @@ def _problem(bag: Path, step: float) -> Problem:
     base = base_from_run(run).replace(step=step)
     names = ('fractional_order',)
     return Problem(FitSpec(names=names, bounds=resolve_bounds(names, {}, base),
-                           base=base.to_dict(), horizon='segments'), data_from_run(run, base))
+                           base=base.to_dict()), data_from_run(run, base))
 
 
-def test_segments_carry_the_memory_of_the_whole_record(tmp_path):
+def test_the_filter_carries_the_memory_of_the_whole_record(tmp_path):
     """Data from the exact predictor-corrector at the fit's own step (h = 1e-5 s, alpha =
-    0.81, 0.11 s, through the first tail-slap contacts): the shot at the truth follows them to
-    1e-8 of each state's spread over every segment, while a single replay from x(0) departs
-    by more than 1e-3 (the two solvers' rounding and truncation, amplified by the instability
-    through the contacts), and one segment started afresh from
-    the data at t = 0.1 s (the Caputo problem from that instant: its memory cut) departs by
-    more than 1e-3 within its own millisecond."""
+    0.81, 0.11 s, through the first tail-slap contacts): the filter's predictions at the
+    truth follow them to 1e-8 of each state's spread, while a single replay from x(0)
+    departs by more than 1e-3 (the two solvers' rounding and truncation, amplified by the
+    instability through the contacts), and a replay started afresh from the data at t = 0.1 s
+    (the Caputo problem from that instant: its memory cut) departs by more than 1e-3 within
+    a millisecond."""
     h = 1e-5
     p = ModelParameters(fractional_order=TRUTH, solver='abm', step=h)
     r = simulate(p, make('state_feedback'), 0.11, control_period=CP, sample_every=10)
     bag = _bag(tmp_path / 'run', r)
     pr = _problem(bag, h)
-    assert pr.mode == 'segments' and pr.nodes(pr.index.size) == 109
-    shot, _ = pr.simulate([[TRUTH]], pr.index.size)
-    err = np.abs((shot.states[0] - r.state) / pr.scale)
+    assert pr.mode == 'filter'
+    run, _ = pr.simulate([[TRUTH]], pr.index.size)
+    err = np.abs((run.states[0] - r.state) / pr.scale)
     assert err.max() < 1e-8, err.max()
     fit_p = pr.params_for([TRUTH])
     n = pr.index.size
     replay = run_population([fit_p], n, pr.hold, inputs=pr.data.inputs[:n],
                             initial_state=pr.data.initial_state, duration=pr.data.duration)
     assert np.nanmax(np.abs((replay.states[0] - r.state) / pr.scale)) > 1e-3
-    k = 1000                                  # t = 0.1 s, a node
+    k = 1000                                  # t = 0.1 s
     fresh = run_population([fit_p], 10, pr.hold, inputs=pr.data.inputs[k:k + 10],
                            initial_state=r.state[k], duration=pr.data.duration)
     assert np.abs((fresh.states[0] - r.state[k:k + 11]) / pr.scale).max() > 1e-3
@@ -87,56 +87,49 @@ def clean_open():
     return _run(duration=0.15)
 
 
-@pytest.mark.parametrize('horizon', ['filter', 'segments'])
-def test_whole_record_open_loop_fit_with_noise(clean_open, tmp_path, horizon):
+def test_whole_record_open_loop_fit_with_noise(clean_open, tmp_path):
     """10 % noise on every state: alpha inside its interval, the run reproduced over the whole
-    record (not a horizon of its first tens of milliseconds), at the noise floor: by the
-    filter's prediction errors (the default) and by multiple shooting from the filtered
-    follower. A follower that takes each sample whole (a filter whose process noise dwarfs
-    the measurement's) keeps the noise in the memory, where the planing force turns it into
-    a bias: the segments then gave alpha = 0.831 [0.828, 0.842] on this seed. (The half-step
+    record (not a horizon of its first tens of milliseconds), at the noise floor, by the
+    filter's prediction errors. A filter that takes each sample whole (a process noise of
+    1e3 of each state's spread per period, far above the measurement's) predicts nothing and
+    keeps the noise in the memory: alpha = 0.968 [0.934, 1] on this seed. (The half-step
     check stays on: the fit's step alone moves alpha by about 6e-4 here.)"""
     bag = _bag(tmp_path / 'run', clean_open, 0.10, 2)
-    res = _open_fit(bag, tmp_path, population=4, horizon=horizon)
+    res = _open_fit(bag, tmp_path, population=4)
     lo, hi = res.intervals['fractional_order']
     assert res.reproduces, res.message
     assert lo <= TRUTH <= hi, res.message
     assert res.horizon_end == pytest.approx(0.15), res.message
     assert 'at the noise floor' in res.message
-    assert res.settings['loop'].startswith('open')
-    assert ('Kalman' if horizon == 'filter' else 'multiple shooting') in res.settings['loop']
+    assert res.settings['loop'].startswith('open') and 'Kalman' in res.settings['loop']
 
 
-@pytest.mark.parametrize('horizon', ['filter', 'segments'])
-def test_the_filter_tracks_the_unmeasured_states(clean_open, tmp_path, horizon):
-    """Depth and pitch measured, w and q not, noise-free: the filter's predictions (and the
-    segments started from it) follow the unmeasured w and q (never read) to 1e-2 of their
-    spread over the whole 0.15 s, through the planing contacts. Continued from the segments'
-    own w and q instead (what the follower did before it filtered), the replay left the
-    state's domain after 0.08-0.09 s."""
+def test_the_filter_tracks_the_unmeasured_states(clean_open, tmp_path):
+    """Depth and pitch measured, w and q not, noise-free: the filter's predictions follow the
+    unmeasured w and q (never read) to 2e-2 of their spread over the whole 0.15 s, through the
+    planing contacts (w and q continued from segments fitted to z and theta alone, the
+    earlier multiple shooting, left the state's domain after 0.08-0.09 s)."""
     bag = _bag(tmp_path / 'run', clean_open, states=(0, 2))
     run = load_run(bag)
     base = base_from_run(run)
     names = ('fractional_order',)
     pr = Problem(FitSpec(names=names, bounds=resolve_bounds(names, {}, base),
-                         base=base.to_dict(), weights=(1, 0, 1, 0), horizon=horizon),
-                 data_from_run(run, base))
-    shot, _ = pr.simulate([[TRUTH]], pr.index.size)
-    assert not shot.failed[0]
-    err = np.abs(shot.states[0] - clean_open.state) / clean_open.state.std(axis=0)
+                         base=base.to_dict(), weights=(1, 0, 1, 0)), data_from_run(run, base))
+    run, _ = pr.simulate([[TRUTH]], pr.index.size)
+    assert not run.failed[0]
+    err = np.abs(run.states[0] - clean_open.state) / clean_open.state.std(axis=0)
     assert err[:, [1, 3]].max() < 2e-2, err.max(axis=0)
 
 
-@pytest.mark.parametrize('horizon', ['filter', 'segments'])
-def test_threads_split_the_points_not_the_numbers(clean_open, tmp_path, horizon):
-    """Three points run in one call and split over two threads (the kernels release the
+def test_threads_split_the_points_not_the_numbers(clean_open, tmp_path):
+    """Three points run in one call and split over two threads (the kernel releases the
     GIL): the same numbers, bit for bit (the points are independent)."""
     bag = _bag(tmp_path / 'run', clean_open, 0.05, 3)
     run = load_run(bag)
     base = base_from_run(run)
     names = ('fractional_order',)
     pr = Problem(FitSpec(names=names, bounds=resolve_bounds(names, {}, base),
-                         base=base.to_dict(), horizon=horizon), data_from_run(run, base))
+                         base=base.to_dict()), data_from_run(run, base))
     pts, upto = [[0.8], [0.81], [0.82]], 300
     one, _ = pr.simulate(pts, upto, threads=1)
     two, _ = pr.simulate(pts, upto, threads=2)

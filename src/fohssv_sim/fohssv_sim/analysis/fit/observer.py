@@ -119,9 +119,9 @@ def update(P, y, y0, e, c, co, smooth, Q, R, m, white):
 @_njit
 def _filter_kernel(X0, CV, smooth, inputs, hold, n_periods, data, kf, H, W, fill, eps_k, ET,
                    a0_coef, a0_small, alphas, cp, cc, speeds, out, white, failed):
-    """The follower of every point p alone over ``n_periods`` periods on the held
-    ``inputs``: its prediction of each sample (``out[p, k]``, before the correction) and the
-    whitened innovation (``white[p, k]``); a point whose prediction leaves the domain stops
+    """The filtered run of every point p over ``n_periods`` periods on the held ``inputs``:
+    its prediction of each sample (``out[p, k]``, before the correction) and the whitened
+    innovation (``white[p, k]``); a point whose prediction leaves the domain stops
     (``failed[p]``, NaN from there on)."""
     y = np.empty(4)
     y0 = np.empty(4)
@@ -170,8 +170,8 @@ def run_filter(params: Sequence[ModelParameters], n_periods: int, hold: int,
                initial_state: Sequence[float], duration: float | None, threads: int = 1
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(predictions (P, n_periods + 1, 4), whitened innovations (same), failed (P,)) of the
-    points ``params``' followers on ``inputs``, filtering ``data`` (NaN: not measured) with
-    ``kf`` (:func:`settings`); ``threads`` > 1 splits the points over threads."""
+    points ``params`` on ``inputs``, filtering ``data`` (NaN: not measured) with ``kf``
+    (:func:`settings`); ``threads`` > 1 splits the points over threads."""
     from ..population import _soe_arrays, check_population, over_threads
 
     params = list(params)

@@ -1,10 +1,11 @@
 """``HSSVRos-v0``: the agent is the controller of a real plant node, in lockstep over DDS.
 
 Each :meth:`HSSVRosEnv.step` publishes one ``command`` ``[t, delta_f, delta_c]`` answering
-the plant's last ``state`` (as the controller node does) and waits for the next ``state`` and
-``planing_force``; the lockstep plant holds the command over one control period in its own
-compiled call, so the observations are those of ``HSSV-v0`` with the same keyword arguments,
-seed and actions, bit for bit (tested over 10,000 steps).
+the plant's last ``state`` (as the controller node does, and like it holding the command until
+the plant's subscription has matched the publisher: :class:`.matching.SubscriptionGate`) and
+waits for the next ``state`` and ``planing_force``; the lockstep plant holds the command over
+one control period in its own compiled call, so the observations are those of ``HSSV-v0``
+with the same keyword arguments, seed and actions, bit for bit (tested over 10,000 steps).
 
 The plant is started by the env (``start_plant=True``, the default: ``ros2 run fohssv_sim
 plant`` in lockstep with the env's model parameters, control period and start state, under
@@ -49,6 +50,7 @@ from ..envs.single import EpisodeEnv, HSSVEnv, spaces_of
 from ..envs.task import make_task
 from ..params import ParameterError
 from ..solvers import soe_options
+from .matching import SubscriptionGate
 from .qos import profile
 from .spin import make_executor
 from .startup import default_discovery, default_transport
@@ -105,8 +107,13 @@ class HSSVRosEnv(EpisodeEnv):
         self._pub = node.create_publisher(Float64MultiArray, COMMAND.name, profile(COMMAND))
         # callbacks that hold the dicts, not the env: an executor's native side keeps them, and
         # the garbage collector could not free an env they referred to (its plant would run on)
-        node.create_subscription(Float64MultiArray, STATE.name,
-                                 functools.partial(_on_state, self._states), profile(STATE))
+        state = node.create_subscription(Float64MultiArray, STATE.name,
+                                         functools.partial(_on_state, self._states),
+                                         profile(STATE))
+        # a command published before the plant's subscription matched this publisher is lost
+        # (the plant can match our state reader first) and the lockstep plant waits for it:
+        # hold the first command as the controller node does
+        self._matched = SubscriptionGate(node, self._pub, follow=state.topic_name)
         node.create_subscription(Float64MultiArray, PLANING_FORCE.name,
                                  functools.partial(_on_force, self._forces),
                                  profile(PLANING_FORCE))
@@ -238,6 +245,16 @@ class HSSVRosEnv(EpisodeEnv):
         u = self._begin_step(action)
         self._actions.append(np.array(action, dtype=float))
         self._command.data = [self._t, float(u[0]), float(u[1])]
+        deadline = time.monotonic() + self.timeout
+        while not self._matched():
+            why = self._plant_ended()
+            if why:
+                return self._lost(why)
+            if time.monotonic() > deadline:
+                raise TimeoutError(f'the plant under namespace \'/{self.namespace}\' did not '
+                                   f'subscribe to {self._pub.topic_name} within '
+                                   f'{self.timeout:g} s')
+            self._executor.spin_once(timeout_sec=0.01)
         self._pub.publish(self._command)
         t_next = (self._steps + 1) * self.task.hold * self.task.params.step
         got = self._wait(t_next)

@@ -22,6 +22,7 @@ from fohssv_sim.analysis.fit import (
     FitSpec,
     base_from_run,
     data_from_run,
+    observer,
     resolve_bounds,
     run_fit,
 )
@@ -87,13 +88,14 @@ def clean_open():
     return _run(duration=0.15)
 
 
-def test_whole_record_open_loop_fit_with_noise(clean_open, tmp_path):
+def test_whole_record_open_loop_fit_with_noise(clean_open, tmp_path, monkeypatch):
     """10 % noise on every state: alpha inside its interval, the run reproduced over the whole
     record (not a horizon of its first tens of milliseconds), at the noise floor, by the
     filter's prediction errors. A filter that takes each sample whole (a process noise of
     1e3 of each state's spread per period, far above the measurement's) predicts nothing and
-    keeps the noise in the memory: alpha = 0.968 [0.934, 1] on this seed. (The half-step
-    check stays on: the fit's step alone moves alpha by about 6e-4 here.)"""
+    keeps the noise in the memory: the same fit then lands far from the truth (0.968 [0.934,
+    1]). (The half-step check stays on: the fit's step alone moves alpha by about 6e-4
+    here.)"""
     bag = _bag(tmp_path / 'run', clean_open, 0.10, 2)
     res = _open_fit(bag, tmp_path, population=4)
     lo, hi = res.intervals['fractional_order']
@@ -102,6 +104,9 @@ def test_whole_record_open_loop_fit_with_noise(clean_open, tmp_path):
     assert res.horizon_end == pytest.approx(0.15), res.message
     assert 'at the noise floor' in res.message
     assert res.settings['loop'].startswith('open') and 'Kalman' in res.settings['loop']
+    monkeypatch.setattr(observer, 'PROCESS_NOISE', 1e3)
+    whole = _open_fit(bag, tmp_path / 'whole', population=4, step_check=False)
+    assert abs(whole.values['fractional_order'] - TRUTH) > 0.05, whole.message
 
 
 def test_the_filter_tracks_the_unmeasured_states(clean_open, tmp_path):
@@ -157,7 +162,6 @@ def test_the_filter_is_the_kalman_filter_of_the_one_period_map():
     puts it: with z and theta measured, and with every state."""
     from scipy.linalg import solve_discrete_are
 
-    from fohssv_sim.analysis.fit import observer
     from fohssv_sim.coefficients import coefficients
     from fohssv_sim.kernels import unpack_coefficients
 

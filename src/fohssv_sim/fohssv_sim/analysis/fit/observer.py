@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -165,13 +166,23 @@ def _filter_kernel(X0, CV, smooth, inputs, hold, n_periods, data, kf, H, W, fill
             update(Pk, y, y0, e, kf_c[p], co, smooth, Q, R, m, white[p, k + 1])
 
 
+@dataclass
+class Filtered:
+    """The filtered runs of some points: ``states`` (P, n + 1, 4) their predictions of the
+    samples, ``white`` their whitened innovations (same shape), ``failed`` (P,)."""
+
+    states: np.ndarray
+    white: np.ndarray
+    failed: np.ndarray
+
+
 def run_filter(params: Sequence[ModelParameters], n_periods: int, hold: int,
                inputs: np.ndarray, data: np.ndarray, kf: tuple, *,
                initial_state: Sequence[float], duration: float | None, threads: int = 1
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(predictions (P, n_periods + 1, 4), whitened innovations (same), failed (P,)) of the
-    points ``params`` on ``inputs``, filtering ``data`` (NaN: not measured) with ``kf``
-    (:func:`settings`); ``threads`` > 1 splits the points over threads."""
+               ) -> Filtered:
+    """The filtered runs (:class:`Filtered`) of the points ``params`` on ``inputs``,
+    filtering ``data`` (NaN: not measured) with ``kf`` (:func:`settings`); ``threads`` > 1
+    splits the points over threads."""
     from ..population import _soe_arrays, check_population, over_threads
 
     params = list(params)
@@ -179,7 +190,8 @@ def run_filter(params: Sequence[ModelParameters], n_periods: int, hold: int,
         parts = over_threads(lambda a, b: run_filter(
             params[a:b], n_periods, hold, inputs, data, (kf[0][a:b], *kf[1:]),
             initial_state=initial_state, duration=duration), len(params), threads)
-        return tuple(np.concatenate([q[i] for q in parts]) for i in range(3))
+        return Filtered(*(np.concatenate([getattr(q, f) for q in parts])
+                          for f in ('states', 'white', 'failed')))
     check_population(params)
     P = len(params)
     hist, alphas, cp, cc = _soe_arrays(params, duration)
@@ -196,7 +208,7 @@ def run_filter(params: Sequence[ModelParameters], n_periods: int, hold: int,
                    np.zeros_like(hist.H), hist.W, np.zeros(P, dtype=np.int64), hist.eps_k,
                    hist.ET, hist.a0_coef, hist.a0_small, alphas, cp, cc,
                    np.array([p.speed for p in params], dtype=float), out, white, failed)
-    return out, white, failed
+    return Filtered(out, white, failed)
 
 
 def warm_up() -> None:

@@ -105,16 +105,6 @@ class FitSpec:
         return np.asarray(self.weights, dtype=float) > 0
 
 
-@dataclass
-class Filtered:
-    """The filter's run of some points (:func:`.observer.run_filter`): ``states`` (P, n + 1,
-    4) its predictions of the samples, ``white`` its whitened innovations, ``failed`` (P,)."""
-
-    states: np.ndarray
-    white: np.ndarray
-    failed: np.ndarray
-
-
 class Problem:
     """The objective of one fit: the data in the window, the base parameters, the drive.
     Picklable (it travels to the Dask workers)."""
@@ -228,9 +218,9 @@ class Problem:
         if self.mode == 'filter':
             kf = observer.settings(ok, d.control_period, self.scale, self.noise.sigma,
                                    self.spec.measured)
-            return Filtered(*observer.run_filter(
-                ok, n, self.hold, d.inputs, self.follow, kf, initial_state=d.initial_state,
-                duration=d.duration, threads=threads)), valid
+            return observer.run_filter(ok, n, self.hold, d.inputs, self.follow, kf,
+                                       initial_state=d.initial_state, duration=d.duration,
+                                       threads=threads), valid
         if self.plugin is not None:
             # no compiled form (a law with memory, e.g. fractional_pid): each point through
             # the plant contract with a fresh controller, its command held per period
@@ -261,7 +251,7 @@ class Problem:
             out = np.full((len(values), M), CLIP)
             if res is None:
                 return out
-            if isinstance(res, Filtered):      # the innovations, in the samples' units
+            if isinstance(res, observer.Filtered):   # the innovations, in the samples' units
                 r = res.white[:, sel] * (self.w * self.noise.sigma / self.scale)
             else:
                 r = (res.states[:, sel] - self.states[sel][None]) * (self.w / self.scale)
